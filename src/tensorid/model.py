@@ -1,0 +1,205 @@
+"""The grey-box model: dx/dt = F(x, p, u), y = C(x, p), with names for everything.
+
+Models are plain functions written with ``jax.numpy``. Everything tensorid needs
+from them (F_x, F_p, F_xx, ..., C_pp) comes from automatic differentiation, so a
+model is checked once, symbolically (``jax.eval_shape``), when it is built: wrong
+shapes and code JAX cannot trace are reported there, before any compilation.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import _config  # noqa: F401  (float64)
+
+Array = jax.Array
+
+_TRACE_HELP = (
+    "Write the model with jax.numpy (import jax.numpy as jnp) instead of numpy or math, "
+    "and replace Python `if`/`while` on states or parameters with jnp.where or "
+    "jax.lax.cond; index with integers, not with values computed from x, p or u."
+)
+
+
+def _names(kind: str, names: Sequence[str] | None) -> tuple[str, ...]:
+    if names is None:
+        return ()
+    if isinstance(names, str):
+        raise TypeError(f"{kind} must be a list of names, got the string {names!r}; "
+                        f"write {kind}=[{names!r}]")
+    out = tuple(names)
+    for n in out:
+        if not isinstance(n, str) or not n:
+            raise TypeError(f"{kind} must be non-empty strings, got {n!r}")
+    dup = sorted({n for n in out if out.count(n) > 1})
+    if dup:
+        raise ValueError(f"{kind} has repeated names: {dup}")
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class Model:
+    """A nonlinear state-space model.
+
+    Parameters
+    ----------
+    rhs : callable ``f(x, p, u) -> dx/dt``
+        ``x`` has shape (N,), ``p`` shape (M,), ``u`` shape (U,) (U may be 0);
+        must return shape (N,). Written with ``jax.numpy``.
+    output : callable ``h(x, p) -> y``, optional
+        Must return shape (S,) (a scalar is accepted when S = 1). May be
+        nonlinear and depend on ``p``. Default: every state is an output.
+    states, params, inputs, outputs : lists of names
+        Names of x, p, u and y entries, in order. Names must be unique across
+        states and params, because bounds and fixed lists refer to both.
+    """
+
+    rhs: Callable[[Array, Array, Array], Array]
+    output: Callable[[Array, Array], Array] | None = None
+    states: Sequence[str] = ()
+    params: Sequence[str] = ()
+    inputs: Sequence[str] = ()
+    outputs: Sequence[str] | None = None
+    name: str = "model"
+    _scalar_output: bool = field(default=False, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        if not callable(self.rhs):
+            raise TypeError(f"rhs must be a function f(x, p, u), got {type(self.rhs).__name__}")
+        states = _names("states", self.states)
+        params = _names("params", self.params)
+        inputs = _names("inputs", self.inputs)
+        if not states:
+            raise ValueError("a model needs at least one state: pass states=['x1', ...]")
+        if self.output is None:
+            outputs = _names("outputs", self.outputs) if self.outputs is not None else states
+            if outputs != states:
+                raise ValueError("without an output function every state is an output; "
+                                 "pass output=h(x, p) to choose other outputs")
+            set_(self, "output", _identity_output)
+        else:
+            if not callable(self.output):
+                raise TypeError(f"output must be a function h(x, p), got "
+                                f"{type(self.output).__name__}")
+            if self.outputs is None:
+                raise ValueError("pass outputs=[names] to go with the output function")
+            outputs = _names("outputs", self.outputs)
+        if not outputs:
+            raise ValueError("a model needs at least one output")
+        clash = sorted(set(states) & set(params))
+        if clash:
+            raise ValueError(f"names used both as a state and as a parameter: {clash}; "
+                             "rename one of them")
+        set_(self, "states", states)
+        set_(self, "params", params)
+        set_(self, "inputs", inputs)
+        set_(self, "outputs", outputs)
+        self._check_shapes()
+
+    # sizes, in the paper's letters
+    @property
+    def N(self) -> int:
+        return len(self.states)
+
+    @property
+    def M(self) -> int:
+        return len(self.params)
+
+    @property
+    def U(self) -> int:
+        return len(self.inputs)
+
+    @property
+    def S(self) -> int:
+        return len(self.outputs)
+
+    def _check_shapes(self) -> None:
+        """Trace rhs and output abstractly: catches wrong shapes and untraceable code."""
+        x = jax.ShapeDtypeStruct((self.N,), jnp.float64)
+        p = jax.ShapeDtypeStruct((self.M,), jnp.float64)
+        u = jax.ShapeDtypeStruct((self.U,), jnp.float64)
+        sig = f"x of shape ({self.N},), p of shape ({self.M},), u of shape ({self.U},)"
+        dx = _trace("rhs", self.rhs, (x, p, u), sig)
+        if dx.shape != (self.N,) and not (self.N == 1 and dx.shape == ()):
+            raise ValueError(
+                f"rhs returned shape {dx.shape} but the model has {self.N} states "
+                f"{list(self.states)}: it must return dx/dt of shape ({self.N},), "
+                f"e.g. jnp.stack([...]) with one entry per state")
+        if not jnp.issubdtype(dx.dtype, jnp.floating):
+            raise TypeError(f"rhs returned dtype {dx.dtype}; it must return floats "
+                            "(use 1.0 instead of 1, and jnp.float64 arrays)")
+        y = _trace("output", self.output, (x, p), sig.rsplit(",", 1)[0])
+        if y.shape != (self.S,):
+            if self.S == 1 and y.shape == ():
+                object.__setattr__(self, "_scalar_output", True)
+            else:
+                raise ValueError(
+                    f"output returned shape {y.shape} but the model has {self.S} outputs "
+                    f"{list(self.outputs)}: it must return y of shape ({self.S},)")
+        if not jnp.issubdtype(y.dtype, jnp.floating):
+            raise TypeError(f"output returned dtype {y.dtype}; it must return floats")
+
+    # Shape-normalised versions used internally: always (N,) and (S,).
+    def f(self, x: Array, p: Array, u: Array) -> Array:
+        return jnp.reshape(self.rhs(x, p, u), (self.N,))
+
+    def h(self, x: Array, p: Array) -> Array:
+        return jnp.reshape(self.output(x, p), (self.S,))
+
+    def params_array(self, params, what: str = "params") -> np.ndarray:
+        """A dict {name: value} or an array of length M, as a float array in model order."""
+        return _named_vector(params, self.params, what)
+
+    def states_array(self, x0, what: str = "x0") -> np.ndarray:
+        return _named_vector(x0, self.states, what)
+
+    def __repr__(self) -> str:
+        return (f"Model({self.name!r}, states={list(self.states)}, params={list(self.params)}, "
+                f"inputs={list(self.inputs)}, outputs={list(self.outputs)})")
+
+
+def _identity_output(x: Array, p: Array) -> Array:
+    return x
+
+
+def _trace(what: str, fn: Callable, args: tuple, sig: str):
+    try:
+        return jax.eval_shape(fn, *args)
+    except (jax.errors.ConcretizationTypeError, jax.errors.TracerArrayConversionError,
+            jax.errors.TracerBoolConversionError, jax.errors.TracerIntegerConversionError) as e:
+        raise TypeError(f"{what} cannot be traced by JAX: {type(e).__name__}. "
+                        f"{_TRACE_HELP}") from e
+    except Exception as e:  # the user's own code failed; show what it was called with
+        raise TypeError(f"{what} failed when called with {sig}: "
+                        f"{type(e).__name__}: {e}. {_TRACE_HELP}") from e
+
+
+def _named_vector(values, names: Sequence[str], what: str) -> np.ndarray:
+    names = list(names)
+    if isinstance(values, dict):
+        unknown = sorted(set(values) - set(names))
+        if unknown:
+            raise ValueError(f"{what} names unknown entries {unknown}; known names: {names}")
+        missing = [n for n in names if n not in values]
+        if missing:
+            raise ValueError(f"{what} is missing values for {missing}")
+        out = np.array([float(values[n]) for n in names], dtype=float)
+    else:
+        out = np.asarray(values, dtype=float).reshape(-1) if np.ndim(values) else None
+        if out is None:
+            if len(names) == 1:
+                out = np.array([float(values)])
+            else:
+                raise ValueError(f"{what} must be a dict or an array of {len(names)} values")
+        if out.shape != (len(names),):
+            raise ValueError(f"{what} has {out.size} values but there are {len(names)}: {names}")
+    bad = [n for n, v in zip(names, out, strict=True) if not np.isfinite(v)]
+    if bad:
+        raise ValueError(f"{what} has non-finite values for {bad}")
+    return out

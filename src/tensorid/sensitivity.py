@@ -1,0 +1,238 @@
+"""The augmented system: states x, first-order sensitivities S = ∂x/∂θ and
+second-order sensitivities T = ∂²x/∂θ², integrated together, with the cost,
+gradient and Hessian accumulated sample by sample.
+
+θ (for one experiment) is (free initial states, free parameters). In the paper's
+notation the columns of S are the state transition matrix Φ (free x0 columns) and
+the parameter transition matrix Θ (parameter columns); the blocks of T are Φ¹
+(x0, x0), χ¹/χ² (x0, p) and Θ¹ (p, p). With z = (x, p) and Z = ∂z/∂θ = [S; P]
+(P selects the free parameters) the paper's ODEs (7), (9), (13)-(16) read
+
+    dS/dt   = F_z Z                          (Φ and Θ together)
+    dT_jk/dt = F_zz[Z_j, Z_k] + F_x T_jk      (Φ¹, Θ¹, χ¹, χ² together)
+
+T is symmetric in (j, k), so only the K(K+1)/2 pairs j <= k are carried. F_zz is
+never formed: F_zz[a, b] + F_z c is one nested forward-mode derivative
+(a jvp of a jvp), so the cost per pair is a small multiple of one F evaluation.
+The output side is the same with C in place of F, giving the paper's gradient
+(18a-b) and Hessian (19-22):
+
+    J  = Σ_h Σ_g w_g r_g²,                 r = y_obs - C(x, p)
+    ∇J = -2 Σ w r C_z Z
+    ∇²J = 2 Σ w (C_z Z)ᵀ(C_z Z) - 2 Σ w r (C_zz[Z, Z] + C_x T)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import _config  # noqa: F401
+from .integrate import ExplicitRungeKutta, march
+from .model import Model
+
+
+def pair_indices(K: int) -> tuple[np.ndarray, np.ndarray]:
+    """Packed symmetric storage: the K diagonal pairs (j, j) first, then j < k."""
+    jj = list(range(K))
+    kk = list(range(K))
+    for j in range(K):
+        for k in range(j + 1, K):
+            jj.append(j)
+            kk.append(k)
+    return np.array(jj, dtype=int), np.array(kk, dtype=int)
+
+
+def unpack_symmetric(packed: np.ndarray, K: int) -> np.ndarray:
+    jj, kk = pair_indices(K)
+    H = np.zeros((K, K))
+    H[jj, kk] = packed
+    H[kk, jj] = packed
+    return H
+
+
+def _second_directional(fn, z, a, b, c):
+    """(fn_z a, fn_zz[a, b] + fn_z c) by one nested jvp."""
+    def first(z_, a_):
+        return jax.jvp(fn, (z_,), (a_,))[1]
+    return jax.jvp(first, (z, a), (b, c))
+
+
+@dataclass(frozen=True, eq=False)
+class Sensitivities:
+    """Compiled simulation, cost and derivative sweeps for one θ layout.
+
+    ``free_states`` and ``free_params`` are indices into the model's states and
+    params; θ for one experiment is ``concat(x0[free_states], p[free_params])``.
+    Every function takes ``(theta, x0, p, t, u, y, w)`` where x0 and p hold the
+    values of the entries that θ does not set.
+    """
+
+    model: Model
+    free_states: tuple[int, ...]
+    free_params: tuple[int, ...]
+    scheme: ExplicitRungeKutta
+    substeps: int
+    interpolation: str
+
+    @property
+    def K(self) -> int:
+        return len(self.free_states) + len(self.free_params)
+
+    # -- pieces shared by all sweeps -------------------------------------------------
+    def _expand(self, theta, x0, p):
+        nx = len(self.free_states)
+        x0 = x0.at[jnp.array(self.free_states, dtype=int)].set(theta[:nx]) if nx else x0
+        p = p.at[jnp.array(self.free_params, dtype=int)].set(theta[nx:]) if self.free_params else p
+        return x0, p
+
+    def _seeds(self):
+        """S(t0) (N, K): unit columns for free initial states; P (M, K): the parameter
+        rows of Z, constant in time."""
+        N, M, K, nx = self.model.N, self.model.M, self.K, len(self.free_states)
+        S0 = np.zeros((N, K))
+        S0[list(self.free_states), list(range(nx))] = 1.0
+        Psel = np.zeros((M, K))
+        Psel[list(self.free_params), list(range(nx, K))] = 1.0
+        return jnp.asarray(S0), jnp.asarray(Psel)
+
+    def _march(self, field, observe, y0, acc0, t, u, obs):
+        return march(field, observe, y0, acc0, t, u, obs, scheme=self.scheme,
+                     substeps=self.substeps, interpolation=self.interpolation)
+
+    # -- plain simulation --------------------------------------------------------------
+    def _simulate(self, x0, p, t, u):
+        m = self.model
+
+        def field(x, uu):
+            return m.f(x, p, uu)
+
+        def observe(acc, x, _):
+            return acc, (x, m.h(x, p))
+
+        _, (xs, ys) = self._march(field, observe, x0, 0.0, t, u, jnp.zeros(t.shape))
+        return xs, ys
+
+    def _cost(self, theta, x0, p, t, u, y, w):
+        x0, p = self._expand(theta, x0, p)
+        m = self.model
+
+        def field(x, uu):
+            return m.f(x, p, uu)
+
+        def observe(J, x, y_h):
+            r = y_h - m.h(x, p)
+            return J + jnp.sum(w * r * r), None
+
+        J, _ = self._march(field, observe, x0, jnp.zeros(()), t, u, y)
+        return J
+
+    def _residuals(self, theta, x0, p, t, u, y, w):
+        x0, p = self._expand(theta, x0, p)
+        _, ys = self._simulate(x0, p, t, u)
+        return (jnp.sqrt(w) * (y - ys)).reshape(-1)
+
+    # -- first order: (J, ∇J, Gauss-Newton Hessian) ------------------------------------
+    def _first_order(self, theta, x0, p, t, u, y, w):
+        x0, p = self._expand(theta, x0, p)
+        m, N, K = self.model, self.model.N, self.K
+        S0, Psel = self._seeds()
+
+        def field(state, uu):
+            x, S = state
+            z = jnp.concatenate([x, p])
+            Z = jnp.concatenate([S, Psel])
+
+            def F(zz):
+                return m.f(zz[:N], zz[N:], uu)
+
+            dS = jax.vmap(lambda col: jax.jvp(F, (z,), (col,))[1], in_axes=1, out_axes=1)(Z)
+            return F(z), dS
+
+        def observe(acc, state, y_h):
+            J, g, H = acc
+            x, S = state
+            z = jnp.concatenate([x, p])
+            Z = jnp.concatenate([S, Psel])
+
+            def C(zz):
+                return m.h(zz[:N], zz[N:])
+
+            r = y_h - C(z)
+            D = jax.vmap(lambda col: jax.jvp(C, (z,), (col,))[1], in_axes=1, out_axes=1)(Z)
+            wr = w * r
+            return (J + jnp.sum(wr * r), g - 2.0 * D.T @ wr, H + 2.0 * (D.T * w) @ D), None
+
+        acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros((K, K)))
+        (J, g, H), _ = self._march(field, observe, (x0, S0), acc0, t, u, y)
+        return J, g, H
+
+    # -- second order: (J, ∇J, ∇²J) by transition tensors ------------------------------
+    def _second_order(self, theta, x0, p, t, u, y, w):
+        x0, p = self._expand(theta, x0, p)
+        m, N, M, K = self.model, self.model.N, self.model.M, self.K
+        S0, Psel = self._seeds()
+        jj, kk = (jnp.asarray(a) for a in pair_indices(K))
+        npairs = jj.size
+
+        def directions(S, Tp):
+            Z = jnp.concatenate([S, Psel])                       # (N+M, K)
+            c = jnp.concatenate([Tp, jnp.zeros((M, npairs))])   # T pairs, no p part
+            return Z, Z[:, jj].T, Z[:, kk].T, c.T
+
+        def field(state, uu):
+            x, S, Tp = state
+            z = jnp.concatenate([x, p])
+            _, A, B, Cc = directions(S, Tp)
+
+            def F(zz):
+                return m.f(zz[:N], zz[N:], uu)
+
+            Fa, d2 = jax.vmap(lambda a, b, c: _second_directional(F, z, a, b, c))(A, B, Cc)
+            return F(z), Fa[:K].T, d2.T          # dx, dS = F_z Z, dT = F_zz[Z,Z] + F_x T
+
+        def observe(acc, state, y_h):
+            J, g, Hp = acc
+            x, S, Tp = state
+            z = jnp.concatenate([x, p])
+            _, A, B, Cc = directions(S, Tp)
+
+            def C(zz):
+                return m.h(zz[:N], zz[N:])
+
+            Ca, e2 = jax.vmap(lambda a, b, c: _second_directional(C, z, a, b, c))(A, B, Cc)
+            D = Ca[:K]                                           # (K, S) = (C_z Z)ᵀ
+            r = y_h - C(z)
+            wr = w * r
+            Hp = Hp + 2.0 * (D[jj] * D[kk]) @ w - 2.0 * e2 @ wr
+            return (J + jnp.sum(wr * r), g - 2.0 * D @ wr, Hp), None
+
+        state0 = (x0, S0, jnp.zeros((N, npairs)))
+        acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros(npairs))
+        (J, g, Hp), _ = self._march(field, observe, state0, acc0, t, u, y)
+        return J, g, Hp
+
+    # -- compiled entry points ---------------------------------------------------------
+    @cached_property
+    def simulate(self):
+        return jax.jit(self._simulate)
+
+    @cached_property
+    def cost(self):
+        return jax.jit(self._cost)
+
+    @cached_property
+    def residuals(self):
+        return jax.jit(self._residuals)
+
+    @cached_property
+    def first_order(self):
+        return jax.jit(self._first_order)
+
+    @cached_property
+    def second_order(self):
+        return jax.jit(self._second_order)
