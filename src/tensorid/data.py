@@ -28,8 +28,10 @@ def _check_finite(name: str, arr: np.ndarray) -> None:
     if bad.any():
         rows = np.unique(np.nonzero(bad)[0])
         kind = "NaN" if np.isnan(arr[bad]).any() else "inf"
-        raise ValueError(f"{name} contains {kind} at {bad.sum()} place(s), first at sample "
-                         f"{rows[0]}; remove or interpolate those samples before fitting")
+        raise ValueError(
+            f"{name} contains {kind} at {bad.sum()} place(s), first at sample "
+            f"{rows[0]}; remove or interpolate those samples before fitting"
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -60,9 +62,11 @@ class Experiment:
         if (dt <= 0).any():
             i = int(np.argmax(dt <= 0))
             what = "repeats" if dt[i] == 0 else "goes backwards"
-            raise ValueError(f"t must be strictly increasing, but it {what} at sample {i + 1} "
-                             f"(t[{i}] = {t[i]}, t[{i + 1}] = {t[i + 1]}); sort the record "
-                             "and drop duplicate times")
+            raise ValueError(
+                f"t must be strictly increasing, but it {what} at sample {i + 1} "
+                f"(t[{i}] = {t[i]}, t[{i + 1}] = {t[i + 1]}); sort the record "
+                "and drop duplicate times"
+            )
         P = t.size
         u = np.zeros((P, 0)) if self.u is None else _as_2d("u", self.u, P)
         _check_finite("u", u)
@@ -79,11 +83,16 @@ class Experiment:
 
     def window(self, start: int, stop: int, name: str | None = None) -> Experiment:
         """Samples [start:stop] as a new experiment (Python slice semantics)."""
-        return Experiment(self.t[start:stop], self.u[start:stop],
-                          None if self.y is None else self.y[start:stop],
-                          name=self.name if name is None else name)
+        return Experiment(
+            self.t[start:stop],
+            self.u[start:stop],
+            None if self.y is None else self.y[start:stop],
+            name=self.name if name is None else name,
+        )
 
     def __repr__(self) -> str:
         S = 0 if self.y is None else self.y.shape[1]
-        return (f"Experiment({self.name!r}, P={self.P}, U={self.u.shape[1]}, S={S}, "
-                f"t=[{self.t[0]:g} .. {self.t[-1]:g}])")
+        return (
+            f"Experiment({self.name!r}, P={self.P}, U={self.u.shape[1]}, S={S}, "
+            f"t=[{self.t[0]:g} .. {self.t[-1]:g}])"
+        )

@@ -60,8 +60,9 @@ def get_scheme(scheme: str | ExplicitRungeKutta) -> ExplicitRungeKutta:
     try:
         return SCHEMES[scheme]
     except KeyError:
-        raise ValueError(f"unknown integration scheme {scheme!r}; "
-                         f"choose one of {sorted(SCHEMES)}") from None
+        raise ValueError(
+            f"unknown integration scheme {scheme!r}; choose one of {sorted(SCHEMES)}"
+        ) from None
 
 
 def _axpy(y, h: float | jax.Array, terms):
@@ -95,8 +96,19 @@ def input_at(u0: jax.Array, u1: jax.Array, s, interpolation: str) -> jax.Array:
     return u0 + s * (u1 - u0)
 
 
-def march(field: Callable, observe: Callable, y0, acc0, t, u, obs, *,
-          scheme: ExplicitRungeKutta, substeps: int, interpolation: str):
+def march(
+    field: Callable,
+    observe: Callable,
+    y0,
+    acc0,
+    t,
+    u,
+    obs,
+    *,
+    scheme: ExplicitRungeKutta,
+    substeps: int,
+    interpolation: str,
+):
     """Integrate ``y' = field(y, u)`` over the sample grid ``t`` and fold every sample
     into an accumulator.
 
@@ -124,7 +136,6 @@ def march(field: Callable, observe: Callable, y0, acc0, t, u, obs, *,
         acc, out = observe(acc, y, obs_h)
         return (y, acc), out
 
-    (_, acc), outs = jax.lax.scan(interval, (y0, acc),
-                                  (jnp.diff(t), u[:-1], u[1:], rest))
+    (_, acc), outs = jax.lax.scan(interval, (y0, acc), (jnp.diff(t), u[:-1], u[1:], rest))
     outs = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), out0, outs)
     return acc, outs

@@ -30,8 +30,9 @@ def _names(kind: str, names: Sequence[str] | None) -> tuple[str, ...]:
     if names is None:
         return ()
     if isinstance(names, str):
-        raise TypeError(f"{kind} must be a list of names, got the string {names!r}; "
-                        f"write {kind}=[{names!r}]")
+        raise TypeError(
+            f"{kind} must be a list of names, got the string {names!r}; write {kind}=[{names!r}]"
+        )
     out = tuple(names)
     for n in out:
         if not isinstance(n, str) or not n:
@@ -80,13 +81,16 @@ class Model:
         if self.output is None:
             outputs = _names("outputs", self.outputs) if self.outputs is not None else states
             if outputs != states:
-                raise ValueError("without an output function every state is an output; "
-                                 "pass output=h(x, p) to choose other outputs")
+                raise ValueError(
+                    "without an output function every state is an output; "
+                    "pass output=h(x, p) to choose other outputs"
+                )
             set_(self, "output", _identity_output)
         else:
             if not callable(self.output):
-                raise TypeError(f"output must be a function h(x, p), got "
-                                f"{type(self.output).__name__}")
+                raise TypeError(
+                    f"output must be a function h(x, p), got {type(self.output).__name__}"
+                )
             if self.outputs is None:
                 raise ValueError("pass outputs=[names] to go with the output function")
             outputs = _names("outputs", self.outputs)
@@ -94,8 +98,9 @@ class Model:
             raise ValueError("a model needs at least one output")
         clash = sorted(set(states) & set(params))
         if clash:
-            raise ValueError(f"names used both as a state and as a parameter: {clash}; "
-                             "rename one of them")
+            raise ValueError(
+                f"names used both as a state and as a parameter: {clash}; rename one of them"
+            )
         set_(self, "states", states)
         set_(self, "params", params)
         set_(self, "inputs", inputs)
@@ -130,10 +135,13 @@ class Model:
             raise ValueError(
                 f"rhs returned shape {dx.shape} but the model has {self.N} states "
                 f"{list(self.states)}: it must return dx/dt of shape ({self.N},), "
-                f"e.g. jnp.stack([...]) with one entry per state")
+                f"e.g. jnp.stack([...]) with one entry per state"
+            )
         if not jnp.issubdtype(dx.dtype, jnp.floating):
-            raise TypeError(f"rhs returned dtype {dx.dtype}; it must return floats "
-                            "(use 1.0 instead of 1, and jnp.float64 arrays)")
+            raise TypeError(
+                f"rhs returned dtype {dx.dtype}; it must return floats "
+                "(use 1.0 instead of 1, and jnp.float64 arrays)"
+            )
         y = _trace("output", self.output, (x, p), sig.rsplit(",", 1)[0])
         if y.shape != (self.S,):
             if self.S == 1 and y.shape == ():
@@ -141,7 +149,8 @@ class Model:
             else:
                 raise ValueError(
                     f"output returned shape {y.shape} but the model has {self.S} outputs "
-                    f"{list(self.outputs)}: it must return y of shape ({self.S},)")
+                    f"{list(self.outputs)}: it must return y of shape ({self.S},)"
+                )
         if not jnp.issubdtype(y.dtype, jnp.floating):
             raise TypeError(f"output returned dtype {y.dtype}; it must return floats")
 
@@ -160,8 +169,10 @@ class Model:
         return _named_vector(x0, self.states, what)
 
     def __repr__(self) -> str:
-        return (f"Model({self.name!r}, states={list(self.states)}, params={list(self.params)}, "
-                f"inputs={list(self.inputs)}, outputs={list(self.outputs)})")
+        return (
+            f"Model({self.name!r}, states={list(self.states)}, params={list(self.params)}, "
+            f"inputs={list(self.inputs)}, outputs={list(self.outputs)})"
+        )
 
 
 def _identity_output(x: Array, p: Array) -> Array:
@@ -171,13 +182,17 @@ def _identity_output(x: Array, p: Array) -> Array:
 def _trace(what: str, fn: Callable, args: tuple, sig: str):
     try:
         return jax.eval_shape(fn, *args)
-    except (jax.errors.ConcretizationTypeError, jax.errors.TracerArrayConversionError,
-            jax.errors.TracerBoolConversionError, jax.errors.TracerIntegerConversionError) as e:
-        raise TypeError(f"{what} cannot be traced by JAX: {type(e).__name__}. "
-                        f"{_TRACE_HELP}") from e
+    except (
+        jax.errors.ConcretizationTypeError,
+        jax.errors.TracerArrayConversionError,
+        jax.errors.TracerBoolConversionError,
+        jax.errors.TracerIntegerConversionError,
+    ) as e:
+        raise TypeError(f"{what} cannot be traced by JAX: {type(e).__name__}. {_TRACE_HELP}") from e
     except Exception as e:  # the user's own code failed; show what it was called with
-        raise TypeError(f"{what} failed when called with {sig}: "
-                        f"{type(e).__name__}: {e}. {_TRACE_HELP}") from e
+        raise TypeError(
+            f"{what} failed when called with {sig}: {type(e).__name__}: {e}. {_TRACE_HELP}"
+        ) from e
 
 
 def _named_vector(values, names: Sequence[str], what: str) -> np.ndarray:

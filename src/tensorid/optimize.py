@@ -72,13 +72,17 @@ class FitResult:
     def gof(self) -> list:
         """Goodness of fit per experiment (per output for several outputs)."""
         sims = self.simulate()
-        return [gof(_squeeze(e.y), _squeeze(s.y))
-                for e, s in zip(self.problem.experiments, sims, strict=True)]
+        return [
+            gof(_squeeze(e.y), _squeeze(s.y))
+            for e, s in zip(self.problem.experiments, sims, strict=True)
+        ]
 
     def __repr__(self) -> str:
         ps = ", ".join(f"{k}={v:.6g}" for k, v in self.params.items())
-        return (f"FitResult(method={self.method!r}, success={self.success}, cost={self.cost:.6g}, "
-                f"nit={self.nit}, params={{{ps}}}, message={self.message!r})")
+        return (
+            f"FitResult(method={self.method!r}, success={self.success}, cost={self.cost:.6g}, "
+            f"nit={self.nit}, params={{{ps}}}, message={self.message!r})"
+        )
 
 
 def _squeeze(a: np.ndarray) -> np.ndarray:
@@ -107,6 +111,7 @@ class _Tracker:
                 return np.inf, g, H
             s = self.scale
             return J / self.J_ref, g * s / self.J_ref, H * np.outer(s, s) / self.J_ref
+
         return wrapped
 
     def cost(self, phi):
@@ -121,8 +126,7 @@ class _Tracker:
         return r / np.sqrt(self.J_ref)
 
 
-def _auto_scale(problem: Problem, theta0: np.ndarray, J0: float, g_h: np.ndarray
-                ) -> np.ndarray:
+def _auto_scale(problem: Problem, theta0: np.ndarray, J0: float, g_h: np.ndarray) -> np.ndarray:
     """Typical magnitudes: |θ0| where it is not zero; otherwise the step that changes
     the cost by about its own size according to the Gauss-Newton curvature."""
     scale = np.abs(theta0).astype(float)
@@ -134,9 +138,18 @@ def _auto_scale(problem: Problem, theta0: np.ndarray, J0: float, g_h: np.ndarray
     return scale
 
 
-def fit(problem: Problem, method: str = "newton", *, theta0=None, x_scale="auto",
-        maxiter: int = 200, gtol: float = 1e-10, ftol: float = 1e-12, xtol: float = 1e-12,
-        callback: Callable[[dict], None] | None = None) -> FitResult:
+def fit(
+    problem: Problem,
+    method: str = "newton",
+    *,
+    theta0=None,
+    x_scale="auto",
+    maxiter: int = 200,
+    gtol: float = 1e-10,
+    ftol: float = 1e-12,
+    xtol: float = 1e-12,
+    callback: Callable[[dict], None] | None = None,
+) -> FitResult:
     """Estimate the free initial states and parameters of ``problem``.
 
     method:
@@ -164,9 +177,13 @@ def fit(problem: Problem, method: str = "newton", *, theta0=None, x_scale="auto"
 
     J0, g0, H0 = problem.cost_grad_gn(theta0)
     if not np.isfinite(J0):
-        return _failed(problem, method, theta0, start,
-                       "the simulation is not finite at the start; choose another initial "
-                       "guess")
+        return _failed(
+            problem,
+            method,
+            theta0,
+            start,
+            "the simulation is not finite at the start; choose another initial guess",
+        )
     if isinstance(x_scale, str):
         if x_scale != "auto":
             raise ValueError("x_scale must be 'auto' or an array of typical magnitudes")
@@ -190,12 +207,22 @@ def fit(problem: Problem, method: str = "newton", *, theta0=None, x_scale="auto"
     try:
         if method in ("newton", "gauss-newton"):
             fn = problem.cost_grad_hess if method == "newton" else problem.cost_grad_gn
-            r = minimize_trust_region(tr.derivs(fn), phi0, plo, phi_hi, maxiter=maxiter,
-                                      gtol=gtol, ftol=ftol, xtol=xtol, callback=natural)
+            r = minimize_trust_region(
+                tr.derivs(fn),
+                phi0,
+                plo,
+                phi_hi,
+                maxiter=maxiter,
+                gtol=gtol,
+                ftol=ftol,
+                xtol=xtol,
+                callback=natural,
+            )
             phi, nit, success, message = r.x, r.nit, r.success, r.message
         else:
-            phi, nit, success, message = _baseline(method, tr, phi0, plo, phi_hi, maxiter,
-                                                   gtol, ftol, xtol, natural)
+            phi, nit, success, message = _baseline(
+                method, tr, phi0, plo, phi_hi, maxiter, gtol, ftol, xtol, natural
+            )
     except Exception as e:  # a baseline inside SciPy may give up in its own way
         phi, nit, success = tr.best_phi, len(history), False
         message = f"{method} stopped with {type(e).__name__}: {e}"
@@ -204,8 +231,9 @@ def fit(problem: Problem, method: str = "newton", *, theta0=None, x_scale="auto"
 
     if tr.best_phi is not None and tr.best_J < problem.cost(scale * phi):
         phi = tr.best_phi
-    return _result(problem, method, scale * phi, scale, nit, tr.nfev, success, message,
-                   start, history)
+    return _result(
+        problem, method, scale * phi, scale, nit, tr.nfev, success, message, start, history
+    )
 
 
 def _baseline(method, tr: _Tracker, phi0, lo, hi, maxiter, gtol, ftol, xtol, natural):
@@ -216,23 +244,45 @@ def _baseline(method, tr: _Tracker, phi0, lo, hi, maxiter, gtol, ftol, xtol, nat
     def cb(intermediate_result):
         it[0] += 1
         r = intermediate_result
-        J = r.fun if method == "fd-bfgs" else 2.0 * r.cost   # least_squares: ½ Σ r²
-        natural({"iteration": it[0], "cost": float(J), "grad_norm": np.nan,
-                 "radius": np.nan, "step_norm": np.nan, "rho": np.nan, "accepted": True,
-                 "nfev": tr.nfev})
+        J = r.fun if method == "fd-bfgs" else 2.0 * r.cost  # least_squares: ½ Σ r²
+        natural(
+            {
+                "iteration": it[0],
+                "cost": float(J),
+                "grad_norm": np.nan,
+                "radius": np.nan,
+                "step_norm": np.nan,
+                "rho": np.nan,
+                "accepted": True,
+                "nfev": tr.nfev,
+            }
+        )
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         if method == "fd-bfgs":
             res = scipy.optimize.minimize(
-                tr.cost, phi0, method="L-BFGS-B" if bounded else "BFGS", jac="2-point",
+                tr.cost,
+                phi0,
+                method="L-BFGS-B" if bounded else "BFGS",
+                jac="2-point",
                 bounds=list(zip(lo, hi, strict=True)) if bounded else None,
-                options={"maxiter": maxiter, "gtol": gtol}, callback=cb)
+                options={"maxiter": maxiter, "gtol": gtol},
+                callback=cb,
+            )
             return res.x, int(res.nit), bool(res.success), str(res.message)
         res = scipy.optimize.least_squares(
-            tr.residuals, phi0, jac="2-point", bounds=(lo, hi), method="trf",
-            ftol=max(ftol, 1e-15), xtol=max(xtol, 1e-15), gtol=max(gtol, 1e-15),
-            max_nfev=maxiter * (len(phi0) + 1), callback=cb)
+            tr.residuals,
+            phi0,
+            jac="2-point",
+            bounds=(lo, hi),
+            method="trf",
+            ftol=max(ftol, 1e-15),
+            xtol=max(xtol, 1e-15),
+            gtol=max(gtol, 1e-15),
+            max_nfev=maxiter * (len(phi0) + 1),
+            callback=cb,
+        )
         return res.x, int(res.njev or res.nfev), bool(res.success), str(res.message)
 
 
@@ -244,21 +294,42 @@ def _result(problem, method, theta, scale, nit, nfev, success, message, start, h
     pg = np.clip(phi - g * scale, problem.lower / scale, problem.upper / scale) - phi
     p, x0 = problem.unpack(theta)
     return FitResult(
-        problem=problem, method=method, theta=theta,
+        problem=problem,
+        method=method,
+        theta=theta,
         params=dict(zip(problem.model.params, map(float, p), strict=True)),
         x0=x0[0] if len(problem.experiments) == 1 else x0,
-        cost=float(J), jac=g, hess=H,
+        cost=float(J),
+        jac=g,
+        hess=H,
         grad_norm=float(np.linalg.norm(pg, np.inf)),
-        nit=int(nit), nfev=int(nfev), success=bool(success), message=message,
-        seconds=time.perf_counter() - start, scale=scale, history=history)
+        nit=int(nit),
+        nfev=int(nfev),
+        success=bool(success),
+        message=message,
+        seconds=time.perf_counter() - start,
+        scale=scale,
+        history=history,
+    )
 
 
 def _failed(problem, method, theta0, start, message):
     K = problem.K
     p, x0 = problem.unpack(theta0)
-    return FitResult(problem=problem, method=method, theta=theta0,
-                     params=dict(zip(problem.model.params, map(float, p), strict=True)),
-                     x0=x0[0] if len(problem.experiments) == 1 else x0, cost=np.inf,
-                     jac=np.zeros(K), hess=np.zeros((K, K)), grad_norm=np.inf, nit=0,
-                     nfev=1, success=False, message=message,
-                     seconds=time.perf_counter() - start, scale=np.ones(K))
+    return FitResult(
+        problem=problem,
+        method=method,
+        theta=theta0,
+        params=dict(zip(problem.model.params, map(float, p), strict=True)),
+        x0=x0[0] if len(problem.experiments) == 1 else x0,
+        cost=np.inf,
+        jac=np.zeros(K),
+        hess=np.zeros((K, K)),
+        grad_norm=np.inf,
+        nit=0,
+        nfev=1,
+        success=False,
+        message=message,
+        seconds=time.perf_counter() - start,
+        scale=np.ones(K),
+    )

@@ -27,8 +27,9 @@ def _name_list(what: str, names, known: Sequence[str], kind: str) -> list[str]:
     names = list(names)
     unknown = [n for n in names if n not in known]
     if unknown:
-        raise ValueError(f"{what} names unknown {kind} {unknown}; the model's {kind} are "
-                         f"{list(known)}")
+        raise ValueError(
+            f"{what} names unknown {kind} {unknown}; the model's {kind} are {list(known)}"
+        )
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         raise ValueError(f"{what} repeats {dup}")
@@ -57,19 +58,29 @@ class Problem:
     weights : dict {output: weight} or array (S,); J = Σ_h Σ_g w_g r_g².
     """
 
-    def __init__(self, model: Model, data: Experiment | Sequence[Experiment], p0=None,
-                 x0=None, free_x0: Sequence[str] | None = None,
-                 fixed: Sequence[str] | None = None,
-                 bounds: Mapping[str, tuple[float, float]] | None = None,
-                 substeps: int = 4, interpolation: str = "linear",
-                 scheme: str | ExplicitRungeKutta = "rk4", weights=None):
+    def __init__(
+        self,
+        model: Model,
+        data: Experiment | Sequence[Experiment],
+        p0=None,
+        x0=None,
+        free_x0: Sequence[str] | None = None,
+        fixed: Sequence[str] | None = None,
+        bounds: Mapping[str, tuple[float, float]] | None = None,
+        substeps: int = 4,
+        interpolation: str = "linear",
+        scheme: str | ExplicitRungeKutta = "rk4",
+        weights=None,
+    ):
         if not isinstance(model, Model):
             raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
         self.model = model
         self.experiments = self._check_data(data)
         if p0 is None:
-            raise ValueError(f"p0 is required: give a start value for every parameter "
-                             f"{list(model.params)} (dict or array)")
+            raise ValueError(
+                f"p0 is required: give a start value for every parameter "
+                f"{list(model.params)} (dict or array)"
+            )
         self.p0 = model.params_array(p0, "p0")
         self.x0 = self._check_x0(x0)
         self.free_x0 = _name_list("free_x0", free_x0, model.states, "states")
@@ -78,23 +89,27 @@ class Problem:
         if not isinstance(substeps, int | np.integer) or substeps < 1:
             raise ValueError(f"substeps must be a positive integer, got {substeps!r}")
         if interpolation not in INTERPOLATIONS:
-            raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, "
-                             f"got {interpolation!r}")
+            raise ValueError(
+                f"interpolation must be one of {INTERPOLATIONS}, got {interpolation!r}"
+            )
         self.substeps = int(substeps)
         self.interpolation = interpolation
         self.scheme = get_scheme(scheme)
         self.weights = self._check_weights(weights)
         self.lower, self.upper = self._check_bounds(bounds or {})
         if self.K == 0:
-            raise ValueError("nothing to estimate: every parameter is fixed and free_x0 is "
-                             "empty")
+            raise ValueError("nothing to estimate: every parameter is fixed and free_x0 is empty")
         self._sens = Sensitivities(
             model,
             tuple(model.states.index(n) for n in self.free_x0),
             tuple(model.params.index(n) for n in self.free_params),
-            self.scheme, self.substeps, interpolation)
-        self._arrays = [(jnp.asarray(e.t), jnp.asarray(e.u), jnp.asarray(e.y))
-                        for e in self.experiments]
+            self.scheme,
+            self.substeps,
+            interpolation,
+        )
+        self._arrays = [
+            (jnp.asarray(e.t), jnp.asarray(e.u), jnp.asarray(e.y)) for e in self.experiments
+        ]
 
     # -- input checks ---------------------------------------------------------------
     def _check_data(self, data) -> list[Experiment]:
@@ -109,11 +124,15 @@ class Problem:
             if e.y is None:
                 raise ValueError(f"{where} has no measured outputs y; a fit needs them")
             if e.u.shape[1] != m.U:
-                raise ValueError(f"{where} has {e.u.shape[1]} input column(s) but the model "
-                                 f"has {m.U} inputs {list(m.inputs)}")
+                raise ValueError(
+                    f"{where} has {e.u.shape[1]} input column(s) but the model "
+                    f"has {m.U} inputs {list(m.inputs)}"
+                )
             if e.y.shape[1] != m.S:
-                raise ValueError(f"{where} has {e.y.shape[1]} output column(s) but the model "
-                                 f"has {m.S} outputs {list(m.outputs)}")
+                raise ValueError(
+                    f"{where} has {e.y.shape[1]} output column(s) but the model "
+                    f"has {m.S} outputs {list(m.outputs)}"
+                )
         return exps
 
     def _check_x0(self, x0) -> np.ndarray:
@@ -130,8 +149,10 @@ class Problem:
         if arr.ndim == 1:
             return np.tile(m.states_array(arr), (E, 1))
         if arr.shape != (E, m.N):
-            raise ValueError(f"x0 must have shape ({m.N},) or ({E}, {m.N}) for "
-                             f"{E} experiment(s) and states {list(m.states)}, got {arr.shape}")
+            raise ValueError(
+                f"x0 must have shape ({m.N},) or ({E}, {m.N}) for "
+                f"{E} experiment(s) and states {list(m.states)}, got {arr.shape}"
+            )
         if not np.isfinite(arr).all():
             raise ValueError("x0 contains non-finite values")
         return arr
@@ -155,14 +176,15 @@ class Problem:
 
     def _check_bounds(self, bounds: Mapping) -> tuple[np.ndarray, np.ndarray]:
         m = self.model
-        _name_list("bounds", list(bounds), list(m.params) + list(m.states),
-                   "params or states")
+        _name_list("bounds", list(bounds), list(m.params) + list(m.states), "params or states")
         for name in bounds:
             if name in self.fixed:
                 raise ValueError(f"bounds given for {name!r}, which is fixed; drop one of them")
             if name in m.states and name not in self.free_x0:
-                raise ValueError(f"bounds given for the initial state {name!r}, which is not "
-                                 "in free_x0; add it to free_x0 or drop the bound")
+                raise ValueError(
+                    f"bounds given for the initial state {name!r}, which is not "
+                    "in free_x0; add it to free_x0 or drop the bound"
+                )
         lo = np.full(self.K, -np.inf)
         hi = np.full(self.K, np.inf)
         names = self.theta_entries
@@ -171,8 +193,9 @@ class Problem:
                 try:
                     a, b = bounds[name]
                 except (TypeError, ValueError):
-                    raise ValueError(f"bounds[{name!r}] must be a pair (lo, hi), "
-                                     f"got {bounds[name]!r}") from None
+                    raise ValueError(
+                        f"bounds[{name!r}] must be a pair (lo, hi), got {bounds[name]!r}"
+                    ) from None
                 a = -np.inf if a is None else float(a)
                 b = np.inf if b is None else float(b)
                 if np.isnan(a) or np.isnan(b) or a > b:
@@ -183,9 +206,11 @@ class Problem:
         if out.any():
             k = int(np.argmax(out))
             what = "p0" if names[k][0] in m.params else "x0"
-            raise ValueError(f"{what}[{names[k][0]!r}] = {theta0[k]:g} is outside its bounds "
-                             f"({lo[k]:g}, {hi[k]:g}); move the start inside or widen the "
-                             "bounds")
+            raise ValueError(
+                f"{what}[{names[k][0]!r}] = {theta0[k]:g} is outside its bounds "
+                f"({lo[k]:g}, {hi[k]:g}); move the start inside or widen the "
+                "bounds"
+            )
         return lo, hi
 
     # -- θ layout ---------------------------------------------------------------------
@@ -217,23 +242,28 @@ class Problem:
     def theta0(self) -> np.ndarray:
         """The start: free x0 entries then free parameters, natural units."""
         m = self.model
-        xs = [self.x0[e, m.states.index(n)] for e in range(len(self.experiments))
-              for n in self.free_x0]
+        xs = [
+            self.x0[e, m.states.index(n)]
+            for e in range(len(self.experiments))
+            for n in self.free_x0
+        ]
         ps = [self.p0[m.params.index(n)] for n in self.free_params]
         return np.array(xs + ps, dtype=float)
 
     def _check_theta(self, theta) -> np.ndarray:
         theta = np.asarray(theta, dtype=float).reshape(-1)
         if theta.shape != (self.K,):
-            raise ValueError(f"theta must have {self.K} entries {self.theta_names}, "
-                             f"got {theta.size}")
+            raise ValueError(
+                f"theta must have {self.K} entries {self.theta_names}, got {theta.size}"
+            )
         return theta
 
     def _slices(self, e: int) -> np.ndarray:
         """Indices into θ of experiment e's local θ (its free x0, then free params)."""
         nx, E = len(self.free_x0), len(self.experiments)
-        return np.concatenate([np.arange(e * nx, (e + 1) * nx),
-                               np.arange(E * nx, self.K)]).astype(int)
+        return np.concatenate([np.arange(e * nx, (e + 1) * nx), np.arange(E * nx, self.K)]).astype(
+            int
+        )
 
     def unpack(self, theta) -> tuple[np.ndarray, np.ndarray]:
         """(params (M,), x0 (E, N)) with θ written into the fixed values."""
@@ -254,8 +284,18 @@ class Problem:
         w = jnp.asarray(self.weights)
         for e, (t, u, y) in enumerate(self._arrays):
             idx = self._slices(e)
-            yield idx, fn(jnp.asarray(theta[idx]), jnp.asarray(self.x0[e]),
-                          jnp.asarray(self.p0), t, u, y, w)
+            yield (
+                idx,
+                fn(
+                    jnp.asarray(theta[idx]),
+                    jnp.asarray(self.x0[e]),
+                    jnp.asarray(self.p0),
+                    t,
+                    u,
+                    y,
+                    w,
+                ),
+            )
 
     def cost(self, theta) -> float:
         """J(θ) by plain simulation; inf when the simulation is not finite."""
@@ -267,14 +307,14 @@ class Problem:
         w = jnp.asarray(self.weights)
         J = 0.0
         for e, (t, u, y) in enumerate(self._arrays):
-            J = J + self._sens._cost(theta[self._slices(e)], jnp.asarray(self.x0[e]),
-                                     jnp.asarray(self.p0), t, u, y, w)
+            J = J + self._sens._cost(
+                theta[self._slices(e)], jnp.asarray(self.x0[e]), jnp.asarray(self.p0), t, u, y, w
+            )
         return J
 
     def residuals(self, theta) -> np.ndarray:
         """sqrt(w)·(y_obs - y_sim) for every sample, output and experiment, flattened."""
-        return np.concatenate([np.asarray(r) for _, r in self._each(self._sens.residuals,
-                                                                      theta)])
+        return np.concatenate([np.asarray(r) for _, r in self._each(self._sens.residuals, theta)])
 
     def _assemble(self, fn, theta, packed: bool):
         K = self.K
@@ -309,11 +349,12 @@ class Problem:
         out = []
         for e, (t, u, _) in enumerate(self._arrays):
             xs, ys = self._sens.simulate(jnp.asarray(x0[e]), jnp.asarray(p), t, u)
-            out.append(Simulation(self.model, self.experiments[e], np.asarray(xs),
-                                  np.asarray(ys)))
+            out.append(Simulation(self.model, self.experiments[e], np.asarray(xs), np.asarray(ys)))
         return out
 
     def __repr__(self) -> str:
-        return (f"Problem({self.model.name!r}, experiments={len(self.experiments)}, "
-                f"theta={self.theta_names}, scheme={self.scheme.name}, "
-                f"substeps={self.substeps}, interpolation={self.interpolation!r})")
+        return (
+            f"Problem({self.model.name!r}, experiments={len(self.experiments)}, "
+            f"theta={self.theta_names}, scheme={self.scheme.name}, "
+            f"substeps={self.substeps}, interpolation={self.interpolation!r})"
+        )

@@ -57,8 +57,10 @@ def unpack_symmetric(packed: np.ndarray, K: int) -> np.ndarray:
 
 def _second_directional(fn, z, a, b, c):
     """(fn_z a, fn_zz[a, b] + fn_z c) by one nested jvp."""
+
     def first(z_, a_):
         return jax.jvp(fn, (z_,), (a_,))[1]
+
     return jax.jvp(first, (z, a), (b, c))
 
 
@@ -101,8 +103,18 @@ class Sensitivities:
         return jnp.asarray(S0), jnp.asarray(Psel)
 
     def _march(self, field, observe, y0, acc0, t, u, obs):
-        return march(field, observe, y0, acc0, t, u, obs, scheme=self.scheme,
-                     substeps=self.substeps, interpolation=self.interpolation)
+        return march(
+            field,
+            observe,
+            y0,
+            acc0,
+            t,
+            u,
+            obs,
+            scheme=self.scheme,
+            substeps=self.substeps,
+            interpolation=self.interpolation,
+        )
 
     # -- plain simulation --------------------------------------------------------------
     def _simulate(self, x0, p, t, u):
@@ -180,8 +192,8 @@ class Sensitivities:
         npairs = jj.size
 
         def directions(S, Tp):
-            Z = jnp.concatenate([S, Psel])                       # (N+M, K)
-            c = jnp.concatenate([Tp, jnp.zeros((M, npairs))])   # T pairs, no p part
+            Z = jnp.concatenate([S, Psel])  # (N+M, K)
+            c = jnp.concatenate([Tp, jnp.zeros((M, npairs))])  # T pairs, no p part
             return Z, Z[:, jj].T, Z[:, kk].T, c.T
 
         def field(state, uu):
@@ -193,7 +205,7 @@ class Sensitivities:
                 return m.f(zz[:N], zz[N:], uu)
 
             Fa, d2 = jax.vmap(lambda a, b, c: _second_directional(F, z, a, b, c))(A, B, Cc)
-            return F(z), Fa[:K].T, d2.T          # dx, dS = F_z Z, dT = F_zz[Z,Z] + F_x T
+            return F(z), Fa[:K].T, d2.T  # dx, dS = F_z Z, dT = F_zz[Z,Z] + F_x T
 
         def observe(acc, state, y_h):
             J, g, Hp = acc
@@ -205,7 +217,7 @@ class Sensitivities:
                 return m.h(zz[:N], zz[N:])
 
             Ca, e2 = jax.vmap(lambda a, b, c: _second_directional(C, z, a, b, c))(A, B, Cc)
-            D = Ca[:K]                                           # (K, S) = (C_z Z)ᵀ
+            D = Ca[:K]  # (K, S) = (C_z Z)ᵀ
             r = y_h - C(z)
             wr = w * r
             Hp = Hp + 2.0 * (D[jj] * D[kk]) @ w - 2.0 * e2 @ wr

@@ -33,8 +33,16 @@ class Simulation:
         return bool(np.isfinite(self.x).all() and np.isfinite(self.y).all())
 
 
-def simulate(model: Model, params, x0, data: Experiment, *, substeps: int = 4,
-             interpolation: str = "linear", scheme: str = "rk4") -> Simulation:
+def simulate(
+    model: Model,
+    params,
+    x0,
+    data: Experiment,
+    *,
+    substeps: int = 4,
+    interpolation: str = "linear",
+    scheme: str = "rk4",
+) -> Simulation:
     """Simulate ``model`` with ``params`` (dict or array (M,)) from ``x0`` (dict or
     array (N,)) on the inputs and sample times of ``data``.
 
@@ -46,13 +54,14 @@ def simulate(model: Model, params, x0, data: Experiment, *, substeps: int = 4,
     if not isinstance(data, Experiment):
         raise TypeError(f"data must be a tensorid.Experiment, got {type(data).__name__}")
     if data.u.shape[1] != model.U:
-        raise ValueError(f"data has {data.u.shape[1]} input column(s) but the model has "
-                         f"{model.U} inputs {list(model.inputs)}")
+        raise ValueError(
+            f"data has {data.u.shape[1]} input column(s) but the model has "
+            f"{model.U} inputs {list(model.inputs)}"
+        )
     if interpolation not in INTERPOLATIONS:
         raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, got {interpolation!r}")
     p = model.params_array(params, "params")
     x = model.states_array(x0, "x0")
     sens = Sensitivities(model, (), (), get_scheme(scheme), int(substeps), interpolation)
-    xs, ys = sens.simulate(jnp.asarray(x), jnp.asarray(p), jnp.asarray(data.t),
-                           jnp.asarray(data.u))
+    xs, ys = sens.simulate(jnp.asarray(x), jnp.asarray(p), jnp.asarray(data.t), jnp.asarray(data.u))
     return Simulation(model, data, np.asarray(xs), np.asarray(ys))

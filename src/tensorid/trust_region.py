@@ -19,8 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
-def solve_subproblem(g: np.ndarray, H: np.ndarray, radius: float
-                     ) -> tuple[np.ndarray, bool]:
+def solve_subproblem(g: np.ndarray, H: np.ndarray, radius: float) -> tuple[np.ndarray, bool]:
     """Global minimiser of g·s + ½ sᵀHs over ||s|| <= radius; returns (s, on_boundary)."""
     lam, Q = np.linalg.eigh(0.5 * (H + H.T))
     a = Q.T @ g
@@ -32,7 +31,7 @@ def solve_subproblem(g: np.ndarray, H: np.ndarray, radius: float
         if np.linalg.norm(s) <= radius:
             return s, False
     elif gnorm == 0.0:
-        return radius * Q[:, 0], True          # saddle point: follow negative curvature
+        return radius * Q[:, 0], True  # saddle point: follow negative curvature
 
     lo = max(0.0, -lmin)
     near = lam - lmin <= 1e-12 * scale
@@ -99,6 +98,10 @@ def _room(x, v, lo, hi) -> float:
     return max(float(r.min()), 0.0)
 
 
+def _model(g, H, d) -> float:
+    return float(g @ d + 0.5 * d @ H @ d)
+
+
 def _cauchy_step(x, g, H, lo, hi, free, radius):
     """Minimiser of the model along the steepest-descent direction of the free
     variables, within the radius and the bounds: a step with guaranteed decrease
@@ -114,12 +117,21 @@ def _cauchy_step(x, g, H, lo, hi, free, radius):
     return alpha * v
 
 
-def minimize_trust_region(fun: Callable[[np.ndarray], tuple[float, np.ndarray, np.ndarray]],
-                          x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, *,
-                          radius: float = 1.0, max_radius: float = 1e4, maxiter: int = 200,
-                          gtol: float = 1e-10, ftol: float = 1e-12, xtol: float = 1e-12,
-                          eta: float = 1e-4, callback: Callable[[dict], None] | None = None
-                          ) -> TRResult:
+def minimize_trust_region(
+    fun: Callable[[np.ndarray], tuple[float, np.ndarray, np.ndarray]],
+    x0: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    *,
+    radius: float = 1.0,
+    max_radius: float = 1e4,
+    maxiter: int = 200,
+    gtol: float = 1e-10,
+    ftol: float = 1e-12,
+    xtol: float = 1e-12,
+    eta: float = 1e-4,
+    callback: Callable[[dict], None] | None = None,
+) -> TRResult:
     """Minimise J with ``fun(x) -> (J, g, H)`` (J = inf marks a failed evaluation) within
     lo <= x <= hi, starting from a feasible x0."""
     x = np.clip(np.asarray(x0, dtype=float), lo, hi)
@@ -128,18 +140,33 @@ def minimize_trust_region(fun: Callable[[np.ndarray], tuple[float, np.ndarray, n
     history: list[dict] = []
 
     def record(it, step, rho, accepted):
-        entry = {"iteration": it, "cost": float(J),
-                 "grad_norm": float(np.linalg.norm(_projected_gradient(x, g, lo, hi), np.inf)),
-                 "radius": float(radius), "step_norm": float(step), "rho": float(rho),
-                 "accepted": bool(accepted), "nfev": nfev}
+        entry = {
+            "iteration": it,
+            "cost": float(J),
+            "grad_norm": float(np.linalg.norm(_projected_gradient(x, g, lo, hi), np.inf)),
+            "radius": float(radius),
+            "step_norm": float(step),
+            "rho": float(rho),
+            "accepted": bool(accepted),
+            "nfev": nfev,
+        }
         history.append(entry)
         if callback is not None:
             callback(entry)
 
     if not np.isfinite(J):
-        return TRResult(x, np.inf, g, H, 0, nfev, False,
-                        "the cost is not finite at the start: the simulation blows up there; "
-                        "choose another initial guess or tighter bounds", history)
+        return TRResult(
+            x,
+            np.inf,
+            g,
+            H,
+            0,
+            nfev,
+            False,
+            "the cost is not finite at the start: the simulation blows up there; "
+            "choose another initial guess or tighter bounds",
+            history,
+        )
     record(0, 0.0, np.nan, True)
     success, message, it = False, f"iteration limit reached (maxiter={maxiter})", 0
     for it in range(1, maxiter + 1):
@@ -158,20 +185,20 @@ def minimize_trust_region(fun: Callable[[np.ndarray], tuple[float, np.ndarray, n
         d_trunc = min(1.0, _room(x, s, lo, hi)) * s
         d_cauchy = _cauchy_step(x, g, H, lo, hi, free, radius)
 
-        def model(d):
-            return g @ d + 0.5 * d @ H @ d
-
-        d = min((d_proj, d_trunc, d_cauchy), key=model)
-        pred = -model(d)
+        d = min((d_proj, d_trunc, d_cauchy), key=lambda d, g=g, H=H: _model(g, H, d))
+        pred = -_model(g, H, d)
         step = float(np.linalg.norm(d))
         xscale = 1.0 + np.linalg.norm(x, np.inf)
         if not pred > 0 or step == 0.0:
             # no predicted decrease within the bounds: stationary up to rounding
             ok = np.linalg.norm(pg, np.inf) <= np.sqrt(gtol) or step <= xtol * xscale
             success = bool(ok)
-            message = ("converged: no further decrease predicted" if ok else
-                       "stopped: the model predicts no decrease, although the gradient is "
-                       "not small (check the problem's scaling)")
+            message = (
+                "converged: no further decrease predicted"
+                if ok
+                else "stopped: the model predicts no decrease, although the gradient is "
+                "not small (check the problem's scaling)"
+            )
             it -= 1
             break
         x_new = np.clip(x + d, lo, hi)
@@ -197,8 +224,11 @@ def minimize_trust_region(fun: Callable[[np.ndarray], tuple[float, np.ndarray, n
         if not accepted and radius <= xtol * xscale:
             ok = pred <= 1e-8 * max(J, np.finfo(float).tiny)
             success = bool(ok)
-            message = ("converged: no further decrease possible at machine precision" if ok
-                       else "stopped: the trust region collapsed without a decrease (the "
-                            "cost may be noisy or the simulation fails near this point)")
+            message = (
+                "converged: no further decrease possible at machine precision"
+                if ok
+                else "stopped: the trust region collapsed without a decrease (the "
+                "cost may be noisy or the simulation fails near this point)"
+            )
             break
     return TRResult(x, float(J), g, H, it, nfev, success, message, history)
