@@ -132,7 +132,7 @@ def march(
         def sub(i, yy):
             return rk_step(scheme, vf, yy, h, i * ds, ds)
 
-        y = jax.lax.fori_loop(0, substeps, sub, y, unroll=min(substeps, 4))
+        y = jax.lax.fori_loop(0, substeps, sub, y)
         acc, out = observe(acc, y, obs_h)
         return (y, acc), out
 

@@ -98,6 +98,10 @@ class _Tracker:
         self.best_phi: np.ndarray | None = None
         self.best_J = np.inf
 
+    def theta(self, phi) -> np.ndarray:
+        """Natural units; clipped because θ/scale·scale may miss a bound by an ulp."""
+        return np.clip(self.scale * phi, self.problem.lower, self.problem.upper)
+
     def _seen(self, phi, J):
         self.nfev += 1
         if np.isfinite(J) and J < self.best_J:
@@ -105,7 +109,7 @@ class _Tracker:
 
     def derivs(self, fn):
         def wrapped(phi):
-            J, g, H = fn(self.scale * phi)
+            J, g, H = fn(self.theta(phi))
             self._seen(phi, J)
             if not np.isfinite(J):
                 return np.inf, g, H
@@ -115,12 +119,12 @@ class _Tracker:
         return wrapped
 
     def cost(self, phi):
-        J = self.problem.cost(self.scale * phi)
+        J = self.problem.cost(self.theta(phi))
         self._seen(phi, J)
         return J / self.J_ref if np.isfinite(J) else np.inf
 
     def residuals(self, phi):
-        r = self.problem.residuals(self.scale * phi)
+        r = self.problem.residuals(self.theta(phi))
         J = float(r @ r)
         self._seen(phi, J if np.isfinite(J) else np.inf)
         return r / np.sqrt(self.J_ref)
@@ -229,10 +233,10 @@ def fit(
         if phi is None:
             return _failed(problem, method, theta0, start, message)
 
-    if tr.best_phi is not None and tr.best_J < problem.cost(scale * phi):
+    if tr.best_phi is not None and tr.best_J < problem.cost(tr.theta(phi)):
         phi = tr.best_phi
     return _result(
-        problem, method, scale * phi, scale, nit, tr.nfev, success, message, start, history
+        problem, method, tr.theta(phi), scale, nit, tr.nfev, success, message, start, history
     )
 
 

@@ -123,13 +123,13 @@ def minimize_trust_region(
     lo: np.ndarray,
     hi: np.ndarray,
     *,
-    radius: float = 1.0,
+    radius: float = 0.1,
     max_radius: float = 1e4,
     maxiter: int = 200,
     gtol: float = 1e-10,
     ftol: float = 1e-12,
     xtol: float = 1e-12,
-    eta: float = 1e-4,
+    eta: float = 0.1,
     callback: Callable[[dict], None] | None = None,
 ) -> TRResult:
     """Minimise J with ``fun(x) -> (J, g, H)`` (J = inf marks a failed evaluation) within

@@ -1,0 +1,121 @@
+"""Shared models and synthetic data for the tests."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import tensorid as ti
+
+SILVERBOX_P = {"m": 5.27e-6, "d": 2.15e-4, "a": 0.9675, "b": 3.975}
+TS_SILVERBOX = 2**14 / 1e7
+
+
+def silverbox_rhs(x, p, u):
+    m, d, a, b = p
+    return jnp.stack([x[1], (u[0] - d * x[1] - a * x[0] - b * x[0] ** 3) / m])
+
+
+def silverbox_model() -> ti.Model:
+    return ti.Model(
+        rhs=silverbox_rhs,
+        output=lambda x, p: x[:1],
+        states=["y", "v"],
+        params=["m", "d", "a", "b"],
+        inputs=["u"],
+        outputs=["y"],
+        name="silverbox",
+    )
+
+
+def multisine(P: int, Ts: float, amplitude: float, seed: int, harmonics=range(1, 120, 2)):
+    rng = np.random.default_rng(seed)
+    t = np.arange(P) * Ts
+    u = sum(np.cos(2 * np.pi * k * t / (P * Ts) + rng.uniform(0, 2 * np.pi)) for k in harmonics)
+    return t, amplitude * u / np.abs(u).max()
+
+
+def silverbox_data(P=512, seed=0, noise=0.0, x0=(0.0, 0.0)):
+    t, u = multisine(P, TS_SILVERBOX, 0.1, seed)
+    sim = ti.simulate(silverbox_model(), SILVERBOX_P, np.array(x0), ti.Experiment(t, u))
+    y = sim.y + noise * np.random.default_rng(seed + 1).standard_normal(sim.y.shape)
+    return ti.Experiment(t, u, y, name=f"sb{seed}")
+
+
+def two_tank_model() -> ti.Model:
+    def rhs(x, p, u):
+        s1, s2 = jnp.sqrt(x[0]), jnp.sqrt(x[1])
+        return jnp.stack([-p[0] * s1 + p[1] * u[0], -p[2] * s2 + p[3] * s1])
+
+    return ti.Model(
+        rhs=rhs,
+        output=lambda x, p: x[1:],
+        states=["x1", "x2"],
+        params=["p1", "p2", "p3", "p4"],
+        inputs=["u"],
+        outputs=["y"],
+        name="two-tank",
+    )
+
+
+def oscillator_model() -> ti.Model:
+    """Two inputs, two outputs; the output map is nonlinear and depends on p."""
+
+    def rhs(x, p, u):
+        k, c, g, q = p
+        return jnp.stack([x[1], -k * jnp.sin(x[0]) - c * x[1] + g * u[0] + 0.3 * u[1] * x[0]])
+
+    def output(x, p):
+        k, c, g, q = p
+        return jnp.stack([q * x[0] ** 2 + x[1], jnp.tanh(q * x[1]) * k + x[0]])
+
+    return ti.Model(
+        rhs=rhs,
+        output=output,
+        states=["th", "om"],
+        params=["k", "c", "g", "q"],
+        inputs=["u1", "u2"],
+        outputs=["y1", "y2"],
+        name="oscillator",
+    )
+
+
+def reactor_model() -> ti.Model:
+    """Three states, two inputs, one output that mixes states and a parameter."""
+
+    def rhs(x, p, u):
+        k1, k2, k3, V = p
+        r1 = k1 * x[0] * x[1]
+        r2 = k2 * x[2] ** 2 / (1.0 + x[2] ** 2)
+        return jnp.stack(
+            [u[0] - r1 - 0.1 * x[0], u[1] - r1 + r2 - 0.2 * x[1], r1 - r2 - k3 * x[2] / V]
+        )
+
+    return ti.Model(
+        rhs=rhs,
+        output=lambda x, p: jnp.stack([x[2] * p[3] + 0.5 * x[0] * x[1]]),
+        states=["A", "B", "C"],
+        params=["k1", "k2", "k3", "V"],
+        inputs=["qA", "qB"],
+        outputs=["z"],
+        name="reactor",
+    )
+
+
+def decay_model() -> ti.Model:
+    """One state, one parameter, scalar output: the K = 1 and N = 1 edge case."""
+    return ti.Model(
+        rhs=lambda x, p, u: -p[0] * x + u[0],
+        output=lambda x, p: x[0] ** 2,
+        states=["x"],
+        params=["k"],
+        inputs=["u"],
+        outputs=["y"],
+        name="decay",
+    )
+
+
+@pytest.fixture
+def silverbox():
+    return silverbox_model()

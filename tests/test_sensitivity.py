@@ -1,0 +1,217 @@
+"""The transition-tensor gradient and Hessian are the exact derivatives of the
+discretised cost: checked against JAX autodiff of the plain simulation, against
+central differences, and against an independent simulator."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+from conftest import (
+    SILVERBOX_P,
+    decay_model,
+    multisine,
+    oscillator_model,
+    reactor_model,
+    silverbox_data,
+    silverbox_model,
+    two_tank_model,
+)
+from scipy.integrate import solve_ivp
+
+import tensorid as ti
+
+
+def _noisy(model, p, x0, t, u, seed, noise, **kw):
+    sim = ti.simulate(model, p, x0, ti.Experiment(t, u), **kw)
+    rng = np.random.default_rng(seed)
+    return ti.Experiment(t, u, sim.y + noise * rng.standard_normal(sim.y.shape), name=f"e{seed}")
+
+
+def _problems():
+    """(id, problem, theta) with theta away from the optimum, so that the residual-
+    weighted second-order term of the Hessian matters."""
+    out = []
+
+    m = silverbox_model()
+    data = silverbox_data(P=300, seed=3, noise=1e-3, x0=(0.02, 0.0))
+    prob = ti.Problem(m, data, p0=SILVERBOX_P, x0=[0.02, 0.0], free_x0=["v"])
+    out.append(
+        (
+            "silverbox",
+            prob,
+            prob.theta0 * np.array([1, 1.04, 0.97, 1.02, 0.9]) + np.array([0.5, 0, 0, 0, 0]),
+        )
+    )
+
+    m = two_tank_model()
+    t = np.arange(200) * 5.0
+    u = np.repeat(np.random.default_rng(1).uniform(0.3, 2.0, 10), 20)
+    ptrue = {"p1": 0.04, "p2": 0.02, "p3": 0.02, "p4": 0.05}
+    data = _noisy(m, ptrue, [2.0, 1.0], t, u, 2, 0.01, interpolation="zoh")
+    prob = ti.Problem(m, data, p0=ptrue, x0=[2.0, 1.0], interpolation="zoh", bounds={"p1": (0, 1)})
+    out.append(("two-tank fixed x0, zoh", prob, prob.theta0 * np.array([1.1, 0.9, 1.05, 0.95])))
+
+    # two outputs with a p-dependent nonlinear output map, two inputs, two
+    # experiments of different lengths, one free and one fixed initial state,
+    # one fixed parameter, weights
+    m = oscillator_model()
+    ptrue = {"k": 2.0, "c": 0.3, "g": 1.0, "q": 0.7}
+    exps = []
+    for seed, P in ((4, 150), (5, 110)):
+        t = np.arange(P) * 0.05
+        u = np.stack(
+            [
+                multisine(P, 0.05, 1.0, seed, range(1, 20))[1],
+                multisine(P, 0.05, 0.5, seed + 10, range(2, 15))[1],
+            ],
+            axis=1,
+        )
+        exps.append(_noisy(m, ptrue, [0.3, -0.2], t, u, seed, 0.05))
+    prob = ti.Problem(
+        m,
+        exps,
+        p0=ptrue,
+        x0=[[0.3, -0.2], [0.1, 0.4]],
+        free_x0=["om"],
+        fixed=["g"],
+        weights={"y2": 2.5},
+    )
+    theta = prob.theta0 + np.array([0.1, -0.2, 0.3, -0.05, 0.1])
+    out.append(("oscillator multi-output multi-experiment", prob, theta))
+
+    m = reactor_model()
+    ptrue = {"k1": 0.8, "k2": 0.5, "k3": 0.3, "V": 2.0}
+    t = np.arange(120) * 0.1
+    u = np.stack(
+        [
+            1 + multisine(120, 0.1, 0.5, 7, range(1, 10))[1],
+            0.5 + multisine(120, 0.1, 0.3, 8, range(1, 10))[1],
+        ],
+        axis=1,
+    )
+    data = _noisy(m, ptrue, [1.0, 0.5, 0.2], t, u, 9, 0.02, scheme="heun", substeps=3)
+    prob = ti.Problem(
+        m, data, p0=ptrue, x0=[1.0, 0.5, 0.2], free_x0=["A", "B", "C"], scheme="heun", substeps=3
+    )
+    out.append(("reactor all x0 free, heun", prob, prob.theta0 * 1.07))
+
+    m = decay_model()
+    t = np.linspace(0, 3, 40)
+    data = _noisy(m, {"k": 1.3}, [1.0], t, np.sin(t), 11, 0.01, scheme="euler")
+    prob = ti.Problem(m, data, p0={"k": 1.0}, x0=[1.0], scheme="euler", substeps=2)
+    out.append(("decay K=1 N=1 euler", prob, np.array([1.4])))
+    return out
+
+
+PROBLEMS = _problems()
+IDS = [name for name, _, _ in PROBLEMS]
+
+
+@pytest.mark.parametrize("name,prob,theta", PROBLEMS, ids=IDS)
+def test_gradient_and_hessian_equal_autodiff(name, prob, theta):
+    J, g, H = prob.cost_grad_hess(theta)
+    J_ad = float(prob.jax_cost(theta))
+    g_ad = np.asarray(jax.jit(jax.grad(prob.jax_cost))(theta))
+    H_ad = np.asarray(jax.jit(jax.hessian(prob.jax_cost))(theta))
+    assert J > 0 and np.isfinite(J)
+    np.testing.assert_allclose(J, J_ad, rtol=1e-12)
+    np.testing.assert_allclose(g, g_ad, rtol=1e-9, atol=1e-9 * np.abs(g_ad).max())
+    np.testing.assert_allclose(H, H_ad, rtol=1e-9, atol=1e-9 * np.abs(H_ad).max())
+    # the residual-weighted second-order term is not negligible here
+    _, _, H_gn = prob.cost_grad_gn(theta)
+    assert np.abs(H - H_gn).max() > 1e-4 * np.abs(H).max()
+
+
+@pytest.mark.parametrize("name,prob,theta", PROBLEMS, ids=IDS)
+def test_gauss_newton_pieces_equal_autodiff_of_residuals(name, prob, theta):
+    J, g, H_gn = prob.cost_grad_gn(theta)
+    jac = jax.jacfwd(lambda th: _jax_residuals(prob, th))(theta)
+    r = prob.residuals(theta)
+    np.testing.assert_allclose(J, r @ r, rtol=1e-12)
+    np.testing.assert_allclose(g, 2 * np.asarray(jac).T @ r, rtol=1e-9, atol=1e-9 * np.abs(g).max())
+    np.testing.assert_allclose(
+        H_gn, 2 * np.asarray(jac).T @ np.asarray(jac), rtol=1e-9, atol=1e-9 * np.abs(H_gn).max()
+    )
+
+
+def _jax_residuals(prob, theta):
+    import jax.numpy as jnp
+
+    parts = []
+    w = jnp.asarray(prob.weights)
+    for e, (t, u, y) in enumerate(prob._arrays):
+        parts.append(
+            prob._sens._residuals(
+                theta[prob._slices(e)], jnp.asarray(prob.x0[e]), jnp.asarray(prob.p0), t, u, y, w
+            )
+        )
+    return jnp.concatenate(parts)
+
+
+@pytest.mark.parametrize("name,prob,theta", PROBLEMS[:3], ids=IDS[:3])
+def test_hessian_matches_central_differences_of_gradient(name, prob, theta):
+    _, _, H = prob.cost_grad_hess(theta)
+    K = theta.size
+    H_fd = np.zeros((K, K))
+    for k in range(K):
+        # fourth-order stencil: the Silverbox cost is so curved in m that the
+        # truncation error of a two-point difference alone is ~1e-4
+        h = 1e-6 * max(abs(theta[k]), 1e-3)
+        e = np.zeros(K)
+        e[k] = h
+        gs = [prob.cost_grad_hess(theta + j * e)[1] for j in (-2, -1, 1, 2)]
+        H_fd[:, k] = (gs[0] - 8 * gs[1] + 8 * gs[2] - gs[3]) / (12 * h)
+    # compare in scaled units so that entries of very different size weigh alike
+    s = np.maximum(np.abs(theta), 1e-3)
+    Hs, Hs_fd = H * np.outer(s, s), H_fd * np.outer(s, s)
+    np.testing.assert_allclose(Hs, Hs_fd, rtol=1e-6, atol=1e-6 * np.abs(Hs).max())
+
+
+def test_simulation_matches_an_accurate_ode_solver():
+    """RK4 with linear input interpolation converges to the true solution when the
+    input is exactly piecewise linear; compare with a tight solve_ivp."""
+    m = silverbox_model()
+    t = np.arange(200) * 2**14 / 1e7
+    u = 0.1 * np.sin(2 * np.pi * 30 * t)
+    sim = ti.simulate(m, SILVERBOX_P, [0.01, 0.0], ti.Experiment(t, u), substeps=32)
+    p = SILVERBOX_P
+
+    def rhs(tt, x):
+        uu = np.interp(tt, t, u)
+        return [x[1], (uu - p["d"] * x[1] - p["a"] * x[0] - p["b"] * x[0] ** 3) / p["m"]]
+
+    ref = solve_ivp(
+        rhs,
+        (t[0], t[-1]),
+        [0.01, 0.0],
+        t_eval=t,
+        rtol=1e-11,
+        atol=1e-13,
+        method="DOP853",
+        max_step=(t[1] - t[0]) / 4,
+    )
+    assert np.abs(sim.y[:, 0] - ref.y[0]).max() < 1e-8 * np.abs(ref.y[0]).max()
+
+
+def test_schemes_converge_at_their_order():
+    m = decay_model()
+    t = np.linspace(0.0, 3.0, 31)
+    data = ti.Experiment(t, np.sin(t))
+    ref = ti.simulate(m, {"k": 1.3}, [1.0], data, substeps=512).x
+    for scheme, order in (("euler", 1), ("heun", 2), ("rk4", 4), ("rk38", 4)):
+        e1, e2 = (
+            np.abs(ti.simulate(m, {"k": 1.3}, [1.0], data, substeps=n, scheme=scheme).x - ref).max()
+            for n in (4, 8)
+        )
+        assert np.log2(e1 / e2) == pytest.approx(order, abs=0.15), scheme
+
+
+def test_zoh_holds_the_input_between_samples():
+    m = decay_model()
+    t = np.array([0.0, 1.0, 2.0])
+    u = np.array([1.0, 0.0, 0.0])
+    x_zoh = ti.simulate(m, {"k": 0.0}, [0.0], ti.Experiment(t, u), interpolation="zoh").x
+    x_lin = ti.simulate(m, {"k": 0.0}, [0.0], ti.Experiment(t, u)).x
+    np.testing.assert_allclose(x_zoh[:, 0], [0.0, 1.0, 1.0], atol=1e-14)
+    np.testing.assert_allclose(x_lin[:, 0], [0.0, 0.5, 0.5], atol=1e-14)
