@@ -131,6 +131,7 @@ class Model:
         u = jax.ShapeDtypeStruct((self.U,), jnp.float64)
         sig = f"x of shape ({self.N},), p of shape ({self.M},), u of shape ({self.U},)"
         dx = _trace("rhs", self.rhs, (x, p, u), sig)
+        _check_indexing("rhs", self.rhs, (self.N, self.M, self.U), self)
         if dx.shape != (self.N,) and not (self.N == 1 and dx.shape == ()):
             raise ValueError(
                 f"rhs returned shape {dx.shape} but the model has {self.N} states "
@@ -143,6 +144,7 @@ class Model:
                 "(use 1.0 instead of 1, and jnp.float64 arrays)"
             )
         y = _trace("output", self.output, (x, p), sig.rsplit(",", 1)[0])
+        _check_indexing("output", self.output, (self.N, self.M), self)
         if y.shape != (self.S,):
             if self.S == 1 and y.shape == ():
                 object.__setattr__(self, "_scalar_output", True)
@@ -193,6 +195,24 @@ def _trace(what: str, fn: Callable, args: tuple, sig: str):
         raise TypeError(
             f"{what} failed when called with {sig}: {type(e).__name__}: {e}. {_TRACE_HELP}"
         ) from e
+
+
+def _check_indexing(what: str, fn: Callable, sizes: tuple[int, ...], model: Model) -> None:
+    """JAX clamps out-of-range indices silently (p[7] of 4 parameters reads p[3]), so
+    call the function once with NumPy arrays, which raise IndexError instead. Only
+    index errors are reported: anything else NumPy cannot do is JAX's business."""
+    args = [np.full(n, 0.5) for n in sizes]
+    try:
+        with np.errstate(all="ignore"):
+            fn(*args)
+    except IndexError as e:
+        raise ValueError(
+            f"{what} indexes past the end of its arguments ({e}); the model has "
+            f"{model.N} states {list(model.states)}, {model.M} params {list(model.params)} "
+            f"and {model.U} inputs {list(model.inputs)}"
+        ) from e
+    except Exception:
+        pass
 
 
 def _named_vector(values, names: Sequence[str], what: str) -> np.ndarray:

@@ -1,0 +1,78 @@
+import numpy as np
+import pytest
+from scipy.optimize import rosen, rosen_der, rosen_hess
+
+from tensorid.trust_region import minimize_trust_region, solve_subproblem
+
+
+def _model(g, H, s):
+    return g @ s + 0.5 * s @ H @ s
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_subproblem_is_the_global_minimiser_in_the_ball(seed):
+    rng = np.random.default_rng(seed)
+    K = int(rng.integers(1, 6))
+    A = rng.standard_normal((K, K))
+    H = A @ A.T if seed % 3 == 0 else A + A.T  # convex and indefinite cases
+    g = rng.standard_normal(K) * 10 ** rng.uniform(-3, 2)
+    if seed % 5 == 0 and K > 1:  # the hard case
+        v = np.linalg.eigh(H)[1][:, 0]
+        g -= v * (v @ g)
+    radius = 10 ** rng.uniform(-2, 1)
+    s, _ = solve_subproblem(g, H, radius)
+    assert np.linalg.norm(s) <= radius * (1 + 1e-9)
+    best = _model(g, H, s)
+    samples = rng.standard_normal((4000, K))
+    samples *= (
+        radius
+        * rng.uniform(size=(4000, 1)) ** (1 / K)
+        / np.linalg.norm(samples, axis=1, keepdims=True)
+    )
+    vals = np.einsum("i,ni->n", g, samples) + 0.5 * np.einsum("ni,ij,nj->n", samples, H, samples)
+    assert vals.min() >= best - 1e-9 * max(1.0, abs(best))
+
+
+def test_newton_step_inside_the_region_is_taken_exactly():
+    H = np.diag([2.0, 5.0])
+    g = np.array([1.0, -1.0])
+    s, on_boundary = solve_subproblem(g, H, 10.0)
+    np.testing.assert_allclose(s, -np.linalg.solve(H, g))
+    assert not on_boundary
+
+
+def _rosen(x):
+    return rosen(x), rosen_der(x), rosen_hess(x)
+
+
+def test_unbounded_rosenbrock():
+    # 2-D: the 4-D function has a second local minimum near (-0.78, 0.61, 0.38, 0.15)
+    r = minimize_trust_region(
+        _rosen, np.array([-1.2, 1.0]), np.full(2, -np.inf), np.full(2, np.inf)
+    )
+    assert r.success
+    np.testing.assert_allclose(r.x, 1.0, atol=1e-8)
+    assert r.nit < 40
+
+
+def test_bounded_rosenbrock_reaches_a_kkt_point():
+    lo, hi = np.full(4, -2.0), np.full(4, 0.5)
+    r = minimize_trust_region(_rosen, np.array([-1.2, 1.0, -1.2, 1.0]), lo, hi)
+    assert r.success
+    assert (r.x >= lo).all() and (r.x <= hi).all()
+    pg = np.clip(r.x - r.jac, lo, hi) - r.x
+    assert np.abs(pg).max() < 1e-8
+    assert r.x[0] == 0.5
+
+
+def test_non_finite_trial_points_shrink_the_region():
+    def fun(x):
+        if x[0] > 0.5:
+            return np.inf, np.full(1, np.nan), np.full((1, 1), np.nan)
+        return (x[0] - 0.4) ** 2 - x[0], np.array([2 * (x[0] - 0.4) - 1]), np.array([[2.0]])
+
+    r = minimize_trust_region(
+        fun, np.array([0.0]), np.array([-np.inf]), np.array([np.inf]), radius=5.0
+    )
+    assert np.isfinite(r.fun) and r.x[0] <= 0.5
+    assert any(not h["accepted"] for h in r.history)
