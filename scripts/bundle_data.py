@@ -1,0 +1,49 @@
+"""Regenerate the compact records in src/tensorid/datasets/ from ../shared/data.
+
+    python scripts/bundle_data.py [path/to/shared/data]
+
+Checks the SHA-256 of each source file against its PROVENANCE.md before copying.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import sys
+from pathlib import Path
+
+import numpy as np
+import scipy.io
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "src" / "tensorid" / "datasets"
+SOURCES = {
+    "silverbox/Schroeder80mV.mat": "ec5a9740a4789aa20b9d84f387424c0218e843844807b30b367c218778339fb6",
+    "two_tank/tank.mat": "def34c70b239f7d5e9e2228e957a6dfdbb909340941db8f84b23686a17fd3133",
+}
+SILVERBOX_START, SILVERBOX_STOP = 10000, 14000  # holds the paper's [10584:13655]
+
+
+def main(shared: Path) -> None:
+    for rel, sha in SOURCES.items():
+        digest = hashlib.sha256((shared / rel).read_bytes()).hexdigest()
+        if digest != sha:
+            raise SystemExit(f"{rel}: sha256 {digest} does not match PROVENANCE.md ({sha})")
+    sb = scipy.io.loadmat(shared / "silverbox/Schroeder80mV.mat")
+    V1, V2 = sb["V1"].ravel(), sb["V2"].ravel()
+    np.savez_compressed(
+        OUT / "silverbox_schroeder80mV.npz",
+        V1=V1[SILVERBOX_START:SILVERBOX_STOP],
+        V2=V2[SILVERBOX_START:SILVERBOX_STOP],
+        start=SILVERBOX_START,
+        record_length=V1.size,
+        record_mean_V1=V1.mean(),
+        record_mean_V2=V2.mean(),
+    )
+    tank = scipy.io.loadmat(shared / "two_tank/tank.mat")
+    np.savez_compressed(OUT / "two_tank.npz", u=tank["u"].ravel(), y=tank["y"])
+    for f in sorted(OUT.glob("*.npz")):
+        print(f.name, f.stat().st_size, "bytes")
+
+
+if __name__ == "__main__":
+    main(Path(sys.argv[1]) if len(sys.argv) > 1 else ROOT.parent / "shared" / "data")

@@ -1,0 +1,72 @@
+"""Measured benchmark records bundled with tensorid (see README.md beside this file for
+their origin, checksums and terms). Everything works offline."""
+
+from __future__ import annotations
+
+from functools import cache
+from importlib import resources
+
+import numpy as np
+
+from ..data import Experiment
+
+SILVERBOX_TS = 2**14 / 1e7  # s; fs = 10^7 / 2^14 ≈ 610.35 Hz
+SILVERBOX_TRAIN = (10584, 11608)  # the paper's points 10585..11608 (1-based), one period
+SILVERBOX_VALIDATION = (11608, 13655)
+TWO_TANK_TS = 5.0  # s, inferred by reproducing the paper (see README.md)
+
+
+@cache
+def _load(name: str) -> dict[str, np.ndarray]:
+    with resources.files(__package__).joinpath(name).open("rb") as f:
+        with np.load(f) as z:
+            return {k: z[k] for k in z.files}
+
+
+def silverbox(
+    start: int = SILVERBOX_TRAIN[0], stop: int = SILVERBOX_TRAIN[1], name: str | None = None
+) -> Experiment:
+    """Silverbox Schroeder80mV samples [start:stop] (0-based indices into the 131,072-
+    sample record; bundled: [10000:14000]). u = V1 (input voltage), y = V2 (output
+    voltage), t = index · Ts. The default window is the paper's training period."""
+    d = _load("silverbox_schroeder80mV.npz")
+    first = int(d["start"])
+    last = first + d["V1"].size
+    if not first <= start < stop <= last:
+        raise ValueError(
+            f"the bundled Silverbox record holds samples [{first}:{last}]; got [{start}:{stop}]"
+        )
+    sl = slice(start - first, stop - first)
+    return Experiment(
+        np.arange(start, stop) * SILVERBOX_TS,
+        d["V1"][sl],
+        d["V2"][sl],
+        name=name or f"silverbox[{start}:{stop}]",
+    )
+
+
+def silverbox_train() -> Experiment:
+    return silverbox(*SILVERBOX_TRAIN, name="silverbox-train")
+
+
+def silverbox_validation() -> Experiment:
+    return silverbox(*SILVERBOX_VALIDATION, name="silverbox-validation")
+
+
+def two_tank(samples: int = 501) -> Experiment:
+    """The two-tank record: u = pump input, y = level of the LOWER tank (row 0 of the
+    original y, the paper's output x2). The first ``samples`` samples at Ts = 5 s
+    (the paper uses 501)."""
+    d = _load("two_tank.npz")
+    if not 2 <= samples <= d["u"].size:
+        raise ValueError(f"the two-tank record has {d['u'].size} samples; got {samples}")
+    return Experiment(
+        np.arange(samples) * TWO_TANK_TS, d["u"][:samples], d["y"][0, :samples], name="two-tank"
+    )
+
+
+def two_tank_levels(samples: int = 501) -> np.ndarray:
+    """Both measured levels, shape (samples, 2): column 0 the upper tank x1 (row 1 of
+    the original y), column 1 the lower tank x2."""
+    d = _load("two_tank.npz")
+    return np.stack([d["y"][1, :samples], d["y"][0, :samples]], axis=1)
