@@ -9,18 +9,19 @@ from . import _config  # noqa: F401
 
 
 def safe_sqrt(x, eps: float = 1e-6):
-    """√x for x > eps; below eps the second-order Taylor polynomial of √ at eps.
+    """√x for x > eps; below eps a smooth, bounded continuation that decays to 0.
 
-    Equal to jnp.sqrt wherever x > eps, twice continuously differentiable
-    everywhere, and finite (with finite first and second derivatives) for x <= 0,
-    where jnp.sqrt gives NaN and its derivative is infinite at 0. A fit whose states
-    cross zero therefore keeps exact, finite derivatives; check the simulated states
-    afterwards to tell whether the model left its physical domain.
+    Below eps, with z = (x - eps) / eps, the value is √eps · exp(z/2 - z²/4): it
+    matches √ in value, slope and curvature at eps (so the function is twice
+    continuously differentiable and the exact Hessian stays meaningful), increases
+    with x, and tends to 0 for negative x, so the outflow of an "empty" tank fades
+    out instead of growing. jnp.sqrt gives NaN below 0 and an infinite slope at 0.
+    Values above eps are exactly jnp.sqrt's. Check the simulated states to tell
+    whether the model left its physical domain.
     """
     x = jnp.asarray(x)
     inside = x > eps
     root = jnp.sqrt(jnp.where(inside, x, eps))  # the where keeps NaN out of the gradient
-    s = jnp.sqrt(eps)
-    dx = x - eps
-    taylor = s + dx / (2 * s) - dx**2 / (8 * eps * s)
-    return jnp.where(inside, root, taylor)
+    z = jnp.where(inside, 0.0, (x - eps) / eps)
+    tail = jnp.sqrt(eps) * jnp.exp(z / 2 - z * z / 4)
+    return jnp.where(inside, root, tail)
