@@ -17,7 +17,9 @@ import scipy.io
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "src" / "tensorid" / "datasets"
 SOURCES = {
-    "silverbox/Schroeder80mV.mat": "ec5a9740a4789aa20b9d84f387424c0218e843844807b30b367c218778339fb6",
+    "silverbox/Schroeder80mV.mat": (
+        "ec5a9740a4789aa20b9d84f387424c0218e843844807b30b367c218778339fb6"
+    ),
     "two_tank/tank.mat": "def34c70b239f7d5e9e2228e957a6dfdbb909340941db8f84b23686a17fd3133",
 }
 SILVERBOX_START, SILVERBOX_STOP = 10000, 14000  # holds the paper's [10584:13655]
