@@ -17,8 +17,8 @@ def silverbox_rhs(x, p, u):
     return jnp.stack([x[1], (u[0] - d * x[1] - a * x[0] - b * x[0] ** 3) / m])
 
 
-def silverbox_model() -> ti.Model:
-    return ti.Model(
+def silverbox_model(**overrides) -> ti.Model:
+    args = dict(
         rhs=silverbox_rhs,
         output=lambda x, p: x[:1],
         states=["y", "v"],
@@ -27,6 +27,8 @@ def silverbox_model() -> ti.Model:
         outputs=["y"],
         name="silverbox",
     )
+    args.update(overrides)
+    return ti.Model(**args)
 
 
 def multisine(P: int, Ts: float, amplitude: float, seed: int, harmonics=range(1, 120, 2)):

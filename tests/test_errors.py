@@ -7,7 +7,7 @@ import math
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import SILVERBOX_P, silverbox_model, silverbox_rhs
+from conftest import SILVERBOX_P, silverbox_model
 
 import tensorid as ti
 
@@ -16,17 +16,7 @@ U = np.sin(T)
 Y = np.cos(T)
 
 
-def _model(**kw):
-    args = dict(
-        rhs=silverbox_rhs,
-        output=lambda x, p: x[:1],
-        states=["y", "v"],
-        params=["m", "d", "a", "b"],
-        inputs=["u"],
-        outputs=["y"],
-    )
-    args.update(kw)
-    return ti.Model(**args)
+_model = silverbox_model
 
 
 def _problem(**kw):

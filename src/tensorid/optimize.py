@@ -290,12 +290,29 @@ def _baseline(method, tr: _Tracker, phi0, lo, hi, maxiter, gtol, ftol, xtol, nat
         return res.x, int(res.njev or res.nfev), bool(res.success), str(res.message)
 
 
-def _result(problem, method, theta, scale, nit, nfev, success, message, start, history):
-    J, g, H = problem.cost_grad_hess(theta)
-    if not np.isfinite(J):  # cannot happen for a point the tracker accepted, but be safe
-        g, H = np.full_like(theta, np.nan), np.full((theta.size, theta.size), np.nan)
-    phi = theta / scale
-    pg = np.clip(phi - g * scale, problem.lower / scale, problem.upper / scale) - phi
+def _result(
+    problem,
+    method,
+    theta,
+    scale,
+    nit,
+    nfev,
+    success,
+    message,
+    start,
+    history,
+    evaluate: bool = True,
+):
+    """The FitResult at theta, with the exact gradient and Hessian there. A point whose
+    simulation is not finite gets cost inf and zero derivatives, never NaN."""
+    K = theta.size
+    J, g, H = problem.cost_grad_hess(theta) if evaluate else (np.inf, None, None)
+    if np.isfinite(J):
+        phi = theta / scale
+        pg = np.clip(phi - g * scale, problem.lower / scale, problem.upper / scale) - phi
+        grad_norm = float(np.linalg.norm(pg, np.inf))
+    else:
+        J, g, H, grad_norm = np.inf, np.zeros(K), np.zeros((K, K)), np.inf
     p, x0 = problem.unpack(theta)
     return FitResult(
         problem=problem,
@@ -306,7 +323,7 @@ def _result(problem, method, theta, scale, nit, nfev, success, message, start, h
         cost=float(J),
         jac=g,
         hess=H,
-        grad_norm=float(np.linalg.norm(pg, np.inf)),
+        grad_norm=grad_norm,
         nit=int(nit),
         nfev=int(nfev),
         success=bool(success),
@@ -318,22 +335,6 @@ def _result(problem, method, theta, scale, nit, nfev, success, message, start, h
 
 
 def _failed(problem, method, theta0, start, message):
-    K = problem.K
-    p, x0 = problem.unpack(theta0)
-    return FitResult(
-        problem=problem,
-        method=method,
-        theta=theta0,
-        params=dict(zip(problem.model.params, map(float, p), strict=True)),
-        x0=x0[0] if len(problem.experiments) == 1 else x0,
-        cost=np.inf,
-        jac=np.zeros(K),
-        hess=np.zeros((K, K)),
-        grad_norm=np.inf,
-        nit=0,
-        nfev=1,
-        success=False,
-        message=message,
-        seconds=time.perf_counter() - start,
-        scale=np.ones(K),
+    return _result(
+        problem, method, theta0, np.ones(problem.K), 0, 1, False, message, start, [], evaluate=False
     )

@@ -1,0 +1,122 @@
+"""The paper study on the bundled data: results.json's schema and the headline numbers.
+Runs the command line once (quick, 2 starts, 2 worker processes)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from tensorid import benchmarks, cli, datasets, paper
+from tensorid.optimize import METHODS
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    out = tmp_path_factory.mktemp("paper")
+    assert (
+        cli.main(
+            [
+                "paper",
+                "--quick",
+                "--starts",
+                "2",
+                "--workers",
+                "2",
+                "--out",
+                str(out),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
+    return out, json.loads((out / "results.json").read_text())
+
+
+def test_outputs_written(study):
+    out, _ = study
+    for name in (
+        "results.json",
+        "report.md",
+        "silverbox_train.png",
+        "silverbox_validation.png",
+        "silverbox_offset_validation.png",
+        "two_tank.png",
+        "robustness.png",
+    ):
+        assert (out / name).stat().st_size > 1000, name
+    report = (out / "report.md").read_text()
+    assert "Why the validation GOF differs" in report and "| newton |" in report
+
+
+def test_schema(study):
+    _, r = study
+    sb, tt = r["silverbox"], r["two_tank"]
+    assert set(sb["paper_model"]) >= {
+        "params",
+        "x0",
+        "train_cost",
+        "train_gof",
+        "val_gof",
+        "iterations",
+    }
+    assert set(sb["paper_model"]["params"]) == {"m", "d", "a", "b"}
+    assert len(sb["paper_model"]["x0"]) == 2
+    assert set(sb["paper_estimates"]) >= {"train_cost", "train_gof", "val_gof"}
+    assert set(sb["offset_model"]) >= {"params", "train_cost", "train_gof", "val_gof"}
+    assert set(tt["paper_model"]) >= {"params", "cost", "gof", "iterations"}
+    assert set(tt["paper_estimates"]) >= {"cost", "gof"}
+    keys = {
+        "dataset",
+        "method",
+        "accuracy",
+        "starts",
+        "converged",
+        "failed",
+        "best_val_gof",
+        "median_val_gof",
+        "median_iterations",
+        "median_seconds",
+    }
+    rows = r["robustness"]
+    assert len(rows) == 2 * len(METHODS)
+    for row in rows:
+        assert keys <= set(row)
+        assert row["starts"] == 2 and 0 <= row["converged"] <= 2 and 0 <= row["failed"] <= 2
+
+
+def test_headline_numbers(study):
+    _, r = study
+    sb, tt = r["silverbox"], r["two_tank"]
+    assert sb["paper_model"]["val_gof"] >= 0.90
+    assert sb["paper_model"]["train_cost"] <= sb["paper_estimates"]["train_cost"]
+    assert sb["offset_model"]["val_gof"] >= 0.97
+    assert tt["paper_model"]["gof"] >= 0.788
+    # the paper's own estimates, evaluated on the same data, are reproduced too
+    assert sb["paper_estimates"]["val_gof"] == pytest.approx(0.897, abs=0.005)
+    assert sb["mean_removed"]["paper_estimates_val_gof"] == pytest.approx(0.9626, abs=0.01)
+    for row in r["robustness"]:
+        if row["method"] == "newton":
+            assert row["converged"] == row["starts"] and row["failed"] == 0
+
+
+def test_starts_are_seeded_and_within_20_percent():
+    guess = np.array([0.0, 5.1025e-6, 2.15e-4, 0.968, 3.976])
+    a, b = paper.draw_starts(guess, 100, 0), paper.draw_starts(guess, 100, 0)
+    np.testing.assert_array_equal(a, b)
+    assert (a[:, 0] == 0).all()
+    ratio = a[:, 1:] / guess[1:]
+    assert (ratio >= 0.8).all() and (ratio <= 1.2).all() and ratio.std() > 0.05
+
+
+def test_bundled_windows_are_the_papers():
+    tr, va = datasets.silverbox_train(), datasets.silverbox_validation()
+    assert tr.P == 1024 and va.P == 2047
+    assert tr.t[0] == pytest.approx(10584 * datasets.SILVERBOX_TS)
+    assert tr.u[0, 0] == pytest.approx(0.00655235, rel=1e-5)  # V1[10584] in the .mat file
+    assert datasets.two_tank().P == 501
+    np.testing.assert_allclose(datasets.two_tank_levels()[0], [0.20507812, 0.38085938])
+    with pytest.raises(ValueError, match="holds samples"):
+        datasets.silverbox(0, 100)
+    assert benchmarks.silverbox_problem().theta_names == ["ydot(t0)", "m", "d", "a", "b"]
