@@ -233,11 +233,16 @@ def _robustness(r: dict) -> list[str]:
     newton = [x for x in rows if x["method"] == "newton"]
     if newton:
         worst = min(newton, key=lambda x: x["converged"] / x["starts"])
-        out.append(
-            f"Newton with the exact Hessian reached the best cost from at least "
-            f"{worst['converged']}/{worst['starts']} starts in every row "
-            f"(lowest: {worst['dataset']}, {worst['accuracy']})."
-        )
+        if worst["converged"] == worst["starts"]:
+            out.append(
+                "Newton with the exact Hessian reached the best cost from every start in every row."
+            )
+        else:
+            out.append(
+                f"Newton with the exact Hessian reached the best cost from at least "
+                f"{worst['converged']}/{worst['starts']} starts in every row "
+                f"(lowest: {worst['dataset']}, {worst['accuracy']})."
+            )
     for m in ("gauss-newton", "fd-lsq", "fd-bfgs"):
         ms = [x for x in rows if x["method"] == m]
         if ms:

@@ -194,12 +194,12 @@ class Sensitivities:
         def directions(S, Tp):
             Z = jnp.concatenate([S, Psel])  # (N+M, K)
             c = jnp.concatenate([Tp, jnp.zeros((M, npairs))])  # T pairs, no p part
-            return Z, Z[:, jj].T, Z[:, kk].T, c.T
+            return Z[:, jj].T, Z[:, kk].T, c.T
 
         def field(state, uu):
             x, S, Tp = state
             z = jnp.concatenate([x, p])
-            _, A, B, Cc = directions(S, Tp)
+            A, B, Cc = directions(S, Tp)
 
             def F(zz):
                 return m.f(zz[:N], zz[N:], uu)
@@ -211,7 +211,7 @@ class Sensitivities:
             J, g, Hp = acc
             x, S, Tp = state
             z = jnp.concatenate([x, p])
-            _, A, B, Cc = directions(S, Tp)
+            A, B, Cc = directions(S, Tp)
 
             def C(zz):
                 return m.h(zz[:N], zz[N:])
