@@ -3,12 +3,16 @@ state/parameter transition tensors."""
 
 from . import _config  # noqa: F401  (float64 before anything else touches JAX)
 from .data import Experiment
+from .equations import model_from_equations
+from .functions import safe_sqrt
 from .integrate import SCHEMES, ExplicitRungeKutta
+from .loaders import ModelSpec, load_data, load_model
 from .metrics import gof, nrmse, rmse
 from .model import Model
 from .optimize import METHODS, FitResult, fit
 from .problem import Problem
 from .simulate import Simulation, simulate
+from .uncertainty import Uncertainty
 
 __version__ = "0.1.0"
 
@@ -19,11 +23,17 @@ __all__ = [
     "ExplicitRungeKutta",
     "FitResult",
     "Model",
+    "ModelSpec",
     "Problem",
     "Simulation",
+    "Uncertainty",
     "fit",
     "gof",
+    "load_data",
+    "load_model",
+    "model_from_equations",
     "nrmse",
     "rmse",
+    "safe_sqrt",
     "simulate",
 ]

@@ -44,6 +44,26 @@ def _paper(args) -> int:
     return 0
 
 
+def _fit(args) -> int:
+    from .fitcli import run_fit
+
+    return run_fit(args)
+
+
+def _simulate(args) -> int:
+    from .fitcli import run_simulate
+
+    return run_simulate(args)
+
+
+def _samples(text: str) -> tuple[int, int]:
+    try:
+        a, b = text.split(":")
+        return int(a), int(b)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected START:STOP sample indices, got {text!r}")
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="tensorid",
@@ -79,6 +99,82 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="seed of the random starts")
     p.add_argument("--no-progress", action="store_true", help="no live progress display")
     p.set_defaults(func=_paper)
+
+    f = sub.add_parser(
+        "fit",
+        help="fit a model file to data files",
+        description="Estimate the unknown parameters and initial states of "
+        "MODEL.py from DATA files; write fit.json, report.md and "
+        "figures to --out.",
+    )
+    f.add_argument("model", help="model file (Python)")
+    f.add_argument("data", nargs="+", help="data files (.csv, .mat, .npz), one experiment each")
+    f.add_argument("--out", default="fit-results", help="output folder")
+    f.add_argument(
+        "--method", default="newton", choices=["newton", "gauss-newton", "fd-bfgs", "fd-lsq"]
+    )
+    f.add_argument(
+        "--validate", nargs="*", default=[], metavar="DATA", help="validation data files"
+    )
+    f.add_argument(
+        "--ts", type=float, default=None, help="sampling time, for data files without a 't' column"
+    )
+    f.add_argument(
+        "--samples",
+        type=_samples,
+        default=None,
+        metavar="START:STOP",
+        help="use samples START:STOP of each training file",
+    )
+    f.add_argument(
+        "--validate-samples",
+        type=_samples,
+        default=None,
+        metavar="START:STOP",
+        help="use samples START:STOP of each validation file",
+    )
+    f.add_argument("--starts", type=int, default=1, help="number of starts (multi-start)")
+    f.add_argument(
+        "--spread",
+        type=float,
+        default=0.2,
+        help="relative spread of the starts around p0 where no bounds are given",
+    )
+    f.add_argument("--seed", type=int, default=0, help="seed of the starts")
+    f.add_argument("--workers", type=int, default=None, help="local worker processes")
+    f.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="run the starts on a Dask distributed cluster at ADDRESS",
+    )
+    f.add_argument("--substeps", type=int, default=4, help="RK4 steps per sample interval")
+    f.add_argument("--interpolation", default="linear", choices=["linear", "zoh"])
+    f.add_argument("--no-progress", action="store_true", help="no live progress display")
+    f.set_defaults(func=_fit)
+
+    s = sub.add_parser(
+        "simulate",
+        help="simulate a model file for given parameters",
+        description="Simulate MODEL.py on the inputs of DATA with the given "
+        "parameters; write simulation.csv (and GOF when DATA "
+        "has outputs).",
+    )
+    s.add_argument("model")
+    s.add_argument("data")
+    s.add_argument(
+        "--params",
+        nargs="*",
+        default=[],
+        metavar="NAME=VALUE",
+        help="parameter values (default: p0 of the model file), or a fit.json",
+    )
+    s.add_argument("--x0", nargs="*", default=[], metavar="STATE=VALUE")
+    s.add_argument("--ts", type=float, default=None)
+    s.add_argument("--substeps", type=int, default=4)
+    s.add_argument("--interpolation", default="linear", choices=["linear", "zoh"])
+    s.add_argument("--out", default="simulation.csv")
+    s.set_defaults(func=_simulate)
     return ap
 
 

@@ -56,6 +56,7 @@ class FitResult:
     seconds: float
     scale: np.ndarray
     history: list[dict] = field(default_factory=list)
+    starts: list[dict] = field(default_factory=list)
 
     @property
     def x(self) -> np.ndarray:
@@ -76,6 +77,41 @@ class FitResult:
             gof(_squeeze(e.y), _squeeze(s.y))
             for e, s in zip(self.problem.experiments, sims, strict=True)
         ]
+
+    def uncertainty(self, kind: str = "hessian"):
+        """Standard errors, 95 % intervals, correlations (see tensorid.uncertainty);
+        ``kind`` "hessian" uses the exact Hessian, "gauss-newton" its first-order form."""
+        from .uncertainty import uncertainty
+
+        if kind not in ("hessian", "gauss-newton"):
+            raise ValueError("kind must be 'hessian' or 'gauss-newton'")
+        H = self.hess if kind == "hessian" else self.problem.cost_grad_gn(self.theta)[2]
+        return uncertainty(self.problem, self.theta, self.cost, H, kind)
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """Covariance of theta from the exact Hessian, scaled by the residual variance."""
+        return self.uncertainty().covariance
+
+    @property
+    def warnings(self) -> list[str]:
+        out = [] if self.success else [f"the fit did not converge: {self.message}"]
+        if np.isfinite(self.cost):
+            out += self.uncertainty().warnings
+        return out
+
+    def summary(self) -> str:
+        """A plain-text table of the estimates with standard errors and intervals."""
+        from .report import summary_table
+
+        return summary_table(self)
+
+    def plot(self, path=None, validation=None):
+        """Measured against simulated outputs with residuals; saved to ``path`` (PNG)
+        when given. Returns the list of written files or the matplotlib figures."""
+        from .report import fit_figures
+
+        return fit_figures(self, path, validation)
 
     def __repr__(self) -> str:
         ps = ", ".join(f"{k}={v:.6g}" for k, v in self.params.items())
@@ -147,6 +183,12 @@ def fit(
     method: str = "newton",
     *,
     theta0=None,
+    starts: int | None = None,
+    spread: float = 0.2,
+    sampling: str = "lhs",
+    seed: int = 0,
+    executor=None,
+    workers: int | None = None,
     x_scale="auto",
     maxiter: int = 200,
     gtol: float = 1e-10,
@@ -168,6 +210,12 @@ def fit(
     gtol, ftol, xtol : stopping tolerances on the scaled projected gradient, the
         relative cost decrease and the scaled step.
     callback : called with each iteration's history entry (a dict).
+    starts : with N > 1, fit from theta0 and N - 1 further starts (within the bounds
+        where both are finite, else within ±spread of theta0; Latin hypercube or
+        uniform ``sampling``, seeded), in parallel through ``executor`` (any
+        concurrent.futures.Executor, e.g. a Dask ``client.get_executor()``) or a local
+        process pool of ``workers``; the best is refined and returned, with every start
+        ranked in ``result.starts``.
     """
     if not isinstance(problem, Problem):
         raise TypeError(f"fit needs a tensorid.Problem, got {type(problem).__name__}")
@@ -178,6 +226,22 @@ def fit(
     lo, hi = problem.lower, problem.upper
     if ((theta0 < lo) | (theta0 > hi)).any():
         raise ValueError("theta0 lies outside the bounds")
+    options = dict(x_scale=x_scale, maxiter=maxiter, gtol=gtol, ftol=ftol, xtol=xtol)
+    if starts is not None and starts > 1:
+        return _multistart(
+            problem,
+            method,
+            theta0,
+            starts,
+            spread,
+            sampling,
+            seed,
+            executor,
+            workers,
+            options,
+            callback,
+            start,
+        )
 
     J0, g0, H0 = problem.cost_grad_gn(theta0)
     if not np.isfinite(J0):
@@ -238,6 +302,29 @@ def fit(
     return _result(
         problem, method, tr.theta(phi), scale, nit, tr.nfev, success, message, start, history
     )
+
+
+def _multistart(
+    problem, method, theta0, n, spread, sampling, seed, executor, workers, options, callback, start
+):
+    from .multistart import draw_starts, run_starts
+
+    thetas = draw_starts(
+        theta0, problem.lower, problem.upper, n, spread=spread, sampling=sampling, seed=seed
+    )
+    runs = run_starts(problem, method, thetas, options, executor, workers)
+    for i, r in enumerate(runs):
+        r["start"] = i
+    ranked = sorted(runs, key=lambda r: (not np.isfinite(r["cost"]), r["cost"]))
+    best = ranked[0]
+    if not np.isfinite(best["cost"]):
+        res = _failed(problem, method, theta0, start, f"none of the {n} starts gave a finite cost")
+    else:  # refine the winner here, where the caller's callback can watch it
+        res = fit(problem, method, theta0=np.asarray(best["theta"]), callback=callback, **options)
+    res.starts = ranked
+    res.nfev += sum(r["nfev"] for r in runs)
+    res.seconds = time.perf_counter() - start
+    return res
 
 
 def _baseline(method, tr: _Tracker, phi0, lo, hi, maxiter, gtol, ftol, xtol, natural):

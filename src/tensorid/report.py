@@ -100,3 +100,87 @@ def _jsonable(obj):
 def write_json(path: Path, data) -> Path:
     path.write_text(json.dumps(_jsonable(data), indent=2) + "\n")
     return path
+
+
+# -- reports of a fit -------------------------------------------------------------------
+def _squeeze_name(s: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in s)
+
+
+def summary_table(res) -> str:
+    """The estimates of a FitResult as a plain-text table."""
+    from rich.console import Console
+    from rich.table import Table
+
+    u = res.uncertainty() if np.isfinite(res.cost) else None
+    tab = Table(
+        title=f"{res.problem.model.name}: {res.method}, "
+        f"{'converged' if res.success else 'NOT converged'} in {res.nit} "
+        f"iterations, cost {res.cost:.6g}"
+    )
+    for col in ("unknown", "estimate", "std. error", "95 % interval"):
+        tab.add_column(col, justify="right" if col != "unknown" else "left")
+    for k, name in enumerate(res.problem.theta_names):
+        se = u.stderr[k] if u else np.nan
+        ci = f"[{u.ci95[k, 0]:.6g}, {u.ci95[k, 1]:.6g}]" if u else "–"
+        tab.add_row(name, f"{res.theta[k]:.6g}", f"{se:.3g}", ci)
+    console = Console(width=100, record=True, file=open("/dev/null", "w"))  # noqa: SIM115
+    console.print(tab)
+    for w in res.warnings:
+        console.print(f"warning: {w}")
+    return console.export_text()
+
+
+def _convergence_plot(path: Path, history: list[dict], title: str) -> Path:
+    plt = _plt()
+    it = [h["iteration"] for h in history]
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(9, 3.5))
+    a1.semilogy(it, [h["cost"] for h in history], "o-", ms=3)
+    a1.set_xlabel("iteration")
+    a1.set_ylabel("cost J")
+    a2.semilogy(it, [max(h["grad_norm"], 1e-300) for h in history], "o-", ms=3, color="tab:orange")
+    a2.set_xlabel("iteration")
+    a2.set_ylabel("gradient norm (scaled)")
+    for a in (a1, a2):
+        a.grid(alpha=0.3)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def fit_figures(res, out=None, validation=None) -> list[Path]:
+    """Measured against simulated per experiment and output, residuals, and the
+    convergence history; written to the folder ``out`` (default: current folder)."""
+    out = Path(out or ".")
+    out.mkdir(parents=True, exist_ok=True)
+    from .metrics import gof
+
+    files = []
+    sets = [("train", e, s) for e, s in zip(res.problem.experiments, res.simulate(), strict=True)]
+    for e, s in validation or []:
+        sets.append(("validation", e, s))
+    model = res.problem.model
+    for kind, e, s in sets:
+        for j, name in enumerate(model.outputs):
+            g = gof(e.y[:, j], s.y[:, j])
+            files.append(
+                compare_plot(
+                    out / f"{kind}_{_squeeze_name(e.name or 'data')}_{_squeeze_name(name)}.png",
+                    e.t,
+                    e.y[:, j],
+                    s.y[:, j],
+                    ylabel=name,
+                    title=f"{kind}: {e.name or 'data'}, output {name}: GOF {g:.4f}",
+                )
+            )
+    if res.history:
+        files.append(
+            _convergence_plot(
+                out / "convergence.png",
+                res.history,
+                f"{res.method}: cost and gradient norm per iteration",
+            )
+        )
+    return files

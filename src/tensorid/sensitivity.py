@@ -229,6 +229,13 @@ class Sensitivities:
         return J, g, Hp
 
     # -- compiled entry points ---------------------------------------------------------
+    # (compiled functions are per process: pickling drops them, the receiver recompiles)
+    def __getstate__(self):
+        return {k: v for k, v in self.__dict__.items() if k not in _COMPILED}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+
     @cached_property
     def simulate(self):
         return jax.jit(self._simulate)
@@ -248,3 +255,6 @@ class Sensitivities:
     @cached_property
     def second_order(self):
         return jax.jit(self._second_order)
+
+
+_COMPILED = ("simulate", "cost", "residuals", "first_order", "second_order")

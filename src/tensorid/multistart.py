@@ -1,0 +1,104 @@
+"""Multi-start: many fits from spread-out initial guesses, run through any
+concurrent.futures executor (a local process pool by default, a Dask distributed
+cluster via ``client.get_executor()``), ranked by cost, the best refined.
+
+Starts are sent as cloudpickle bytes, so models written as lambdas, in scripts,
+notebooks or model files reach the workers; each worker compiles a problem once
+and reuses it for every start it receives.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from concurrent.futures import Executor, ProcessPoolExecutor
+from multiprocessing import get_context
+
+import numpy as np
+
+SAMPLINGS = ("lhs", "uniform")
+
+
+def draw_starts(
+    theta0: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    n: int,
+    *,
+    spread: float = 0.2,
+    sampling: str = "lhs",
+    seed: int = 0,
+) -> np.ndarray:
+    """n starts (the first is theta0 itself). Entries with finite bounds on both sides
+    are drawn within the bounds; the others within ±spread of theta0 (relative), kept
+    inside any one-sided bound. ``sampling``: "lhs" (Latin hypercube) or "uniform"."""
+    if sampling not in SAMPLINGS:
+        raise ValueError(f"sampling must be one of {SAMPLINGS}, got {sampling!r}")
+    if n < 1:
+        raise ValueError(f"starts must be at least 1, got {n}")
+    K = theta0.size
+    rng = np.random.default_rng(seed)
+    m = n - 1
+    if sampling == "lhs":
+        unit = (
+            rng.permuted(np.tile(np.arange(m), (K, 1)), axis=1).T + rng.uniform(size=(m, K))
+        ) / max(m, 1)
+    else:
+        unit = rng.uniform(size=(m, K))
+    boxed = np.isfinite(lower) & np.isfinite(upper)
+    lo = np.where(boxed, lower, theta0 - spread * np.abs(theta0))
+    hi = np.where(boxed, upper, theta0 + spread * np.abs(theta0))
+    pts = np.clip(lo + unit * (hi - lo), lower, upper)
+    return np.vstack([theta0[None, :], pts])
+
+
+_WORKER_PROBLEMS: dict[str, object] = {}
+
+
+def _fit_payload(payload: tuple) -> dict:
+    """Worker side: one start."""
+    import cloudpickle
+
+    from .optimize import fit
+
+    blob, method, theta0, options = payload
+    key = hashlib.sha1(blob).hexdigest()
+    if key not in _WORKER_PROBLEMS:
+        _WORKER_PROBLEMS.clear()
+        _WORKER_PROBLEMS[key] = cloudpickle.loads(blob)
+    res = fit(_WORKER_PROBLEMS[key], method=method, theta0=np.asarray(theta0), **options)
+    return {
+        "theta0": list(map(float, theta0)),
+        "theta": res.theta.tolist(),
+        "cost": float(res.cost),
+        "success": res.success,
+        "nit": res.nit,
+        "nfev": res.nfev,
+        "seconds": res.seconds,
+        "message": res.message,
+    }
+
+
+def run_starts(
+    problem,
+    method: str,
+    thetas: np.ndarray,
+    options: dict,
+    executor: Executor | None = None,
+    workers: int | None = None,
+) -> list[dict]:
+    """Fit from each row of ``thetas``; results in the order of the starts."""
+    import cloudpickle
+
+    blob = cloudpickle.dumps(problem)
+    payloads = [(blob, method, th.tolist(), options) for th in thetas]
+    if executor is not None:
+        return list(executor.map(_fit_payload, payloads))
+    workers = workers or os.cpu_count() or 1
+    if workers == 1 or len(payloads) == 1:
+        return [_fit_payload(p) for p in payloads]
+    os.environ.setdefault(
+        "XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+    )
+    with ProcessPoolExecutor(min(workers, len(payloads)), mp_context=get_context("spawn")) as pool:
+        return list(pool.map(_fit_payload, payloads))
