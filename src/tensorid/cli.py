@@ -61,7 +61,9 @@ def _samples(text: str) -> tuple[int, int]:
         a, b = text.split(":")
         return int(a), int(b)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected START:STOP sample indices, got {text!r}")
+        raise argparse.ArgumentTypeError(
+            f"expected START:STOP sample indices, got {text!r}"
+        ) from None
 
 
 def build_parser() -> argparse.ArgumentParser:
