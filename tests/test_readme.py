@@ -24,3 +24,27 @@ def test_readme_gives_exactly_two_setup_commands():
     setup = [b for b in bash if "pip install" in b]
     assert len(setup) == 2
     assert "tensorid paper --quick" in setup[0] and "pytest" in setup[1]
+
+
+def test_readme_fit_command_runs_as_written(tmp_path, monkeypatch):
+    import json
+    import shlex
+
+    from tensorid import cli
+
+    text = README.read_text()
+    cmd = next(
+        b
+        for b in re.findall(r"```bash\n(.*?)```", text, flags=re.S)
+        if b.startswith("tensorid fit")
+    )
+    args = shlex.split(cmd.replace("\\\n", " "))[1:]
+    monkeypatch.chdir(README.parent)
+    args[args.index("--out") + 1] = str(tmp_path / "fit")
+    assert cli.main(args + ["--no-progress"]) == 0
+    d = json.loads((tmp_path / "fit" / "fit.json").read_text())
+    assert d["success"] and d["gof"]["validation"]["validate"]["y"] > 0.97
+    # the model file shown in the README is the one that ships
+    shown = re.search(r"```\n(rhs = .*?)```", text, flags=re.S).group(1)
+    shipped = (README.parent / "examples/silverbox/model.py").read_text()
+    assert all(line in shipped for line in shown.strip().splitlines())

@@ -45,12 +45,19 @@ class Uncertainty:
         }
 
 
+def jacobi_scale(H: np.ndarray) -> np.ndarray:
+    """s with diag(s H s) = 1 where H_ii > 0: unit-free, and it takes the Silverbox
+    Hessian from a condition number near 1e18 to one that eigen-solvers resolve."""
+    d = np.abs(np.diag(H))
+    return np.where(d > 0, 1.0 / np.sqrt(np.where(d > 0, d, 1.0)), 1.0)
+
+
 def flat_directions(
-    H: np.ndarray, theta: np.ndarray, names: list[str], threshold: float = FLAT
+    H: np.ndarray, names: list[str], threshold: float = FLAT
 ) -> list[tuple[float, list[str]]]:
-    """Directions along which the cost is (nearly) flat, in relative units:
+    """Directions along which the cost is (nearly) flat, in Jacobi-scaled units:
     (relative eigenvalue, names of the unknowns that move together)."""
-    s = np.where(theta != 0, np.abs(theta), 1.0)
+    s = jacobi_scale(H)
     Hs = H * np.outer(s, s)
     lam, V = np.linalg.eigh(0.5 * (Hs + Hs.T))
     top = max(abs(lam[-1]), np.finfo(float).tiny)
@@ -75,20 +82,24 @@ def uncertainty(
     dof = max(n - K, 1)
     sigma2 = J / dof
     warnings = []
-    flat = flat_directions(H, theta, names)
+    flat = flat_directions(H, names)
     for rel, involved in flat:
         warnings.append(
             f"not identifiable from these data: the cost is flat (relative curvature "
             f"{rel:.1e}) along a direction that moves {', '.join(involved)} together; "
             "fix one of them, add data that excites them differently, or reparametrise"
         )
-    lam = np.linalg.eigvalsh(0.5 * (H + H.T))
-    if not flat and lam[0] <= 0:
+    # work in Jacobi-scaled units: on the raw Hessian, rounding makes the smallest
+    # eigenvalue's sign meaningless and a relative pinv cutoff would discard exactly the
+    # poorly determined directions, reporting tiny standard errors
+    sc = jacobi_scale(H)
+    Hs = 0.5 * (H + H.T) * np.outer(sc, sc)
+    if not flat and np.linalg.eigvalsh(Hs)[0] <= 0:
         warnings.append(
             "the Hessian is not positive definite here: this is not a strict "
             "local minimum, so the intervals are not meaningful"
         )
-    cov = 2.0 * sigma2 * np.linalg.pinv(0.5 * (H + H.T), rcond=FLAT, hermitian=True)
+    cov = 2.0 * sigma2 * np.linalg.pinv(Hs, rcond=FLAT, hermitian=True) * np.outer(sc, sc)
     var = np.diag(cov).copy()
     # a flat direction has unbounded variance; pinv would report it as zero
     for _, involved in flat:
