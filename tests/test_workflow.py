@@ -265,6 +265,24 @@ def test_multistart_local_and_dask_agree(workdir):
         distributed.Client(cluster) as client,
     ):
         remote = ti.fit(prob, starts=4, executor=client.get_executor())
+        # and the command line's --scheduler, on the same cluster
+        rc = cli.main(
+            [
+                "fit",
+                str(workdir / "model.py"),
+                str(workdir / "d.csv"),
+                "--starts",
+                "3",
+                "--scheduler",
+                cluster.scheduler_address,
+                "--out",
+                str(workdir / "dask-out"),
+                "--no-progress",
+            ]
+        )
+        assert rc == 0
+        d = json.loads((workdir / "dask-out" / "fit.json").read_text())
+        assert len(d["starts"]) == 3 and d["cost"] == pytest.approx(local.cost, rel=1e-9)
     assert len(local.starts) == len(remote.starts) == 4
     assert [s["cost"] for s in local.starts] == pytest.approx(
         [s["cost"] for s in remote.starts], rel=1e-9

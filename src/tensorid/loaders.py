@@ -70,7 +70,11 @@ def load_model(path) -> ModelSpec:
     if spec is None or spec.loader is None:
         raise ValueError(f"{path} is not a Python file")
     module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module  # lets worker processes unpickle functions defined there
+    sys.modules[name] = module
+    # worker processes cannot import this file by name: ship its functions by value
+    import cloudpickle
+
+    cloudpickle.register_pickle_by_value(module)
     try:
         spec.loader.exec_module(module)
     except Exception as e:
