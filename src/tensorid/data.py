@@ -47,7 +47,7 @@ class Experiment:
     """
 
     t: np.ndarray
-    u: np.ndarray | None = None
+    u: np.ndarray = None  # type: ignore[assignment]  # None becomes (P, 0)
     y: np.ndarray | None = None
     name: str = ""
 
@@ -76,6 +76,13 @@ class Experiment:
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "u", u)
         object.__setattr__(self, "y", y)
+
+    @property
+    def measured(self) -> np.ndarray:
+        """y, for code that needs measurements; a clear error when there are none."""
+        if self.y is None:
+            raise ValueError(f"experiment {self.name!r} has no measured outputs y")
+        return self.y
 
     @property
     def P(self) -> int:

@@ -83,7 +83,7 @@ def _axpy(y, h: float | jax.Array, terms):
 def rk_step(scheme: ExplicitRungeKutta, f: Callable, y, h, s0, ds):
     """One step of size h from interval fraction s0; f(y, s) is the vector field at
     interval fraction s, and ds is the fraction covered by this step."""
-    ks = []
+    ks: list = []
     for i, ci in enumerate(scheme.c):
         yi = _axpy(y, h, zip(scheme.a[i], ks, strict=False))
         ks.append(f(yi, s0 + ci * ds))

@@ -203,7 +203,7 @@ def load_data(
                 f"{p} has no time column 't'; add one or give the sampling "
                 "time (--ts on the command line, ts= in Python)"
             )
-        u = np.stack([cols[n] for n in model.inputs], axis=1) if model.U else None
+        u = np.stack([cols[n] for n in model.inputs], axis=1) if model.U else np.zeros((P, 0))
         y = np.stack([cols[n] for n in model.outputs], axis=1) if has_outputs else None
         e = Experiment(t, u, y, name=p.stem)
         if samples is not None:

@@ -61,11 +61,12 @@ class Model:
     """
 
     rhs: Callable[[Array, Array, Array], Array]
-    output: Callable[[Array, Array], Array] | None = None
+    # None (every state is an output) is replaced in __post_init__
+    output: Callable[[Array, Array], Array] = None  # type: ignore[assignment]
     states: Sequence[str] = ()
     params: Sequence[str] = ()
     inputs: Sequence[str] = ()
-    outputs: Sequence[str] | None = None
+    outputs: Sequence[str] = None  # type: ignore[assignment]
     name: str = "model"
     _scalar_output: bool = field(default=False, init=False, repr=False)
 
@@ -226,12 +227,12 @@ def _named_vector(values, names: Sequence[str], what: str) -> np.ndarray:
             raise ValueError(f"{what} is missing values for {missing}")
         out = np.array([float(values[n]) for n in names], dtype=float)
     else:
-        out = np.asarray(values, dtype=float).reshape(-1) if np.ndim(values) else None
-        if out is None:
-            if len(names) == 1:
-                out = np.array([float(values)])
-            else:
-                raise ValueError(f"{what} must be a dict or an array of {len(names)} values")
+        if np.ndim(values):
+            out = np.asarray(values, dtype=float).reshape(-1)
+        elif len(names) == 1:
+            out = np.array([float(values)])
+        else:
+            raise ValueError(f"{what} must be a dict or an array of {len(names)} values")
         if out.shape != (len(names),):
             raise ValueError(f"{what} has {out.size} values but there are {len(names)}: {names}")
     bad = [n for n, v in zip(names, out, strict=True) if not np.isfinite(v)]

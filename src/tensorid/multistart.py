@@ -13,6 +13,7 @@ import hashlib
 import os
 from concurrent.futures import Executor, ProcessPoolExecutor
 from multiprocessing import get_context
+from typing import Any
 
 import numpy as np
 
@@ -52,7 +53,7 @@ def draw_starts(
     return np.vstack([theta0[None, :], pts])
 
 
-_WORKER_PROBLEMS: dict[str, object] = {}
+_WORKER_PROBLEMS: dict[str, Any] = {}
 
 
 def _fit_payload(payload: tuple) -> dict:

@@ -74,7 +74,7 @@ class FitResult:
         """Goodness of fit per experiment (per output for several outputs)."""
         sims = self.simulate()
         return [
-            gof(_squeeze(e.y), _squeeze(s.y))
+            gof(_squeeze(e.measured), _squeeze(s.y))
             for e, s in zip(self.problem.experiments, sims, strict=True)
         ]
 
@@ -292,10 +292,10 @@ def fit(
                 method, tr, phi0, plo, phi_hi, maxiter, gtol, ftol, xtol, natural
             )
     except Exception as e:  # a baseline inside SciPy may give up in its own way
-        phi, nit, success = tr.best_phi, len(history), False
         message = f"{method} stopped with {type(e).__name__}: {e}"
-        if phi is None:
+        if tr.best_phi is None:
             return _failed(problem, method, theta0, start, message)
+        phi, nit, success = tr.best_phi, len(history), False
 
     if tr.best_phi is not None and tr.best_J < problem.cost(tr.theta(phi)):
         phi = tr.best_phi
@@ -394,7 +394,7 @@ def _result(
     simulation is not finite gets cost inf and zero derivatives, never NaN."""
     K = theta.size
     J, g, H = problem.cost_grad_hess(theta) if evaluate else (np.inf, None, None)
-    if np.isfinite(J):
+    if np.isfinite(J) and g is not None and H is not None:
         phi = theta / scale
         pg = np.clip(phi - g * scale, problem.lower / scale, problem.upper / scale) - phi
         grad_norm = float(np.linalg.norm(pg, np.inf))

@@ -38,22 +38,22 @@ CONVERGED_RTOL = 1e-6
 
 # -- headline fits --------------------------------------------------------------------
 def _y(e: Experiment) -> np.ndarray:
-    return e.y[:, 0]
+    return e.measured[:, 0]
 
 
 def _silverbox_validate(model, params, substeps: int, val: Experiment) -> float:
     """Validation as in the paper: y(t0) measured, ẏ(t0) = 0."""
-    sim = simulate(model, params, [float(val.y[0, 0]), 0.0], val, substeps=substeps)
+    sim = simulate(model, params, [float(val.measured[0, 0]), 0.0], val, substeps=substeps)
     return float(gof(_y(val), sim.y[:, 0]))
 
 
-def silverbox_study(out: Path) -> tuple[dict, list[str]]:
+def silverbox_study(out: Path) -> tuple[dict, list[Path]]:
     train, val = datasets.silverbox_train(), datasets.silverbox_validation()
     figures = []
     res = fit(benchmarks.silverbox_problem(), method="newton")
     sim_tr = res.simulate()[0]
     model = res.problem.model
-    sim_va = simulate(model, res.params, [float(val.y[0, 0]), 0.0], val)
+    sim_va = simulate(model, res.params, [float(val.measured[0, 0]), 0.0], val)
     paper_model = {
         "params": res.params,
         "x0": res.x0.tolist(),
@@ -94,7 +94,7 @@ def silverbox_study(out: Path) -> tuple[dict, list[str]]:
     theta_p[0] = benchmarks.SILVERBOX_PAPER_VDOT0
     paper_estimates = {
         "params": benchmarks.SILVERBOX_PAPER,
-        "x0": [float(train.y[0, 0]), benchmarks.SILVERBOX_PAPER_VDOT0],
+        "x0": [float(train.measured[0, 0]), benchmarks.SILVERBOX_PAPER_VDOT0],
         "train_cost": pp.cost(theta_p),
         "train_gof": float(gof(_y(train), pp.simulate(theta_p)[0].y[:, 0])),
         "val_gof": _silverbox_validate(model, benchmarks.SILVERBOX_PAPER, 4, val),
@@ -104,7 +104,7 @@ def silverbox_study(out: Path) -> tuple[dict, list[str]]:
     # beyond the paper: the input offset and y(t0) estimated too
     ro = fit(benchmarks.silverbox_problem(offset=True), method="newton")
     om = ro.problem.model
-    sim_vo = simulate(om, ro.params, [float(val.y[0, 0]), 0.0], val)
+    sim_vo = simulate(om, ro.params, [float(val.measured[0, 0]), 0.0], val)
     offset_model = {
         "params": ro.params,
         "x0": ro.x0.tolist(),
@@ -130,14 +130,14 @@ def silverbox_study(out: Path) -> tuple[dict, list[str]]:
     # diagnostic: the archive's README removes the record means of V1 and V2
     means = datasets._load("silverbox_schroeder80mV.npz")
     mu, my = float(means["record_mean_V1"]), float(means["record_mean_V2"])
-    tr_c = Experiment(train.t, train.u - mu, train.y - my)
-    va_c = Experiment(val.t, val.u - mu, val.y - my)
+    tr_c = Experiment(train.t, train.u - mu, train.measured - my)
+    va_c = Experiment(val.t, val.u - mu, val.measured - my)
     rc = fit(
         Problem(
             model,
             tr_c,
             p0=benchmarks.SILVERBOX_GUESS,
-            x0=[float(tr_c.y[0, 0]), 0.0],
+            x0=[float(tr_c.measured[0, 0]), 0.0],
             free_x0=["ydot"],
         ),
         method="newton",
@@ -157,7 +157,7 @@ def silverbox_study(out: Path) -> tuple[dict, list[str]]:
     }, figures
 
 
-def two_tank_study(out: Path) -> tuple[dict, list[str]]:
+def two_tank_study(out: Path) -> tuple[dict, list[Path]]:
     data = datasets.two_tank()
     res = fit(benchmarks.two_tank_problem(), method="newton")
     sim = res.simulate()[0]
@@ -349,7 +349,7 @@ def integration_errors(levels) -> dict:
                 benchmarks.SILVERBOX_PAPER,
                 datasets.silverbox_train(),
             )
-            x0 = [float(e.y[0, 0]), 0.0]
+            x0 = [float(e.measured[0, 0]), 0.0]
         else:
             m, p, e = (benchmarks.two_tank_model(), benchmarks.TWO_TANK_PAPER, datasets.two_tank())
             x0 = datasets.two_tank_levels()[0]

@@ -6,13 +6,20 @@ import time
 from contextlib import contextmanager
 
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TaskID,
+    TextColumn,
+    TimeElapsedColumn,
+)
 
 
 class _StudyProgress:
     def __init__(self, progress: Progress | None, console: Console | None):
         self.progress, self.console = progress, console
-        self._task = None
+        self._task: TaskID | None = None
         self._t0 = time.perf_counter()
         self._bad = 0
 

@@ -43,7 +43,7 @@ def solve_subproblem(g: np.ndarray, H: np.ndarray, radius: float) -> tuple[np.nd
         n0 = np.linalg.norm(s0)
         if n0 <= radius:
             v = Q[:, 0]
-            tau = np.sqrt(max(radius**2 - n0**2, 0.0))
+            tau = np.sqrt(max(float(radius**2 - n0**2), 0.0))
             return (s0 + tau * v if g @ v <= 0 else s0 - tau * v), True
 
     def norm_s(l):
@@ -185,7 +185,8 @@ def minimize_trust_region(
         d_trunc = min(1.0, _room(x, s, lo, hi)) * s
         d_cauchy = _cauchy_step(x, g, H, lo, hi, free, radius)
 
-        d = min((d_proj, d_trunc, d_cauchy), key=lambda d, g=g, H=H: _model(g, H, d))
+        values = [_model(g, H, c) for c in (d_proj, d_trunc, d_cauchy)]
+        d = (d_proj, d_trunc, d_cauchy)[int(np.argmin(values))]
         pred = -_model(g, H, d)
         step = float(np.linalg.norm(d))
         xscale = 1.0 + np.linalg.norm(x, np.inf)

@@ -68,7 +68,7 @@ def silverbox_problem(p0=None, substeps: int = 4, offset: bool = False, **kw) ->
     """The paper's training problem (samples [10584:11608]); with ``offset`` the
     variant with an input offset and y(t0) free as well."""
     data = datasets.silverbox_train()
-    x0 = [float(data.y[0, 0]), 0.0]
+    x0 = [float(data.measured[0, 0]), 0.0]
     if offset:
         p0 = dict(SILVERBOX_GUESS, u0=0.0) if p0 is None else p0
         return Problem(
