@@ -86,6 +86,7 @@ class Experiment:
 
     @property
     def P(self) -> int:
+        """Number of samples."""
         return self.t.size
 
     def window(self, start: int, stop: int, name: str | None = None) -> Experiment:

@@ -39,6 +39,7 @@ class ModelSpec:
     path: Path | None = None
 
     def x0_array(self) -> np.ndarray:
+        """x0 of the model file as an array (N,), states it does not name at 0."""
         x0 = dict.fromkeys(self.model.states, 0.0)
         for k, v in (self.x0 or {}).items():
             if k not in x0:

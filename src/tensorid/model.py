@@ -111,18 +111,22 @@ class Model:
     # sizes, in the paper's letters
     @property
     def N(self) -> int:
+        """Number of states."""
         return len(self.states)
 
     @property
     def M(self) -> int:
+        """Number of parameters."""
         return len(self.params)
 
     @property
     def U(self) -> int:
+        """Number of inputs."""
         return len(self.inputs)
 
     @property
     def S(self) -> int:
+        """Number of outputs."""
         return len(self.outputs)
 
     def _check_shapes(self) -> None:
@@ -159,9 +163,11 @@ class Model:
 
     # Shape-normalised versions used internally: always (N,) and (S,).
     def f(self, x: Array, p: Array, u: Array) -> Array:
+        """dx/dt, always of shape (N,)."""
         return jnp.reshape(self.rhs(x, p, u), (self.N,))
 
     def h(self, x: Array, p: Array) -> Array:
+        """y, always of shape (S,)."""
         return jnp.reshape(self.output(x, p), (self.S,))
 
     def params_array(self, params, what: str = "params") -> np.ndarray:
@@ -169,6 +175,7 @@ class Model:
         return _named_vector(params, self.params, what)
 
     def states_array(self, x0, what: str = "x0") -> np.ndarray:
+        """A dict {state: value} or an array of length N, as a float array."""
         return _named_vector(x0, self.states, what)
 
     def __repr__(self) -> str:

@@ -60,10 +60,12 @@ class FitResult:
 
     @property
     def x(self) -> np.ndarray:
+        """Alias of theta (scipy.optimize.OptimizeResult's name)."""
         return self.theta
 
     @property
     def fun(self) -> float:
+        """Alias of cost (scipy.optimize.OptimizeResult's name)."""
         return self.cost
 
     def simulate(self):
@@ -95,6 +97,8 @@ class FitResult:
 
     @property
     def warnings(self) -> list[str]:
+        """Plain-language warnings: no convergence, unknowns the data cannot separate,
+        an optimum that is not a strict minimum."""
         out = [] if self.success else [f"the fit did not converge: {self.message}"]
         if np.isfinite(self.cost):
             out += self.uncertainty().warnings
@@ -215,7 +219,9 @@ def fit(
         uniform ``sampling``, seeded), in parallel through ``executor`` (any
         concurrent.futures.Executor, e.g. a Dask ``client.get_executor()``) or a local
         process pool of ``workers``; the best is refined and returned, with every start
-        ranked in ``result.starts``.
+        ranked in ``result.starts``. The local pool spawns fresh processes, which
+        re-import the calling script: guard a script's top level with
+        ``if __name__ == "__main__":``.
     """
     if not isinstance(problem, Problem):
         raise TypeError(f"fit needs a tensorid.Problem, got {type(problem).__name__}")

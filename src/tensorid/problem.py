@@ -224,6 +224,8 @@ class Problem:
 
     @property
     def theta_names(self) -> list[str]:
+        """Names of the entries of θ: "state(t0)" (with "[experiment]" when there are
+        several) for free initial states, then parameter names."""
         E = len(self.experiments)
         names = []
         for n, e in self.theta_entries:
@@ -236,6 +238,7 @@ class Problem:
 
     @property
     def K(self) -> int:
+        """Number of unknowns (entries of θ)."""
         return len(self.experiments) * len(self.free_x0) + len(self.free_params)
 
     @property

@@ -26,10 +26,12 @@ class Simulation:
 
     @property
     def t(self) -> np.ndarray:
+        """Sample times (P,)."""
         return self.experiment.t
 
     @property
     def finite(self) -> bool:
+        """False when the simulation blew up (non-finite states or outputs)."""
         return bool(np.isfinite(self.x).all() and np.isfinite(self.y).all())
 
 

@@ -36,6 +36,7 @@ class Uncertainty:
     warnings: list[str] = field(default_factory=list)
 
     def as_dicts(self) -> dict:
+        """stderr, ci95 and correlation as JSON-ready dicts keyed by unknown."""
         return {
             "stderr": dict(zip(self.names, map(float, self.stderr), strict=True)),
             "ci95": {
