@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 import math
 from pathlib import Path
@@ -124,7 +125,7 @@ def summary_table(res) -> str:
         se = u.stderr[k] if u else np.nan
         ci = f"[{u.ci95[k, 0]:.6g}, {u.ci95[k, 1]:.6g}]" if u else "–"
         tab.add_row(name, f"{res.theta[k]:.6g}", f"{se:.3g}", ci)
-    console = Console(width=100, record=True, file=open("/dev/null", "w"))  # noqa: SIM115
+    console = Console(width=100, record=True, file=io.StringIO())
     console.print(tab)
     for w in res.warnings:
         console.print(f"warning: {w}")
