@@ -193,39 +193,27 @@ def run_fit(args) -> int:
         client = Client(args.scheduler)
         executor = client.get_executor()
     rows: list[dict] = []
+    options = dict(
+        starts=args.starts,
+        spread=args.spread,
+        seed=args.seed,
+        executor=executor,
+        workers=args.workers,
+    )
     try:
         if args.no_progress:
-            res = fit(
-                problem,
-                args.method,
-                starts=args.starts,
-                spread=args.spread,
-                seed=args.seed,
-                executor=executor,
-                workers=args.workers,
-            )
+            res = fit(problem, args.method, **options)
         else:
             if args.starts > 1:
-                console.log(
-                    f"running {args.starts} starts "
-                    f"{'on ' + args.scheduler if args.scheduler else 'locally'}..."
-                )
+                where = "on " + args.scheduler if args.scheduler else "locally"
+                console.log(f"running {args.starts} starts {where}...")
             with Live(_progress_table(rows), console=console, refresh_per_second=8) as live:
 
                 def show(entry):
                     rows.append(entry)
                     live.update(_progress_table(rows))
 
-                res = fit(
-                    problem,
-                    args.method,
-                    starts=args.starts,
-                    spread=args.spread,
-                    seed=args.seed,
-                    executor=executor,
-                    workers=args.workers,
-                    callback=show,
-                )
+                res = fit(problem, args.method, callback=show, **options)
     finally:
         if client is not None:
             client.close()
