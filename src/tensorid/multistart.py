@@ -53,6 +53,16 @@ def draw_starts(
     return np.vstack([theta0[None, :], pts])
 
 
+def process_pool(workers: int) -> ProcessPoolExecutor:
+    """A local pool of fresh ("spawn") processes, each with one XLA thread: the
+    problems are small, so the cores are better spent on separate starts. Spawn,
+    not fork, because forking a process that has started JAX's threads is unsafe."""
+    os.environ.setdefault(
+        "XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+    )
+    return ProcessPoolExecutor(workers, mp_context=get_context("spawn"))
+
+
 _WORKER_PROBLEMS: dict[str, Any] = {}
 
 
@@ -98,8 +108,5 @@ def run_starts(
     workers = workers or os.cpu_count() or 1
     if workers == 1 or len(payloads) == 1:
         return [_fit_payload(p) for p in payloads]
-    os.environ.setdefault(
-        "XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
-    )
-    with ProcessPoolExecutor(min(workers, len(payloads)), mp_context=get_context("spawn")) as pool:
+    with process_pool(min(workers, len(payloads))) as pool:
         return list(pool.map(_fit_payload, payloads))

@@ -12,10 +12,8 @@ import os
 import platform
 import time
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
 from datetime import UTC, datetime
 from functools import cache
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +21,9 @@ import numpy as np
 from . import __version__, benchmarks, datasets
 from .data import Experiment
 from .metrics import gof
+from .multistart import process_pool
 from .optimize import METHODS, fit
+from .paper_report import render
 from .problem import Problem
 from .report import bar_plot, compare_plot, write_json
 from .simulate import simulate
@@ -288,12 +288,8 @@ def robustness_study(
             if on_done:
                 on_done(out[-1])
         return out
-    # one XLA thread per worker: the problems are small, the cores go to the starts
-    os.environ.setdefault(
-        "XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
-    )
     out = []
-    with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+    with process_pool(workers) as pool:
         for r in pool.map(robustness_task, tasks, chunksize=1):
             out.append(r)
             if on_done:
@@ -415,7 +411,7 @@ def run(
         },
     }
     write_json(out / "results.json", results)
-    (out / "report.md").write_text(render_report(results, [Path(f).name for f in figs]))
+    (out / "report.md").write_text(render(results, [Path(f).name for f in figs]))
     return results
 
 
@@ -444,9 +440,3 @@ def _robustness_figure(out: Path, rows: list[dict]) -> Path:
         title="Share of ±20 % starts that reach the best cost found",
         ylabel="converged / starts",
     )
-
-
-def render_report(r: dict, figures: list[str]) -> str:
-    from .paper_report import render
-
-    return render(r, figures)
