@@ -121,3 +121,52 @@ def decay_model() -> ti.Model:
 @pytest.fixture
 def silverbox():
     return silverbox_model()
+
+
+ROBERTSON_K = {"k1": 0.04, "k2": 3e7, "k3": 1e4}
+
+
+def robertson_model() -> ti.Model:
+    """Robertson's stiff chemical kinetics (rate constants spanning 9 decades)."""
+
+    def rhs(x, p, u):
+        k1, k2, k3 = p
+        return jnp.stack(
+            [
+                -k1 * x[0] + k3 * x[1] * x[2],
+                k1 * x[0] - k2 * x[1] ** 2 - k3 * x[1] * x[2],
+                k2 * x[1] ** 2,
+            ]
+        )
+
+    return ti.Model(
+        rhs=rhs,
+        output=lambda x, p: jnp.stack([x[0], 1e4 * x[1], x[2]]),
+        states=["A", "B", "C"],
+        params=["k1", "k2", "k3"],
+        inputs=["u"],
+        outputs=["a", "b_x1e4", "c"],
+        name="robertson",
+    )
+
+
+def robertson_data() -> ti.Experiment:
+    """Noise-free samples on a log grid out to t = 100 from an implicit reference
+    solver (scipy's Radau at rtol 1e-12), independent of tensorid."""
+    from scipy.integrate import solve_ivp
+
+    k1, k2, k3 = ROBERTSON_K.values()
+
+    def f(_, x):
+        return [
+            -k1 * x[0] + k3 * x[1] * x[2],
+            k1 * x[0] - k2 * x[1] ** 2 - k3 * x[1] * x[2],
+            k2 * x[1] ** 2,
+        ]
+
+    t = np.concatenate([[0.0], np.logspace(-4, 2, 40)])
+    sol = solve_ivp(
+        f, (0, t[-1]), [1.0, 0.0, 0.0], t_eval=t, method="Radau", rtol=1e-12, atol=1e-16
+    )
+    y = np.stack([sol.y[0], 1e4 * sol.y[1], sol.y[2]], axis=1)
+    return ti.Experiment(t, np.zeros((t.size, 1)), y, name="robertson")

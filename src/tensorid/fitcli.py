@@ -71,7 +71,7 @@ def validation_simulations(
                     e,
                     substeps=prob.substeps,
                     interpolation=prob.interpolation,
-                    scheme=prob.scheme.name,
+                    scheme=prob.scheme,
                 ),
             )
         )

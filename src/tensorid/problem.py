@@ -14,7 +14,7 @@ import numpy as np
 
 from . import _config  # noqa: F401
 from .data import Experiment
-from .integrate import INTERPOLATIONS, ExplicitRungeKutta, get_scheme
+from .integrate import INTERPOLATIONS, Scheme, get_scheme
 from .model import Model
 from .sensitivity import Sensitivities, unpack_symmetric
 
@@ -52,9 +52,13 @@ class Problem:
     fixed : list of parameter names held at their p0 value.
     bounds : dict {name: (lo, hi)} for parameters or free initial states; None or
         ±inf for an open side.
-    substeps : Runge-Kutta steps per sample interval.
+    substeps : Runge-Kutta steps per sample interval (for an adaptive scheme: the
+        first trial step is one sample interval / substeps).
     interpolation : "linear" or "zoh" for the input between samples.
-    scheme : "rk4" (default), "rk38", "heun" or "euler".
+    scheme : explicit fixed-step "rk4" (default), "rk38", "heun", "euler"; implicit
+        (L-stable, for stiff models) "sdirk3", "sdirk2", "implicit-euler"; adaptive
+        (error-controlled) "dopri5", "bosh3".
+    rtol, atol : error tolerances of an adaptive scheme (defaults 1e-6, 1e-9).
     weights : dict {output: weight} or array (S,); J = Σ_h Σ_g w_g r_g².
     """
 
@@ -69,8 +73,10 @@ class Problem:
         bounds: Mapping[str, tuple[float, float]] | None = None,
         substeps: int = 4,
         interpolation: str = "linear",
-        scheme: str | ExplicitRungeKutta = "rk4",
+        scheme: str | Scheme = "rk4",
         weights=None,
+        rtol: float | None = None,
+        atol: float | None = None,
     ):
         if not isinstance(model, Model):
             raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
@@ -94,7 +100,7 @@ class Problem:
             )
         self.substeps = int(substeps)
         self.interpolation = interpolation
-        self.scheme = get_scheme(scheme)
+        self.scheme = get_scheme(scheme, rtol, atol)
         self.weights = self._check_weights(weights)
         self.lower, self.upper = self._check_bounds(bounds or {})
         if self.K == 0:

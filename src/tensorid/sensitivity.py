@@ -32,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _config  # noqa: F401
-from .integrate import ExplicitRungeKutta, march
+from .integrate import Scheme, march
 from .model import Model
 
 
@@ -77,7 +77,7 @@ class Sensitivities:
     model: Model
     free_states: tuple[int, ...]
     free_params: tuple[int, ...]
-    scheme: ExplicitRungeKutta
+    scheme: Scheme
     substeps: int
     interpolation: str
 
@@ -102,7 +102,12 @@ class Sensitivities:
         Psel[list(self.free_params), list(range(nx, K))] = 1.0
         return jnp.asarray(S0), jnp.asarray(Psel)
 
-    def _march(self, field, observe, y0, acc0, t, u, obs):
+    def _march(self, field, observe, y0, acc0, t, u, obs, p):
+        m = self.model
+
+        def state_field(x, uu):
+            return m.f(x, p, uu)
+
         return march(
             field,
             observe,
@@ -114,6 +119,7 @@ class Sensitivities:
             scheme=self.scheme,
             substeps=self.substeps,
             interpolation=self.interpolation,
+            state_field=state_field,
         )
 
     # -- plain simulation --------------------------------------------------------------
@@ -126,7 +132,7 @@ class Sensitivities:
         def observe(acc, x, _):
             return acc, (x, m.h(x, p))
 
-        _, (xs, ys) = self._march(field, observe, x0, 0.0, t, u, jnp.zeros(t.shape))
+        _, (xs, ys) = self._march(field, observe, x0, 0.0, t, u, jnp.zeros(t.shape), p)
         return xs, ys
 
     def _cost(self, theta, x0, p, t, u, y, w):
@@ -140,7 +146,7 @@ class Sensitivities:
             r = y_h - m.h(x, p)
             return J + jnp.sum(w * r * r), None
 
-        J, _ = self._march(field, observe, x0, jnp.zeros(()), t, u, y)
+        J, _ = self._march(field, observe, x0, jnp.zeros(()), t, u, y, p)
         return J
 
     def _residuals(self, theta, x0, p, t, u, y, w):
@@ -180,7 +186,7 @@ class Sensitivities:
             return (J + jnp.sum(wr * r), g - 2.0 * D.T @ wr, H + 2.0 * (D.T * w) @ D), None
 
         acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros((K, K)))
-        (J, g, H), _ = self._march(field, observe, (x0, S0), acc0, t, u, y)
+        (J, g, H), _ = self._march(field, observe, (x0, S0), acc0, t, u, y, p)
         return J, g, H
 
     # -- second order: (J, ∇J, ∇²J) by transition tensors ------------------------------
@@ -225,7 +231,7 @@ class Sensitivities:
 
         state0 = (x0, S0, jnp.zeros((N, npairs)))
         acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros(npairs))
-        (J, g, Hp), _ = self._march(field, observe, state0, acc0, t, u, y)
+        (J, g, Hp), _ = self._march(field, observe, state0, acc0, t, u, y, p)
         return J, g, Hp
 
     # -- compiled entry points ---------------------------------------------------------

@@ -9,7 +9,7 @@ import numpy as np
 
 from . import _config  # noqa: F401
 from .data import Experiment
-from .integrate import INTERPOLATIONS, get_scheme
+from .integrate import INTERPOLATIONS, Scheme, get_scheme
 from .model import Model
 from .sensitivity import Sensitivities
 
@@ -43,13 +43,15 @@ def simulate(
     *,
     substeps: int = 4,
     interpolation: str = "linear",
-    scheme: str = "rk4",
+    scheme: str | Scheme = "rk4",
+    rtol: float | None = None,
+    atol: float | None = None,
 ) -> Simulation:
     """Simulate ``model`` with ``params`` (dict or array (M,)) from ``x0`` (dict or
     array (N,)) on the inputs and sample times of ``data``.
 
-    Uses the same fixed-step scheme as the fit, so a fitted model reproduces its
-    reported cost exactly.
+    Pass the fit's scheme (``problem.scheme``), substeps and interpolation to
+    reproduce its reported cost exactly.
     """
     if not isinstance(model, Model):
         raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
@@ -64,6 +66,10 @@ def simulate(
         raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, got {interpolation!r}")
     p = model.params_array(params, "params")
     x = model.states_array(x0, "x0")
-    sens = Sensitivities(model, (), (), get_scheme(scheme), int(substeps), interpolation)
+    if not isinstance(substeps, int | np.integer) or substeps < 1:
+        raise ValueError(f"substeps must be a positive integer, got {substeps!r}")
+    sens = Sensitivities(
+        model, (), (), get_scheme(scheme, rtol, atol), int(substeps), interpolation
+    )
     xs, ys = sens.simulate(jnp.asarray(x), jnp.asarray(p), jnp.asarray(data.t), jnp.asarray(data.u))
     return Simulation(model, data, np.asarray(xs), np.asarray(ys))

@@ -1,0 +1,150 @@
+"""Implicit and adaptive schemes: accuracy at their order, and the same exact
+first and second derivatives as the explicit ones (checked against forward-over-
+forward autodiff, since reverse mode does not pass through their while loops)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from conftest import (
+    ROBERTSON_K,
+    SILVERBOX_P,
+    decay_model,
+    oscillator_model,
+    robertson_data,
+    robertson_model,
+    silverbox_data,
+    silverbox_model,
+)
+
+import tensorid as ti
+
+
+@pytest.fixture(scope="module")
+def robertson():
+    return robertson_model(), robertson_data()
+
+
+def _assert_exact(prob, theta, tol=1e-9):
+    J, g, H = prob.cost_grad_hess(theta)
+    th = jnp.asarray(theta)
+    g_ad = np.asarray(jax.jacfwd(prob.jax_cost)(th))
+    H_ad = np.asarray(jax.jacfwd(jax.jacfwd(prob.jax_cost))(th))
+    assert np.isfinite(J) and J > 0
+    np.testing.assert_allclose(J, float(prob.jax_cost(th)), rtol=1e-12)
+    # compare in scaled units: Robertson's parameters span nine decades
+    s = np.maximum(np.abs(theta), 1e-3)
+    np.testing.assert_allclose(g * s, g_ad * s, rtol=tol, atol=tol * np.abs(g * s).max())
+    Hs, Hs_ad = H * np.outer(s, s), H_ad * np.outer(s, s)
+    np.testing.assert_allclose(Hs, Hs_ad, rtol=tol, atol=tol * np.abs(Hs).max())
+    return J, g, H
+
+
+def test_implicit_schemes_converge_at_their_order():
+    m = decay_model()
+    t = np.linspace(0.0, 3.0, 31)
+    data = ti.Experiment(t, np.sin(t))
+    ref = ti.simulate(m, {"k": 1.3}, [1.0], data, substeps=512).x
+    for scheme, order in (("implicit-euler", 1), ("sdirk2", 2), ("sdirk3", 3)):
+        e1, e2 = (
+            np.abs(ti.simulate(m, {"k": 1.3}, [1.0], data, substeps=n, scheme=scheme).x - ref).max()
+            for n in (8, 16)
+        )
+        assert np.log2(e1 / e2) == pytest.approx(order, abs=0.2), scheme
+
+
+def test_explicit_scheme_blows_up_on_robertson_where_implicit_ones_are_accurate(robertson):
+    m, data = robertson
+    x0 = [1.0, 0.0, 0.0]
+    assert not ti.simulate(m, ROBERTSON_K, x0, data, scheme="rk4").finite
+    scale = np.abs(data.measured).max(axis=0)
+    for scheme, substeps, tol in (("sdirk3", 4, 1e-4), ("sdirk3", 32, 1e-7), ("sdirk2", 16, 1e-4)):
+        sim = ti.simulate(m, ROBERTSON_K, x0, data, scheme=scheme, substeps=substeps)
+        assert (np.abs(sim.y - data.measured) / scale).max() < tol, (scheme, substeps)
+
+
+@pytest.mark.parametrize("scheme", ["sdirk3", "sdirk2", "implicit-euler"])
+def test_implicit_derivatives_are_exact_on_robertson(robertson, scheme):
+    m, data = robertson
+    prob = ti.Problem(
+        m, data, p0=ROBERTSON_K, x0=[1.0, 0.0, 0.0], free_x0=["A"], scheme=scheme, substeps=4
+    )
+    _assert_exact(prob, prob.theta0 * np.array([1.02, 1.1, 0.8, 1.3]))
+
+
+def test_implicit_hessian_matches_central_differences_of_gradient(robertson):
+    m, data = robertson
+    prob = ti.Problem(m, data, p0=ROBERTSON_K, x0=[1.0, 0.0, 0.0], scheme="sdirk3")
+    theta = prob.theta0 * np.array([1.1, 0.8, 1.3])
+    _, _, H = prob.cost_grad_hess(theta)
+    H_fd = np.zeros((3, 3))
+    for k in range(3):
+        h = 1e-5 * theta[k]
+        e = np.zeros(3)
+        e[k] = h
+        gs = [prob.cost_grad_hess(theta + j * e)[1] for j in (-2, -1, 1, 2)]
+        H_fd[:, k] = (gs[0] - 8 * gs[1] + 8 * gs[2] - gs[3]) / (12 * h)
+    s = np.outer(theta, theta)
+    np.testing.assert_allclose(H * s, H_fd * s, rtol=1e-6, atol=1e-6 * np.abs(H * s).max())
+
+
+def test_newton_identifies_robertson_rate_constants(robertson):
+    m, data = robertson
+    start = {"k1": 0.05, "k2": 2e7, "k3": 1.3e4}
+    prob = ti.Problem(
+        m,
+        data,
+        p0=start,
+        x0=[1.0, 0.0, 0.0],
+        scheme="sdirk3",
+        substeps=32,
+        bounds=dict.fromkeys(start, (0, None)),
+    )
+    res = ti.fit(prob, "newton")
+    assert res.success, res.message
+    for k, v in ROBERTSON_K.items():
+        assert res.params[k] == pytest.approx(v, rel=1e-4), k
+
+
+@pytest.mark.parametrize("scheme", ["dopri5", "bosh3"])
+def test_adaptive_error_follows_the_tolerance(scheme):
+    data = silverbox_data(P=200, seed=4)
+    ref = ti.simulate(silverbox_model(), SILVERBOX_P, [0.0, 0.0], data, substeps=256).y
+    errs = []
+    for rtol in (1e-5, 1e-8):
+        sim = ti.simulate(
+            silverbox_model(), SILVERBOX_P, [0.0, 0.0], data, scheme=scheme, rtol=rtol, atol=1e-14
+        )
+        errs.append(np.abs(sim.y - ref).max() / np.abs(ref).max())
+    assert errs[1] < 1e-6 and errs[1] < errs[0] / 30, errs
+
+
+@pytest.mark.parametrize("scheme", ["dopri5", "bosh3"])
+def test_adaptive_derivatives_are_exact_for_the_steps_taken(scheme):
+    m = oscillator_model()
+    t = np.linspace(0, 6, 60)
+    u = np.stack([np.sin(1.3 * t), np.cos(0.7 * t)], axis=1)
+    truth = {"k": 2.0, "c": 0.3, "g": 1.0, "q": 0.7}
+    sim = ti.simulate(m, truth, [0.3, 0.0], ti.Experiment(t, u))
+    data = ti.Experiment(t, u, sim.y)
+    prob = ti.Problem(
+        m, data, p0=truth, x0=[0.3, 0.0], free_x0=["om"], scheme=scheme, rtol=1e-7, atol=1e-10
+    )
+    _assert_exact(
+        prob, prob.theta0 * np.array([1, 1.1, 0.9, 1.05, 0.8]) + np.array([0.2, 0, 0, 0, 0])
+    )
+
+
+def test_tolerances_are_checked():
+    data = silverbox_data(P=50)
+    m = silverbox_model()
+    with pytest.raises(ValueError, match="adaptive schemes"):
+        ti.Problem(m, data, p0=SILVERBOX_P, rtol=1e-6)
+    with pytest.raises(ValueError, match="rtol > 0"):
+        ti.Problem(m, data, p0=SILVERBOX_P, scheme="dopri5", rtol=0.0)
+    with pytest.raises(ValueError, match="round-off"):
+        ti.Problem(m, data, p0=SILVERBOX_P, scheme="dopri5", rtol=1e-16)
+    with pytest.raises(ValueError, match="sdirk3"):
+        ti.Problem(m, data, p0=SILVERBOX_P, scheme="radau")
