@@ -164,3 +164,54 @@ def test_output_that_depends_on_parameters_is_identified():
     assert res.success
     assert res.params == pytest.approx(truth, rel=1e-8)
     assert res.x0[0] == pytest.approx(0.5, rel=1e-8)
+
+
+def test_a_state_leaving_its_domain_is_named_with_time_and_remedies():
+    model = ti.Model(
+        rhs=lambda x, p, u: -p[0] * jnp.sqrt(x) + u[0],
+        output=lambda x, p: x,
+        states=["level"],
+        params=["k"],
+        inputs=["q"],
+        outputs=["y"],
+    )
+    t = np.linspace(0, 5, 50)
+    prob = ti.Problem(model, ti.Experiment(t, np.zeros(50), np.ones(50)), p0={"k": 3.0}, x0=[1.0])
+    why = prob.diagnose(prob.theta0)
+    assert "['level']" in why and "t = 0.714286 (sample 7 of 50)" in why
+    assert "safe_sqrt" in why and "bounds" in why
+    res = ti.fit(prob)
+    assert not res.success and res.message.startswith("the simulation is not finite at k=3")
+    assert np.isfinite(res.theta).all()
+    assert prob.diagnose([0.1]) is None
+
+
+def test_trial_points_that_blow_up_are_reported_when_the_fit_stalls():
+    # the data are fit best by p = 2, but p > 1 is where x' = p x² explodes
+    model = ti.Model(
+        rhs=lambda x, p, u: p[0] * x**2 - x,
+        output=lambda x, p: x,
+        states=["x"],
+        params=["p"],
+        outputs=["y"],
+    )
+    t = np.linspace(0, 3, 31)
+    y = 1.0 + 2.0 * t  # grows faster than any finite p < 1 allows
+    prob = ti.Problem(model, ti.Experiment(t, y=y), p0={"p": 0.5}, x0=[1.0])
+    res = ti.fit(prob, maxiter=60)
+    assert np.isfinite(res.cost) and np.isfinite(res.theta).all()
+    assert (
+        res.notes and "trial point(s) were rejected because the simulation blew up" in res.notes[0]
+    )
+    assert "['x'] are not finite" in res.notes[0]
+    if not res.success:
+        assert "blew up" in res.message and res.notes[0] in res.warnings
+
+
+def test_adaptive_scheme_on_a_stiff_model_fails_cleanly_and_points_to_sdirk():
+    from conftest import ROBERTSON_K, robertson_data, robertson_model
+
+    data = robertson_data()
+    prob = ti.Problem(robertson_model(), data, p0=ROBERTSON_K, x0=[1.0, 0.0, 0.0], scheme="dopri5")
+    res = ti.fit(prob)
+    assert not res.success and "scheme='sdirk3'" in res.message and "stiff" in res.message

@@ -76,3 +76,19 @@ def test_non_finite_trial_points_shrink_the_region():
     )
     assert np.isfinite(r.fun) and r.x[0] <= 0.5
     assert any(not h["accepted"] for h in r.history)
+
+
+def test_each_way_of_stopping_says_why():
+    start, lo, hi = np.array([-1.2, 1.0]), np.full(2, -np.inf), np.full(2, np.inf)
+    r = minimize_trust_region(_rosen, start, lo, hi, maxiter=3)
+    assert not r.success and "iteration limit reached (maxiter=3)" in r.message
+
+    # nowhere finite beyond the start: every step is rejected
+    def cliff(x):
+        if np.any(x != 1.0):
+            return np.inf, np.full(2, np.nan), np.full((2, 2), np.nan)
+        return 1.0, np.array([1.0, 1.0]), np.eye(2)
+
+    r = minimize_trust_region(cliff, np.ones(2), lo, hi, gtol=1e-14)
+    assert not r.success and "trust region collapsed without a decrease" in r.message
+    assert r.fun == 1.0 and np.isfinite(r.x).all()

@@ -38,6 +38,7 @@ class FitResult:
     nit, nfev : iterations and cost evaluations (finite-difference ones included).
     seconds : wall time of the fit, compilation included.
     history : one dict per iteration: iteration, cost, grad_norm, radius, ...
+    notes : what happened on the way, e.g. trial points where the simulation blew up.
     """
 
     problem: Problem
@@ -57,6 +58,7 @@ class FitResult:
     scale: np.ndarray
     history: list[dict] = field(default_factory=list)
     starts: list[dict] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
 
     @property
     def x(self) -> np.ndarray:
@@ -97,9 +99,10 @@ class FitResult:
 
     @property
     def warnings(self) -> list[str]:
-        """Plain-language warnings: no convergence, unknowns the data cannot separate,
-        an optimum that is not a strict minimum."""
-        out = [] if self.success else [f"the fit did not converge: {self.message}"]
+        """Plain-language warnings: no convergence (with why, e.g. where the simulation
+        blew up), unknowns the data cannot separate, an optimum that is not a strict
+        minimum."""
+        out = [] if self.success else [f"the fit did not converge: {self.message}", *self.notes]
         if np.isfinite(self.cost):
             out += self.uncertainty().warnings
         return out
@@ -137,6 +140,8 @@ class _Tracker:
         self.nfev = 0
         self.best_phi: np.ndarray | None = None
         self.best_J = np.inf
+        self.nonfinite = 0
+        self.first_nonfinite: np.ndarray | None = None
 
     def theta(self, phi) -> np.ndarray:
         """Natural units; clipped because θ/scale·scale may miss a bound by an ulp."""
@@ -146,6 +151,20 @@ class _Tracker:
         self.nfev += 1
         if np.isfinite(J) and J < self.best_J:
             self.best_J, self.best_phi = J, np.array(phi, dtype=float)
+        elif not np.isfinite(J):
+            self.nonfinite += 1
+            if self.first_nonfinite is None:
+                self.first_nonfinite = self.theta(phi)
+
+    def notes(self) -> list[str]:
+        """What the user should know about trial points that were rejected."""
+        if not self.nonfinite:
+            return []
+        why = self.problem.diagnose(self.first_nonfinite) or "the simulation was not finite"
+        return [
+            f"{self.nonfinite} trial point(s) were rejected because the simulation blew "
+            f"up there; the first: {why}"
+        ]
 
     def derivs(self, fn):
         def wrapped(phi):
@@ -251,13 +270,8 @@ def fit(
 
     J0, g0, H0 = problem.cost_grad_gn(theta0)
     if not np.isfinite(J0):
-        return _failed(
-            problem,
-            method,
-            theta0,
-            start,
-            "the simulation is not finite at the start; choose another initial guess",
-        )
+        why = problem.diagnose(theta0) or "the simulation is not finite at the start"
+        return _failed(problem, method, theta0, start, why + " Choose another initial guess.")
     if isinstance(x_scale, str):
         if x_scale != "auto":
             raise ValueError("x_scale must be 'auto' or an array of typical magnitudes")
@@ -305,9 +319,13 @@ def fit(
 
     if tr.best_phi is not None and tr.best_J < problem.cost(tr.theta(phi)):
         phi = tr.best_phi
-    return _result(
+    res = _result(
         problem, method, tr.theta(phi), scale, nit, tr.nfev, success, message, start, history
     )
+    res.notes = tr.notes()
+    if not success and tr.nonfinite:
+        res.message += f" ({tr.nonfinite} trial points blew up; see warnings)"
+    return res
 
 
 def _multistart(

@@ -361,6 +361,62 @@ class Problem:
             out.append(Simulation(self.model, self.experiments[e], np.asarray(xs), np.asarray(ys)))
         return out
 
+    def diagnose(self, theta) -> str | None:
+        """None when every experiment simulates to finite values at θ; otherwise a
+        plain-language account of where the simulation first fails and what to try."""
+        from .integrate import AdaptiveRungeKutta, DiagonallyImplicitRungeKutta
+
+        theta = self._check_theta(theta)
+        m = self.model
+        p, x0 = self.unpack(theta)
+        values = ", ".join(f"{n}={v:.4g}" for n, v in zip(self.theta_names, theta, strict=True))
+        for e, sim in enumerate(self.simulate(theta)):
+            if sim.finite:
+                continue
+            where = f"experiment {e}" + (f" ({sim.experiment.name})" if sim.experiment.name else "")
+            bad_x = ~np.isfinite(sim.x).all(axis=1)
+            bad_y = ~np.isfinite(sim.y).all(axis=1)
+            h = int(np.argmax(bad_x | bad_y))
+            if bad_x[h]:
+                states = [
+                    n for n, ok in zip(m.states, np.isfinite(sim.x[h]), strict=True) if not ok
+                ]
+                what = f"state(s) {states} are not finite"
+            else:
+                outs = [n for n, ok in zip(m.outputs, np.isfinite(sim.y[h]), strict=True) if not ok]
+                what = f"output(s) {outs} are not finite although the states are"
+            last = (
+                "from the initial state"
+                if h == 0
+                else "after "
+                + ", ".join(f"{n}={v:.4g}" for n, v in zip(m.states, sim.x[h - 1], strict=True))
+            )
+            hints = [
+                "a state or parameter outside the model's domain (square root or log of a "
+                "negative value, division by a parameter near 0): add bounds, or write the "
+                "model with tensorid.functions.safe_sqrt",
+            ]
+            if isinstance(self.scheme, AdaptiveRungeKutta):
+                hints.append(
+                    f"a stiff model: the adaptive scheme gives up after "
+                    f"{self.scheme.max_steps} steps per sample; use scheme='sdirk3'"
+                )
+            elif isinstance(self.scheme, DiagonallyImplicitRungeKutta):
+                hints.append("a stage's Newton iteration did not converge: raise substeps")
+            else:
+                hints.append(
+                    "a stiff model, or a step too large for an explicit scheme: raise "
+                    "substeps, or use scheme='sdirk3'"
+                )
+            hints.append("dynamics that really diverge at these values: start closer")
+            return (
+                f"the simulation is not finite at {values}: in {where}, {what} at "
+                f"t = {sim.t[h]:.6g} (sample {h} of {sim.t.size}), {last}. Likely causes: "
+                + "; ".join(hints)
+                + "."
+            )
+        return None
+
     def __repr__(self) -> str:
         return (
             f"Problem({self.model.name!r}, experiments={len(self.experiments)}, "

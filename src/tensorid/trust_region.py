@@ -223,7 +223,12 @@ def minimize_trust_region(
             success, message = True, "converged: step below xtol"
             break
         if not accepted and radius <= xtol * xscale:
-            ok = pred <= 1e-8 * max(J, np.finfo(float).tiny)
+            # a genuine rounding floor: rejected steps of length r mean |g| r is
+            # below the cost's rounding noise, so the gradient must be small too
+            tiny = max(J, np.finfo(float).tiny)
+            ok = pred <= 1e-8 * tiny and np.linalg.norm(pg, np.inf) <= max(
+                np.sqrt(gtol), 1e-3 * tiny
+            )
             success = bool(ok)
             message = (
                 "converged: no further decrease possible at machine precision"
