@@ -192,6 +192,16 @@ def load_data(
                 f"{list(model.inputs)} and outputs {list(model.outputs)}), found "
                 f"{sorted(cols)}"
             )
+        for name in (["t"] if "t" in cols and ts is None else []) + need:
+            bad = ~np.isfinite(cols[name])
+            if bad.any():
+                i = int(np.argmax(bad))
+                row = f" (line {i + 2} of the file)" if suffix in (".csv", ".txt") else ""
+                raise ValueError(
+                    f"{p}: column {name!r} has {int(bad.sum())} missing or non-finite "
+                    f"value(s) (empty, NaN or inf), first at sample {i}{row}; remove or "
+                    "fill those samples"
+                )
         P = next(iter(cols.values())).size if not need else cols[need[0]].size
         if "t" in cols and ts is None:
             t = cols["t"]
