@@ -45,6 +45,20 @@ def silverbox(
     )
 
 
+def silverbox_snls80mV(stop: int | None = None) -> Experiment:
+    """The whole SNLS80mV record (131,072 samples, about 215 s), float64 as measured:
+    u = V1, y = V2. Filtered Gaussian noise of linearly growing amplitude (samples
+    0 to about 40,500), then ten random-phase odd multisines (to about 127,400),
+    then zero input. ``stop`` keeps the first samples only."""
+    d = _load("silverbox_snls80mV.npz")
+    n = d["V1"].size if stop is None else int(stop)
+    if not 2 <= n <= d["V1"].size:
+        raise ValueError(f"the SNLS80mV record has {d['V1'].size} samples; got stop={stop}")
+    return Experiment(
+        np.arange(n) * SILVERBOX_TS, d["V1"][:n], d["V2"][:n], name=f"silverbox-snls80mV[:{n}]"
+    )
+
+
 def silverbox_train() -> Experiment:
     return silverbox(*SILVERBOX_TRAIN, name="silverbox-train")
 
