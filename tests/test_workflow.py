@@ -318,3 +318,20 @@ def test_summary_and_plot_api(workdir):
     assert all(f.stat().st_size > 1000 for f in files) and len(files) == 2
     assert res.covariance.shape == (5, 5)
     assert textwrap.dedent(text)
+
+
+def test_integration_options_on_the_command_line(workdir, capsys):
+    train = _write_csv(workdir / "train.csv", seed=1)
+    out = workdir / "out"
+    args = ["fit", str(workdir / "model.py"), str(train), "--out", str(out), "--no-progress"]
+    assert cli.main(args + ["--scheme", "sdirk3", "--substeps", "8"]) == 0
+    d = json.loads((out / "fit.json").read_text())
+    assert d["success"] and d["integration"]["scheme"] == "sdirk3"
+    assert d["integration"]["substeps"] == 8
+    assert cli.main(args + ["--scheme", "dopri5", "--rtol", "1e-9"]) == 0
+    assert json.loads((out / "fit.json").read_text())["integration"]["rtol"] == 1e-9
+    capsys.readouterr()
+    # a bad combination is one clear line, not a traceback
+    assert cli.main(args + ["--rtol", "1e-9"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("tensorid: error: rtol/atol apply to the adaptive schemes")

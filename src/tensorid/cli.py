@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -150,8 +151,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="ADDRESS",
         help="run the starts on a Dask distributed cluster at ADDRESS",
     )
-    f.add_argument("--substeps", type=int, default=4, help="RK4 steps per sample interval")
-    f.add_argument("--interpolation", default="linear", choices=["linear", "zoh"])
+    _integration_options(f)
     f.add_argument("--no-progress", action="store_true", help="no live progress display")
     f.set_defaults(func=_fit)
 
@@ -173,16 +173,39 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--x0", nargs="*", default=[], metavar="STATE=VALUE")
     s.add_argument("--ts", type=float, default=None)
-    s.add_argument("--substeps", type=int, default=4)
-    s.add_argument("--interpolation", default="linear", choices=["linear", "zoh"])
+    _integration_options(s)
     s.add_argument("--out", default="simulation.csv")
     s.set_defaults(func=_simulate)
     return ap
 
 
+def _integration_options(p: argparse.ArgumentParser) -> None:
+    from .integrate import SCHEMES
+
+    p.add_argument(
+        "--scheme",
+        default="rk4",
+        choices=list(SCHEMES),
+        help="integrator: explicit rk4 (default), rk38, heun, euler; implicit sdirk3, "
+        "sdirk2, implicit-euler for stiff models; adaptive dopri5, bosh3 (with --rtol/--atol)",
+    )
+    p.add_argument("--substeps", type=int, default=4, help="steps per sample interval")
+    p.add_argument("--rtol", type=float, default=None, help="adaptive schemes: relative tolerance")
+    p.add_argument("--atol", type=float, default=None, help="adaptive schemes: absolute tolerance")
+    p.add_argument("--interpolation", default="linear", choices=["linear", "zoh"])
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    return args.func(args)
+    try:
+        return args.func(args)
+    except (ValueError, TypeError, FileNotFoundError) as e:
+        # our errors say what is wrong and how to fix it; a traceback only hides that
+        # (set TENSORID_TRACEBACK=1 to see it anyway)
+        if os.environ.get("TENSORID_TRACEBACK"):
+            raise
+        print(f"tensorid: error: {e}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -78,6 +78,16 @@ def validation_simulations(
     return out
 
 
+def _integration(prob: Problem) -> dict:
+    """How the model was integrated: what a reader needs to reproduce the cost."""
+    d = {"scheme": prob.scheme.name, "substeps": prob.substeps}
+    d["interpolation"] = prob.interpolation
+    for k in ("rtol", "atol"):
+        if hasattr(prob.scheme, k):
+            d[k] = getattr(prob.scheme, k)
+    return d
+
+
 def fit_json(res: FitResult, validation) -> dict:
     u = res.uncertainty() if np.isfinite(res.cost) else None
     m = res.problem.model
@@ -101,6 +111,7 @@ def fit_json(res: FitResult, validation) -> dict:
         "iterations": res.nit,
         "function_evaluations": res.nfev,
         "method": res.method,
+        "integration": _integration(res.problem),
         "seconds": res.seconds,
         "warnings": res.warnings,
         "residual_variance": u.sigma2 if u else None,
@@ -185,6 +196,9 @@ def run_fit(args) -> int:
         bounds=spec.bounds,
         substeps=args.substeps,
         interpolation=args.interpolation,
+        scheme=args.scheme,
+        rtol=args.rtol,
+        atol=args.atol,
     )
     executor = client = None
     if args.scheduler:
@@ -255,7 +269,17 @@ def run_simulate(args) -> int:
         params.update(_assignments(args.params, "--params"))
     x0.update(_assignments(args.x0, "--x0"))
     e = load_data([args.data], m, ts=args.ts, require_outputs=False)[0]
-    sim = simulate(m, params, x0, e, substeps=args.substeps, interpolation=args.interpolation)
+    sim = simulate(
+        m,
+        params,
+        x0,
+        e,
+        substeps=args.substeps,
+        interpolation=args.interpolation,
+        scheme=args.scheme,
+        rtol=args.rtol,
+        atol=args.atol,
+    )
     header = ["t"] + list(m.states) + [f"{o}_sim" for o in m.outputs]
     table = np.column_stack([e.t, sim.x, sim.y])
     np.savetxt(args.out, table, delimiter=",", header=",".join(header), comments="")
