@@ -2,11 +2,17 @@
 
 from __future__ import annotations
 
+import os
+import tempfile
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import tensorid as ti
+
+# the CLI keeps compiled code on disk; keep the tests' copies out of the home folder
+os.environ.setdefault("TENSORID_CACHE_DIR", tempfile.mkdtemp(prefix="tensorid-test-cache-"))
 
 SILVERBOX_P = {"m": 5.27e-6, "d": 2.15e-4, "a": 0.9675, "b": 3.975}
 TS_SILVERBOX = 2**14 / 1e7

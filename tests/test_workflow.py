@@ -5,6 +5,8 @@ identifiability warnings, and the errors a user meets first."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 import textwrap
 
 import numpy as np
@@ -335,3 +337,21 @@ def test_integration_options_on_the_command_line(workdir, capsys):
     assert cli.main(args + ["--rtol", "1e-9"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("tensorid: error: rtol/atol apply to the adaptive schemes")
+
+
+def test_compilation_cache_keeps_compiled_sweeps_on_disk(tmp_path):
+    # in a fresh process: the cache folder is process-wide JAX state
+    script = textwrap.dedent(
+        f"""
+        import numpy as np, tensorid as ti
+        ti.enable_compilation_cache({str(tmp_path / "cache")!r})
+        m = ti.Model(rhs=lambda x, p, u: -p[0] * x + u[0], output=lambda x, p: x,
+                     states=["x"], params=["k"], inputs=["u"], outputs=["y"])
+        t = np.linspace(0, 1, 17)
+        e = ti.Experiment(t, np.zeros(17), np.exp(-2 * t))
+        print(ti.fit(ti.Problem(m, e, p0={{"k": 1.0}}, x0=[1.0])).params["k"])
+        """
+    )
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    assert float(r.stdout.split()[-1]) == pytest.approx(2.0, rel=1e-3)  # RK4 x4 error
+    assert len(list((tmp_path / "cache").iterdir())) >= 2  # cost and Hessian sweeps, at least

@@ -2,10 +2,16 @@
 state/parameter transition tensors."""
 
 from . import _config  # noqa: F401  (float64 before anything else touches JAX)
+from ._config import enable_compilation_cache
 from .data import Experiment
 from .equations import model_from_equations
 from .functions import safe_sqrt
-from .integrate import SCHEMES, ExplicitRungeKutta
+from .integrate import (
+    SCHEMES,
+    AdaptiveRungeKutta,
+    DiagonallyImplicitRungeKutta,
+    ExplicitRungeKutta,
+)
 from .loaders import ModelSpec, load_data, load_model
 from .metrics import gof, nrmse, rmse
 from .model import Model
@@ -19,6 +25,8 @@ __version__ = "0.1.0"
 __all__ = [
     "METHODS",
     "SCHEMES",
+    "AdaptiveRungeKutta",
+    "DiagonallyImplicitRungeKutta",
     "Experiment",
     "ExplicitRungeKutta",
     "FitResult",
@@ -27,6 +35,7 @@ __all__ = [
     "Problem",
     "Simulation",
     "Uncertainty",
+    "enable_compilation_cache",
     "fit",
     "gof",
     "load_data",

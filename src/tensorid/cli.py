@@ -197,6 +197,9 @@ def _integration_options(p: argparse.ArgumentParser) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    from ._config import enable_compilation_cache
+
+    enable_compilation_cache()
     try:
         return args.func(args)
     except (ValueError, TypeError, FileNotFoundError) as e:

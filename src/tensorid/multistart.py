@@ -60,7 +60,19 @@ def process_pool(workers: int) -> ProcessPoolExecutor:
     os.environ.setdefault(
         "XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
     )
-    return ProcessPoolExecutor(workers, mp_context=get_context("spawn"))
+    import jax
+
+    cache = jax.config.values.get("jax_compilation_cache_dir")  # shared with the parent
+    return ProcessPoolExecutor(
+        workers, mp_context=get_context("spawn"), initializer=_worker_init, initargs=(cache,)
+    )
+
+
+def _worker_init(cache: str | None) -> None:
+    if cache:
+        from ._config import enable_compilation_cache
+
+        enable_compilation_cache(cache)
 
 
 _WORKER_PROBLEMS: dict[str, Any] = {}
