@@ -20,9 +20,7 @@ SOURCES = {
     "silverbox/Schroeder80mV.mat": (
         "ec5a9740a4789aa20b9d84f387424c0218e843844807b30b367c218778339fb6"
     ),
-    "silverbox/SNLS80mV.mat": (
-        "5c7413a52255af0cb4e2f93fb6903beb92b08965ba1e6ad0a6ffedfed8477ed4"
-    ),
+    "silverbox/SNLS80mV.mat": ("5c7413a52255af0cb4e2f93fb6903beb92b08965ba1e6ad0a6ffedfed8477ed4"),
     "two_tank/tank.mat": "def34c70b239f7d5e9e2228e957a6dfdbb909340941db8f84b23686a17fd3133",
 }
 SILVERBOX_START, SILVERBOX_STOP = 10000, 14000  # holds the paper's [10584:13655]
