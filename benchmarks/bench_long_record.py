@@ -28,18 +28,10 @@ def _peak_mb() -> float:
 
 
 def _problem(samples: int, substeps: int):
-    import tensorid as ti
     from tensorid import benchmarks, datasets
 
     data = datasets.silverbox_snls80mV(stop=samples)
-    return ti.Problem(
-        benchmarks.silverbox_offset_model(),
-        data,
-        p0=dict(benchmarks.SILVERBOX_GUESS, u0=0.0),
-        x0=[float(data.measured[0, 0]), 0.0],
-        free_x0=["y", "ydot"],
-        substeps=substeps,
-    )
+    return benchmarks.silverbox_problem(substeps=substeps, offset=True, data=data)
 
 
 def measure(what: str, samples: int, substeps: int) -> dict:

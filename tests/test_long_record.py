@@ -12,7 +12,6 @@ import numpy as np
 SCRIPT = """
 import json, resource
 import numpy as np
-import tensorid as ti
 from tensorid import benchmarks, datasets
 
 def peak_mb():
@@ -20,12 +19,7 @@ def peak_mb():
 
 out = {}
 for n in (8192, 131072):
-    data = datasets.silverbox_snls80mV(stop=n)
-    prob = ti.Problem(
-        benchmarks.silverbox_offset_model(), data,
-        p0=dict(benchmarks.SILVERBOX_GUESS, u0=0.0),
-        x0=[float(data.measured[0, 0]), 0.0], free_x0=["y", "ydot"],
-    )
+    prob = benchmarks.silverbox_problem(offset=True, data=datasets.silverbox_snls80mV(stop=n))
     J, g, H = prob.cost_grad_hess(prob.theta0)
     out[n] = dict(J=J, finite=bool(np.isfinite(g).all() and np.isfinite(H).all()),
                   sym=float(np.abs(H - H.T).max() / np.abs(H).max()), peak=peak_mb())

@@ -82,7 +82,6 @@ def test_any_corrupted_csv_is_refused_with_a_value_error_that_names_the_problem(
     i = data.draw(st.integers(0, P - 1))
     col = data.draw(st.sampled_from(["t", "u1", "u2", "y"]))
     cells = {k: [repr(float(v)) for v in a] for k, a in cols.items()}
-    expect = col
     if how in ("nan", "inf", "text", "empty"):
         cells[col][i] = {"nan": "nan", "inf": "-inf", "text": "1.2.3", "empty": ""}[how]
         expect = "not a number" if how == "text" else f"column {col!r} has 1 missing"

@@ -80,8 +80,11 @@ def validation_simulations(
 
 def _integration(prob: Problem) -> dict:
     """How the model was integrated: what a reader needs to reproduce the cost."""
-    d = {"scheme": prob.scheme.name, "substeps": prob.substeps}
-    d["interpolation"] = prob.interpolation
+    d = {
+        "scheme": prob.scheme.name,
+        "substeps": prob.substeps,
+        "interpolation": prob.interpolation,
+    }
     for k in ("rtol", "atol"):
         if hasattr(prob.scheme, k):
             d[k] = getattr(prob.scheme, k)

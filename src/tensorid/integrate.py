@@ -167,9 +167,7 @@ def get_scheme(
             raise ValueError(
                 f"unknown integration scheme {scheme!r}; choose one of {sorted(SCHEMES)}"
             ) from None
-    elif not isinstance(
-        scheme, ExplicitRungeKutta | DiagonallyImplicitRungeKutta | AdaptiveRungeKutta
-    ):
+    elif not isinstance(scheme, Scheme):
         raise TypeError(f"scheme must be a name or a tensorid scheme, got {type(scheme).__name__}")
     if rtol is None and atol is None:
         return scheme
@@ -230,10 +228,11 @@ def _stages(scheme, f: Callable, y, h, s0, ds, solve=None):
     return ks
 
 
-def rk_step(scheme: ExplicitRungeKutta, f: Callable, y, h, s0, ds):
-    """One explicit step of size h from interval fraction s0; f(y, s) is the vector
-    field at interval fraction s, and ds is the fraction covered by this step."""
-    ks = _stages(scheme, f, y, h, s0, ds)
+def rk_step(scheme: Scheme, f: Callable, y, h, s0, ds, solve=None):
+    """One step of size h from interval fraction s0; f(y, s) is the vector field at
+    interval fraction s, ds the fraction this step covers, and ``solve`` the stage
+    solver of an implicit scheme."""
+    ks = _stages(scheme, f, y, h, s0, ds, solve)
     return _axpy(y, h, zip(scheme.b, ks, strict=True))
 
 
@@ -378,8 +377,7 @@ def march(
                 solve = _newton_solver(scheme, vf, fs)
 
             def sub(i, yy):
-                ks = _stages(scheme, vf, yy, h, i * ds, ds, solve)
-                return _axpy(yy, h, zip(scheme.b, ks, strict=True))
+                return rk_step(scheme, vf, yy, h, i * ds, ds, solve)
 
             y = jax.lax.fori_loop(0, substeps, sub, y)
         acc, out = observe(acc, y, obs_h)

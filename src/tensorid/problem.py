@@ -14,7 +14,13 @@ import numpy as np
 
 from . import _config  # noqa: F401
 from .data import Experiment
-from .integrate import INTERPOLATIONS, Scheme, get_scheme
+from .integrate import (
+    INTERPOLATIONS,
+    AdaptiveRungeKutta,
+    DiagonallyImplicitRungeKutta,
+    Scheme,
+    get_scheme,
+)
 from .model import Model
 from .sensitivity import Sensitivities, unpack_symmetric
 
@@ -364,8 +370,6 @@ class Problem:
     def diagnose(self, theta) -> str | None:
         """None when every experiment simulates to finite values at θ; otherwise a
         plain-language account of where the simulation first fails and what to try."""
-        from .integrate import AdaptiveRungeKutta, DiagonallyImplicitRungeKutta
-
         theta = self._check_theta(theta)
         m = self.model
         p, x0 = self.unpack(theta)

@@ -64,10 +64,11 @@ def silverbox_offset_model() -> Model:
     )
 
 
-def silverbox_problem(p0=None, substeps: int = 4, offset: bool = False, **kw) -> Problem:
-    """The paper's training problem (samples [10584:11608]); with ``offset`` the
-    variant with an input offset and y(t0) free as well."""
-    data = datasets.silverbox_train()
+def silverbox_problem(p0=None, substeps: int = 4, offset: bool = False, data=None, **kw) -> Problem:
+    """The paper's training problem (samples [10584:11608], or the Experiment
+    ``data``, with y(t0) its first sample); with ``offset`` the variant with an input
+    offset and y(t0) free as well."""
+    data = datasets.silverbox_train() if data is None else data
     x0 = [float(data.measured[0, 0]), 0.0]
     if offset:
         p0 = dict(SILVERBOX_GUESS, u0=0.0) if p0 is None else p0
