@@ -42,6 +42,20 @@ def test_newton_recovers_noise_free_silverbox_from_20_percent(sb_problem_factory
     assert all(b <= a for a, b in zip(costs, costs[1:], strict=False))
 
 
+def test_newton_cg_on_hessian_vector_products_reaches_the_same_optimum(sb_problem_factory):
+    prob = sb_problem_factory(_perturbed(1))
+    res = ti.fit(prob, method="newton-cg")
+    assert res.success, res.message
+    for k, v in SILVERBOX_P.items():
+        assert res.params[k] == pytest.approx(v, rel=1e-6), k
+    assert res.nhev >= res.nit > 0 and res.history[-1]["nhev"] == res.nhev
+    assert res.hess.shape == (5, 5)  # computed once at the end, for the error bars
+    # with bounds: stops on the active one, like newton
+    prob = sb_problem_factory(dict(SILVERBOX_P, a=0.9), bounds={"a": (0.5, 0.95)})
+    res = ti.fit(prob, method="newton-cg")
+    assert res.success and res.params["a"] == 0.95
+
+
 def test_result_fields_and_fixed_parameters(sb_problem_factory):
     p0 = dict(_perturbed(5), d=SILVERBOX_P["d"])
     prob = sb_problem_factory(p0, fixed=["d"])

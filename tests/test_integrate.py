@@ -39,6 +39,10 @@ def _assert_exact(prob, theta, tol=1e-9):
     np.testing.assert_allclose(g * s, g_ad * s, rtol=tol, atol=tol * np.abs(g * s).max())
     Hs, Hs_ad = H * np.outer(s, s), H_ad * np.outer(s, s)
     np.testing.assert_allclose(Hs, Hs_ad, rtol=tol, atol=tol * np.abs(Hs).max())
+    # the one-direction sweep (Newton-CG's Hessian-vector product), along a scaled v
+    v = s * np.linspace(-1.0, 1.0, theta.size)
+    _, _, Hv = prob.cost_grad_hessp(theta, v)
+    np.testing.assert_allclose(Hv * s, H_ad @ v * s, rtol=tol, atol=tol * np.abs(Hs).max())
     return J, g, H
 
 

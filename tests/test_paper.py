@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from tensorid import benchmarks, cli, datasets, paper
-from tensorid.optimize import METHODS
+from tensorid.paper import COMPARED
 
 
 @pytest.fixture(scope="module")
@@ -80,7 +80,7 @@ def test_schema(study):
         "median_seconds",
     }
     rows = r["robustness"]
-    assert len(rows) == 2 * len(METHODS)
+    assert len(rows) == 2 * len(COMPARED)
     for row in rows:
         assert keys <= set(row)
         assert row["starts"] == 2 and 0 <= row["converged"] <= 2 and 0 <= row["failed"] <= 2

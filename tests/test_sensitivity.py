@@ -124,6 +124,24 @@ def test_gradient_and_hessian_equal_autodiff(name, prob, theta):
 
 
 @pytest.mark.parametrize("name,prob,theta", PROBLEMS, ids=IDS)
+def test_hessian_vector_products_equal_the_hessian(name, prob, theta):
+    """The one-direction sweep gives ∇²J v for any v; together the products rebuild H."""
+    J, g, H = prob.cost_grad_hess(theta)
+    K = theta.size
+    Jg, gg = prob.cost_grad(theta)
+    np.testing.assert_allclose((Jg, *gg), (J, *g), rtol=1e-12, atol=1e-12 * np.abs(g).max())
+    rng = np.random.default_rng(K)
+    for v in (rng.standard_normal(K), np.eye(K)[-1]):
+        Jv, gv, Hv = prob.cost_grad_hessp(theta, v)
+        np.testing.assert_allclose(Jv, J, rtol=1e-12)
+        np.testing.assert_allclose(gv, g, rtol=1e-10, atol=1e-10 * np.abs(g).max())
+        tol = 1e-9 * np.abs(H).max() * np.abs(v).max()
+        np.testing.assert_allclose(Hv, H @ v, rtol=1e-9, atol=tol)
+    cols = np.stack([prob.cost_grad_hessp(theta, e)[2] for e in np.eye(K)], axis=1)
+    np.testing.assert_allclose(cols, H, rtol=1e-9, atol=1e-9 * np.abs(H).max())
+
+
+@pytest.mark.parametrize("name,prob,theta", PROBLEMS, ids=IDS)
 def test_gauss_newton_pieces_equal_autodiff_of_residuals(name, prob, theta):
     J, g, H_gn = prob.cost_grad_gn(theta)
     jac = jax.jacfwd(lambda th: _jax_residuals(prob, th))(theta)

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from scipy.optimize import rosen, rosen_der, rosen_hess
 
-from tensorid.trust_region import minimize_trust_region, solve_subproblem
+from tensorid.trust_region import minimize_trust_region, solve_subproblem, steihaug_cg
 
 
 def _model(g, H, s):
@@ -63,6 +63,54 @@ def test_bounded_rosenbrock_reaches_a_kkt_point():
     pg = np.clip(r.x - r.jac, lo, hi) - r.x
     assert np.abs(pg).max() < 1e-8
     assert r.x[0] == 0.5
+
+
+def _rosen_hessp(x):
+    H = rosen_hess(x)
+    return rosen(x), rosen_der(x), lambda v: H @ v
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_truncated_cg_step_is_feasible_and_decreases_the_model(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 8))
+    A = rng.standard_normal((n, n))
+    H = A + A.T  # indefinite in general
+    g = rng.standard_normal(n)
+    radius = float(rng.uniform(0.05, 3.0))
+    s, Hs, gHg = steihaug_cg(g, lambda v: H @ v, radius, 2 * n + 2)
+    assert np.linalg.norm(s) <= radius * (1 + 1e-12)
+    np.testing.assert_allclose(Hs, H @ s, atol=1e-10 * max(1.0, np.abs(H @ s).max()))
+    np.testing.assert_allclose(gHg, g @ H @ g)
+    # at least the Cauchy decrease: never worse than the best step along -g
+    tau = radius / np.linalg.norm(g)
+    if g @ H @ g > 0:
+        tau = min(tau, (g @ g) / (g @ H @ g))
+    assert _model(g, H, s) <= _model(g, H, -tau * g) + 1e-12
+
+
+def test_truncated_cg_gives_the_newton_step_for_a_convex_model():
+    rng = np.random.default_rng(0)
+    A = rng.standard_normal((6, 6))
+    H = A @ A.T + 6 * np.eye(6)
+    g = 1e-3 * rng.standard_normal(6)  # small gradient: tight forcing tolerance
+    s, _, _ = steihaug_cg(g, lambda v: H @ v, 10.0, 20)
+    # the forcing tolerance: the Newton equations hold to sqrt(||g||) relative
+    gn = np.linalg.norm(g)
+    assert np.linalg.norm(g + H @ s) <= 1.001 * np.sqrt(gn) * gn
+    assert np.linalg.norm(s + np.linalg.solve(H, g)) <= 0.05 * np.linalg.norm(s)
+
+
+def test_hessian_vector_products_reach_the_same_minimiser():
+    inf = np.full(2, np.inf)
+    r = minimize_trust_region(_rosen_hessp, np.array([-1.2, 1.0]), -inf, inf)
+    assert r.success and r.hess is None and r.nhev > 0
+    np.testing.assert_allclose(r.x, 1.0, atol=1e-7)
+    lo, hi = np.full(4, -2.0), np.full(4, 0.5)
+    r = minimize_trust_region(_rosen_hessp, np.array([-1.2, 1.0, -1.2, 1.0]), lo, hi)
+    dense = minimize_trust_region(_rosen, np.array([-1.2, 1.0, -1.2, 1.0]), lo, hi)
+    assert r.success
+    np.testing.assert_allclose(r.x, dense.x, atol=1e-7)
 
 
 def test_non_finite_trial_points_shrink_the_region():

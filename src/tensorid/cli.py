@@ -114,7 +114,13 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("data", nargs="+", help="data files (.csv, .mat, .npz), one experiment each")
     f.add_argument("--out", default="fit-results", help="output folder")
     f.add_argument(
-        "--method", default="newton", choices=["newton", "gauss-newton", "fd-bfgs", "fd-lsq"]
+        "--method",
+        default="newton",
+        # tensorid.METHODS, spelled out so that --help need not import JAX
+        choices=["newton", "newton-cg", "gauss-newton", "fd-bfgs", "fd-lsq"],
+        help="newton: exact Hessian (default); newton-cg: exact Hessian-vector products "
+        "with truncated CG, for many unknowns; gauss-newton; fd-bfgs and fd-lsq: "
+        "finite-difference baselines",
     )
     f.add_argument(
         "--validate", nargs="*", default=[], metavar="DATA", help="validation data files"

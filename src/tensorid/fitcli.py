@@ -113,6 +113,7 @@ def fit_json(res: FitResult, validation) -> dict:
         "message": res.message,
         "iterations": res.nit,
         "function_evaluations": res.nfev,
+        "hessian_vector_products": res.nhev,
         "method": res.method,
         "integration": _integration(res.problem),
         "seconds": res.seconds,

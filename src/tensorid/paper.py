@@ -22,11 +22,15 @@ from . import __version__, benchmarks, datasets
 from .data import Experiment
 from .metrics import gof
 from .multistart import process_pool
-from .optimize import METHODS, fit
+from .optimize import fit
 from .paper_report import render
 from .problem import Problem
 from .report import bar_plot, compare_plot, write_json
 from .simulate import simulate
+
+# the paper's comparison: exact Newton and Gauss-Newton against the finite-difference
+# baselines (newton-cg, for large K, is benchmarked in benchmarks/bench_scaling.py)
+COMPARED = ("newton", "gauss-newton", "fd-bfgs", "fd-lsq")
 
 # RK4 substeps per sample for the three accuracy levels of the robustness study, in
 # place of the paper's solver tolerances 1e-10, 1e-12, 1e-14 (see report.md)
@@ -277,7 +281,7 @@ def robustness_study(
     for dataset in ("silverbox", "two_tank"):
         thetas = draw_starts(_guess(dataset), starts, seed)
         for substeps in levels:
-            for method in METHODS:
+            for method in COMPARED:
                 tasks += [
                     (dataset, method, substeps, i, th.tolist()) for i, th in enumerate(thetas)
                 ]
@@ -305,7 +309,7 @@ def summarise(runs: list[dict], levels) -> list[dict]:
             level = [r for r in runs if r["dataset"] == dataset and r["substeps"] == substeps]
             costs = [r["cost"] for r in level if np.isfinite(r["cost"])]
             best = min(costs) if costs else np.inf
-            for method in METHODS:
+            for method in COMPARED:
                 rs = [r for r in level if r["method"] == method]
                 if not rs:
                     continue
@@ -382,7 +386,7 @@ def run(
         prog.step("Two-tank: paper's model and estimates")
         two_tank, figs2 = two_tank_study(out)
         figs += figs2
-        n_tasks = 2 * len(levels) * len(METHODS) * starts
+        n_tasks = 2 * len(levels) * len(COMPARED) * starts
         prog.start_robustness(n_tasks, workers)
         runs = robustness_study(starts, levels, workers, seed, on_done=prog.advance)
         prog.step("Integration accuracy of each level")
@@ -431,7 +435,7 @@ def _robustness_figure(out: Path, rows: list[dict]) -> Path:
             )
             for g in groups
         ]
-        for m in METHODS
+        for m in COMPARED
     }
     return bar_plot(
         out / "robustness.png",

@@ -356,6 +356,43 @@ class Problem:
         sensitivities only."""
         return self._assemble(self._sens.first_order, theta, packed=False)
 
+    def cost_grad(self, theta) -> tuple[float, np.ndarray]:
+        """(J, ∇J) from first-order sensitivities; J is inf when the simulation blows up."""
+        J, g = 0.0, np.zeros(self.K)
+        for idx, (Je, ge) in self._each(self._sens.gradient, theta):
+            J += float(Je)
+            g[idx] += np.asarray(ge)
+        return (J, g) if np.isfinite(J) and np.isfinite(g).all() else (np.inf, g)
+
+    def cost_grad_hessp(self, theta, v) -> tuple[float, np.ndarray, np.ndarray]:
+        """(J, ∇J, ∇²J v): the exact Hessian times a direction v (K,), by one
+        forward-over-forward sweep that carries 2K + 1 copies of the state instead of
+        the full Hessian's 1 + K + K(K+1)/2. For large K with Newton-CG."""
+        theta = self._check_theta(theta)
+        v = np.asarray(v, dtype=float).reshape(-1)
+        if v.shape != (self.K,):
+            raise ValueError(f"v must have {self.K} entries (one per θ entry), got {v.size}")
+        J, g, Hv = 0.0, np.zeros(self.K), np.zeros(self.K)
+        w = jnp.asarray(self.weights)
+        for e, (t, u, y) in enumerate(self._arrays):
+            idx = self._slices(e)
+            Je, ge, hv = self._sens.hessp(
+                jnp.asarray(theta[idx]),
+                jnp.asarray(v[idx]),
+                jnp.asarray(self.x0[e]),
+                jnp.asarray(self.p0),
+                t,
+                u,
+                y,
+                w,
+            )
+            J += float(Je)
+            g[idx] += np.asarray(ge)
+            Hv[idx] += np.asarray(hv)
+        if not (np.isfinite(J) and np.isfinite(g).all() and np.isfinite(Hv).all()):
+            return np.inf, g, Hv
+        return J, g, Hv
+
     def simulate(self, theta) -> list:
         """Simulate every experiment at θ; returns a list of Simulation."""
         from .simulate import Simulation

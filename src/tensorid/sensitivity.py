@@ -154,8 +154,9 @@ class Sensitivities:
         _, ys = self._simulate(x0, p, t, u)
         return (jnp.sqrt(w) * (y - ys)).reshape(-1)
 
-    # -- first order: (J, ∇J, Gauss-Newton Hessian) ------------------------------------
-    def _first_order(self, theta, x0, p, t, u, y, w):
+    # -- first order: (J, ∇J) and the Gauss-Newton Hessian -----------------------------
+    def _first_order(self, theta, x0, p, t, u, y, w, gauss_newton=True):
+        """(J, ∇J, 2 Σ w (C_z Z)ᵀ(C_z Z)); the last is None when not ``gauss_newton``."""
         x0, p = self._expand(theta, x0, p)
         m, N, K = self.model, self.model.N, self.K
         S0, Psel = self._seeds()
@@ -183,41 +184,54 @@ class Sensitivities:
             r = y_h - C(z)
             D = jax.vmap(lambda col: jax.jvp(C, (z,), (col,))[1], in_axes=1, out_axes=1)(Z)
             wr = w * r
-            return (J + jnp.sum(wr * r), g - 2.0 * D.T @ wr, H + 2.0 * (D.T * w) @ D), None
+            if gauss_newton:
+                H = H + 2.0 * (D.T * w) @ D
+            return (J + jnp.sum(wr * r), g - 2.0 * D.T @ wr, H), None
 
-        acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros((K, K)))
+        acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros((K, K)) if gauss_newton else None)
         (J, g, H), _ = self._march(field, observe, (x0, S0), acc0, t, u, y, p)
         return J, g, H
 
-    # -- second order: (J, ∇J, ∇²J) by transition tensors ------------------------------
-    def _second_order(self, theta, x0, p, t, u, y, w):
+    # -- second order: (J, ∇J, ∇²J) or (J, ∇J, ∇²J v) by transition tensors ------------
+    def _second_order(self, theta, x0, p, t, u, y, w, v=None):
+        """With v None: the packed Hessian (pairs j <= k, see pair_indices), T carried
+        for every pair. With a direction v (K,): the product ∇²J v, carrying only
+        U = Σ_k T_jk v_k, whose ODE is dU_j/dt = F_zz[Z_j, Z v] + F_x U_j: 2K + 1
+        copies of the state instead of 1 + K + K(K+1)/2."""
         x0, p = self._expand(theta, x0, p)
         m, N, M, K = self.model, self.model.N, self.model.M, self.K
         S0, Psel = self._seeds()
-        jj, kk = (jnp.asarray(a) for a in pair_indices(K))
-        npairs = jj.size
+        if v is None:
+            jj, kk = (jnp.asarray(a) for a in pair_indices(K))
+            ncols = jj.size
+        else:
+            ncols = K
 
-        def directions(S, Tp):
+        def directions(S, U):
+            """(a, b, c) per carried column: its T (or U) column obeys F_zz[a, b] + F_z c."""
             Z = jnp.concatenate([S, Psel])  # (N+M, K)
-            c = jnp.concatenate([Tp, jnp.zeros((M, npairs))])  # T pairs, no p part
-            return Z[:, jj].T, Z[:, kk].T, c.T
+            c = jnp.concatenate([U, jnp.zeros((M, ncols))]).T  # T has no parameter rows
+            if v is None:
+                return Z[:, jj].T, Z[:, kk].T, c
+            return Z.T, jnp.broadcast_to(Z @ v, (K, N + M)), c
 
         def field(state, uu):
-            x, S, Tp = state
+            x, S, U = state
             z = jnp.concatenate([x, p])
-            A, B, Cc = directions(S, Tp)
+            A, B, Cc = directions(S, U)
 
             def F(zz):
                 return m.f(zz[:N], zz[N:], uu)
 
             Fa, d2 = jax.vmap(lambda a, b, c: _second_directional(F, z, a, b, c))(A, B, Cc)
+            # the first K columns of A are Z itself (diagonal pairs come first)
             return F(z), Fa[:K].T, d2.T  # dx, dS = F_z Z, dT = F_zz[Z,Z] + F_x T
 
         def observe(acc, state, y_h):
-            J, g, Hp = acc
-            x, S, Tp = state
+            J, g, H = acc
+            x, S, U = state
             z = jnp.concatenate([x, p])
-            A, B, Cc = directions(S, Tp)
+            A, B, Cc = directions(S, U)
 
             def C(zz):
                 return m.h(zz[:N], zz[N:])
@@ -226,13 +240,19 @@ class Sensitivities:
             D = Ca[:K]  # (K, S) = (C_z Z)ᵀ
             r = y_h - C(z)
             wr = w * r
-            Hp = Hp + 2.0 * (D[jj] * D[kk]) @ w - 2.0 * e2 @ wr
-            return (J + jnp.sum(wr * r), g - 2.0 * D @ wr, Hp), None
+            gn = 2.0 * (D[jj] * D[kk]) @ w if v is None else 2.0 * D @ (w * (v @ D))
+            return (J + jnp.sum(wr * r), g - 2.0 * D @ wr, H + gn - 2.0 * e2 @ wr), None
 
-        state0 = (x0, S0, jnp.zeros((N, npairs)))
-        acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros(npairs))
-        (J, g, Hp), _ = self._march(field, observe, state0, acc0, t, u, y, p)
-        return J, g, Hp
+        state0 = (x0, S0, jnp.zeros((N, ncols)))
+        acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros(ncols))
+        (J, g, H), _ = self._march(field, observe, state0, acc0, t, u, y, p)
+        return J, g, H
+
+    def _hessp(self, theta, v, x0, p, t, u, y, w):
+        return self._second_order(theta, x0, p, t, u, y, w, v=v)
+
+    def _gradient(self, theta, x0, p, t, u, y, w):
+        return self._first_order(theta, x0, p, t, u, y, w, gauss_newton=False)[:2]
 
     # -- compiled entry points ---------------------------------------------------------
     # (compiled functions are per process: pickling drops them, the receiver recompiles)
@@ -262,5 +282,13 @@ class Sensitivities:
     def second_order(self):
         return jax.jit(self._second_order)
 
+    @cached_property
+    def gradient(self):
+        return jax.jit(self._gradient)
 
-_COMPILED = ("simulate", "cost", "residuals", "first_order", "second_order")
+    @cached_property
+    def hessp(self):
+        return jax.jit(self._hessp)
+
+
+_COMPILED = ("simulate", "cost", "residuals", "first_order", "second_order", "gradient", "hessp")

@@ -7,6 +7,11 @@ Hessians far from the optimum are handled, and near it the step is the Newton
 step, so convergence is quadratic. Bounds are handled by an active set (variables
 on a bound with the gradient pushing outward are held) and a projected step.
 
+When only Hessian-vector products are available (H given as a function v -> Hv),
+the subproblem is solved approximately by Steihaug-Toint truncated conjugate
+gradients instead, to the forcing tolerance ||r|| <= min(0.5, sqrt||g||) ||g||,
+which keeps convergence superlinear.
+
 A trial point where the cost is not finite (the simulation blew up) is an ordinary
 rejected step: ρ = -inf, the radius shrinks, and the iterate stays where it was.
 """
@@ -74,17 +79,58 @@ def solve_subproblem(g: np.ndarray, H: np.ndarray, radius: float) -> tuple[np.nd
     return s, True
 
 
+def steihaug_cg(
+    g: np.ndarray, hessp: Callable[[np.ndarray], np.ndarray], radius: float, maxiter: int
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Approximate minimiser of g·s + ½ sᵀHs over ||s|| <= radius by truncated CG.
+
+    Returns (s, Hs, gᵀHg): the step, H times it (for the model value without another
+    product) and the curvature along -g (for the Cauchy step), the latter from the
+    first CG product."""
+    s, Hs = np.zeros_like(g), np.zeros_like(g)
+    r, d = g.copy(), -g
+    rr = float(r @ r)
+    tol = min(0.5, np.sqrt(np.sqrt(rr))) * np.sqrt(rr)
+    gHg = np.nan
+
+    def to_boundary(d, Hd):
+        # τ > 0 with ||s + τ d|| = Δ
+        a, b, c = d @ d, 2.0 * (s @ d), s @ s - radius**2
+        tau = (-b + np.sqrt(max(b * b - 4.0 * a * c, 0.0))) / (2.0 * a)
+        return s + tau * d, Hs + tau * Hd
+
+    for i in range(maxiter):
+        Hd = hessp(d)
+        dHd = float(d @ Hd)
+        if i == 0:
+            gHg = dHd
+        if not dHd > 0:  # negative curvature (or a failed product): go to the boundary
+            return (*to_boundary(d, Hd), gHg)
+        alpha = rr / dHd
+        if np.linalg.norm(s + alpha * d) >= radius:
+            return (*to_boundary(d, Hd), gHg)
+        s, Hs = s + alpha * d, Hs + alpha * Hd
+        r = r + alpha * Hd
+        rr_new = float(r @ r)
+        if np.sqrt(rr_new) <= tol:
+            break
+        d = -r + (rr_new / rr) * d
+        rr = rr_new
+    return s, Hs, gHg
+
+
 @dataclass
 class TRResult:
     x: np.ndarray
     fun: float
     jac: np.ndarray
-    hess: np.ndarray
+    hess: np.ndarray | None  # None when only Hessian-vector products were used
     nit: int
     nfev: int
     success: bool
     message: str
     history: list[dict] = field(default_factory=list)
+    nhev: int = 0  # Hessian-vector products
 
 
 def _projected_gradient(x, g, lo, hi):
@@ -98,23 +144,43 @@ def _room(x, v, lo, hi) -> float:
     return max(float(r.min()), 0.0)
 
 
-def _model(g, H, d) -> float:
-    return float(g @ d + 0.5 * d @ H @ d)
+def _model(g, d, Hd) -> float:
+    return float(g @ d + 0.5 * d @ Hd)
 
 
-def _cauchy_step(x, g, H, lo, hi, free, radius):
-    """Minimiser of the model along the steepest-descent direction of the free
-    variables, within the radius and the bounds: a step with guaranteed decrease
-    whenever the projected gradient is not zero, whatever the Newton step does."""
+def _cauchy_step(x, g, curv, lo, hi, free, radius):
+    """Minimiser of the model along the steepest-descent direction v of the free
+    variables (curv = vᵀHv), within the radius and the bounds: a step with guaranteed
+    decrease whenever the projected gradient is not zero, whatever the Newton step
+    does. Returns (step, model value)."""
     v = np.where(free, -g, 0.0)
     vv = float(v @ v)
     if vv == 0.0:
-        return v
+        return v, 0.0
     alpha = min(radius / np.sqrt(vv), _room(x, v, lo, hi))
-    curv = float(v @ H @ v)
     if curv > 0:
         alpha = min(alpha, vv / curv)
-    return alpha * v
+    return alpha * v, float(-alpha * vv + 0.5 * alpha**2 * curv)
+
+
+def _newton_step(g, H, free, radius, nhev):
+    """(s, Hs, vᵀHv) for the free variables, v = -g: exactly from a matrix H, or by
+    truncated CG from a product function H(v)."""
+    s, Hs = np.zeros_like(g), np.zeros_like(g)
+    if callable(H):
+
+        def hessp(d):
+            nhev[0] += 1
+            full = np.zeros_like(g)
+            full[free] = d
+            return H(full)[free]
+
+        s[free], Hs[free], curv = steihaug_cg(g[free], hessp, radius, 2 * int(free.sum()) + 2)
+        return s, Hs, curv
+    Hf = H[np.ix_(free, free)]
+    s[free], _ = solve_subproblem(g[free], Hf, radius)
+    Hs[free] = Hf @ s[free]
+    return s, Hs, float(g[free] @ Hf @ g[free])
 
 
 def minimize_trust_region(
@@ -133,10 +199,12 @@ def minimize_trust_region(
     callback: Callable[[dict], None] | None = None,
 ) -> TRResult:
     """Minimise J with ``fun(x) -> (J, g, H)`` (J = inf marks a failed evaluation) within
-    lo <= x <= hi, starting from a feasible x0."""
+    lo <= x <= hi, starting from a feasible x0. H is the Hessian, or a function
+    v -> Hv at x for truncated-CG steps."""
     x = np.clip(np.asarray(x0, dtype=float), lo, hi)
     J, g, H = fun(x)
     nfev = 1
+    nhev = [0]
     history: list[dict] = []
 
     def record(it, step, rho, accepted):
@@ -149,6 +217,7 @@ def minimize_trust_region(
             "rho": float(rho),
             "accepted": bool(accepted),
             "nfev": nfev,
+            "nhev": nhev[0],
         }
         history.append(entry)
         if callback is not None:
@@ -159,7 +228,7 @@ def minimize_trust_region(
             x,
             np.inf,
             g,
-            H,
+            None if callable(H) else H,
             0,
             nfev,
             False,
@@ -178,16 +247,24 @@ def minimize_trust_region(
         tol_b = 1e-12 * (1.0 + np.abs(x))
         held = ((x <= lo + tol_b) & (g > 0)) | ((x >= hi - tol_b) & (g < 0))
         free = ~held
-        s = np.zeros_like(x)
-        s[free], _ = solve_subproblem(g[free], H[np.ix_(free, free)], radius)
+        s, Hs, curv = _newton_step(g, H, free, radius, nhev)
         # two feasible candidates: projection onto the box, and truncation along s
         d_proj = np.clip(x + s, lo, hi) - x
-        d_trunc = min(1.0, _room(x, s, lo, hi)) * s
-        d_cauchy = _cauchy_step(x, g, H, lo, hi, free, radius)
+        beta = min(1.0, _room(x, s, lo, hi))
+        d_trunc = beta * s
+        d_cauchy, m_cauchy = _cauchy_step(x, g, curv, lo, hi, free, radius)
+        m_s = _model(g, s, Hs)
+        if np.array_equal(d_proj, s):
+            m_proj = m_s
+        else:
+            nhev[0] += callable(H)
+            m_proj = _model(g, d_proj, H(d_proj) if callable(H) else H @ d_proj)
+        m_trunc = float(beta * (g @ s) + 0.5 * beta**2 * (s @ Hs))
 
-        values = [_model(g, H, c) for c in (d_proj, d_trunc, d_cauchy)]
-        d = (d_proj, d_trunc, d_cauchy)[int(np.argmin(values))]
-        pred = -_model(g, H, d)
+        values = [m_proj, m_trunc, m_cauchy]
+        best = int(np.argmin(values))
+        d = (d_proj, d_trunc, d_cauchy)[best]
+        pred = -values[best]
         step = float(np.linalg.norm(d))
         xscale = 1.0 + np.linalg.norm(x, np.inf)
         if not pred > 0 or step == 0.0:
@@ -237,4 +314,5 @@ def minimize_trust_region(
                 "cost may be noisy or the simulation fails near this point)"
             )
             break
-    return TRResult(x, float(J), g, H, it, nfev, success, message, history)
+    hess = None if callable(H) else H
+    return TRResult(x, float(J), g, hess, it, nfev, success, message, history, nhev[0])
