@@ -56,6 +56,31 @@ def test_newton_cg_on_hessian_vector_products_reaches_the_same_optimum(sb_proble
     assert res.success and res.params["a"] == 0.95
 
 
+def test_starts_fitted_in_lock_step_match_separate_fits(sb_problem_factory):
+    from tensorid.multistart import draw_starts
+
+    prob = sb_problem_factory(_perturbed(4))
+    thetas = draw_starts(prob.theta0, prob.lower, prob.upper, 4, seed=3)
+    thetas[2, 1] *= -1.0  # a negative mass: the simulation blows up at this start
+    batch = ti.fit_batch(prob, "newton", thetas)
+    assert [r.success for r in batch] == [True, True, False, True]
+    assert "Choose another initial guess" in batch[2].message
+    for th, rb in zip(thetas[[0, 1, 3]], [batch[0], batch[1], batch[3]], strict=True):
+        rs = ti.fit(prob, theta0=th)
+        assert rb.cost == pytest.approx(rs.cost, abs=1e-20)
+        np.testing.assert_allclose(rb.theta, rs.theta, rtol=1e-6, atol=1e-10)
+        assert rb.hess.shape == (5, 5) and len(rb.history) == rb.nit + 1
+    # the same through fit(starts=..., batch=...), in this process
+    res = ti.fit(prob, starts=4, batch=4, workers=1)
+    assert res.success and len(res.starts) == 4
+    for k, v in SILVERBOX_P.items():
+        assert res.params[k] == pytest.approx(v, rel=1e-6), k
+    with pytest.raises(ValueError, match="batch"):
+        ti.fit(prob, method="fd-bfgs", starts=4, batch=2)
+    with pytest.raises(ValueError, match="batch must be a positive integer"):
+        ti.fit(prob, starts=4, batch=0)
+
+
 def test_result_fields_and_fixed_parameters(sb_problem_factory):
     p0 = dict(_perturbed(5), d=SILVERBOX_P["d"])
     prob = sb_problem_factory(p0, fixed=["d"])

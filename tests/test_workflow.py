@@ -259,7 +259,7 @@ def test_multistart_local_and_dask_agree(workdir):
     prob = ti.Problem(
         spec.model, e, p0=spec.p0, x0=spec.x0_array(), free_x0=spec.free_x0, bounds=spec.bounds
     )
-    local = ti.fit(prob, starts=4, workers=2)
+    local = ti.fit(prob, starts=4, workers=2, batch=1)  # one start per task, as on Dask
     with (
         distributed.LocalCluster(
             n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None

@@ -15,7 +15,7 @@ from .integrate import (
 from .loaders import ModelSpec, load_data, load_model
 from .metrics import gof, nrmse, rmse
 from .model import Model
-from .optimize import METHODS, FitResult, fit
+from .optimize import METHODS, FitResult, fit, fit_batch
 from .problem import Problem
 from .simulate import Simulation, simulate
 from .uncertainty import Uncertainty
@@ -37,6 +37,7 @@ __all__ = [
     "Uncertainty",
     "enable_compilation_cache",
     "fit",
+    "fit_batch",
     "gof",
     "load_data",
     "load_model",

@@ -152,6 +152,13 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--seed", type=int, default=0, help="seed of the starts")
     f.add_argument("--workers", type=int, default=None, help="local worker processes")
     f.add_argument(
+        "--batch",
+        type=int,
+        default=None,
+        help="starts fitted together in lock-step per task, vectorised (newton, "
+        "gauss-newton; default: the starts shared evenly over the local workers)",
+    )
+    f.add_argument(
         "--scheduler",
         default=None,
         metavar="ADDRESS",

@@ -217,6 +217,7 @@ def run_fit(args) -> int:
         seed=args.seed,
         executor=executor,
         workers=args.workers,
+        batch=args.batch,
     )
     try:
         if args.no_progress:

@@ -78,28 +78,35 @@ def _worker_init(cache: str | None) -> None:
 _WORKER_PROBLEMS: dict[str, Any] = {}
 
 
-def _fit_payload(payload: tuple) -> dict:
-    """Worker side: one start."""
+def _fit_payload(payload: tuple) -> list[dict]:
+    """Worker side: one start, or several fitted in lock-step (fit_batch)."""
     import cloudpickle
 
-    from .optimize import fit
+    from .optimize import fit, fit_batch
 
-    blob, method, theta0, options = payload
+    blob, method, thetas, options = payload
     key = hashlib.sha1(blob).hexdigest()
     if key not in _WORKER_PROBLEMS:
         _WORKER_PROBLEMS.clear()
         _WORKER_PROBLEMS[key] = cloudpickle.loads(blob)
-    res = fit(_WORKER_PROBLEMS[key], method=method, theta0=np.asarray(theta0), **options)
-    return {
-        "theta0": list(map(float, theta0)),
-        "theta": res.theta.tolist(),
-        "cost": float(res.cost),
-        "success": res.success,
-        "nit": res.nit,
-        "nfev": res.nfev,
-        "seconds": res.seconds,
-        "message": res.message,
-    }
+    problem = _WORKER_PROBLEMS[key]
+    if len(thetas) == 1:
+        results = [fit(problem, method=method, theta0=np.asarray(thetas[0]), **options)]
+    else:
+        results = fit_batch(problem, method, np.asarray(thetas), **options)
+    return [
+        {
+            "theta0": list(map(float, theta0)),
+            "theta": res.theta.tolist(),
+            "cost": float(res.cost),
+            "success": res.success,
+            "nit": res.nit,
+            "nfev": res.nfev,
+            "seconds": res.seconds,
+            "message": res.message,
+        }
+        for theta0, res in zip(thetas, results, strict=True)
+    ]
 
 
 def run_starts(
@@ -109,16 +116,21 @@ def run_starts(
     options: dict,
     executor: Executor | None = None,
     workers: int | None = None,
+    batch: int = 1,
 ) -> list[dict]:
-    """Fit from each row of ``thetas``; results in the order of the starts."""
+    """Fit from each row of ``thetas``; results in the order of the starts. With
+    ``batch`` > 1 each task fits up to that many starts in lock-step (fit_batch)."""
     import cloudpickle
 
     blob = cloudpickle.dumps(problem)
-    payloads = [(blob, method, th.tolist(), options) for th in thetas]
-    if executor is not None:
-        return list(executor.map(_fit_payload, payloads))
+    chunks = [thetas[i : i + batch].tolist() for i in range(0, len(thetas), batch)]
+    payloads = [(blob, method, chunk, options) for chunk in chunks]
     workers = workers or os.cpu_count() or 1
-    if workers == 1 or len(payloads) == 1:
-        return [_fit_payload(p) for p in payloads]
-    with process_pool(min(workers, len(payloads))) as pool:
-        return list(pool.map(_fit_payload, payloads))
+    if executor is not None:
+        done = list(executor.map(_fit_payload, payloads))
+    elif workers == 1 or len(payloads) == 1:
+        done = [_fit_payload(p) for p in payloads]
+    else:
+        with process_pool(min(workers, len(payloads))) as pool:
+            done = list(pool.map(_fit_payload, payloads))
+    return [r for rs in done for r in rs]

@@ -18,7 +18,7 @@ rejected step: ρ = -inf, the radius shrinks, and the iterate stays where it was
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -188,6 +188,24 @@ def minimize_trust_region(
     x0: np.ndarray,
     lo: np.ndarray,
     hi: np.ndarray,
+    **options,
+) -> TRResult:
+    """Minimise J with ``fun(x) -> (J, g, H)`` (J = inf marks a failed evaluation) within
+    lo <= x <= hi, starting from a feasible x0. H is the Hessian, or a function
+    v -> Hv at x for truncated-CG steps. ``options`` are those of trust_region_steps."""
+    steps = trust_region_steps(x0, lo, hi, **options)
+    x = next(steps)
+    try:
+        while True:
+            x = steps.send(fun(x))
+    except StopIteration as done:
+        return done.value
+
+
+def trust_region_steps(
+    x0: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
     *,
     radius: float = 0.1,
     max_radius: float = 1e4,
@@ -195,14 +213,17 @@ def minimize_trust_region(
     gtol: float = 1e-10,
     ftol: float = 1e-12,
     xtol: float = 1e-12,
+    fatol: float = 0.0,
     eta: float = 0.1,
     callback: Callable[[dict], None] | None = None,
-) -> TRResult:
-    """Minimise J with ``fun(x) -> (J, g, H)`` (J = inf marks a failed evaluation) within
-    lo <= x <= hi, starting from a feasible x0. H is the Hessian, or a function
-    v -> Hv at x for truncated-CG steps."""
+) -> Generator[np.ndarray, tuple, TRResult]:
+    """The trust-region iteration as a generator: it yields each point x where it
+    needs (J, g, H), is sent them back, and returns the TRResult. This lets a caller
+    evaluate the points of many runs in one batched call (multi-start in lock-step).
+    A cost at or below ``fatol`` is converged whatever the gradient: the caller's
+    rounding floor (data fitted to machine precision)."""
     x = np.clip(np.asarray(x0, dtype=float), lo, hi)
-    J, g, H = fun(x)
+    J, g, H = yield x
     nfev = 1
     nhev = [0]
     history: list[dict] = []
@@ -244,6 +265,10 @@ def minimize_trust_region(
             success, message = True, "converged: projected gradient below gtol"
             it -= 1
             break
+        if J <= fatol:
+            success, message = True, "converged: the cost is at the rounding floor of the data"
+            it -= 1
+            break
         tol_b = 1e-12 * (1.0 + np.abs(x))
         held = ((x <= lo + tol_b) & (g > 0)) | ((x >= hi - tol_b) & (g < 0))
         free = ~held
@@ -280,7 +305,7 @@ def minimize_trust_region(
             it -= 1
             break
         x_new = np.clip(x + d, lo, hi)
-        J_new, g_new, H_new = fun(x_new)
+        J_new, g_new, H_new = yield x_new
         nfev += 1
         actual = J - J_new if np.isfinite(J_new) else -np.inf
         rho = actual / pred
