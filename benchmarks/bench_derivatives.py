@@ -4,36 +4,25 @@
 
 Prints, for P = 1024 samples, N = 2 states, K = 5 unknowns (ẏ(t0), m, d, a, b):
 one plain simulation, one (J, g, H) by transition tensors, (J, g, H_GN) by first-order
-sensitivities, jax.hessian through the same simulator, and a finite-difference
-Hessian from cost evaluations (sequential, and batched with jax.vmap), each as a
-median wall time after compilation and as a ratio to one simulation. Compile times
-are listed separately. Ratios, not seconds, are what carries across machines.
+sensitivities, one Hessian-vector product, (J, g, H) at 8 points in one vmap call
+(per point, as multi-start in lock-step uses it), jax.hessian through the same
+simulator, and a finite-difference Hessian from cost evaluations (sequential, and
+batched with jax.vmap), each as a median wall time after compilation and as a ratio
+to one simulation. Compile times are listed separately. Ratios, not seconds, are
+what carries across machines.
 """
 
 from __future__ import annotations
 
 import argparse
-import statistics
-import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _timing import time_call
 
 import tensorid as ti
 from tensorid.benchmarks import silverbox_problem
-
-
-def _time(fn, repeats: int) -> tuple[float, float]:
-    t0 = time.perf_counter()
-    jax.block_until_ready(fn())
-    compile_s = time.perf_counter() - t0
-    runs = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        runs.append(time.perf_counter() - t0)
-    return statistics.median(runs), compile_s
 
 
 def fd_points(theta: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, list]:
@@ -91,12 +80,18 @@ def main() -> None:
     h = 1e-4 * np.maximum(np.abs(theta), 1e-3)
     pts, _ = fd_points(theta, h)
     batch_cost = jax.jit(jax.vmap(prob.jax_cost))
+    th8 = th * (1 + 0.01 * jnp.arange(8.0)[:, None])
 
     rows = [
         ("simulation (states only)", lambda: sens.simulate(x0, p, t, u)),
         ("J by plain simulation", lambda: cost(th)),
         ("(J, g, H) transition tensors", lambda: sens.second_order(th, x0, p, t, u, y, w)),
         ("(J, g, H_GN) first-order sens.", lambda: sens.first_order(th, x0, p, t, u, y, w)),
+        ("(J, g, Hv) one direction", lambda: sens.hessp(th, jnp.ones(K), x0, p, t, u, y, w)),
+        (
+            "(J, g, H) for 8 starts, vmap, per start",
+            lambda: sens.second_order_batch(th8, x0, p, t, u, y, w),
+        ),
         ("jax.grad of J", lambda: grad(th)),
         ("jax.hessian of J", lambda: hess(th)),
         (f"FD Hessian, {len(pts)} costs, batched", lambda: batch_cost(jnp.asarray(pts))),
@@ -112,7 +107,9 @@ def main() -> None:
     )
     results = {}
     for name, fn in rows:
-        results[name] = _time(fn, args.repeats)
+        results[name] = time_call(fn, args.repeats)
+        if "per start" in name:
+            results[name] = (results[name][0] / 8, results[name][1])
     base = results["simulation (states only)"][0]
     print(f"{'':40s} {'run ms':>9s} {'× sim':>7s} {'compile s':>10s}")
     for name, (run, comp) in results.items():
