@@ -47,22 +47,24 @@ def _sweeps(prob: ti.Problem):
     }
 
 
+def _against_autodiff(size: int, prob: ti.Problem, repeats: int) -> None:
+    """One table row: cost, (J, g, H) and jax.hessian through the same simulator."""
+    s = _sweeps(prob)
+    c, _ = time_call(s["cost"], repeats)
+    h, _ = time_call(s["hess"], repeats)
+    ad = jax.jit(jax.hessian(prob.jax_cost))
+    th = jnp.asarray(prob.theta0)
+    a, _ = time_call(lambda: ad(th), repeats)
+    print(f"| {size} | {c * 1e3:.2f} | {h * 1e3:.1f} | {h / c:.0f} | {a * 1e3:.1f} | {h / a:.2f} |")
+
+
 def table_p(sizes, repeats: int) -> None:
     print("\n## Time against the number of samples P (Silverbox, N = 2, K = 5)\n")
     print("| P | cost ms | (J, g, H) ms | × cost | jax.hessian ms | (J, g, H) / jax.hessian |")
     print("|---:|---:|---:|---:|---:|---:|")
     for P in sizes:
         prob = benchmarks.silverbox_problem(data=datasets.silverbox_snls80mV(stop=P))
-        s = _sweeps(prob)
-        r = max(1, repeats if P <= 16384 else repeats // 2)
-        c, _ = time_call(s["cost"], r)
-        h, _ = time_call(s["hess"], r)
-        ad = jax.jit(jax.hessian(prob.jax_cost))
-        th = jnp.asarray(prob.theta0)
-        a, _ = time_call(lambda ad=ad, th=th: ad(th), r)
-        print(
-            f"| {P} | {c * 1e3:.2f} | {h * 1e3:.1f} | {h / c:.0f} | {a * 1e3:.1f} | {h / a:.2f} |"
-        )
+        _against_autodiff(P, prob, max(1, repeats if P <= 16384 else repeats // 2))
 
 
 def chebyshev_model(q: int) -> ti.Model:
@@ -172,15 +174,7 @@ def table_n(sizes, repeats: int) -> None:
         model = chain_model(N // 2)
         sim = ti.simulate(model, truth, np.zeros(N), ti.Experiment(t, u[:, None]))
         prob = ti.Problem(model, ti.Experiment(t, u[:, None], sim.y), p0=truth * 1.05)
-        s = _sweeps(prob)
-        c, _ = time_call(s["cost"], repeats)
-        h, _ = time_call(s["hess"], repeats)
-        ad = jax.jit(jax.hessian(prob.jax_cost))
-        th = jnp.asarray(prob.theta0)
-        a, _ = time_call(lambda ad=ad, th=th: ad(th), repeats)
-        print(
-            f"| {N} | {c * 1e3:.2f} | {h * 1e3:.1f} | {h / c:.0f} | {a * 1e3:.1f} | {h / a:.2f} |"
-        )
+        _against_autodiff(N, prob, repeats)
 
 
 def main() -> None:

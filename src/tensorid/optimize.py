@@ -314,8 +314,7 @@ def fit(
 
     J0, g0, H0 = problem.cost_grad_gn(theta0)
     if not np.isfinite(J0):
-        why = problem.diagnose(theta0) or "the simulation is not finite at the start"
-        return _failed(problem, method, theta0, start, why + " Choose another initial guess.")
+        return _failed_start(problem, method, theta0, start)
     tr = _Tracker(problem, _scale(problem, theta0, J0, H0, x_scale), J0 if J0 > 0 else 1.0)
     phi0, plo, phi_hi = theta0 / tr.scale, lo / tr.scale, hi / tr.scale
     history: list[dict] = []
@@ -421,8 +420,7 @@ def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResul
     runs, pending = {}, {}
     for i, th in enumerate(thetas):
         if not np.isfinite(J0[i]):
-            why = problem.diagnose(th) or "the simulation is not finite at the start"
-            results[i] = _failed(problem, method, th, start, why + " Choose another initial guess.")
+            results[i] = _failed_start(problem, method, th, start)
             continue
         J_ref = J0[i] if J0[i] > 0 else 1.0
         tr = _Tracker(problem, _scale(problem, th, J0[i], H0[i], x_scale), J_ref)
@@ -583,6 +581,12 @@ def _result(
         scale=scale,
         history=history,
     )
+
+
+def _failed_start(problem, method, theta0, start):
+    """The result for a start where the simulation already blows up, saying where."""
+    why = problem.diagnose(theta0) or "the simulation is not finite at the start"
+    return _failed(problem, method, theta0, start, why + " Choose another initial guess.")
 
 
 def _failed(problem, method, theta0, start, message):

@@ -302,26 +302,19 @@ class Problem:
         return p, x0
 
     # -- cost and derivatives ------------------------------------------------------------
-    def _each(self, fn, theta):
-        theta = self._check_theta(theta)
+    def _each(self, fn, theta, *more):
+        """(idx, fn(θ_e, *more_e, x0_e, p0, t, u, y, w)) per experiment e, where θ_e and
+        more_e are the experiment's entries (last axis) of θ and of further θ-shaped
+        arrays; θ may hold one point per row."""
         w = jnp.asarray(self.weights)
         for e, (t, u, y) in enumerate(self._arrays):
             idx = self._slices(e)
-            yield (
-                idx,
-                fn(
-                    jnp.asarray(theta[idx]),
-                    jnp.asarray(self.x0[e]),
-                    jnp.asarray(self.p0),
-                    t,
-                    u,
-                    y,
-                    w,
-                ),
-            )
+            local = [jnp.asarray(a[..., idx]) for a in (theta, *more)]
+            yield idx, fn(*local, jnp.asarray(self.x0[e]), jnp.asarray(self.p0), t, u, y, w)
 
     def cost(self, theta) -> float:
         """J(θ) by plain simulation; inf when the simulation is not finite."""
+        theta = self._check_theta(theta)
         J = sum(float(Je) for _, Je in self._each(self._sens.cost, theta))
         return J if np.isfinite(J) else np.inf
 
@@ -337,12 +330,13 @@ class Problem:
 
     def residuals(self, theta) -> np.ndarray:
         """sqrt(w)·(y_obs - y_sim) for every sample, output and experiment, flattened."""
+        theta = self._check_theta(theta)
         return np.concatenate([np.asarray(r) for _, r in self._each(self._sens.residuals, theta)])
 
     def _assemble(self, fn, theta, packed: bool):
         K = self.K
         J, g, H = 0.0, np.zeros(K), np.zeros((K, K))
-        for idx, (Je, ge, He) in self._each(fn, theta):
+        for idx, (Je, ge, He) in self._each(fn, self._check_theta(theta)):
             He = np.asarray(He)
             if packed:
                 He = unpack_symmetric(He, idx.size)
@@ -376,11 +370,7 @@ class Problem:
         B, K = thetas.shape
         fn = self._sens.first_order_batch if gauss_newton else self._sens.second_order_batch
         J, g, H = np.zeros(B), np.zeros((B, K)), np.zeros((B, K, K))
-        w = jnp.asarray(self.weights)
-        for e, (t, u, y) in enumerate(self._arrays):
-            idx = self._slices(e)
-            x0, p0 = jnp.asarray(self.x0[e]), jnp.asarray(self.p0)
-            Je, ge, He = fn(jnp.asarray(thetas[:, idx]), x0, p0, t, u, y, w)
+        for idx, (Je, ge, He) in self._each(fn, thetas):
             He = np.asarray(He) if gauss_newton else unpack_symmetric(np.asarray(He), idx.size)
             J += np.asarray(Je)
             g[:, idx] += np.asarray(ge)
@@ -391,7 +381,7 @@ class Problem:
     def cost_grad(self, theta) -> tuple[float, np.ndarray]:
         """(J, ∇J) from first-order sensitivities; J is inf when the simulation blows up."""
         J, g = 0.0, np.zeros(self.K)
-        for idx, (Je, ge) in self._each(self._sens.gradient, theta):
+        for idx, (Je, ge) in self._each(self._sens.gradient, self._check_theta(theta)):
             J += float(Je)
             g[idx] += np.asarray(ge)
         return (J, g) if np.isfinite(J) and np.isfinite(g).all() else (np.inf, g)
@@ -405,19 +395,7 @@ class Problem:
         if v.shape != (self.K,):
             raise ValueError(f"v must have {self.K} entries (one per θ entry), got {v.size}")
         J, g, Hv = 0.0, np.zeros(self.K), np.zeros(self.K)
-        w = jnp.asarray(self.weights)
-        for e, (t, u, y) in enumerate(self._arrays):
-            idx = self._slices(e)
-            Je, ge, hv = self._sens.hessp(
-                jnp.asarray(theta[idx]),
-                jnp.asarray(v[idx]),
-                jnp.asarray(self.x0[e]),
-                jnp.asarray(self.p0),
-                t,
-                u,
-                y,
-                w,
-            )
+        for idx, (Je, ge, hv) in self._each(self._sens.hessp, theta, v):
             J += float(Je)
             g[idx] += np.asarray(ge)
             Hv[idx] += np.asarray(hv)
