@@ -22,14 +22,15 @@ import numpy as np
 
 import tensorid as ti
 from tensorid.benchmarks import silverbox_problem
-from tensorid.multistart import draw_starts, process_pool, run_starts
+from tensorid.fitting.methods import fit_task
+from tensorid.fitting.multistart import draw_starts, process_pool, run_starts
 
-OPTIONS = dict(x_scale="auto", maxiter=200, gtol=1e-10, ftol=1e-12, xtol=1e-12)
+TASK = fit_task("newton", ti.FitOptions())
 
 
 def _run(prob, thetas, **kw) -> tuple[float, list[dict]]:
     t0 = time.perf_counter()
-    runs = run_starts(prob, "newton", thetas, OPTIONS, **kw)
+    runs = run_starts(prob, TASK, thetas, **kw)
     return time.perf_counter() - t0, runs
 
 
@@ -59,7 +60,7 @@ def main() -> None:
     if W > 1:
         with process_pool(W) as pool:
             for B in (1, max(1, n // W)):
-                run_starts(prob, "newton", thetas, OPTIONS, executor=pool, batch=B)  # warm
+                run_starts(prob, TASK, thetas, executor=pool, batch=B)  # warm
                 label = f"{W} workers (warm pool), " + (
                     "one start per task" if B == 1 else f"lock-step batches of {B}"
                 )

@@ -160,7 +160,7 @@ def _jax_residuals(prob, theta):
     w = jnp.asarray(prob.weights)
     for e, (t, u, y) in enumerate(prob._arrays):
         parts.append(
-            prob._sens._residuals(
+            prob._sweeps._residuals(
                 theta[prob._slices(e)], jnp.asarray(prob.x0[e]), jnp.asarray(prob.p0), t, u, y, w
             )
         )

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from scipy.optimize import rosen, rosen_der, rosen_hess
 
-from tensorid.trust_region import minimize_trust_region, solve_subproblem, steihaug_cg
+from tensorid.fitting.trust_region import minimize_trust_region, solve_subproblem, steihaug_cg
 
 
 def _model(g, H, s):

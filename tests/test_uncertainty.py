@@ -5,7 +5,7 @@ import pytest
 
 import tensorid as ti
 from tensorid import benchmarks
-from tensorid.uncertainty import flat_directions
+from tensorid.fitting.uncertainty import flat_directions
 
 
 @pytest.fixture(scope="module")

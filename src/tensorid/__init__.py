@@ -1,40 +1,54 @@
 """tensorid: grey-box system identification with exact gradients and Hessians from
-state/parameter transition tensors."""
+state/parameter transition tensors.
 
-from . import _config  # noqa: F401  (float64 before anything else touches JAX)
-from ._config import enable_compilation_cache
-from .data import Experiment
-from .equations import model_from_equations
-from .functions import safe_sqrt
-from .integrate import (
+The package in layers, lowest first (an import only goes downward; see
+docs/architecture.md): ``engine`` (model, data, integrators, sweeps, problem),
+``fitting`` (trust region, methods, results, uncertainty, multi-start), ``app``
+(files, command line, reports, progress) and ``paper`` (the paper study). Everything
+a user needs is re-exported here.
+"""
+
+from ._config import __version__, enable_compilation_cache
+from .app.files import ModelSpec, load_data, load_model
+from .engine.data import Experiment
+from .engine.discretisation import Discretisation
+from .engine.equations import model_from_equations
+from .engine.integrators import (
     SCHEMES,
     AdaptiveRungeKutta,
     DiagonallyImplicitRungeKutta,
     ExplicitRungeKutta,
 )
-from .loaders import ModelSpec, load_data, load_model
-from .metrics import gof, nrmse, rmse
-from .model import Model
-from .optimize import METHODS, FitResult, fit, fit_batch
-from .problem import Problem
-from .simulate import Simulation, simulate
-from .uncertainty import Uncertainty
-
-__version__ = "0.1.0"
+from .engine.metrics import gof, nrmse, rmse
+from .engine.model import Model
+from .engine.problem import Problem
+from .engine.simulate import Simulation, simulate
+from .engine.status import Status
+from .fitting.methods import METHODS, fit, fit_batch
+from .fitting.options import FitOptions
+from .fitting.results import FitResult
+from .fitting.uncertainty import Uncertainty
+from .fitting.validation import Score
+from .functions import safe_sqrt
 
 __all__ = [
     "METHODS",
     "SCHEMES",
     "AdaptiveRungeKutta",
     "DiagonallyImplicitRungeKutta",
+    "Discretisation",
     "Experiment",
     "ExplicitRungeKutta",
+    "FitOptions",
     "FitResult",
     "Model",
     "ModelSpec",
     "Problem",
+    "Score",
     "Simulation",
+    "Status",
     "Uncertainty",
+    "__version__",
     "enable_compilation_cache",
     "fit",
     "fit_batch",

@@ -6,6 +6,8 @@ magnitude before scaling, and exactness tests compare to 1e-9 relative.
 
 import jax
 
+__version__ = "0.1.0"
+
 jax.config.update("jax_enable_x64", True)
 
 

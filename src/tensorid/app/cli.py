@@ -1,58 +1,21 @@
-"""Command line: tensorid paper | ..."""
+"""The command line's own commands (fit, simulate), their options, and the one way
+every command reports a user's mistake: a single line, exit status 2."""
 
 from __future__ import annotations
 
 import argparse
 import os
 import sys
-from pathlib import Path
-
-
-def _paper(args) -> int:
-    from rich.console import Console
-
-    from . import paper
-
-    starts = args.starts if args.starts is not None else (6 if args.quick else 100)
-    if starts < 1:
-        raise SystemExit("--starts must be at least 1")
-    res = paper.run(
-        Path(args.out),
-        starts=starts,
-        quick=args.quick,
-        workers=args.workers,
-        seed=args.seed,
-        progress=not args.no_progress,
-    )
-    sb, tt = res["silverbox"], res["two_tank"]
-    c = Console()
-    c.print(
-        f"[bold]Silverbox[/] paper's model: training cost "
-        f"{sb['paper_model']['train_cost']:.5g}, validation GOF "
-        f"{sb['paper_model']['val_gof']:.4f}; with input offset: validation GOF "
-        f"{sb['offset_model']['val_gof']:.4f}"
-    )
-    c.print(f"[bold]Two-tank[/] GOF {tt['paper_model']['gof']:.4f}")
-    for row in res["robustness"]:
-        c.print(
-            f"  {row['dataset']:9s} {row['accuracy']:7s} {row['method']:12s} converged "
-            f"{row['converged']:3d}/{row['starts']}  failed {row['failed']:3d}  "
-            f"median {row['median_seconds'] * 1e3:7.1f} ms"
-        )
-    c.print(
-        f"Wrote {args.out}/results.json, report.md and figures in {res['meta']['seconds']:.0f} s"
-    )
-    return 0
 
 
 def _fit(args) -> int:
-    from .fitcli import run_fit
+    from .commands import run_fit
 
     return run_fit(args)
 
 
 def _simulate(args) -> int:
-    from .fitcli import run_simulate
+    from .commands import run_simulate
 
     return run_simulate(args)
 
@@ -67,42 +30,8 @@ def _samples(text: str) -> tuple[int, int]:
         ) from None
 
 
-def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
-        prog="tensorid",
-        description="Grey-box system identification with exact gradients and Hessians "
-        "from state/parameter transition tensors.",
-    )
-    sub = ap.add_subparsers(dest="command", required=True)
-    p = sub.add_parser(
-        "paper",
-        help="reproduce the paper's Silverbox and two-tank studies",
-        description="Run the paper's identification problems and robustness "
-        "comparison on the bundled data; write results.json, "
-        "report.md and figures.",
-    )
-    p.add_argument("--out", default="paper-results", help="output folder")
-    p.add_argument(
-        "--starts",
-        type=int,
-        default=None,
-        help="initial guesses per method and accuracy level (default 100; 6 with --quick)",
-    )
-    p.add_argument(
-        "--quick",
-        action="store_true",
-        help="small version: one accuracy level and few starts (about a minute)",
-    )
-    p.add_argument(
-        "--workers",
-        type=int,
-        default=None,
-        help="worker processes for the starts (default: all cores)",
-    )
-    p.add_argument("--seed", type=int, default=0, help="seed of the random starts")
-    p.add_argument("--no-progress", action="store_true", help="no live progress display")
-    p.set_defaults(func=_paper)
-
+def register(sub) -> None:
+    """Add the fit and simulate commands to the subparsers ``sub``."""
     f = sub.add_parser(
         "fit",
         help="fit a model file to data files",
@@ -164,7 +93,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="ADDRESS",
         help="run the starts on a Dask distributed cluster at ADDRESS",
     )
-    _integration_options(f)
+    integration_options(f)
     f.add_argument("--no-progress", action="store_true", help="no live progress display")
     f.set_defaults(func=_fit)
 
@@ -172,8 +101,10 @@ def build_parser() -> argparse.ArgumentParser:
         "simulate",
         help="simulate a model file for given parameters",
         description="Simulate MODEL.py on the inputs of DATA with the given "
-        "parameters; write simulation.csv (and GOF when DATA "
-        "has outputs).",
+        "parameters; write simulation.csv (time, inputs, measured and simulated "
+        "outputs, states) and, when DATA has outputs, GOF and figures to --out. "
+        "Initial states that the model file frees are estimated on DATA with the "
+        "parameters held, unless --x0 gives them; the one used is printed.",
     )
     s.add_argument("model")
     s.add_argument("data")
@@ -184,16 +115,24 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="NAME=VALUE",
         help="parameter values (default: p0 of the model file), or a fit.json",
     )
-    s.add_argument("--x0", nargs="*", default=[], metavar="STATE=VALUE")
-    s.add_argument("--ts", type=float, default=None)
-    _integration_options(s)
-    s.add_argument("--out", default="simulation.csv")
+    s.add_argument(
+        "--x0", nargs="*", default=[], metavar="STATE=VALUE", help="initial state values"
+    )
+    s.add_argument(
+        "--ts", type=float, default=None, help="sampling time, for data without a 't' column"
+    )
+    integration_options(s)
+    s.add_argument(
+        "--out",
+        default="simulation-results",
+        help="output folder (as for fit); a path ending in .csv writes only the table of "
+        "states and simulated outputs there",
+    )
     s.set_defaults(func=_simulate)
-    return ap
 
 
-def _integration_options(p: argparse.ArgumentParser) -> None:
-    from .integrate import SCHEMES
+def integration_options(p: argparse.ArgumentParser) -> None:
+    from ..engine.integrators import SCHEMES
 
     p.add_argument(
         "--scheme",
@@ -208,21 +147,17 @@ def _integration_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--interpolation", default="linear", choices=["linear", "zoh"])
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    from ._config import enable_compilation_cache
+def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
+    """Parse ``argv`` and run the chosen command. Our errors say what is wrong and how
+    to fix it; a traceback only hides that (set TENSORID_TRACEBACK=1 to see it)."""
+    args = parser.parse_args(argv)
+    from .._config import enable_compilation_cache
 
     enable_compilation_cache()
     try:
         return args.func(args)
     except (ValueError, TypeError, FileNotFoundError) as e:
-        # our errors say what is wrong and how to fix it; a traceback only hides that
-        # (set TENSORID_TRACEBACK=1 to see it anyway)
         if os.environ.get("TENSORID_TRACEBACK"):
             raise
         print(f"tensorid: error: {e}", file=sys.stderr)
         return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())

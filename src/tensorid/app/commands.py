@@ -11,13 +11,16 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from .data import Experiment
-from .loaders import load_data, load_model
-from .metrics import gof
-from .optimize import FitResult, fit
-from .problem import Problem
-from .report import fit_figures, md_table, summary_table, write_json
-from .simulate import Simulation, simulate
+from ..engine.discretisation import Discretisation
+from ..engine.metrics import gof
+from ..engine.problem import Problem
+from ..engine.simulate import simulate
+from ..fitting.figures import compare_plot, fit_figures
+from ..fitting.methods import fit
+from ..fitting.summary import summary_table
+from ..fitting.validation import Score, estimate_x0, record_label, training_scores
+from .files import ModelSpec, load_data, load_model
+from .reports import fit_json, fit_report, write_json
 
 
 def _progress_table(rows: list[dict]) -> Table:
@@ -35,145 +38,72 @@ def _progress_table(rows: list[dict]) -> Table:
     return t
 
 
-def validation_simulations(
-    res: FitResult, exps: list[Experiment]
-) -> list[tuple[Experiment, Simulation]]:
-    """Simulate the fitted model on validation data. Initial states that were free in
-    the fit are unknown there too: they are estimated on each validation record with
-    the parameters held at their estimates (as MATLAB's compare does)."""
-    prob = res.problem
-    m = prob.model
+def discretisation(args) -> Discretisation:
+    """The integration settings of the command line, checked once."""
+    return Discretisation.of(args.scheme, args.substeps, args.interpolation, args.rtol, args.atol)
+
+
+def _problem(spec: ModelSpec, train, args) -> Problem:
+    if spec.p0 is None:
+        raise ValueError(
+            f"{spec.path} defines no p0: add p0 = {{name: start value}} for "
+            f"{list(spec.model.params)}"
+        )
+    return Problem(
+        spec.model,
+        train,
+        p0=spec.p0,
+        x0=spec.x0_array(),
+        free_x0=spec.free_x0,
+        fixed=spec.fixed,
+        bounds=spec.bounds,
+        discretisation=discretisation(args),
+    )
+
+
+def _run(problem: Problem, args, console: Console):
+    executor = client = None
+    if args.scheduler:
+        from distributed import Client
+
+        client = Client(args.scheduler)
+        executor = client.get_executor()
+    options = dict(
+        starts=args.starts,
+        spread=args.spread,
+        seed=args.seed,
+        executor=executor,
+        workers=args.workers,
+        batch=args.batch,
+    )
+    rows: list[dict] = []
+    try:
+        if args.no_progress:
+            return fit(problem, args.method, **options)
+        if args.starts > 1:
+            where = "on " + args.scheduler if args.scheduler else "locally"
+            console.log(f"running {args.starts} starts {where}...")
+        with Live(_progress_table(rows), console=console, refresh_per_second=8) as live:
+
+            def show(entry):
+                rows.append(entry)
+                live.update(_progress_table(rows))
+
+            return fit(problem, args.method, callback=show, **options)
+    finally:
+        if client is not None:
+            client.close()
+
+
+def _gof_lines(scores: list[Score]) -> list[str]:
+    kinds = {"training": "train", "validation": "validation"}
     out = []
-    x0_fit = np.atleast_2d(res.x0)[0]
-    for e in exps:
-        if prob.free_x0:
-            vp = Problem(
-                m,
-                e,
-                p0=res.params,
-                x0=x0_fit,
-                free_x0=prob.free_x0,
-                fixed=list(m.params),
-                substeps=prob.substeps,
-                interpolation=prob.interpolation,
-                scheme=prob.scheme,
-            )
-            x0 = fit(vp, "newton").x0
-        else:
-            x0 = x0_fit
-        out.append(
-            (
-                e,
-                simulate(
-                    m,
-                    res.params,
-                    x0,
-                    e,
-                    substeps=prob.substeps,
-                    interpolation=prob.interpolation,
-                    scheme=prob.scheme,
-                ),
-            )
-        )
+    for s in scores:
+        label = record_label(s.kind, s.experiment.name).replace(s.kind, kinds[s.kind], 1)
+        label = label.replace("'", "")
+        per = ", ".join(f"{o} {v:.4f}" for o, v in s.gof.items())
+        out.append(f"GOF {label}: {per}")
     return out
-
-
-def _integration(prob: Problem) -> dict:
-    """How the model was integrated: what a reader needs to reproduce the cost."""
-    d = {
-        "scheme": prob.scheme.name,
-        "substeps": prob.substeps,
-        "interpolation": prob.interpolation,
-    }
-    for k in ("rtol", "atol"):
-        if hasattr(prob.scheme, k):
-            d[k] = getattr(prob.scheme, k)
-    return d
-
-
-def fit_json(res: FitResult, validation) -> dict:
-    u = res.uncertainty() if np.isfinite(res.cost) else None
-    m = res.problem.model
-
-    def gofs(pairs):
-        return {
-            e.name or str(i): {o: float(gof(e.y[:, j], s.y[:, j])) for j, o in enumerate(m.outputs)}
-            for i, (e, s) in enumerate(pairs)
-        }
-
-    train = list(zip(res.problem.experiments, res.simulate(), strict=True))
-    d = {
-        "params": res.params,
-        "free": res.problem.theta_names,
-        "estimates": dict(zip(res.problem.theta_names, res.theta.tolist(), strict=True)),
-        "x0": np.asarray(res.x0).tolist(),
-        "cost": res.cost,
-        "gof": {"train": gofs(train), "validation": gofs(validation)},
-        "success": res.success,
-        "message": res.message,
-        "iterations": res.nit,
-        "function_evaluations": res.nfev,
-        "hessian_vector_products": res.nhev,
-        "method": res.method,
-        "integration": _integration(res.problem),
-        "seconds": res.seconds,
-        "warnings": res.warnings,
-        "residual_variance": u.sigma2 if u else None,
-        "correlation_names": res.problem.theta_names,
-        "history": res.history,
-        "starts": res.starts,
-    }
-    if u:
-        d.update(u.as_dicts())
-        d["stderr_gauss_newton"] = dict(
-            zip(
-                res.problem.theta_names,
-                res.uncertainty("gauss-newton").stderr.tolist(),
-                strict=True,
-            )
-        )
-    return d
-
-
-def fit_report(res: FitResult, data: dict, figures: list[Path]) -> str:
-    names = res.problem.theta_names
-    rows = [
-        [
-            n,
-            f"{data['estimates'][n]:.6g}",
-            f"{data.get('stderr', {}).get(n, np.nan):.3g}",
-            str([round(v, 6) for v in data.get("ci95", {}).get(n, [])]),
-        ]
-        for n in names
-    ]
-    lines = [
-        f"# Fit of {res.problem.model.name}",
-        "",
-        f"{res.method}: {'converged' if res.success else 'did not converge'} "
-        f"({res.message}) in {res.nit} iterations, {res.nfev} cost evaluations, "
-        f"{res.seconds:.2f} s; cost J = {res.cost:.6g}.",
-        "",
-        md_table(["unknown", "estimate", "std. error", "95 % interval"], rows),
-        "",
-    ]
-    if data["warnings"]:
-        lines += ["## Warnings", ""] + [f"- {w}" for w in data["warnings"]] + [""]
-    lines += ["## Goodness of fit", ""]
-    for kind in ("train", "validation"):
-        for exp, per in data["gof"][kind].items():
-            lines.append(f"- {kind} {exp}: " + ", ".join(f"{o} {v:.4f}" for o, v in per.items()))
-    if res.starts:
-        lines += [
-            "",
-            f"## {len(res.starts)} starts, best first",
-            "",
-            md_table(
-                ["start", "cost", "success", "iterations"],
-                [[s["start"], s["cost"], s["success"], s["nit"]] for s in res.starts[:20]],
-            ),
-        ]
-    lines += ["", "## Figures", ""] + [f"![{f.stem}]({f.name})" for f in figures]
-    return "\n".join(lines) + "\n"
 
 
 def run_fit(args) -> int:
@@ -186,67 +116,19 @@ def run_fit(args) -> int:
         if args.validate
         else []
     )
-    if spec.p0 is None:
-        raise SystemExit(
-            f"{args.model} defines no p0: add p0 = {{name: start value}} for {list(m.params)}"
-        )
-    problem = Problem(
-        m,
-        train,
-        p0=spec.p0,
-        x0=spec.x0_array(),
-        free_x0=spec.free_x0,
-        fixed=spec.fixed,
-        bounds=spec.bounds,
-        substeps=args.substeps,
-        interpolation=args.interpolation,
-        scheme=args.scheme,
-        rtol=args.rtol,
-        atol=args.atol,
-    )
-    executor = client = None
-    if args.scheduler:
-        from distributed import Client
-
-        client = Client(args.scheduler)
-        executor = client.get_executor()
-    rows: list[dict] = []
-    options = dict(
-        starts=args.starts,
-        spread=args.spread,
-        seed=args.seed,
-        executor=executor,
-        workers=args.workers,
-        batch=args.batch,
-    )
-    try:
-        if args.no_progress:
-            res = fit(problem, args.method, **options)
-        else:
-            if args.starts > 1:
-                where = "on " + args.scheduler if args.scheduler else "locally"
-                console.log(f"running {args.starts} starts {where}...")
-            with Live(_progress_table(rows), console=console, refresh_per_second=8) as live:
-
-                def show(entry):
-                    rows.append(entry)
-                    live.update(_progress_table(rows))
-
-                res = fit(problem, args.method, callback=show, **options)
-    finally:
-        if client is not None:
-            client.close()
+    problem = _problem(spec, train, args)
+    res = _run(problem, args, console)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    vsims = validation_simulations(res, val)
-    data = fit_json(res, vsims)
-    figures = fit_figures(res, out, vsims)
+    scores = res.validate(val) if val else []
+    data = fit_json(res, scores)
+    figures = fit_figures(res, out, scores)
     write_json(out / "fit.json", data)
-    (out / "report.md").write_text(fit_report(res, data, figures))
-    print(summary_table(res))
-    for kind in ("train", "validation"):
-        for exp, per in data["gof"][kind].items():
-            print(f"GOF {kind} {exp}: " + ", ".join(f"{o} {v:.4f}" for o, v in per.items()))
+    everything = training_scores(res) + scores
+    (out / "report.md").write_text(fit_report(res, data, everything, figures))
+    print(summary_table(res, everything))
+    for line in _gof_lines(everything):
+        print(line)
     print(f"wrote {out}/fit.json, report.md and {len(figures)} figures")
     return 0 if res.success else 1
 
@@ -255,41 +137,90 @@ def _assignments(items: list[str], what: str) -> dict[str, float]:
     out = {}
     for it in items:
         if "=" not in it:
-            raise SystemExit(f"{what} must be NAME=VALUE, got {it!r}")
+            raise ValueError(f"{what} must be NAME=VALUE, got {it!r}")
         k, v = it.split("=", 1)
-        out[k.strip()] = float(v)
+        try:
+            out[k.strip()] = float(v)
+        except ValueError:
+            raise ValueError(f"{what}: {k.strip()}={v!r} is not a number") from None
     return out
+
+
+def _simulation_start(spec: ModelSpec, args, e, params) -> tuple[dict, str]:
+    """The parameters' initial state for ``e``, and where it came from: --x0, else
+    estimated on the record where the model file frees initial states and the record
+    has outputs, else the fit.json's or the model file's x0."""
+    m = spec.model
+    x0 = dict(zip(m.states, spec.x0_array(), strict=True))
+    source = "the model file's x0"
+    if len(args.params) == 1 and args.params[0].endswith(".json"):
+        fitted = json.loads(Path(args.params[0]).read_text())
+        x0 = dict(zip(m.states, np.atleast_2d(fitted["x0"])[0], strict=True))
+        source = f"the x0 of {args.params[0]} (its training record's)"
+    given = _assignments(args.x0, "--x0")
+    free = [n for n in spec.free_x0 if n not in given]
+    x0.update(given)
+    if free and e.y is not None:
+        prob = Problem(
+            m,
+            e,
+            p0=params,
+            x0=[x0[n] for n in m.states],
+            free_x0=free,
+            fixed=list(m.params),
+            discretisation=discretisation(args),
+        )
+        x0 = dict(zip(m.states, prob.unpack(estimate_x0(prob))[1][0], strict=True))
+        source = f"{', '.join(free)} estimated on this record with the parameters held"
+    if given:
+        source += f"; {', '.join(given)} from --x0"
+    return x0, source
 
 
 def run_simulate(args) -> int:
     spec = load_model(args.model)
     m = spec.model
     params = dict(spec.p0 or {})
-    x0 = dict(zip(m.states, spec.x0_array(), strict=True))
     if len(args.params) == 1 and args.params[0].endswith(".json"):
-        fitted = json.loads(Path(args.params[0]).read_text())
-        params.update(fitted["params"])
-        x0 = dict(zip(m.states, np.atleast_2d(fitted["x0"])[0], strict=True))
+        params.update(json.loads(Path(args.params[0]).read_text())["params"])
     else:
         params.update(_assignments(args.params, "--params"))
-    x0.update(_assignments(args.x0, "--x0"))
     e = load_data([args.data], m, ts=args.ts, require_outputs=False)[0]
-    sim = simulate(
-        m,
-        params,
-        x0,
-        e,
-        substeps=args.substeps,
-        interpolation=args.interpolation,
-        scheme=args.scheme,
-        rtol=args.rtol,
-        atol=args.atol,
-    )
-    header = ["t"] + list(m.states) + [f"{o}_sim" for o in m.outputs]
-    table = np.column_stack([e.t, sim.x, sim.y])
-    np.savetxt(args.out, table, delimiter=",", header=",".join(header), comments="")
+    x0, source = _simulation_start(spec, args, e, params)
+    sim = simulate(m, params, x0, e, discretisation=discretisation(args))
+    out = Path(args.out)
+    states = [f"state_{n}" for n in m.states]
+    if out.suffix.lower() == ".csv":  # one table, as before: states and simulated outputs
+        header = ["t", *states, *(f"{o}_sim" for o in m.outputs)]
+        table = np.column_stack([e.t, sim.x, sim.y])
+        target = out
+    else:
+        out.mkdir(parents=True, exist_ok=True)
+        measured = list(m.outputs) if e.y is not None else []
+        header = ["t", *m.inputs, *measured, *(f"{o}_sim" for o in m.outputs), *states]
+        parts = [e.t[:, None], e.u] + ([e.y] if e.y is not None else []) + [sim.y, sim.x]
+        table = np.column_stack(parts)
+        target = out / "simulation.csv"
+        if e.y is not None:
+            score = Score("validation", e, sim, np.array([x0[n] for n in m.states]))
+            fit_figures_for_simulation(score, out)
+    np.savetxt(target, table, delimiter=",", header=",".join(header), comments="")
     if e.y is not None:
         for j, o in enumerate(m.outputs):
             print(f"GOF {o}: {gof(e.y[:, j], sim.y[:, j]):.4f}")
-    print(f"wrote {args.out}")
+    print("initial state " + ", ".join(f"{k}={v:.6g}" for k, v in x0.items()) + f" ({source})")
+    print(f"wrote {target}")
     return 0
+
+
+def fit_figures_for_simulation(score: Score, out: Path) -> None:
+    e, s = score.experiment, score.simulation
+    for j, name in enumerate(s.model.outputs):
+        compare_plot(
+            out / f"simulation_{name}.png",
+            e.t,
+            e.measured[:, j],
+            s.y[:, j],
+            ylabel=name,
+            title=f"simulation on {e.name or 'data'}, output {name}: GOF {score.gof[name]:.4f}",
+        )

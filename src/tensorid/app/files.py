@@ -21,9 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .data import Experiment
-from .equations import model_from_equations
-from .model import Model
+from ..engine.data import Experiment
+from ..engine.equations import model_from_equations
+from ..engine.model import Model
 
 
 @dataclass

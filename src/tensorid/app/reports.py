@@ -1,74 +1,17 @@
-"""Figures, Markdown tables and JSON output shared by the study and fit reports."""
+"""What a fit or a study writes: Markdown tables, JSON, fit.json and report.md, and
+the study's bar plots. Reports read results; results know nothing of reports."""
 
 from __future__ import annotations
 
-import io
 import json
 import math
 from pathlib import Path
 
 import numpy as np
 
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")  # files only: works on machines with no display
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def compare_plot(
-    path: Path,
-    t: np.ndarray,
-    y_meas: np.ndarray,
-    y_sim: np.ndarray,
-    *,
-    title: str,
-    ylabel: str = "y",
-    xlabel: str = "t [s]",
-    labels: tuple[str, str] = ("measured", "model"),
-) -> Path:
-    """Measured against simulated output, with the residual below (one output)."""
-    plt = _plt()
-    fig, (ax, axr) = plt.subplots(
-        2, 1, figsize=(9, 5.5), sharex=True, gridspec_kw={"height_ratios": [3, 1]}
-    )
-    ax.plot(t, y_meas, color="0.2", lw=1.0, label=labels[0])
-    ax.plot(t, y_sim, color="tab:red", lw=0.9, ls="--", label=labels[1])
-    ax.set_ylabel(ylabel)
-    ax.set_title(title, fontsize=10)
-    ax.legend(loc="upper right", fontsize=8)
-    ax.grid(alpha=0.3)
-    axr.plot(t, y_meas - y_sim, color="tab:blue", lw=0.8)
-    axr.set_ylabel("residual")
-    axr.set_xlabel(xlabel)
-    axr.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
-
-
-def bar_plot(
-    path: Path, groups: list[str], series: dict[str, list[float]], *, title: str, ylabel: str
-) -> Path:
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(9, 4))
-    width = 0.8 / max(len(series), 1)
-    x = np.arange(len(groups))
-    for i, (name, vals) in enumerate(series.items()):
-        ax.bar(x + (i - (len(series) - 1) / 2) * width, vals, width, label=name)
-    ax.set_xticks(x, groups, fontsize=8)
-    ax.set_ylabel(ylabel)
-    ax.set_title(title, fontsize=10)
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3, axis="y")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+from ..fitting.figures import pyplot, save_figure
+from ..fitting.summary import headline, interval, metric_rows, significant, stderr_text
+from ..fitting.validation import Score, training_scores
 
 
 def md_table(header: list[str], rows: list[list]) -> str:
@@ -103,85 +46,101 @@ def write_json(path: Path, data) -> Path:
     return path
 
 
-# -- reports of a fit -------------------------------------------------------------------
-def _squeeze_name(s: str) -> str:
-    return "".join(c if c.isalnum() or c in "-_" else "_" for c in s)
-
-
-def summary_table(res) -> str:
-    """The estimates of a FitResult as a plain-text table."""
-    from rich.console import Console
-    from rich.table import Table
-
-    u = res.uncertainty() if np.isfinite(res.cost) else None
-    tab = Table(
-        title=f"{res.problem.model.name}: {res.method}, "
-        f"{'converged' if res.success else 'NOT converged'} in {res.nit} "
-        f"iterations, cost {res.cost:.6g}"
-    )
-    for col in ("unknown", "estimate", "std. error", "95 % interval"):
-        tab.add_column(col, justify="right" if col != "unknown" else "left")
-    for k, name in enumerate(res.problem.theta_names):
-        se = u.stderr[k] if u else np.nan
-        ci = f"[{u.ci95[k, 0]:.6g}, {u.ci95[k, 1]:.6g}]" if u else "–"
-        tab.add_row(name, f"{res.theta[k]:.6g}", f"{se:.3g}", ci)
-    console = Console(width=100, record=True, file=io.StringIO())
-    console.print(tab)
-    for w in res.warnings:
-        console.print(f"warning: {w}")
-    return console.export_text()
-
-
-def _convergence_plot(path: Path, history: list[dict], title: str) -> Path:
-    plt = _plt()
-    it = [h["iteration"] for h in history]
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(9, 3.5))
-    a1.semilogy(it, [h["cost"] for h in history], "o-", ms=3)
-    a1.set_xlabel("iteration")
-    a1.set_ylabel("cost J")
-    a2.semilogy(it, [max(h["grad_norm"], 1e-300) for h in history], "o-", ms=3, color="tab:orange")
-    a2.set_xlabel("iteration")
-    a2.set_ylabel("gradient norm (scaled)")
-    for a in (a1, a2):
-        a.grid(alpha=0.3)
-    fig.suptitle(title, fontsize=10)
+def bar_plot(
+    path: Path, groups: list[str], series: dict[str, list[float]], *, title: str, ylabel: str
+) -> Path:
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(9, 4))
+    width = 0.8 / max(len(series), 1)
+    x = np.arange(len(groups))
+    for i, (name, vals) in enumerate(series.items()):
+        ax.bar(x + (i - (len(series) - 1) / 2) * width, vals, width, label=name)
+    ax.set_xticks(x, groups, fontsize=8)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3, axis="y")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
-def fit_figures(res, out=None, validation=None) -> list[Path]:
-    """Measured against simulated per experiment and output, residuals, and the
-    convergence history; written to the folder ``out`` (default: current folder)."""
-    out = Path(out or ".")
-    out.mkdir(parents=True, exist_ok=True)
-    from .metrics import gof
+# -- a fit ------------------------------------------------------------------------------
+def _metrics(scores: list[Score], metric: str) -> dict:
+    """{record: {output: value}}, keyed as fit.json always has been (record name or
+    its index)."""
+    return {s.experiment.name or str(i): getattr(s, metric) for i, s in enumerate(scores)}
 
-    files = []
-    sets = [("train", e, s) for e, s in zip(res.problem.experiments, res.simulate(), strict=True)]
-    for e, s in validation or []:
-        sets.append(("validation", e, s))
-    model = res.problem.model
-    for kind, e, s in sets:
-        for j, name in enumerate(model.outputs):
-            g = gof(e.y[:, j], s.y[:, j])
-            files.append(
-                compare_plot(
-                    out / f"{kind}_{_squeeze_name(e.name or 'data')}_{_squeeze_name(name)}.png",
-                    e.t,
-                    e.y[:, j],
-                    s.y[:, j],
-                    ylabel=name,
-                    title=f"{kind}: {e.name or 'data'}, output {name}: GOF {g:.4f}",
-                )
-            )
-    if res.history:
-        files.append(
-            _convergence_plot(
-                out / "convergence.png",
-                res.history,
-                f"{res.method}: cost and gradient norm per iteration",
-            )
-        )
-    return files
+
+def fit_json(res, validation: list[Score]) -> dict:
+    """Everything fit.json holds (a contract: keys are added, never renamed)."""
+    u = res.uncertainty() if np.isfinite(res.cost) else None
+    names = res.problem.theta_names
+    train = training_scores(res)
+    d = {
+        "params": res.params,
+        "free": names,
+        "estimates": dict(zip(names, res.theta.tolist(), strict=True)),
+        "x0": np.asarray(res.x0).tolist(),
+        "cost": res.cost,
+        "success": res.success,
+        "status": str(res.status),
+        "message": res.message,
+        "iterations": res.nit,
+        "function_evaluations": res.nfev,
+        "iterations_total": res.nit_total,
+        "function_evaluations_total": res.nfev_total,
+        "hessian_vector_products": res.nhev,
+        "method": res.method,
+        "integration": res.problem.discretisation.as_dict(),
+        "seconds": res.seconds,
+        "warnings": res.warnings,
+        "residual_variance": u.sigma2 if u else None,
+        "correlation_names": names,
+        "history": res.history,
+        "starts": res.starts,
+        "init_window": validation[0].init_window if validation else None,
+        "validation_x0": {
+            s.experiment.name or str(i): s.x0.tolist() for i, s in enumerate(validation)
+        },
+    }
+    for metric in ("gof", "rmse", "nrmse"):
+        d[metric] = {"train": _metrics(train, metric), "validation": _metrics(validation, metric)}
+    if u:
+        d.update(u.as_dicts())
+        gn = res.uncertainty("gauss-newton").stderr.tolist()
+        d["stderr_gauss_newton"] = dict(zip(names, gn, strict=True))
+    return d
+
+
+def fit_report(res, data: dict, scores: list[Score], figures: list[Path]) -> str:
+    """report.md of a fit."""
+    rows = []
+    for n in res.problem.theta_names:
+        se = data.get("stderr", {}).get(n, math.nan)
+        ci = data.get("ci95", {}).get(n)
+        ci_text = interval(*ci) if ci else "–"
+        rows.append([n, significant(data["estimates"][n], se), stderr_text(se), ci_text])
+    lines = [
+        f"# Fit of {res.problem.model.name}",
+        "",
+        headline(res) + f"; {res.seconds:.2f} s.",
+        "",
+        md_table(["unknown", "estimate", "std. error", "95 % interval"], rows),
+        "",
+    ]
+    if data["warnings"]:
+        lines += ["## Warnings", ""] + [f"- {w}" for w in data["warnings"]] + [""]
+    header, metric_table = metric_rows(scores)
+    lines += ["## Goodness of fit", "", md_table(header, metric_table)]
+    if res.starts:
+        lines += [
+            "",
+            f"## {len(res.starts)} starts, best first",
+            "",
+            md_table(
+                ["start", "cost", "status", "iterations"],
+                [[s["start"], s["cost"], s.get("status", ""), s["nit"]] for s in res.starts[:20]],
+            ),
+        ]
+    lines += ["", "## Figures", ""] + [f"![{f.stem}]({f.name})" for f in figures]
+    return "\n".join(lines) + "\n"

@@ -1,22 +1,20 @@
-"""Runge-Kutta schemes as data, and one routine that marches any state (a pytree)
-across the sample grid.
+"""Runge-Kutta schemes: small classes that carry their Butcher tableau as data and
+cover one sample interval with ``interval``.
 
-Three kinds of scheme:
+Three kinds:
 
 * ``ExplicitRungeKutta`` (euler, heun, rk4, rk38): ``substeps`` equal steps per
   sample interval.
 * ``DiagonallyImplicitRungeKutta`` (implicit-euler, sdirk2, sdirk3): L-stable, for
-  stiff models; each stage equation is solved by Newton's method to round-off.
+  stiff models; each stage equation is solved by Newton's method to round-off
+  (``NewtonStageSolver``).
 * ``AdaptiveRungeKutta`` (bosh3, dopri5): an embedded explicit pair whose step size
-  is chosen from a local error estimate against ``rtol``/``atol``.
-
-Between samples t_h and t_{h+1} the input u(t) is known only at the samples, so a
-stage at fraction s of the interval sees u_h + s (u_{h+1} - u_h) ("linear") or u_h
-("zoh").
+  is chosen from a local error estimate against ``rtol``/``atol``
+  (``StepSizeController``).
 
 A Runge-Kutta map commutes with differentiation: differentiating the stage
 equations of the scheme applied to x' = F(x) gives the same scheme applied to the
-augmented system (x, S, T). So marching (x, S, T) with the scheme gives the exact
+augmented system (x, S, T). So stepping (x, S, T) with the scheme gives the exact
 first and second derivatives of the discretised trajectory, also for implicit
 stages (whose augmented stage equations are linear in S and T with the same matrix
 I - h γ F_x as the state's Newton iteration). For the adaptive schemes the step
@@ -24,8 +22,10 @@ sizes are chosen from the states alone and held fixed under differentiation, as 
 CVODES and diffrax: the derivatives are those of the discretisation on the steps
 taken.
 
-The marched state is either the state vector x (N,) or a tuple whose first entry is
+The stepped state is either the state vector x (N,) or a tuple whose first entry is
 x and whose other entries have N leading rows (S (N, K), T (N, K(K+1)/2)).
+Each ``interval`` returns an integer failure code (``Status.code``) beside the
+state, so that a failure is reported by the integrator itself.
 """
 
 from __future__ import annotations
@@ -37,7 +37,66 @@ from dataclasses import dataclass, replace
 import jax
 import jax.numpy as jnp
 
-from . import _config  # noqa: F401
+from .. import _config  # noqa: F401
+from .status import Status
+
+# f(y, s): the (augmented) vector field at fraction s of the sample interval;
+# fs(x, s): the model's own F, which implicit schemes need for F_x
+Field = Callable
+
+
+def _x(y):
+    return y[0] if isinstance(y, tuple) else y
+
+
+def _n_levels(y) -> int:
+    return len(y) if isinstance(y, tuple) else 1
+
+
+def _axpy(y, h, terms):
+    """y + h Σ coef·k over (coef, k) pairs, skipping zero coefficients at trace time."""
+    terms = [(cf, k) for cf, k in terms if cf != 0.0]
+    if not terms:
+        return y
+
+    def combine(y_leaf, *k_leaves):
+        acc = terms[0][0] * k_leaves[0]
+        for (cf, _), kl in zip(terms[1:], k_leaves[1:], strict=True):
+            acc = acc + cf * kl
+        return y_leaf + h * acc
+
+    return jax.tree_util.tree_map(combine, y, *[k for _, k in terms])
+
+
+def _explicit_stages(a, c, f: Field, y, h, s0, ds) -> list:
+    """The stage derivatives k_i of one explicit step of size h from fraction s0."""
+    ks: list = []
+    for row, ci in zip(a, c, strict=True):
+        ks.append(f(_axpy(y, h, zip(row, ks, strict=False)), s0 + ci * ds))
+    return ks
+
+
+def _check_tableau(name, a, b, c, order, implicit: bool) -> None:
+    """Reject a tableau whose shapes or consistency conditions are wrong, at
+    construction: a typo in a coefficient would otherwise give a quietly wrong order."""
+    s = len(b)
+    if not (len(a) == s == len(c)) or s == 0:
+        raise ValueError(f"scheme {name!r}: a, b and c need one entry per stage ({s})")
+    for i, row in enumerate(a):
+        want = i + 1 if implicit else i
+        if len(row) > want or (implicit and len(row) != want):
+            raise ValueError(
+                f"scheme {name!r}: row {i} of a has {len(row)} entries; an "
+                f"{'implicit' if implicit else 'explicit'} row {i} has {want}"
+            )
+        if abs(sum(row) - c[i]) > 1e-12:
+            raise ValueError(
+                f"scheme {name!r}: c[{i}] = {c[i]} but row {i} of a sums to {sum(row)}"
+            )
+    if abs(sum(b) - 1.0) > 1e-12:
+        raise ValueError(f"scheme {name!r}: the weights b sum to {sum(b)}, not 1")
+    if not (isinstance(order, int) and order >= 1):
+        raise ValueError(f"scheme {name!r}: order must be a positive integer, got {order!r}")
 
 
 @dataclass(frozen=True)
@@ -50,6 +109,69 @@ class ExplicitRungeKutta:
     b: tuple[float, ...]
     c: tuple[float, ...]
     order: int
+
+    def __post_init__(self) -> None:
+        _check_tableau(self.name, self.a, self.b, self.c, self.order, implicit=False)
+
+    def step(self, f: Field, y, h, s0, ds):
+        """One step of size h covering the fraction ds of the interval from s0."""
+        ks = _explicit_stages(self.a, self.c, f, y, h, s0, ds)
+        return _axpy(y, h, zip(self.b, ks, strict=True))
+
+    def interval(self, f: Field, fs: Field, y, dt, carry, substeps: int):
+        """Cover one sample interval of length dt with ``substeps`` equal steps;
+        returns (y, carry, failure code)."""
+        h, ds = dt / substeps, 1.0 / substeps
+        y = jax.lax.fori_loop(0, substeps, lambda i, yy: self.step(f, yy, h, i * ds, ds), y)
+        return y, carry, jnp.int32(0)
+
+
+@dataclass(frozen=True)
+class NewtonStageSolver:
+    """Solve an implicit stage z = base + γh f(z, s) for the (augmented) value z.
+
+    Newton on the states alone, with the matrix I - γh F_x, until two updates in a
+    row are below ``tol`` relative to max|x| (the second brings every component to
+    round-off). Each further level (S, then T) is linear in its own unknowns with
+    that same matrix, so one sweep per level solves it exactly. Returns (z, ok); a
+    stage that does not converge comes back as NaN, which a fit treats as a blow-up."""
+
+    f: Field
+    fs: Field
+    tol: float
+    max_iter: int
+
+    def __call__(self, base, gh, s):
+        jac = jax.jacfwd(self.fs)
+        x_base = _x(base)
+        N = x_base.shape[0]
+        eye = jnp.eye(N, dtype=x_base.dtype)
+
+        def body(carry):
+            x, it, nconv = carry
+            dx = jnp.linalg.solve(eye - gh * jac(x, s), x - x_base - gh * self.fs(x, s))
+            x = x - dx
+            small = jnp.max(jnp.abs(dx)) <= self.tol * jnp.max(jnp.abs(x))
+            return x, it + 1, jnp.where(small, nconv + 1, 0)
+
+        def cond(carry):
+            _, it, nconv = carry
+            return (nconv < 2) & (it < self.max_iter)
+
+        x, _, nconv = jax.lax.while_loop(cond, body, (x_base, 0, 0))
+        ok = (nconv >= 2) & jnp.all(jnp.isfinite(x))
+        x = jnp.where(ok, x, jnp.nan)
+        if _n_levels(base) == 1:
+            return x, ok
+        lu = jax.scipy.linalg.lu_factor(eye - gh * jac(x, s))
+        z = (x, *base[1:])
+        for _ in range(_n_levels(base) - 1):
+            r = jax.tree_util.tree_map(lambda zl, bl, fl: zl - bl - gh * fl, z, base, self.f(z, s))
+            z = (x,) + tuple(
+                zl - jax.scipy.linalg.lu_solve(lu, rl.reshape(N, -1)).reshape(rl.shape)
+                for zl, rl in zip(z[1:], r[1:], strict=True)
+            )
+        return z, ok
 
 
 @dataclass(frozen=True)
@@ -66,6 +188,55 @@ class DiagonallyImplicitRungeKutta:
     order: int
     newton_tol: float = 1e-10
     max_newton: int = 30
+
+    def __post_init__(self) -> None:
+        _check_tableau(self.name, self.a, self.b, self.c, self.order, implicit=True)
+
+    def step(self, f: Field, y, h, s0, ds, solve: NewtonStageSolver):
+        """One step; returns (y_next, every stage converged)."""
+        ks: list = []
+        ok = jnp.bool_(True)
+        for i, (row, ci) in enumerate(zip(self.a, self.c, strict=True)):
+            base = _axpy(y, h, zip(row[:i], ks, strict=True))
+            gh = row[i] * h
+            z, ok_i = solve(base, gh, s0 + ci * ds)
+            ok = ok & ok_i
+            # (z - base)/(γh) equals f(z) at the solution and does not amplify the
+            # Newton residual by the stiffness, unlike a fresh f(z).
+            ks.append(jax.tree_util.tree_map(lambda zl, bl, g=gh: (zl - bl) / g, z, base))
+        return _axpy(y, h, zip(self.b, ks, strict=True)), ok
+
+    def interval(self, f: Field, fs: Field, y, dt, carry, substeps: int):
+        """Cover one sample interval with ``substeps`` equal implicit steps."""
+        h, ds = dt / substeps, 1.0 / substeps
+        solve = NewtonStageSolver(f, fs, self.newton_tol, self.max_newton)
+
+        def sub(i, state):
+            yy, ok = state
+            y_next, ok_i = self.step(f, yy, h, i * ds, ds, solve)
+            return y_next, ok & ok_i
+
+        y, ok = jax.lax.fori_loop(0, substeps, sub, (y, jnp.bool_(True)))
+        return y, carry, jnp.where(ok, 0, Status.NEWTON_FAILED.code).astype(jnp.int32)
+
+
+@dataclass(frozen=True)
+class StepSizeController:
+    """Accept a step when the RMS of err / (atol + rtol max(|x|, |x_next|)) is at most
+    1; the next step aims at 0.9 of the tolerance (the estimate is O(h^order)),
+    changing by a factor between 0.2 and 5."""
+
+    rtol: float
+    atol: float
+    order: int
+
+    def error_norm(self, x0, x1, err):
+        sc = self.atol + self.rtol * jnp.maximum(jnp.abs(x0), jnp.abs(x1))
+        return jnp.sqrt(jnp.mean((err / sc) ** 2))
+
+    def factor(self, en):
+        f = jnp.clip(0.9 * jnp.where(en > 0, en, 1e-10) ** (-1.0 / self.order), 0.2, 5.0)
+        return jnp.where(jnp.isfinite(en), f, 0.2)
 
 
 @dataclass(frozen=True)
@@ -84,6 +255,58 @@ class AdaptiveRungeKutta:
     rtol: float = 1e-6
     atol: float = 1e-9
     max_steps: int = 10_000
+
+    def __post_init__(self) -> None:
+        _check_tableau(self.name, self.a, self.b, self.c, self.order, implicit=False)
+        if len(self.e) != len(self.b) or abs(sum(self.e) - 1.0) > 1e-12:
+            raise ValueError(f"scheme {self.name!r}: e needs one weight per stage, summing to 1")
+
+    @property
+    def controller(self) -> StepSizeController:
+        return StepSizeController(self.rtol, self.atol, self.order)
+
+    def step(self, f: Field, y, h, s0, ds):
+        """One trial step: (y_next, local error estimate of the states)."""
+        ks = _explicit_stages(self.a, self.c, f, y, h, s0, ds)
+        y1 = _axpy(y, h, zip(self.b, ks, strict=True))
+        errs = [bi - ei for bi, ei in zip(self.b, self.e, strict=True)]
+        err = _axpy(jnp.zeros_like(_x(y)), h, zip(errs, [_x(k) for k in ks], strict=True))
+        return y1, err
+
+    def interval(self, f: Field, fs: Field, y, dt, h0, substeps: int):
+        """Cover one sample interval of length dt with error-controlled steps from the
+        trial step h0 (the carry); returns (y, next trial step, failure code). Step
+        sizes come from the states only, through stop_gradient: they are the
+        discretisation, not a function of θ to differentiate."""
+        ctl = self.controller
+        tiny = 1e-14 * dt
+
+        def cond(c):
+            _, s, h, n = c
+            return (s < 1.0) & (n < self.max_steps) & (h > tiny)
+
+        def body(c):
+            y, s, h, n = c
+            h = jnp.minimum(h, (1.0 - s) * dt)
+            ds = h / dt
+            y1, err = self.step(f, y, h, s, ds)
+            en = jax.lax.stop_gradient(ctl.error_norm(_x(y), _x(y1), err))
+            ok = (en <= 1.0) & jnp.all(jnp.isfinite(_x(y1)))
+            h_next = jax.lax.stop_gradient(h * ctl.factor(en))
+            y = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), y1, y)
+            # land exactly on the sample: the last accepted step ends at s = 1
+            s = jnp.where(ok, jnp.where(h >= (1.0 - s) * dt, 1.0, s + ds), s)
+            return y, jax.lax.stop_gradient(s), h_next, n + 1
+
+        h0 = jax.lax.stop_gradient(h0)
+        y, s, h, _ = jax.lax.while_loop(cond, body, (y, jnp.zeros_like(dt), h0, 0))
+        code = jnp.where(
+            h <= tiny,
+            Status.STEP_UNDERFLOW.code,
+            jnp.where(s < 1.0, Status.STEP_LIMIT.code, 0),
+        ).astype(jnp.int32)
+        y = jax.tree_util.tree_map(lambda a: jnp.where(code != 0, jnp.nan, a), y)
+        return y, h, code
 
 
 Scheme = ExplicitRungeKutta | DiagonallyImplicitRungeKutta | AdaptiveRungeKutta
@@ -152,7 +375,6 @@ DOPRI5 = AdaptiveRungeKutta(
 SCHEMES: dict[str, Scheme] = {
     s.name: s for s in (EULER, HEUN, RK4, RK38, IMPLICIT_EULER, SDIRK2, SDIRK3, BOSH3, DOPRI5)
 }
-INTERPOLATIONS = ("linear", "zoh")
 
 
 def get_scheme(
@@ -184,208 +406,3 @@ def get_scheme(
     if rtol < 1e-13:
         raise ValueError(f"rtol={rtol:g} is below double-precision round-off; use rtol >= 1e-13")
     return replace(scheme, rtol=rtol, atol=atol)
-
-
-# -- the state: x, or (x, S, T, ...) with N leading rows each --------------------------
-def _x(y):
-    return y[0] if isinstance(y, tuple) else y
-
-
-def _n_levels(y) -> int:
-    return len(y) if isinstance(y, tuple) else 1
-
-
-def _axpy(y, h, terms):
-    """y + h Σ coef·k over (coef, k) pairs, skipping zero coefficients at trace time."""
-    terms = [(cf, k) for cf, k in terms if cf != 0.0]
-    if not terms:
-        return y
-
-    def combine(y_leaf, *k_leaves):
-        acc = terms[0][0] * k_leaves[0]
-        for (cf, _), kl in zip(terms[1:], k_leaves[1:], strict=True):
-            acc = acc + cf * kl
-        return y_leaf + h * acc
-
-    return jax.tree_util.tree_map(combine, y, *[k for _, k in terms])
-
-
-def _stages(scheme, f: Callable, y, h, s0, ds, solve=None):
-    """The stage derivatives k_i; ``solve(base, gamma_h, s)`` returns the stage value
-    of an implicit stage."""
-    ks: list = []
-    for i, ci in enumerate(scheme.c):
-        row = scheme.a[i]
-        if isinstance(scheme, DiagonallyImplicitRungeKutta):
-            base = _axpy(y, h, zip(row[:i], ks, strict=True))
-            gh = row[i] * h
-            z = solve(base, gh, s0 + ci * ds)
-            # (z - base)/(γh) equals f(z) at the solution and does not amplify the
-            # Newton residual by the stiffness, unlike a fresh f(z).
-            ks.append(jax.tree_util.tree_map(lambda zl, bl, g=gh: (zl - bl) / g, z, base))
-        else:
-            ks.append(f(_axpy(y, h, zip(row, ks, strict=False)), s0 + ci * ds))
-    return ks
-
-
-def rk_step(scheme: Scheme, f: Callable, y, h, s0, ds, solve=None):
-    """One step of size h from interval fraction s0; f(y, s) is the vector field at
-    interval fraction s, ds the fraction this step covers, and ``solve`` the stage
-    solver of an implicit scheme."""
-    ks = _stages(scheme, f, y, h, s0, ds, solve)
-    return _axpy(y, h, zip(scheme.b, ks, strict=True))
-
-
-def _newton_solver(scheme: DiagonallyImplicitRungeKutta, f: Callable, fs: Callable):
-    """Solve z = base + γh f(z, s) for the (augmented) stage value z.
-
-    Newton on the states alone, with the matrix I - γh F_x, until two updates in a
-    row are below ``newton_tol`` relative to max|x| (the second brings every
-    component to round-off). Each further level (S, then T) is linear in its own
-    unknowns with that same matrix, so one sweep per level solves it exactly. A
-    stage whose iteration does not converge comes back as NaN, which the fit
-    treats as a blow-up."""
-    jac = jax.jacfwd(fs)
-
-    def solve(base, gh, s):
-        x_base = _x(base)
-        N = x_base.shape[0]
-        eye = jnp.eye(N, dtype=x_base.dtype)
-
-        def body(carry):
-            x, it, nconv = carry
-            dx = jnp.linalg.solve(eye - gh * jac(x, s), x - x_base - gh * fs(x, s))
-            x = x - dx
-            small = jnp.max(jnp.abs(dx)) <= scheme.newton_tol * jnp.max(jnp.abs(x))
-            return x, it + 1, jnp.where(small, nconv + 1, 0)
-
-        def cond(carry):
-            _, it, nconv = carry
-            return (nconv < 2) & (it < scheme.max_newton)
-
-        x, _, nconv = jax.lax.while_loop(cond, body, (x_base, 0, 0))
-        x = jnp.where((nconv >= 2) & jnp.all(jnp.isfinite(x)), x, jnp.nan)
-        if _n_levels(base) == 1:
-            return x
-        lu = jax.scipy.linalg.lu_factor(eye - gh * jac(x, s))
-        z = (x, *base[1:])
-        for _ in range(_n_levels(base) - 1):
-            r = jax.tree_util.tree_map(lambda zl, bl, fl: zl - bl - gh * fl, z, base, f(z, s))
-            z = (x,) + tuple(
-                zl - jax.scipy.linalg.lu_solve(lu, rl.reshape(N, -1)).reshape(rl.shape)
-                for zl, rl in zip(z[1:], r[1:], strict=True)
-            )
-        return z
-
-    return solve
-
-
-def _error_norm(scheme: AdaptiveRungeKutta, x0, x1, err):
-    sc = scheme.atol + scheme.rtol * jnp.maximum(jnp.abs(x0), jnp.abs(x1))
-    return jnp.sqrt(jnp.mean((err / sc) ** 2))
-
-
-def _adaptive_interval(scheme: AdaptiveRungeKutta, f: Callable, y, dt, h0):
-    """Cover one sample interval of length dt with error-controlled steps from a
-    first trial step h0; returns (y, the next trial step). Step sizes come from the
-    states only, through stop_gradient: they are the discretisation, not a function
-    of θ to differentiate."""
-
-    def cond(c):
-        _, s, _, n = c
-        return (s < 1.0) & (n < scheme.max_steps)
-
-    def body(c):
-        y, s, h, n = c
-        h = jnp.minimum(h, (1.0 - s) * dt)
-        ds = h / dt
-        ks = _stages(scheme, f, y, h, s, ds)
-        y1 = _axpy(y, h, zip(scheme.b, ks, strict=True))
-        errs = [bi - ei for bi, ei in zip(scheme.b, scheme.e, strict=True)]
-        err = _axpy(jnp.zeros_like(_x(y)), h, zip(errs, [_x(k) for k in ks], strict=True))
-        en = jax.lax.stop_gradient(_error_norm(scheme, _x(y), _x(y1), err))
-        ok = (en <= 1.0) & jnp.all(jnp.isfinite(_x(y1)))
-        # the estimate is O(h^order): aim at 0.9 of the tolerance next time
-        factor = jnp.clip(0.9 * jnp.where(en > 0, en, 1e-10) ** (-1.0 / scheme.order), 0.2, 5.0)
-        factor = jnp.where(jnp.isfinite(en), factor, 0.2)
-        h_next = jax.lax.stop_gradient(h * factor)
-        y = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), y1, y)
-        # land exactly on the sample: the last accepted step ends at s = 1
-        s = jnp.where(ok, jnp.where(h >= (1.0 - s) * dt, 1.0, s + ds), s)
-        return y, jax.lax.stop_gradient(s), h_next, n + 1
-
-    h0 = jax.lax.stop_gradient(h0)
-    y, s, h, _ = jax.lax.while_loop(cond, body, (y, jnp.zeros_like(dt), h0, 0))
-    failed = (s < 1.0) | (h <= 1e-14 * dt)
-    y = jax.tree_util.tree_map(lambda a: jnp.where(failed, jnp.nan, a), y)
-    return y, h
-
-
-def input_at(u0: jax.Array, u1: jax.Array, s, interpolation: str) -> jax.Array:
-    if interpolation == "zoh":
-        return u0
-    return u0 + s * (u1 - u0)
-
-
-def march(
-    field: Callable,
-    observe: Callable,
-    y0,
-    acc0,
-    t,
-    u,
-    obs,
-    *,
-    scheme: Scheme,
-    substeps: int,
-    interpolation: str,
-    state_field: Callable | None = None,
-):
-    """Integrate ``y' = field(y, u)`` over the sample grid ``t`` and fold every sample
-    into an accumulator.
-
-    ``observe(acc, y, obs_h) -> (acc, out_h)`` is called at t_0 and after each
-    interval; ``obs`` is a pytree whose leaves have a leading sample axis.
-    ``state_field(x, u)`` is the model's own F, needed by implicit schemes (for
-    F_x) when ``y`` is augmented. For adaptive schemes ``substeps`` sets the first
-    trial step, dt/substeps.
-    Returns the final accumulator and the stacked ``out_h`` (P leading).
-    """
-    state_field = field if state_field is None else state_field
-    first = jax.tree_util.tree_map(lambda a: a[0], obs)
-    rest = jax.tree_util.tree_map(lambda a: a[1:], obs)
-    acc, out0 = observe(acc0, y0, first)
-    ds = 1.0 / substeps
-
-    def interval(carry, data):
-        y, h_trial, acc = carry
-        dt, ua, ub, obs_h = data
-
-        def vf(yy, s):
-            return field(yy, input_at(ua, ub, s, interpolation))
-
-        if isinstance(scheme, AdaptiveRungeKutta):
-            y, h_trial = _adaptive_interval(scheme, vf, y, dt, h_trial)
-        else:
-            h = dt / substeps
-            solve = None
-            if isinstance(scheme, DiagonallyImplicitRungeKutta):
-
-                def fs(x, s):
-                    return state_field(x, input_at(ua, ub, s, interpolation))
-
-                solve = _newton_solver(scheme, vf, fs)
-
-            def sub(i, yy):
-                return rk_step(scheme, vf, yy, h, i * ds, ds, solve)
-
-            y = jax.lax.fori_loop(0, substeps, sub, y)
-        acc, out = observe(acc, y, obs_h)
-        return (y, h_trial, acc), out
-
-    h_first = (t[1] - t[0]) / substeps if t.shape[0] > 1 else jnp.ones(())
-    (_, _, acc), outs = jax.lax.scan(
-        interval, (y0, h_first, acc), (jnp.diff(t), u[:-1], u[1:], rest)
-    )
-    outs = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), out0, outs)
-    return acc, outs

@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _config  # noqa: F401  (float64)
+from .. import _config  # noqa: F401  (float64)
 
 Array = jax.Array
 

@@ -12,17 +12,13 @@ from collections.abc import Mapping, Sequence
 import jax.numpy as jnp
 import numpy as np
 
-from . import _config  # noqa: F401
+from .. import _config  # noqa: F401
 from .data import Experiment
-from .integrate import (
-    INTERPOLATIONS,
-    AdaptiveRungeKutta,
-    DiagonallyImplicitRungeKutta,
-    Scheme,
-    get_scheme,
-)
+from .discretisation import Discretisation
+from .integrators import Scheme
 from .model import Model
-from .sensitivity import Sensitivities, unpack_symmetric
+from .simulate import Simulation, run_simulation
+from .sweeps import Sweeps, unpack_symmetric
 
 
 def _name_list(what: str, names, known: Sequence[str], kind: str) -> list[str]:
@@ -66,6 +62,8 @@ class Problem:
         (error-controlled) "dopri5", "bosh3".
     rtol, atol : error tolerances of an adaptive scheme (defaults 1e-6, 1e-9).
     weights : dict {output: weight} or array (S,); J = Σ_h Σ_g w_g r_g².
+    discretisation : a :class:`Discretisation`, in place of scheme, substeps,
+        interpolation, rtol and atol.
     """
 
     def __init__(
@@ -83,6 +81,7 @@ class Problem:
         weights=None,
         rtol: float | None = None,
         atol: float | None = None,
+        discretisation: Discretisation | None = None,
     ):
         if not isinstance(model, Model):
             raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
@@ -98,30 +97,42 @@ class Problem:
         self.free_x0 = _name_list("free_x0", free_x0, model.states, "states")
         self.fixed = _name_list("fixed", fixed, model.params, "params")
         self.free_params = [n for n in model.params if n not in self.fixed]
-        if not isinstance(substeps, int | np.integer) or substeps < 1:
-            raise ValueError(f"substeps must be a positive integer, got {substeps!r}")
-        if interpolation not in INTERPOLATIONS:
-            raise ValueError(
-                f"interpolation must be one of {INTERPOLATIONS}, got {interpolation!r}"
+        if discretisation is None:
+            discretisation = Discretisation.of(scheme, substeps, interpolation, rtol, atol)
+        elif not isinstance(discretisation, Discretisation):
+            raise TypeError(
+                f"discretisation must be a tensorid.Discretisation, got "
+                f"{type(discretisation).__name__}"
             )
-        self.substeps = int(substeps)
-        self.interpolation = interpolation
-        self.scheme = get_scheme(scheme, rtol, atol)
+        self.discretisation = discretisation
         self.weights = self._check_weights(weights)
         self.lower, self.upper = self._check_bounds(bounds or {})
         if self.K == 0:
             raise ValueError("nothing to estimate: every parameter is fixed and free_x0 is empty")
-        self._sens = Sensitivities(
+        self._sweeps = Sweeps(
             model,
             tuple(model.states.index(n) for n in self.free_x0),
             tuple(model.params.index(n) for n in self.free_params),
-            self.scheme,
-            self.substeps,
-            interpolation,
+            discretisation,
         )
         self._arrays = [
             (jnp.asarray(e.t), jnp.asarray(e.u), jnp.asarray(e.y)) for e in self.experiments
         ]
+
+    @property
+    def scheme(self) -> Scheme:
+        """The integration scheme (of ``discretisation``)."""
+        return self.discretisation.scheme
+
+    @property
+    def substeps(self) -> int:
+        """Steps per sample interval (of ``discretisation``)."""
+        return self.discretisation.substeps
+
+    @property
+    def interpolation(self) -> str:
+        """Input interpolation between samples (of ``discretisation``)."""
+        return self.discretisation.interpolation
 
     @property
     def rounding_floor(self) -> float:
@@ -273,12 +284,17 @@ class Problem:
         ps = [self.p0[m.params.index(n)] for n in self.free_params]
         return np.array(xs + ps, dtype=float)
 
-    def _check_theta(self, theta) -> np.ndarray:
+    def check_theta(self, theta) -> np.ndarray:
+        """θ as a float array (K,); a clear error for a wrong length or non-finite
+        entries."""
         theta = np.asarray(theta, dtype=float).reshape(-1)
         if theta.shape != (self.K,):
             raise ValueError(
                 f"theta must have {self.K} entries {self.theta_names}, got {theta.size}"
             )
+        bad = [n for n, v in zip(self.theta_names, theta, strict=True) if not np.isfinite(v)]
+        if bad:
+            raise ValueError(f"theta has non-finite values for {bad}; give finite numbers")
         return theta
 
     def _slices(self, e: int) -> np.ndarray:
@@ -290,7 +306,7 @@ class Problem:
 
     def unpack(self, theta) -> tuple[np.ndarray, np.ndarray]:
         """(params (M,), x0 (E, N)) with θ written into the fixed values."""
-        theta = self._check_theta(theta)
+        theta = self.check_theta(theta)
         m = self.model
         p = self.p0.copy()
         x0 = self.x0.copy()
@@ -302,61 +318,79 @@ class Problem:
         return p, x0
 
     # -- cost and derivatives ------------------------------------------------------------
-    def _each(self, fn, theta, *more):
-        """(idx, fn(θ_e, *more_e, x0_e, p0, t, u, y, w)) per experiment e, where θ_e and
-        more_e are the experiment's entries (last axis) of θ and of further θ-shaped
-        arrays; θ may hold one point per row."""
+    def _assemble(self, sweep, theta, *more, parts: str):
+        """Run ``sweep`` on every experiment and sum its results into θ's layout.
+
+        θ (and each of ``more``, e.g. a direction v) may hold one point per row. Each
+        experiment sees its own entries of them (its free x0, then the free
+        parameters). ``parts`` names the sweep's results, one letter each: "J" a
+        cost, "g" a θ-vector, "H" a θ-matrix, "P" a packed symmetric θ-matrix, "r" a
+        residual vector (concatenated). Where a result is not finite, J is inf:
+        the simulation blew up, which callers treat as a rejected point.
+        """
+        theta = np.asarray(theta, dtype=float)
+        lead, K = theta.shape[:-1], self.K
+        shapes = {"J": (), "g": (K,), "H": (K, K), "P": (K, K)}
+        out: list = [[] if c == "r" else np.zeros(lead + shapes[c]) for c in parts]
         w = jnp.asarray(self.weights)
         for e, (t, u, y) in enumerate(self._arrays):
             idx = self._slices(e)
             local = [jnp.asarray(a[..., idx]) for a in (theta, *more)]
-            yield idx, fn(*local, jnp.asarray(self.x0[e]), jnp.asarray(self.p0), t, u, y, w)
+            values = sweep(*local, jnp.asarray(self.x0[e]), jnp.asarray(self.p0), t, u, y, w)
+            for acc, c, v in zip(out, parts, values if len(parts) > 1 else (values,), strict=True):
+                v = np.asarray(v)
+                if c == "J":
+                    acc += v
+                elif c == "g":
+                    acc[..., idx] += v
+                elif c == "r":
+                    acc.append(v)
+                else:
+                    v = unpack_symmetric(v, idx.size) if c == "P" else v
+                    acc[..., idx[:, None], idx[None, :]] += v
+        out = [np.concatenate(a) if c == "r" else a for a, c in zip(out, parts, strict=True)]
+        ok = np.ones(lead, dtype=bool)
+        for a in out:
+            ok &= (
+                np.isfinite(a).reshape(lead + (-1,)).all(axis=-1)
+                if a.ndim > len(lead)
+                else np.isfinite(a)
+            )
+        if "J" in parts:
+            j = parts.index("J")
+            out[j] = np.where(ok, out[j], np.inf) if lead else (float(out[j]) if ok else np.inf)
+        return out
 
     def cost(self, theta) -> float:
         """J(θ) by plain simulation; inf when the simulation is not finite."""
-        theta = self._check_theta(theta)
-        J = sum(float(Je) for _, Je in self._each(self._sens.cost, theta))
-        return J if np.isfinite(J) else np.inf
+        return self._assemble(self._sweeps.cost, self.check_theta(theta), parts="J")[0]
 
     def jax_cost(self, theta):
         """J(θ) as a traceable JAX function (for jax.grad / jax.hessian checks)."""
         w = jnp.asarray(self.weights)
         J = 0.0
         for e, (t, u, y) in enumerate(self._arrays):
-            J = J + self._sens._cost(
+            J = J + self._sweeps._cost(
                 theta[self._slices(e)], jnp.asarray(self.x0[e]), jnp.asarray(self.p0), t, u, y, w
             )
         return J
 
     def residuals(self, theta) -> np.ndarray:
         """sqrt(w)·(y_obs - y_sim) for every sample, output and experiment, flattened."""
-        theta = self._check_theta(theta)
-        return np.concatenate([np.asarray(r) for _, r in self._each(self._sens.residuals, theta)])
-
-    def _assemble(self, fn, theta, packed: bool):
-        K = self.K
-        J, g, H = 0.0, np.zeros(K), np.zeros((K, K))
-        for idx, (Je, ge, He) in self._each(fn, self._check_theta(theta)):
-            He = np.asarray(He)
-            if packed:
-                He = unpack_symmetric(He, idx.size)
-            J += float(Je)
-            g[idx] += np.asarray(ge)
-            H[np.ix_(idx, idx)] += He
-        if not (np.isfinite(J) and np.isfinite(g).all() and np.isfinite(H).all()):
-            return np.inf, g, H
-        return J, g, H
+        return self._assemble(self._sweeps.residuals, self.check_theta(theta), parts="r")[0]
 
     def cost_grad_hess(self, theta) -> tuple[float, np.ndarray, np.ndarray]:
         """(J, ∇J, ∇²J) at θ, exact for the discretised model, from the transition
         matrices and tensors integrated alongside the states. J is inf (and g, H are
         not meaningful) when the simulation blows up."""
-        return self._assemble(self._sens.second_order, theta, packed=True)
+        J, g, H = self._assemble(self._sweeps.second_order, self.check_theta(theta), parts="JgP")
+        return J, g, H
 
     def cost_grad_gn(self, theta) -> tuple[float, np.ndarray, np.ndarray]:
         """(J, ∇J, Gauss-Newton Hessian 2 Σ (∂ỹ/∂θ)ᵀ W ∂ỹ/∂θ): first-order
         sensitivities only."""
-        return self._assemble(self._sens.first_order, theta, packed=False)
+        J, g, H = self._assemble(self._sweeps.first_order, self.check_theta(theta), parts="JgH")
+        return J, g, H
 
     def cost_grad_hess_batch(
         self, thetas, gauss_newton: bool = False
@@ -367,106 +401,42 @@ class Problem:
         thetas = np.asarray(thetas, dtype=float)
         if thetas.ndim != 2 or thetas.shape[1] != self.K:
             raise ValueError(f"thetas must have shape (B, {self.K}), got {thetas.shape}")
-        B, K = thetas.shape
-        fn = self._sens.first_order_batch if gauss_newton else self._sens.second_order_batch
-        J, g, H = np.zeros(B), np.zeros((B, K)), np.zeros((B, K, K))
-        for idx, (Je, ge, He) in self._each(fn, thetas):
-            He = np.asarray(He) if gauss_newton else unpack_symmetric(np.asarray(He), idx.size)
-            J += np.asarray(Je)
-            g[:, idx] += np.asarray(ge)
-            H[:, idx[:, None], idx[None, :]] += He
-        ok = np.isfinite(J) & np.isfinite(g).all(axis=1) & np.isfinite(H).all(axis=(1, 2))
-        return np.where(ok, J, np.inf), g, H
+        if gauss_newton:
+            J, g, H = self._assemble(self._sweeps.first_order_batch, thetas, parts="JgH")
+        else:
+            J, g, H = self._assemble(self._sweeps.second_order_batch, thetas, parts="JgP")
+        return J, g, H
 
     def cost_grad(self, theta) -> tuple[float, np.ndarray]:
         """(J, ∇J) from first-order sensitivities; J is inf when the simulation blows up."""
-        J, g = 0.0, np.zeros(self.K)
-        for idx, (Je, ge) in self._each(self._sens.gradient, self._check_theta(theta)):
-            J += float(Je)
-            g[idx] += np.asarray(ge)
-        return (J, g) if np.isfinite(J) and np.isfinite(g).all() else (np.inf, g)
+        J, g = self._assemble(self._sweeps.gradient, self.check_theta(theta), parts="Jg")
+        return J, g
 
     def cost_grad_hessp(self, theta, v) -> tuple[float, np.ndarray, np.ndarray]:
         """(J, ∇J, ∇²J v): the exact Hessian times a direction v (K,), by one
         forward-over-forward sweep that carries 2K + 1 copies of the state instead of
         the full Hessian's 1 + K + K(K+1)/2. For large K with Newton-CG."""
-        theta = self._check_theta(theta)
+        theta = self.check_theta(theta)
         v = np.asarray(v, dtype=float).reshape(-1)
         if v.shape != (self.K,):
             raise ValueError(f"v must have {self.K} entries (one per θ entry), got {v.size}")
-        J, g, Hv = 0.0, np.zeros(self.K), np.zeros(self.K)
-        for idx, (Je, ge, hv) in self._each(self._sens.hessp, theta, v):
-            J += float(Je)
-            g[idx] += np.asarray(ge)
-            Hv[idx] += np.asarray(hv)
-        if not (np.isfinite(J) and np.isfinite(g).all() and np.isfinite(Hv).all()):
-            return np.inf, g, Hv
+        J, g, Hv = self._assemble(self._sweeps.hessp, theta, v, parts="Jgg")
         return J, g, Hv
 
-    def simulate(self, theta) -> list:
+    def simulate(self, theta) -> list[Simulation]:
         """Simulate every experiment at θ; returns a list of Simulation."""
-        from .simulate import Simulation
-
         p, x0 = self.unpack(theta)
-        out = []
-        for e, (t, u, _) in enumerate(self._arrays):
-            xs, ys = self._sens.simulate(jnp.asarray(x0[e]), jnp.asarray(p), t, u)
-            out.append(Simulation(self.model, self.experiments[e], np.asarray(xs), np.asarray(ys)))
-        return out
+        return [
+            run_simulation(self._sweeps, self.experiments[e], x0[e], p)
+            for e in range(len(self.experiments))
+        ]
 
     def diagnose(self, theta) -> str | None:
         """None when every experiment simulates to finite values at θ; otherwise a
         plain-language account of where the simulation first fails and what to try."""
-        theta = self._check_theta(theta)
-        m = self.model
-        p, x0 = self.unpack(theta)
-        values = ", ".join(f"{n}={v:.4g}" for n, v in zip(self.theta_names, theta, strict=True))
-        for e, sim in enumerate(self.simulate(theta)):
-            if sim.finite:
-                continue
-            where = f"experiment {e}" + (f" ({sim.experiment.name})" if sim.experiment.name else "")
-            bad_x = ~np.isfinite(sim.x).all(axis=1)
-            bad_y = ~np.isfinite(sim.y).all(axis=1)
-            h = int(np.argmax(bad_x | bad_y))
-            if bad_x[h]:
-                states = [
-                    n for n, ok in zip(m.states, np.isfinite(sim.x[h]), strict=True) if not ok
-                ]
-                what = f"state(s) {states} are not finite"
-            else:
-                outs = [n for n, ok in zip(m.outputs, np.isfinite(sim.y[h]), strict=True) if not ok]
-                what = f"output(s) {outs} are not finite although the states are"
-            last = (
-                "from the initial state"
-                if h == 0
-                else "after "
-                + ", ".join(f"{n}={v:.4g}" for n, v in zip(m.states, sim.x[h - 1], strict=True))
-            )
-            hints = [
-                "a state or parameter outside the model's domain (square root or log of a "
-                "negative value, division by a parameter near 0): add bounds, or write the "
-                "model with tensorid.functions.safe_sqrt",
-            ]
-            if isinstance(self.scheme, AdaptiveRungeKutta):
-                hints.append(
-                    f"a stiff model: the adaptive scheme gives up after "
-                    f"{self.scheme.max_steps} steps per sample; use scheme='sdirk3'"
-                )
-            elif isinstance(self.scheme, DiagonallyImplicitRungeKutta):
-                hints.append("a stage's Newton iteration did not converge: raise substeps")
-            else:
-                hints.append(
-                    "a stiff model, or a step too large for an explicit scheme: raise "
-                    "substeps, or use scheme='sdirk3'"
-                )
-            hints.append("dynamics that really diverge at these values: start closer")
-            return (
-                f"the simulation is not finite at {values}: in {where}, {what} at "
-                f"t = {sim.t[h]:.6g} (sample {h} of {sim.t.size}), {last}. Likely causes: "
-                + "; ".join(hints)
-                + "."
-            )
-        return None
+        from .diagnostics import diagnose
+
+        return diagnose(self, self.check_theta(theta))
 
     def __repr__(self) -> str:
         return (

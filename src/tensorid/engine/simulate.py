@@ -7,22 +7,32 @@ from dataclasses import dataclass
 import jax.numpy as jnp
 import numpy as np
 
-from . import _config  # noqa: F401
+from .. import _config  # noqa: F401
 from .data import Experiment
-from .integrate import INTERPOLATIONS, Scheme, get_scheme
+from .discretisation import Discretisation
+from .integrators import Scheme
 from .model import Model
-from .sensitivity import Sensitivities
+from .status import Status
+from .sweeps import Sweeps
 
 
 @dataclass(frozen=True, eq=False)
 class Simulation:
     """A simulated trajectory: ``x`` (P, N) states and ``y`` (P, S) outputs at the
-    experiment's sample times ``t``."""
+    experiment's sample times ``t``.
+
+    ``status`` says how the integration ended (``Status.OK``, or the integrator's
+    failure: non-finite state, step limit, step underflow, Newton stage failure,
+    non-finite outputs) and ``failed_at`` the first sample that was not reached
+    finitely (None when OK).
+    """
 
     model: Model
     experiment: Experiment
     x: np.ndarray
     y: np.ndarray
+    status: Status = Status.OK
+    failed_at: int | None = None
 
     @property
     def t(self) -> np.ndarray:
@@ -33,6 +43,21 @@ class Simulation:
     def finite(self) -> bool:
         """False when the simulation blew up (non-finite states or outputs)."""
         return bool(np.isfinite(self.x).all() and np.isfinite(self.y).all())
+
+
+def run_simulation(sweeps: Sweeps, data: Experiment, x0, p) -> Simulation:
+    """Simulate with compiled ``sweeps`` and read the integrator's failure code."""
+    xs, ys, code, at = sweeps.simulate(
+        jnp.asarray(x0), jnp.asarray(p), jnp.asarray(data.t), jnp.asarray(data.u)
+    )
+    xs, ys = np.asarray(xs), np.asarray(ys)
+    status = Status.from_code(int(code))
+    failed_at: int | None = int(at)
+    if status is Status.OK:
+        bad_y = ~np.isfinite(ys).all(axis=1)
+        failed_at = int(np.argmax(bad_y)) if bad_y.any() else None
+        status = Status.NONFINITE_OUTPUT if bad_y.any() else Status.OK
+    return Simulation(sweeps.model, data, xs, ys, status, failed_at)
 
 
 def simulate(
@@ -46,12 +71,13 @@ def simulate(
     scheme: str | Scheme = "rk4",
     rtol: float | None = None,
     atol: float | None = None,
+    discretisation: Discretisation | None = None,
 ) -> Simulation:
     """Simulate ``model`` with ``params`` (dict or array (M,)) from ``x0`` (dict or
     array (N,)) on the inputs and sample times of ``data``.
 
-    Pass the fit's scheme (``problem.scheme``), substeps and interpolation to
-    reproduce its reported cost exactly.
+    Pass the fit's ``discretisation`` (``problem.discretisation``), or its scheme,
+    substeps and interpolation, to reproduce its reported cost exactly.
     """
     if not isinstance(model, Model):
         raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
@@ -62,14 +88,8 @@ def simulate(
             f"data has {data.u.shape[1]} input column(s) but the model has "
             f"{model.U} inputs {list(model.inputs)}"
         )
-    if interpolation not in INTERPOLATIONS:
-        raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, got {interpolation!r}")
+    if discretisation is None:
+        discretisation = Discretisation.of(scheme, substeps, interpolation, rtol, atol)
     p = model.params_array(params, "params")
     x = model.states_array(x0, "x0")
-    if not isinstance(substeps, int | np.integer) or substeps < 1:
-        raise ValueError(f"substeps must be a positive integer, got {substeps!r}")
-    sens = Sensitivities(
-        model, (), (), get_scheme(scheme, rtol, atol), int(substeps), interpolation
-    )
-    xs, ys = sens.simulate(jnp.asarray(x), jnp.asarray(p), jnp.asarray(data.t), jnp.asarray(data.u))
-    return Simulation(model, data, np.asarray(xs), np.asarray(ys))
+    return run_simulation(Sweeps(model, (), (), discretisation), data, x, p)

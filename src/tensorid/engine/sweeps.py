@@ -25,14 +25,13 @@ The output side is the same with C in place of F, giving the paper's gradient
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _config  # noqa: F401
-from .integrate import Scheme, march
+from .. import _config  # noqa: F401
+from .discretisation import Discretisation, march
 from .model import Model
 
 
@@ -56,22 +55,45 @@ def unpack_symmetric(packed: np.ndarray, K: int) -> np.ndarray:
     return H
 
 
+class _Compiled:
+    """A jit-compiled entry point of :class:`Sweeps`, compiled on first use and kept
+    per instance (``batched``: vmapped over a leading axis of θ, one start per row).
+    Compiled functions are per process: pickling a Sweeps drops them."""
+
+    def __init__(self, sweep: str, batched: bool = False):
+        self.sweep, self.batched = sweep, batched
+
+    def __set_name__(self, owner, name: str) -> None:
+        self.name = name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        fn = obj.__dict__.get(self.name)
+        if fn is None:
+            fn = getattr(obj, self.sweep)
+            if self.batched:
+                fn = jax.vmap(fn, in_axes=(0,) + (None,) * 6)
+            fn = jax.jit(fn)
+            obj.__dict__[self.name] = fn
+        return fn
+
+
 @dataclass(frozen=True, eq=False)
-class Sensitivities:
-    """Compiled simulation, cost and derivative sweeps for one θ layout.
+class Sweeps:
+    """The compiled simulation, cost and derivative sweeps for one θ layout and one
+    discretisation.
 
     ``free_states`` and ``free_params`` are indices into the model's states and
     params; θ for one experiment is ``concat(x0[free_states], p[free_params])``.
-    Every function takes ``(theta, x0, p, t, u, y, w)`` where x0 and p hold the
-    values of the entries that θ does not set.
+    Every sweep but ``simulate`` takes ``(theta, x0, p, t, u, y, w)`` where x0 and p
+    hold the values of the entries that θ does not set.
     """
 
     model: Model
     free_states: tuple[int, ...]
     free_params: tuple[int, ...]
-    scheme: Scheme
-    substeps: int
-    interpolation: str
+    discretisation: Discretisation
 
     @property
     def K(self) -> int:
@@ -108,14 +130,13 @@ class Sensitivities:
             t,
             u,
             obs,
-            scheme=self.scheme,
-            substeps=self.substeps,
-            interpolation=self.interpolation,
+            discretisation=self.discretisation,
             state_field=state_field,
         )
 
     # -- plain simulation --------------------------------------------------------------
     def _simulate(self, x0, p, t, u):
+        """(xs (P, N), ys (P, S), failure code, sample of the first failure)."""
         m = self.model
 
         def field(x, uu):
@@ -124,8 +145,8 @@ class Sensitivities:
         def observe(acc, x, _):
             return acc, (x, m.h(x, p))
 
-        _, (xs, ys) = self._march(field, observe, x0, 0.0, t, u, jnp.zeros(t.shape), p)
-        return xs, ys
+        _, (xs, ys), (code, at) = self._march(field, observe, x0, 0.0, t, u, jnp.zeros(t.shape), p)
+        return xs, ys, code, at
 
     def _cost(self, theta, x0, p, t, u, y, w):
         x0, p = self._expand(theta, x0, p)
@@ -138,12 +159,12 @@ class Sensitivities:
             r = y_h - m.h(x, p)
             return J + jnp.sum(w * r * r), None
 
-        J, _ = self._march(field, observe, x0, jnp.zeros(()), t, u, y, p)
+        J, _, _ = self._march(field, observe, x0, jnp.zeros(()), t, u, y, p)
         return J
 
     def _residuals(self, theta, x0, p, t, u, y, w):
         x0, p = self._expand(theta, x0, p)
-        _, ys = self._simulate(x0, p, t, u)
+        _, ys, _, _ = self._simulate(x0, p, t, u)
         return (jnp.sqrt(w) * (y - ys)).reshape(-1)
 
     # -- first order: (J, ∇J) and the Gauss-Newton Hessian -----------------------------
@@ -173,7 +194,7 @@ class Sensitivities:
             return (J + jnp.sum(wr * r), g - 2.0 * D @ wr, H), None
 
         acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros((K, K)) if gauss_newton else None)
-        (J, g, H), _ = self._march(field, observe, (x0, jnp.asarray(S0)), acc0, t, u, y, p)
+        (J, g, H), _, _ = self._march(field, observe, (x0, jnp.asarray(S0)), acc0, t, u, y, p)
         return J, g, H
 
     # -- second order: (J, ∇J, ∇²J) or (J, ∇J, ∇²J v) by transition tensors ------------
@@ -235,7 +256,7 @@ class Sensitivities:
 
         state0 = (x0, jnp.asarray(S0), jnp.zeros((N, ncols)))
         acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros(ncols))
-        (J, g, H), _ = self._march(field, observe, state0, acc0, t, u, y, p)
+        (J, g, H), _, _ = self._march(field, observe, state0, acc0, t, u, y, p)
         return J, g, H
 
     def _hessp(self, theta, v, x0, p, t, u, y, w):
@@ -245,59 +266,23 @@ class Sensitivities:
         return self._first_order(theta, x0, p, t, u, y, w, gauss_newton=False)[:2]
 
     # -- compiled entry points ---------------------------------------------------------
-    # (compiled functions are per process: pickling drops them, the receiver recompiles)
+    simulate = _Compiled("_simulate")
+    cost = _Compiled("_cost")
+    residuals = _Compiled("_residuals")
+    first_order = _Compiled("_first_order")
+    second_order = _Compiled("_second_order")
+    gradient = _Compiled("_gradient")
+    hessp = _Compiled("_hessp")
+    # one start per row of theta: multi-start in lock-step, one call for all
+    first_order_batch = _Compiled("_first_order", batched=True)
+    second_order_batch = _Compiled("_second_order", batched=True)
+
     def __getstate__(self):
-        return {k: v for k, v in self.__dict__.items() if k not in _COMPILED}
+        return {k: v for k, v in self.__dict__.items() if not isinstance(_entry(k), _Compiled)}
 
     def __setstate__(self, state):
         self.__dict__.update(state)
 
-    @cached_property
-    def simulate(self):
-        return jax.jit(self._simulate)
 
-    @cached_property
-    def cost(self):
-        return jax.jit(self._cost)
-
-    @cached_property
-    def residuals(self):
-        return jax.jit(self._residuals)
-
-    @cached_property
-    def first_order(self):
-        return jax.jit(self._first_order)
-
-    @cached_property
-    def second_order(self):
-        return jax.jit(self._second_order)
-
-    # one start per row of theta: multi-start in lock-step, one call for all
-    @cached_property
-    def first_order_batch(self):
-        return jax.jit(jax.vmap(self._first_order, in_axes=(0,) + (None,) * 6))
-
-    @cached_property
-    def second_order_batch(self):
-        return jax.jit(jax.vmap(self._second_order, in_axes=(0,) + (None,) * 6))
-
-    @cached_property
-    def gradient(self):
-        return jax.jit(self._gradient)
-
-    @cached_property
-    def hessp(self):
-        return jax.jit(self._hessp)
-
-
-_COMPILED = (
-    "simulate",
-    "cost",
-    "residuals",
-    "first_order",
-    "second_order",
-    "gradient",
-    "hessp",
-    "first_order_batch",
-    "second_order_batch",
-)
+def _entry(name: str):
+    return Sweeps.__dict__.get(name)

@@ -1,225 +1,30 @@
-"""fit(): estimate θ with exact-derivative trust-region methods, or with the
-finite-difference baselines the paper compares against.
+"""fit(): estimate θ with the exact-derivative trust-region methods, or with the
+finite-difference baselines the paper compares against; one driver for a single
+start, a batch of starts in lock-step, and many starts on workers.
 
-Every method works on scaled variables φ = θ / scale and a cost normalised by its
-value at the start, so that the Silverbox parameters (5e-6 .. 4) look alike to the
-optimiser; results are reported in natural units. Whatever a method does, the
+Every method works on scaled variables (see scaling.py); whatever a method does, the
 result holds the best finite point it evaluated: a fit never returns NaN.
 """
 
 from __future__ import annotations
 
+import functools
 import os
 import time
-import warnings
-from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.optimize
 
-from .metrics import gof
-from .problem import Problem
+from ..engine.problem import Problem
+from ..engine.status import Status
+from .baselines import BASELINES, run_baseline
+from .multistart import SAMPLINGS, draw_starts, run_starts
+from .options import FitOptions
+from .results import FitResult, describe
+from .scaling import Tracker
 from .trust_region import minimize_trust_region, trust_region_steps
 
-METHODS = ("newton", "newton-cg", "gauss-newton", "fd-bfgs", "fd-lsq")
-
-
-@dataclass
-class FitResult:
-    """Outcome of :func:`fit`, with scipy.optimize.OptimizeResult's names where they fit.
-
-    theta : (K,) estimate in natural units, θ layout of ``problem`` (alias ``x``).
-    params : {name: value} for every parameter (fixed ones included).
-    x0 : (N,) initial state, or (E, N) for several experiments.
-    cost : J at theta (alias ``fun``); jac (K,) and hess (K, K) are the exact
-        gradient and Hessian there, whatever the method.
-    grad_norm : ∞-norm of the projected gradient with respect to θ / scale, in cost
-        units (components pushing against an active bound are dropped).
-    nit, nfev : iterations and cost evaluations (finite-difference ones included).
-    nhev : Hessian-vector products (method "newton-cg").
-    seconds : wall time of the fit, compilation included.
-    history : one dict per iteration: iteration, cost, grad_norm, radius, ...
-    notes : what happened on the way, e.g. trial points where the simulation blew up.
-    """
-
-    problem: Problem
-    method: str
-    theta: np.ndarray
-    params: dict[str, float]
-    x0: np.ndarray
-    cost: float
-    jac: np.ndarray
-    hess: np.ndarray
-    grad_norm: float
-    nit: int
-    nfev: int
-    success: bool
-    message: str
-    seconds: float
-    scale: np.ndarray
-    history: list[dict] = field(default_factory=list)
-    starts: list[dict] = field(default_factory=list)
-    notes: list[str] = field(default_factory=list)
-    nhev: int = 0
-
-    @property
-    def x(self) -> np.ndarray:
-        """Alias of theta (scipy.optimize.OptimizeResult's name)."""
-        return self.theta
-
-    @property
-    def fun(self) -> float:
-        """Alias of cost (scipy.optimize.OptimizeResult's name)."""
-        return self.cost
-
-    def simulate(self):
-        """Simulations of every experiment at the estimate."""
-        return self.problem.simulate(self.theta)
-
-    def gof(self) -> list:
-        """Goodness of fit per experiment (per output for several outputs)."""
-        sims = self.simulate()
-        return [
-            gof(_squeeze(e.measured), _squeeze(s.y))
-            for e, s in zip(self.problem.experiments, sims, strict=True)
-        ]
-
-    def uncertainty(self, kind: str = "hessian"):
-        """Standard errors, 95 % intervals, correlations (see tensorid.uncertainty);
-        ``kind`` "hessian" uses the exact Hessian, "gauss-newton" its first-order form."""
-        from .uncertainty import uncertainty
-
-        if kind not in ("hessian", "gauss-newton"):
-            raise ValueError("kind must be 'hessian' or 'gauss-newton'")
-        H = self.hess if kind == "hessian" else self.problem.cost_grad_gn(self.theta)[2]
-        return uncertainty(self.problem, self.theta, self.cost, H, kind)
-
-    @property
-    def covariance(self) -> np.ndarray:
-        """Covariance of theta from the exact Hessian, scaled by the residual variance."""
-        return self.uncertainty().covariance
-
-    @property
-    def warnings(self) -> list[str]:
-        """Plain-language warnings: no convergence (with why, e.g. where the simulation
-        blew up), unknowns the data cannot separate, an optimum that is not a strict
-        minimum."""
-        out = [] if self.success else [f"the fit did not converge: {self.message}", *self.notes]
-        if np.isfinite(self.cost):
-            out += self.uncertainty().warnings
-        return out
-
-    def summary(self) -> str:
-        """A plain-text table of the estimates with standard errors and intervals."""
-        from .report import summary_table
-
-        return summary_table(self)
-
-    def plot(self, path=None, validation=None):
-        """Measured against simulated outputs with residuals; saved to ``path`` (PNG)
-        when given. Returns the list of written files or the matplotlib figures."""
-        from .report import fit_figures
-
-        return fit_figures(self, path, validation)
-
-    def __repr__(self) -> str:
-        ps = ", ".join(f"{k}={v:.6g}" for k, v in self.params.items())
-        return (
-            f"FitResult(method={self.method!r}, success={self.success}, cost={self.cost:.6g}, "
-            f"nit={self.nit}, params={{{ps}}}, message={self.message!r})"
-        )
-
-
-def _squeeze(a: np.ndarray) -> np.ndarray:
-    return a[:, 0] if a.ndim == 2 and a.shape[1] == 1 else a
-
-
-class _Tracker:
-    """Wraps evaluations in scaled variables; remembers the best finite point."""
-
-    def __init__(self, problem: Problem, scale: np.ndarray, J_ref: float):
-        self.problem, self.scale, self.J_ref = problem, scale, J_ref
-        self.nfev = 0
-        self.best_phi: np.ndarray | None = None
-        self.best_J = np.inf
-        self.nonfinite = 0
-        self.first_nonfinite: np.ndarray | None = None
-
-    def theta(self, phi) -> np.ndarray:
-        """Natural units; clipped because θ/scale·scale may miss a bound by an ulp."""
-        return np.clip(self.scale * phi, self.problem.lower, self.problem.upper)
-
-    def _seen(self, phi, J):
-        self.nfev += 1
-        if np.isfinite(J) and J < self.best_J:
-            self.best_J, self.best_phi = J, np.array(phi, dtype=float)
-        elif not np.isfinite(J):
-            self.nonfinite += 1
-            if self.first_nonfinite is None:
-                self.first_nonfinite = self.theta(phi)
-
-    def notes(self) -> list[str]:
-        """What the user should know about trial points that were rejected."""
-        if not self.nonfinite:
-            return []
-        why = self.problem.diagnose(self.first_nonfinite) or "the simulation was not finite"
-        return [
-            f"{self.nonfinite} trial point(s) were rejected because the simulation blew "
-            f"up there; the first: {why}"
-        ]
-
-    def scaled(self, phi, J, g, H):
-        """(J, g, H) at θ(φ) in scaled variables, relative to the starting cost."""
-        self._seen(phi, J)
-        if not np.isfinite(J):
-            return np.inf, g, H
-        s = self.scale
-        return J / self.J_ref, g * s / self.J_ref, H * np.outer(s, s) / self.J_ref
-
-    def derivs(self, fn):
-        def wrapped(phi):
-            return self.scaled(phi, *fn(self.theta(phi)))
-
-        return wrapped
-
-    def derivs_hessp(self, phi):
-        """(J, g, v -> Hv) in scaled units, for truncated-CG steps."""
-        theta = self.theta(phi)
-        J, g = self.problem.cost_grad(theta)
-        self._seen(phi, J)
-        if not np.isfinite(J):
-            return np.inf, g, None
-        s = self.scale
-
-        def hessp(v):
-            Hv = self.problem.cost_grad_hessp(theta, s * v)[2]
-            return np.where(np.isfinite(Hv), Hv, 0.0) * s / self.J_ref
-
-        return J / self.J_ref, g * s / self.J_ref, hessp
-
-    def cost(self, phi):
-        J = self.problem.cost(self.theta(phi))
-        self._seen(phi, J)
-        return J / self.J_ref if np.isfinite(J) else np.inf
-
-    def residuals(self, phi):
-        r = self.problem.residuals(self.theta(phi))
-        J = float(r @ r)
-        self._seen(phi, J if np.isfinite(J) else np.inf)
-        return r / np.sqrt(self.J_ref)
-
-
-def _auto_scale(problem: Problem, theta0: np.ndarray, J0: float, g_h: np.ndarray) -> np.ndarray:
-    """Typical magnitudes: |θ0| where it is not zero; otherwise the step that changes
-    the cost by about its own size according to the Gauss-Newton curvature."""
-    scale = np.abs(theta0).astype(float)
-    zero = scale == 0
-    if zero.any():
-        with np.errstate(divide="ignore", invalid="ignore"):
-            curv = np.sqrt(max(J0, 1e-300) / np.diag(g_h))
-        scale[zero] = np.where(np.isfinite(curv[zero]) & (curv[zero] > 0), curv[zero], 1.0)
-    return scale
+METHODS = ("newton", "newton-cg", "gauss-newton", *BASELINES)
+LOCKSTEP = ("newton", "gauss-newton")  # methods whose starts can share vmapped calls
 
 
 def fit(
@@ -239,7 +44,8 @@ def fit(
     gtol: float = 1e-10,
     ftol: float = 1e-12,
     xtol: float = 1e-12,
-    callback: Callable[[dict], None] | None = None,
+    callback=None,
+    options: FitOptions | None = None,
 ) -> FitResult:
     """Estimate the free initial states and parameters of ``problem``.
 
@@ -256,10 +62,8 @@ def fit(
       "fd-lsq"        scipy least_squares (trf) with a finite-difference Jacobian, as
                       MATLAB's grey-box toolbox does
     theta0 : start (K,), natural units; default ``problem.theta0``.
-    x_scale : "auto" or an array (K,) of typical magnitudes.
-    gtol, ftol, xtol : stopping tolerances on the scaled projected gradient, the
-        relative cost decrease and the scaled step.
-    callback : called with each iteration's history entry (a dict).
+    x_scale, maxiter, gtol, ftol, xtol, callback : see :class:`FitOptions`; or pass
+        ``options=FitOptions(...)`` (which then replaces them all).
     starts : with N > 1, fit from theta0 and N - 1 further starts (within the bounds
         where both are finite, else within ±spread of theta0; Latin hypercube or
         uniform ``sampling``, seeded), in parallel through ``executor`` (any
@@ -275,121 +79,27 @@ def fit(
         starts shared evenly over the local workers (at most 16 per task) for those
         methods, one start per task for the others or with an ``executor``.
     """
-    if not isinstance(problem, Problem):
-        raise TypeError(f"fit needs a tensorid.Problem, got {type(problem).__name__}")
-    if method not in METHODS:
-        raise ValueError(f"unknown method {method!r}; choose one of {list(METHODS)}")
-    if batch is None:
-        batch = 1
-        if starts and starts > 1 and method in ("newton", "gauss-newton") and executor is None:
-            batch = min(16, -(-starts // (workers or os.cpu_count() or 1)))
-    if not isinstance(batch, int | np.integer) or batch < 1:
-        raise ValueError(f"batch must be a positive integer, got {batch!r}")
-    if batch > 1 and method not in ("newton", "gauss-newton"):
-        raise ValueError(
-            f"batch > 1 works with 'newton' and 'gauss-newton', not {method!r}; use batch=1"
-        )
-    start = time.perf_counter()
-    theta0 = problem.theta0 if theta0 is None else problem._check_theta(theta0)
-    lo, hi = problem.lower, problem.upper
-    if ((theta0 < lo) | (theta0 > hi)).any():
-        raise ValueError("theta0 lies outside the bounds")
-    options = dict(x_scale=x_scale, maxiter=maxiter, gtol=gtol, ftol=ftol, xtol=xtol)
-    if starts is not None and starts > 1:
-        return _multistart(
-            problem,
-            method,
-            theta0,
-            starts,
-            spread,
-            sampling,
-            seed,
-            executor,
-            workers,
-            batch,
-            options,
-            callback,
-            start,
-        )
-
-    J0, g0, H0 = problem.cost_grad_gn(theta0)
-    if not np.isfinite(J0):
-        return _failed_start(problem, method, theta0, start)
-    tr = _Tracker(problem, _scale(problem, theta0, J0, H0, x_scale), J0 if J0 > 0 else 1.0)
-    phi0, plo, phi_hi = theta0 / tr.scale, lo / tr.scale, hi / tr.scale
-    history: list[dict] = []
-    natural = _recorder(tr, history, callback)
-    nhev = 0
-
-    try:
-        if method in ("newton", "newton-cg", "gauss-newton"):
-            if method == "newton-cg":
-                fn = tr.derivs_hessp
-            else:
-                fn = tr.derivs(
-                    problem.cost_grad_hess if method == "newton" else problem.cost_grad_gn
-                )
-            r = minimize_trust_region(
-                fn,
-                phi0,
-                plo,
-                phi_hi,
-                maxiter=maxiter,
-                gtol=gtol,
-                ftol=ftol,
-                xtol=xtol,
-                fatol=problem.rounding_floor / tr.J_ref,
-                callback=natural,
-            )
-            phi, nit, success, message, nhev = r.x, r.nit, r.success, r.message, r.nhev
-        else:
-            phi, nit, success, message = _baseline(
-                method, tr, phi0, plo, phi_hi, maxiter, gtol, ftol, xtol, natural
-            )
-    except Exception as e:  # a baseline inside SciPy may give up in its own way
-        message = f"{method} stopped with {type(e).__name__}: {e}"
-        if tr.best_phi is None:
-            return _failed(problem, method, theta0, start, message)
-        phi, nit, success = tr.best_phi, len(history), False
-
-    res = _finish(tr, method, phi, nit, success, message, start, history)
-    res.nhev = nhev
-    return res
-
-
-def _scale(problem, theta0, J0, H0, x_scale) -> np.ndarray:
-    if isinstance(x_scale, str):
-        if x_scale != "auto":
-            raise ValueError("x_scale must be 'auto' or an array of typical magnitudes")
-        return _auto_scale(problem, theta0, J0, H0)
-    scale = np.asarray(x_scale, dtype=float).reshape(-1)
-    if scale.shape != (problem.K,) or not (scale > 0).all():
-        raise ValueError(f"x_scale must hold {problem.K} positive values")
-    return scale
-
-
-def _recorder(tr: _Tracker, history: list, callback):
-    def natural(entry):  # back to the user's cost units
-        entry = dict(entry, cost=entry["cost"] * tr.J_ref, grad_norm=entry["grad_norm"] * tr.J_ref)
-        history.append(entry)
-        if callback is not None:
-            callback(entry)
-
-    return natural
-
-
-def _finish(tr: _Tracker, method, phi, nit, success, message, start, history) -> FitResult:
-    """The result at the end point, or at the best point seen if that is better."""
-    problem = tr.problem
-    if tr.best_phi is not None and tr.best_J < problem.cost(tr.theta(phi)):
-        phi = tr.best_phi
-    res = _result(
-        problem, method, tr.theta(phi), tr.scale, nit, tr.nfev, success, message, start, history
+    started = time.perf_counter()
+    _check_method(problem, method)
+    if options is None:
+        options = FitOptions(x_scale, maxiter, gtol, ftol, xtol, callback=callback)
+    theta0 = _check_start(problem, problem.theta0 if theta0 is None else theta0, "theta0")
+    if starts is not None:
+        _check_count("starts", starts)
+    if starts is None or starts == 1:
+        return _fit_many(problem, method, theta0[None, :], options, started)[0]
+    batch = _check_batch(method, batch, starts, executor, workers)
+    if not (isinstance(spread, int | float) and np.isfinite(spread) and spread >= 0):
+        raise ValueError(f"spread must be a finite number >= 0, got {spread!r}")
+    if sampling not in SAMPLINGS:
+        raise ValueError(f"sampling must be one of {SAMPLINGS}, got {sampling!r}")
+    if workers is not None:
+        _check_count("workers", workers)
+    thetas = draw_starts(
+        theta0, problem.lower, problem.upper, starts, spread=spread, sampling=sampling, seed=seed
     )
-    res.notes = tr.notes()
-    if not success and tr.nonfinite:
-        res.message += f" ({tr.nonfinite} trial points blew up; see warnings)"
-    return res
+    runs = run_starts(problem, fit_task(method, options), thetas, executor, workers, batch)
+    return _best_of(problem, method, runs, options, started)
 
 
 def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResult]:
@@ -397,41 +107,136 @@ def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResul
     points of all unfinished starts are evaluated in one vectorised (jax.vmap) call,
     which costs far less than B separate calls on a CPU. Methods "newton" and
     "gauss-newton"; options as for :func:`fit` (x_scale, maxiter, gtol, ftol,
-    xtol). Each result is what ``fit(problem, method, theta0=row)`` returns; its
-    ``seconds`` is the wall time of the whole batch."""
-    if method not in ("newton", "gauss-newton"):
+    xtol, or options=FitOptions(...)). Each result is what
+    ``fit(problem, method, theta0=row)`` returns; its ``seconds`` is the wall time of
+    the whole batch."""
+    started = time.perf_counter()
+    if method not in LOCKSTEP:
         raise ValueError(
             f"batched starts work with 'newton' and 'gauss-newton', not {method!r}; use batch=1"
         )
-    start = time.perf_counter()
+    opts = options.pop("options", None)
+    if opts is None:
+        allowed = {"x_scale", "maxiter", "gtol", "ftol", "xtol"}
+        if set(options) - allowed:
+            raise TypeError(f"fit_batch got unexpected options {sorted(set(options) - allowed)}")
+        opts = FitOptions(**options)
+    elif options:
+        raise TypeError("pass either options=FitOptions(...) or keyword options, not both")
     thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
-    x_scale = options.pop("x_scale", "auto")
-    tr_options = {k: options.pop(k) for k in ("maxiter", "gtol", "ftol", "xtol") if k in options}
-    if options:
-        raise TypeError(f"fit_batch got unexpected options {sorted(options)}")
-    for th in thetas:
-        th = problem._check_theta(th)
-        if ((th < problem.lower) | (th > problem.upper)).any():
-            raise ValueError("a start lies outside the bounds")
-    gn = method == "gauss-newton"
-    B = len(thetas)
-    J0, _, H0 = problem.cost_grad_hess_batch(thetas, gauss_newton=True)
-    results: list[FitResult | None] = [None] * B
-    runs, pending = {}, {}
+    thetas = np.stack([_check_start(problem, th, "a start") for th in thetas])
+    return _fit_many(problem, method, thetas, opts, started)
+
+
+# -- checks -----------------------------------------------------------------------------
+def _check_method(problem, method) -> None:
+    if not isinstance(problem, Problem):
+        raise TypeError(f"fit needs a tensorid.Problem, got {type(problem).__name__}")
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; choose one of {list(METHODS)}")
+
+
+def _check_start(problem: Problem, theta, what: str) -> np.ndarray:
+    theta = problem.check_theta(theta)
+    if ((theta < problem.lower) | (theta > problem.upper)).any():
+        raise ValueError(f"{what} lies outside the bounds")
+    return theta
+
+
+def _check_count(name: str, n) -> None:
+    if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
+        raise ValueError(f"{name} must be a positive integer, got {n!r}")
+
+
+def _check_batch(method, batch, starts, executor, workers) -> int:
+    if batch is None:
+        if method in LOCKSTEP and executor is None:
+            return min(16, -(-starts // (workers or os.cpu_count() or 1)))
+        return 1
+    _check_count("batch", batch)
+    if batch > 1 and method not in LOCKSTEP:
+        raise ValueError(
+            f"batch > 1 works with 'newton' and 'gauss-newton', not {method!r}; use batch=1"
+        )
+    return int(batch)
+
+
+# -- the driver ---------------------------------------------------------------------------
+def _fit_many(problem, method, thetas, options: FitOptions, started) -> list[FitResult]:
+    """Fits from every row of ``thetas``: lock-step for several starts, otherwise one
+    start evaluated point by point. The set-up (cost, scale, tracker) is shared."""
+    batched = len(thetas) > 1
+    if batched:
+        J0, _, H0 = problem.cost_grad_hess_batch(thetas, gauss_newton=True)
+    else:
+        J, _, H = problem.cost_grad_gn(thetas[0])
+        J0, H0 = np.array([J]), H[None]
+    results: list[FitResult | None] = [None] * len(thetas)
+    trackers = {}
     for i, th in enumerate(thetas):
-        if not np.isfinite(J0[i]):
-            results[i] = _failed_start(problem, method, th, start)
-            continue
-        J_ref = J0[i] if J0[i] > 0 else 1.0
-        tr = _Tracker(problem, _scale(problem, th, J0[i], H0[i], x_scale), J_ref)
+        if np.isfinite(J0[i]):
+            trackers[i] = Tracker.start(problem, th, J0[i], H0[i], options.x_scale)
+        else:
+            results[i] = _failed_start(problem, method, th, started)
+    if batched:
+        results = _lockstep(problem, method, trackers, options, started, results)
+    elif trackers:
+        results = [_single(method, trackers[0], options, started)]
+    for r in results:
+        assert r is not None
+        if batched:
+            r.seconds = time.perf_counter() - started
+    return results  # type: ignore[return-value]
+
+
+def _single(method, tr: Tracker, options: FitOptions, started) -> FitResult:
+    """One start, evaluated point by point: any method."""
+    problem, theta0 = tr.problem, tr.theta0
+    history: list[dict] = []
+    record = tr.recorder(history, options.callback)
+    phi0, (lo, hi) = tr.phi(theta0), tr.box()
+    nhev, detail = 0, ""
+    try:
+        if method in BASELINES:
+            phi, nit, status, detail = run_baseline(method, tr, phi0, options, record)
+        else:
+            if method == "newton-cg":
+                fn = tr.derivs_hessp
+            else:
+                fn = tr.derivs(
+                    problem.cost_grad_hess if method == "newton" else problem.cost_grad_gn
+                )
+            r = minimize_trust_region(
+                fn, phi0, lo, hi, fatol=tr.fatol, callback=record, **options.trust_region()
+            )
+            phi, nit, status, detail, nhev = r.x, r.nit, r.status, r.detail, r.nhev
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as e:
+        # SciPy's baselines give up in their own ways; an eigen-solver may fail to
+        # converge on a Hessian at the edge of overflow
+        if tr.best_phi is None:
+            return _failed(problem, method, theta0, started, f"{type(e).__name__}: {e}")
+        phi, nit, status = tr.best_phi, len(history), Status.BASELINE_STOPPED
+        detail = f"{method} stopped with {type(e).__name__}: {e}"
+    res = _finish(tr, method, phi, nit, status, detail, started, history)
+    res.nhev = nhev
+    return res
+
+
+def _lockstep(problem, method, trackers: dict, options, started, results) -> list:
+    """The trust-region runs of several starts, their points evaluated together."""
+    gn = method == "gauss-newton"
+    B = len(results)
+    runs, pending = {}, {}
+    for i, tr in trackers.items():
         history: list[dict] = []
+        lo, hi = tr.box()
         steps = trust_region_steps(
-            th / tr.scale,
-            problem.lower / tr.scale,
-            problem.upper / tr.scale,
-            fatol=problem.rounding_floor / J_ref,
-            callback=_recorder(tr, history, None),
-            **tr_options,
+            tr.phi(tr.theta0),
+            lo,
+            hi,
+            fatol=tr.fatol,
+            callback=tr.recorder(history, None),
+            **options.trust_region(),
         )
         runs[i] = (tr, steps, history)
         pending[i] = next(steps)
@@ -447,149 +252,104 @@ def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResul
             except StopIteration as done:
                 r = done.value
                 del pending[i]
-                results[i] = _finish(tr, method, r.x, r.nit, r.success, r.message, start, history)
-    for r in results:
-        assert r is not None
-        r.seconds = time.perf_counter() - start
-    return results  # type: ignore[return-value]
+                results[i] = _finish(tr, method, r.x, r.nit, r.status, r.detail, started, history)
+    return results
 
 
-def _multistart(
-    problem,
-    method,
-    theta0,
-    n,
-    spread,
-    sampling,
-    seed,
-    executor,
-    workers,
-    batch,
-    options,
-    callback,
-    start,
-):
-    from .multistart import draw_starts, run_starts
-
-    thetas = draw_starts(
-        theta0, problem.lower, problem.upper, n, spread=spread, sampling=sampling, seed=seed
+def _finish(tr: Tracker, method, phi, nit, status, detail, started, history) -> FitResult:
+    """The result at the end point, or at the best point seen if that is better."""
+    problem = tr.problem
+    if tr.best_phi is not None and tr.best_J < problem.cost(tr.theta(phi)):
+        phi = tr.best_phi
+    message = describe(status, detail)
+    if not status.success and tr.nonfinite:
+        message += f" ({tr.nonfinite} trial points blew up; see warnings)"
+    res = FitResult.at(
+        problem,
+        method,
+        tr.theta(phi),
+        tr.scale,
+        status,
+        message=message,
+        nit=nit,
+        nfev=tr.nfev,
+        started=started,
+        history=history,
     )
-    runs = run_starts(problem, method, thetas, options, executor, workers, batch)
+    res.notes = tr.notes()
+    return res
+
+
+def _failed_start(problem, method, theta0, started) -> FitResult:
+    """The result for a start where the simulation already blows up, saying where."""
+    why = problem.diagnose(theta0) or "the simulation is not finite at the start"
+    return _failed(problem, method, theta0, started, why + " Choose another initial guess.")
+
+
+def _failed(problem, method, theta0, started, message, status=Status.NONFINITE_START):
+    return FitResult.at(
+        problem,
+        method,
+        theta0,
+        np.ones(problem.K),
+        status,
+        message=message,
+        nfev=1,
+        started=started,
+        evaluate=False,
+    )
+
+
+# -- many starts --------------------------------------------------------------------------
+def fit_task(method: str, options: FitOptions):
+    """The task that multistart.run_starts sends to workers: fit each start of a
+    chunk with ``method`` (the caller's callback stays behind)."""
+    return functools.partial(_fit_chunk, method=method, options=options.without_callback())
+
+
+def _fit_chunk(problem, thetas, *, method: str, options: FitOptions) -> list[dict]:
+    """Worker side: fit from each row of ``thetas`` (in lock-step when several)."""
+    thetas = np.asarray(thetas, dtype=float)
+    results = _fit_many(problem, method, thetas, options, time.perf_counter())
+    return [
+        {
+            "theta0": list(map(float, th)),
+            "theta": res.theta.tolist(),
+            "cost": float(res.cost),
+            "success": res.success,
+            "status": str(res.status),
+            "nit": res.nit,
+            "nfev": res.nfev,
+            "seconds": res.seconds,
+            "message": res.message,
+            "history": res.history,
+        }
+        for th, res in zip(thetas, results, strict=True)
+    ]
+
+
+def _best_of(problem, method, runs: list[dict], options: FitOptions, started) -> FitResult:
+    """Rank the starts, refine the best here (where the caller's callback can watch
+    it), and report the best start's own run beside the totals of all of them."""
     for i, r in enumerate(runs):
         r["start"] = i
     ranked = sorted(runs, key=lambda r: (not np.isfinite(r["cost"]), r["cost"]))
     best = ranked[0]
+    histories = {r["start"]: r.pop("history") for r in runs}
+    nit_all, nfev_all = sum(r["nit"] for r in runs), sum(r["nfev"] for r in runs)
     if not np.isfinite(best["cost"]):
-        res = _failed(problem, method, theta0, start, f"none of the {n} starts gave a finite cost")
-    else:  # refine the winner here, where the caller's callback can watch it
-        res = fit(problem, method, theta0=np.asarray(best["theta"]), callback=callback, **options)
-    res.starts = ranked
-    res.nfev += sum(r["nfev"] for r in runs)
-    res.seconds = time.perf_counter() - start
-    return res
-
-
-def _baseline(method, tr: _Tracker, phi0, lo, hi, maxiter, gtol, ftol, xtol, natural):
-    bounded = bool(np.isfinite(lo).any() or np.isfinite(hi).any())
-    it = [0]
-
-    # SciPy passes its OptimizeResult only to a parameter named intermediate_result
-    def cb(intermediate_result):
-        it[0] += 1
-        r = intermediate_result
-        J = r.fun if method == "fd-bfgs" else 2.0 * r.cost  # least_squares: ½ Σ r²
-        natural(
-            {
-                "iteration": it[0],
-                "cost": float(J),
-                "grad_norm": np.nan,
-                "radius": np.nan,
-                "step_norm": np.nan,
-                "rho": np.nan,
-                "accepted": True,
-                "nfev": tr.nfev,
-            }
+        msg = describe(
+            Status.ALL_STARTS_FAILED, f"none of the {len(runs)} starts gave a finite cost"
         )
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        if method == "fd-bfgs":
-            res = scipy.optimize.minimize(
-                tr.cost,
-                phi0,
-                method="L-BFGS-B" if bounded else "BFGS",
-                jac="2-point",
-                bounds=list(zip(lo, hi, strict=True)) if bounded else None,
-                options={"maxiter": maxiter, "gtol": gtol},
-                callback=cb,
-            )
-            return res.x, int(res.nit), bool(res.success), str(res.message)
-        res = scipy.optimize.least_squares(
-            tr.residuals,
-            phi0,
-            jac="2-point",
-            bounds=(lo, hi),
-            method="trf",
-            ftol=max(ftol, 1e-15),
-            xtol=max(xtol, 1e-15),
-            gtol=max(gtol, 1e-15),
-            max_nfev=maxiter * (len(phi0) + 1),
-            callback=cb,
-        )
-        return res.x, int(res.njev or res.nfev), bool(res.success), str(res.message)
-
-
-def _result(
-    problem,
-    method,
-    theta,
-    scale,
-    nit,
-    nfev,
-    success,
-    message,
-    start,
-    history,
-    evaluate: bool = True,
-):
-    """The FitResult at theta, with the exact gradient and Hessian there. A point whose
-    simulation is not finite gets cost inf and zero derivatives, never NaN."""
-    K = theta.size
-    J, g, H = problem.cost_grad_hess(theta) if evaluate else (np.inf, None, None)
-    if np.isfinite(J) and g is not None and H is not None:
-        phi = theta / scale
-        pg = np.clip(phi - g * scale, problem.lower / scale, problem.upper / scale) - phi
-        grad_norm = float(np.linalg.norm(pg, np.inf))
+        res = _failed(problem, method, problem.theta0, started, msg, Status.ALL_STARTS_FAILED)
+        res.nit_total, res.nfev_total = nit_all, nfev_all
     else:
-        J, g, H, grad_norm = np.inf, np.zeros(K), np.zeros((K, K)), np.inf
-    p, x0 = problem.unpack(theta)
-    return FitResult(
-        problem=problem,
-        method=method,
-        theta=theta,
-        params=dict(zip(problem.model.params, map(float, p), strict=True)),
-        x0=x0[0] if len(problem.experiments) == 1 else x0,
-        cost=float(J),
-        jac=g,
-        hess=H,
-        grad_norm=grad_norm,
-        nit=int(nit),
-        nfev=int(nfev),
-        success=bool(success),
-        message=message,
-        seconds=time.perf_counter() - start,
-        scale=scale,
-        history=history,
-    )
-
-
-def _failed_start(problem, method, theta0, start):
-    """The result for a start where the simulation already blows up, saying where."""
-    why = problem.diagnose(theta0) or "the simulation is not finite at the start"
-    return _failed(problem, method, theta0, start, why + " Choose another initial guess.")
-
-
-def _failed(problem, method, theta0, start, message):
-    return _result(
-        problem, method, theta0, np.ones(problem.K), 0, 1, False, message, start, [], evaluate=False
-    )
+        res = _fit_many(problem, method, np.asarray(best["theta"])[None, :], options, started)[0]
+        res.nit_total, res.nfev_total = nit_all + res.nit, nfev_all + res.nfev
+        more = [dict(h, iteration=h["iteration"] + best["nit"]) for h in res.history[1:]]
+        res.history = histories[best["start"]] + more
+        res.nit += best["nit"]
+        res.nfev += best["nfev"]
+    res.starts = ranked
+    res.seconds = time.perf_counter() - started
+    return res

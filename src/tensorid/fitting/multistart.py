@@ -2,15 +2,18 @@
 concurrent.futures executor (a local process pool by default, a Dask distributed
 cluster via ``client.get_executor()``), ranked by cost, the best refined.
 
-Starts are sent as cloudpickle bytes, so models written as lambdas, in scripts,
+Problems are sent as cloudpickle bytes, so models written as lambdas, in scripts,
 notebooks or model files reach the workers; each worker compiles a problem once
-and reuses it for every start it receives.
+and reuses it for every start it receives. What a worker does with its starts is a
+task passed in by the caller (fit's, in methods.py), so this module knows nothing
+of the fitting methods.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+from collections.abc import Callable
 from concurrent.futures import Executor, ProcessPoolExecutor
 from multiprocessing import get_context
 from typing import Any
@@ -70,7 +73,7 @@ def process_pool(workers: int) -> ProcessPoolExecutor:
 
 def _worker_init(cache: str | None) -> None:
     if cache:
-        from ._config import enable_compilation_cache
+        from .._config import enable_compilation_cache
 
         enable_compilation_cache(cache)
 
@@ -78,59 +81,41 @@ def _worker_init(cache: str | None) -> None:
 _WORKER_PROBLEMS: dict[str, Any] = {}
 
 
-def _fit_payload(payload: tuple) -> list[dict]:
-    """Worker side: one start, or several fitted in lock-step (fit_batch)."""
+def _run_payload(payload: tuple) -> list[dict]:
+    """Worker side: ``task(problem, thetas)`` for one chunk of starts."""
     import cloudpickle
 
-    from .optimize import fit, fit_batch
-
-    blob, method, thetas, options = payload
+    blob, task, thetas = payload
     key = hashlib.sha1(blob).hexdigest()
     if key not in _WORKER_PROBLEMS:
         _WORKER_PROBLEMS.clear()
         _WORKER_PROBLEMS[key] = cloudpickle.loads(blob)
-    problem = _WORKER_PROBLEMS[key]
-    if len(thetas) == 1:
-        results = [fit(problem, method=method, theta0=np.asarray(thetas[0]), **options)]
-    else:
-        results = fit_batch(problem, method, np.asarray(thetas), **options)
-    return [
-        {
-            "theta0": list(map(float, theta0)),
-            "theta": res.theta.tolist(),
-            "cost": float(res.cost),
-            "success": res.success,
-            "nit": res.nit,
-            "nfev": res.nfev,
-            "seconds": res.seconds,
-            "message": res.message,
-        }
-        for theta0, res in zip(thetas, results, strict=True)
-    ]
+    return task(_WORKER_PROBLEMS[key], thetas)
 
 
 def run_starts(
     problem,
-    method: str,
+    task: Callable[[Any, list], list[dict]],
     thetas: np.ndarray,
-    options: dict,
     executor: Executor | None = None,
     workers: int | None = None,
     batch: int = 1,
 ) -> list[dict]:
-    """Fit from each row of ``thetas``; results in the order of the starts. With
-    ``batch`` > 1 each task fits up to that many starts in lock-step (fit_batch)."""
+    """``task(problem, chunk)`` for chunks of up to ``batch`` rows of ``thetas``, on
+    ``executor``, a local process pool of ``workers``, or here for one worker; the
+    task returns one dict per start. Results come back in the order of the starts.
+    ``task`` must be picklable (a module-level function or a partial of one)."""
     import cloudpickle
 
     blob = cloudpickle.dumps(problem)
     chunks = [thetas[i : i + batch].tolist() for i in range(0, len(thetas), batch)]
-    payloads = [(blob, method, chunk, options) for chunk in chunks]
+    payloads = [(blob, task, chunk) for chunk in chunks]
     workers = workers or os.cpu_count() or 1
     if executor is not None:
-        done = list(executor.map(_fit_payload, payloads))
+        done = list(executor.map(_run_payload, payloads))
     elif workers == 1 or len(payloads) == 1:
-        done = [_fit_payload(p) for p in payloads]
+        done = [_run_payload(p) for p in payloads]
     else:
         with process_pool(min(workers, len(payloads))) as pool:
-            done = list(pool.map(_fit_payload, payloads))
+            done = list(pool.map(_run_payload, payloads))
     return [r for rs in done for r in rs]

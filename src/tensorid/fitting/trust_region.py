@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..engine.status import Status
+
 
 def solve_subproblem(g: np.ndarray, H: np.ndarray, radius: float) -> tuple[np.ndarray, bool]:
     """Global minimiser of g·s + ½ sᵀHs over ||s|| <= radius; returns (s, on_boundary)."""
@@ -121,16 +123,27 @@ def steihaug_cg(
 
 @dataclass
 class TRResult:
+    """How a trust-region run ended; ``success`` and ``message`` derive from ``status``
+    (``detail`` is appended to the message, e.g. the iteration limit)."""
+
     x: np.ndarray
     fun: float
     jac: np.ndarray
     hess: np.ndarray | None  # None when only Hessian-vector products were used
     nit: int
     nfev: int
-    success: bool
-    message: str
+    status: Status
     history: list[dict] = field(default_factory=list)
     nhev: int = 0  # Hessian-vector products
+    detail: str = ""
+
+    @property
+    def success(self) -> bool:
+        return self.status.success
+
+    @property
+    def message(self) -> str:
+        return f"{self.status.message} ({self.detail})" if self.detail else self.status.message
 
 
 def _projected_gradient(x, g, lo, hi):
@@ -181,6 +194,50 @@ def _newton_step(g, H, free, radius, nhev):
     s[free], _ = solve_subproblem(g[free], Hf, radius)
     Hs[free] = Hf @ s[free]
     return s, Hs, float(g[free] @ Hf @ g[free])
+
+
+def _candidate_step(x, g, H, lo, hi, free, radius, nhev) -> tuple[np.ndarray, float]:
+    """The best of three feasible steps by the model's prediction: the Newton (or CG)
+    step projected onto the box, truncated at the box, and the Cauchy step. Returns
+    (step, predicted decrease)."""
+    s, Hs, curv = _newton_step(g, H, free, radius, nhev)
+    d_proj = np.clip(x + s, lo, hi) - x
+    beta = min(1.0, _room(x, s, lo, hi))
+    d_trunc = beta * s
+    d_cauchy, m_cauchy = _cauchy_step(x, g, curv, lo, hi, free, radius)
+    m_s = _model(g, s, Hs)
+    if np.array_equal(d_proj, s):
+        m_proj = m_s
+    else:
+        nhev[0] += callable(H)
+        m_proj = _model(g, d_proj, H(d_proj) if callable(H) else H @ d_proj)
+    m_trunc = float(beta * (g @ s) + 0.5 * beta**2 * (s @ Hs))
+    values = [m_proj, m_trunc, m_cauchy]
+    best = int(np.argmin(values))
+    return (d_proj, d_trunc, d_cauchy)[best], -values[best]
+
+
+def _next_radius(radius: float, rho: float, step: float, max_radius: float) -> float:
+    if rho < 0.25:
+        return 0.25 * step
+    if rho > 0.75 and step >= 0.8 * radius:
+        return min(2.0 * radius, max_radius)
+    return radius
+
+
+def _held(x, g, lo, hi) -> np.ndarray:
+    """Variables on a bound with the gradient pushing outward: held this iteration."""
+    tol_b = 1e-12 * (1.0 + np.abs(x))
+    return ((x <= lo + tol_b) & (g > 0)) | ((x >= hi - tol_b) & (g < 0))
+
+
+def _collapsed(J: float, pred: float, pg_norm: float, gtol: float) -> Status:
+    """The radius fell below xtol with every step rejected: a genuine rounding floor
+    (rejected steps of length r mean |g| r is below the cost's rounding noise, so the
+    gradient must be small too), or a collapse."""
+    tiny = max(J, np.finfo(float).tiny)
+    ok = pred <= 1e-8 * tiny and pg_norm <= max(np.sqrt(gtol), 1e-3 * tiny)
+    return Status.MACHINE_PRECISION if ok else Status.RADIUS_COLLAPSED
 
 
 def minimize_trust_region(
@@ -245,63 +302,22 @@ def trust_region_steps(
             callback(entry)
 
     if not np.isfinite(J):
-        return TRResult(
-            x,
-            np.inf,
-            g,
-            None if callable(H) else H,
-            0,
-            nfev,
-            False,
-            "the cost is not finite at the start: the simulation blows up there; "
-            "choose another initial guess or tighter bounds",
-            history,
-        )
+        return TRResult(x, np.inf, g, None if callable(H) else H, 0, nfev, Status.NONFINITE_START)
     record(0, 0.0, np.nan, True)
-    success, message, it = False, f"iteration limit reached (maxiter={maxiter})", 0
+    status, it = Status.MAXITER, 0
     for it in range(1, maxiter + 1):
-        pg = _projected_gradient(x, g, lo, hi)
-        if np.linalg.norm(pg, np.inf) <= gtol:
-            success, message = True, "converged: projected gradient below gtol"
+        pg_norm = float(np.linalg.norm(_projected_gradient(x, g, lo, hi), np.inf))
+        if pg_norm <= gtol or J <= fatol:
+            status = Status.GTOL if pg_norm <= gtol else Status.ROUNDING_FLOOR
             it -= 1
             break
-        if J <= fatol:
-            success, message = True, "converged: the cost is at the rounding floor of the data"
-            it -= 1
-            break
-        tol_b = 1e-12 * (1.0 + np.abs(x))
-        held = ((x <= lo + tol_b) & (g > 0)) | ((x >= hi - tol_b) & (g < 0))
-        free = ~held
-        s, Hs, curv = _newton_step(g, H, free, radius, nhev)
-        # two feasible candidates: projection onto the box, and truncation along s
-        d_proj = np.clip(x + s, lo, hi) - x
-        beta = min(1.0, _room(x, s, lo, hi))
-        d_trunc = beta * s
-        d_cauchy, m_cauchy = _cauchy_step(x, g, curv, lo, hi, free, radius)
-        m_s = _model(g, s, Hs)
-        if np.array_equal(d_proj, s):
-            m_proj = m_s
-        else:
-            nhev[0] += callable(H)
-            m_proj = _model(g, d_proj, H(d_proj) if callable(H) else H @ d_proj)
-        m_trunc = float(beta * (g @ s) + 0.5 * beta**2 * (s @ Hs))
-
-        values = [m_proj, m_trunc, m_cauchy]
-        best = int(np.argmin(values))
-        d = (d_proj, d_trunc, d_cauchy)[best]
-        pred = -values[best]
+        d, pred = _candidate_step(x, g, H, lo, hi, ~_held(x, g, lo, hi), radius, nhev)
         step = float(np.linalg.norm(d))
         xscale = 1.0 + np.linalg.norm(x, np.inf)
         if not pred > 0 or step == 0.0:
             # no predicted decrease within the bounds: stationary up to rounding
-            ok = np.linalg.norm(pg, np.inf) <= np.sqrt(gtol) or step <= xtol * xscale
-            success = bool(ok)
-            message = (
-                "converged: no further decrease predicted"
-                if ok
-                else "stopped: the model predicts no decrease, although the gradient is "
-                "not small (check the problem's scaling)"
-            )
+            ok = pg_norm <= np.sqrt(gtol) or step <= xtol * xscale
+            status = Status.NO_FURTHER_DECREASE if ok else Status.NO_PREDICTED_DECREASE
             it -= 1
             break
         x_new = np.clip(x + d, lo, hi)
@@ -309,35 +325,21 @@ def trust_region_steps(
         nfev += 1
         actual = J - J_new if np.isfinite(J_new) else -np.inf
         rho = actual / pred
-        if rho < 0.25:
-            radius = 0.25 * step
-        elif rho > 0.75 and step >= 0.8 * radius:
-            radius = min(2.0 * radius, max_radius)
+        radius = _next_radius(radius, rho, step, max_radius)
         accepted = rho > eta
         J_old = J
         if accepted:
             x, J, g, H = x_new, J_new, g_new, H_new
         record(it, step, rho, accepted)
         if accepted and actual <= ftol * J_old and pred <= ftol * J_old:
-            success, message = True, "converged: relative cost decrease below ftol"
+            status = Status.FTOL
             break
         if accepted and np.linalg.norm(d, np.inf) <= xtol * xscale:
-            success, message = True, "converged: step below xtol"
+            status = Status.XTOL
             break
         if not accepted and radius <= xtol * xscale:
-            # a genuine rounding floor: rejected steps of length r mean |g| r is
-            # below the cost's rounding noise, so the gradient must be small too
-            tiny = max(J, np.finfo(float).tiny)
-            ok = pred <= 1e-8 * tiny and np.linalg.norm(pg, np.inf) <= max(
-                np.sqrt(gtol), 1e-3 * tiny
-            )
-            success = bool(ok)
-            message = (
-                "converged: no further decrease possible at machine precision"
-                if ok
-                else "stopped: the trust region collapsed without a decrease (the "
-                "cost may be noisy or the simulation fails near this point)"
-            )
+            status = _collapsed(J, pred, pg_norm, gtol)
             break
     hess = None if callable(H) else H
-    return TRResult(x, float(J), g, hess, it, nfev, success, message, history, nhev[0])
+    detail = f"maxiter={maxiter}" if status is Status.MAXITER else ""
+    return TRResult(x, float(J), g, hess, it, nfev, status, history, nhev[0], detail)

@@ -10,9 +10,9 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from .. import datasets
+from ..engine.model import Model
+from ..engine.problem import Problem
 from ..functions import safe_sqrt
-from ..model import Model
-from ..problem import Problem
 
 # the paper's initial guesses and reported estimates
 SILVERBOX_GUESS = {"m": 5.1025e-6, "d": 2.15e-4, "a": 0.968, "b": 3.976}

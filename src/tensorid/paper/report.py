@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .report import md_table
+from ..app.reports import md_table
 
 
 def _f(v, d=4):

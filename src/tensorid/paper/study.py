@@ -18,15 +18,19 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__, benchmarks, datasets
-from .data import Experiment
-from .metrics import gof
-from .multistart import process_pool
-from .optimize import fit
-from .paper_report import render
-from .problem import Problem
-from .report import bar_plot, compare_plot, write_json
-from .simulate import simulate
+from .. import datasets
+from .._config import __version__
+from ..app.progress import study_progress
+from ..app.reports import bar_plot, write_json
+from ..engine.data import Experiment
+from ..engine.metrics import gof
+from ..engine.problem import Problem
+from ..engine.simulate import simulate
+from ..fitting.figures import compare_plot
+from ..fitting.methods import fit
+from ..fitting.multistart import process_pool
+from . import problems as benchmarks
+from .report import render
 
 # the paper's comparison: exact Newton and Gauss-Newton against the finite-difference
 # baselines (newton-cg, for large K, is benchmarked in benchmarks/bench_scaling.py)
@@ -378,8 +382,6 @@ def run(
     levels = QUICK_LEVELS if quick else ACCURACY_LEVELS
     workers = workers or os.cpu_count() or 1
     t_start = time.perf_counter()
-    from .progress import study_progress
-
     with study_progress(enabled=progress) as prog:
         prog.step("Silverbox: paper's model, paper's estimates, offset variant")
         silverbox, figs = silverbox_study(out)

@@ -1,0 +1,149 @@
+"""How a model is discretised on a record's sample grid (``Discretisation``, checked
+once and shared by Problem, simulate, the sweeps and the CLI), and the one routine
+that marches any state (a pytree) across the grid (``march``).
+
+Between samples t_h and t_{h+1} the input u(t) is known only at the samples, so a
+stage at fraction s of the interval sees u_h + s (u_{h+1} - u_h) ("linear") or u_h
+("zoh").
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import _config  # noqa: F401
+from .integrators import AdaptiveRungeKutta, Scheme, get_scheme
+from .status import Status
+
+INTERPOLATIONS = ("linear", "zoh")
+
+
+@dataclass(frozen=True)
+class Discretisation:
+    """The integration scheme, the steps per sample interval and the input
+    interpolation. Build it with :meth:`of`, which checks every value once.
+
+    Arguments:
+        scheme: a scheme object (see ``tensorid.SCHEMES``); an adaptive one carries
+            its rtol/atol.
+        substeps: steps per sample interval (adaptive schemes: the first trial step
+            is one interval / substeps).
+        interpolation: "linear" or "zoh".
+    """
+
+    scheme: Scheme
+    substeps: int = 4
+    interpolation: str = "linear"
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.substeps, int | np.integer) or isinstance(self.substeps, bool):
+            raise ValueError(f"substeps must be a positive integer, got {self.substeps!r}")
+        if self.substeps < 1:
+            raise ValueError(f"substeps must be a positive integer, got {self.substeps!r}")
+        if self.interpolation not in INTERPOLATIONS:
+            raise ValueError(
+                f"interpolation must be one of {INTERPOLATIONS}, got {self.interpolation!r}"
+            )
+        object.__setattr__(self, "substeps", int(self.substeps))
+
+    @classmethod
+    def of(
+        cls,
+        scheme: str | Scheme = "rk4",
+        substeps: int = 4,
+        interpolation: str = "linear",
+        rtol: float | None = None,
+        atol: float | None = None,
+    ) -> Discretisation:
+        """The discretisation from user-level settings (scheme by name, tolerances)."""
+        return cls(get_scheme(scheme, rtol, atol), substeps, interpolation)
+
+    def as_dict(self) -> dict:
+        """What a reader needs to reproduce a cost: scheme, substeps, interpolation and,
+        for an adaptive scheme, rtol and atol (fit.json's "integration")."""
+        d: dict = {
+            "scheme": self.scheme.name,
+            "substeps": self.substeps,
+            "interpolation": self.interpolation,
+        }
+        if isinstance(self.scheme, AdaptiveRungeKutta):
+            d["rtol"], d["atol"] = self.scheme.rtol, self.scheme.atol
+        return d
+
+
+def input_at(u0: jax.Array, u1: jax.Array, s, interpolation: str) -> jax.Array:
+    if interpolation == "zoh":
+        return u0
+    return u0 + s * (u1 - u0)
+
+
+def _x(y):
+    return y[0] if isinstance(y, tuple) else y
+
+
+def march(
+    field: Callable,
+    observe: Callable,
+    y0,
+    acc0,
+    t,
+    u,
+    obs,
+    *,
+    discretisation: Discretisation,
+    state_field: Callable | None = None,
+):
+    """Integrate ``y' = field(y, u)`` over the sample grid ``t`` and fold every sample
+    into an accumulator.
+
+    Arguments:
+        observe: ``observe(acc, y, obs_h) -> (acc, out_h)``, called at t_0 and after
+            each interval; ``obs`` is a pytree whose leaves have a leading sample axis.
+        state_field: ``state_field(x, u)``, the model's own F, needed by implicit
+            schemes (for F_x) when ``y`` is augmented.
+
+    Returns:
+        (final accumulator, stacked ``out_h`` (P leading), failure) where failure is
+        (code, sample): the integrator's ``Status.code`` of the first interval that
+        failed (0: none) and the index of the sample it should have reached.
+    """
+    scheme, substeps = discretisation.scheme, discretisation.substeps
+    interpolation = discretisation.interpolation
+    state_field = field if state_field is None else state_field
+    first = jax.tree_util.tree_map(lambda a: a[0], obs)
+    rest = jax.tree_util.tree_map(lambda a: a[1:], obs)
+    acc, out0 = observe(acc0, y0, first)
+
+    def interval(carry, data):
+        y, h_trial, acc, fail, at = carry
+        k, dt, ua, ub, obs_h = data
+
+        def vf(yy, s):
+            return field(yy, input_at(ua, ub, s, interpolation))
+
+        def fs(x, s):
+            return state_field(x, input_at(ua, ub, s, interpolation))
+
+        y, h_trial, code = scheme.interval(vf, fs, y, dt, h_trial, substeps)
+        blown = ~jnp.all(jnp.isfinite(_x(y)))
+        code = jnp.where((code == 0) & blown, Status.NONFINITE_STATE.code, code)
+        new = (fail == 0) & (code != 0)
+        fail, at = jnp.where(new, code, fail), jnp.where(new, k, at)
+        acc, out = observe(acc, y, obs_h)
+        return (y, h_trial, acc, fail, at), out
+
+    P = t.shape[0]
+    h_first = (t[1] - t[0]) / substeps if P > 1 else jnp.ones(())
+    zero = jnp.int32(0)
+    (_, _, acc, fail, at), outs = jax.lax.scan(
+        interval,
+        (y0, h_first, acc, zero, zero),
+        (jnp.arange(1, P, dtype=jnp.int32), jnp.diff(t), u[:-1], u[1:], rest),
+    )
+    outs = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), out0, outs)
+    return acc, outs, (fail, at)

@@ -1,0 +1,19 @@
+"""Fitting: the trust-region driver and its methods, results with their status,
+scaling, uncertainty, multi-start and validation on new records."""
+
+from .methods import LOCKSTEP, METHODS, fit, fit_batch
+from .options import FitOptions
+from .results import FitResult
+from .uncertainty import Uncertainty
+from .validation import Score
+
+__all__ = [
+    "LOCKSTEP",
+    "METHODS",
+    "FitOptions",
+    "FitResult",
+    "Score",
+    "Uncertainty",
+    "fit",
+    "fit_batch",
+]

@@ -1,0 +1,111 @@
+"""Figures of a fit: measured against simulated outputs with residuals, and the
+convergence history. They are built in memory; writing them is the caller's choice."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+
+def pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")  # files only: works on machines with no display
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save_figure(fig, path: Path) -> Path:
+    """Write ``fig`` as PNG to ``path`` and release it."""
+    fig.savefig(path, dpi=120)
+    pyplot().close(fig)
+    return path
+
+
+def compare_figure(
+    t: np.ndarray,
+    y_meas: np.ndarray,
+    y_sim: np.ndarray,
+    *,
+    title: str,
+    ylabel: str = "y",
+    xlabel: str = "t [s]",
+    labels: tuple[str, str] = ("measured", "model"),
+):
+    """Measured against simulated output, with the residual below (one output)."""
+    plt = pyplot()
+    fig, (ax, axr) = plt.subplots(
+        2, 1, figsize=(9, 5.5), sharex=True, gridspec_kw={"height_ratios": [3, 1]}
+    )
+    ax.plot(t, y_meas, color="0.2", lw=1.0, label=labels[0])
+    ax.plot(t, y_sim, color="tab:red", lw=0.9, ls="--", label=labels[1])
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10)
+    ax.legend(loc="upper right", fontsize=8)
+    ax.grid(alpha=0.3)
+    axr.plot(t, y_meas - y_sim, color="tab:blue", lw=0.8)
+    axr.set_ylabel("residual")
+    axr.set_xlabel(xlabel)
+    axr.grid(alpha=0.3)
+    fig.tight_layout()
+    return fig
+
+
+def compare_plot(path: Path, *args, **kwargs) -> Path:
+    """:func:`compare_figure`, written to ``path``."""
+    return save_figure(compare_figure(*args, **kwargs), path)
+
+
+def convergence_figure(history: list[dict], title: str):
+    """Cost and gradient norm per iteration."""
+    plt = pyplot()
+    it = [h["iteration"] for h in history]
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(9, 3.5))
+    a1.semilogy(it, [h["cost"] for h in history], "o-", ms=3)
+    a1.set_xlabel("iteration")
+    a1.set_ylabel("cost J")
+    grads = [h["grad_norm"] for h in history]
+    a2.semilogy(it, [g if np.isfinite(g) and g > 0 else np.nan for g in grads], "o-", ms=3)
+    a2.set_xlabel("iteration")
+    a2.set_ylabel("gradient norm (scaled)")
+    for a in (a1, a2):
+        a.grid(alpha=0.3)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def _file_name(s: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in s)
+
+
+def fit_figures(res, out=None, validation=None) -> list:
+    """The figures of a fit: per record and output, measured against simulated (the
+    training records, then the ``validation`` scores), and the convergence history
+    of the run that produced the estimate. Returns the matplotlib figures, or, with
+    a folder ``out``, writes them there as PNG and returns their paths."""
+    from .validation import training_scores
+
+    named = []
+    for s in training_scores(res) + list(validation or []):
+        e = s.experiment
+        for j, name in enumerate(res.problem.model.outputs):
+            stem = f"{s.kind[:5] if s.kind == 'training' else s.kind}_{e.name or 'data'}_{name}"
+            title = f"{s.label}, output {name}: GOF {s.gof[name]:.4f}"
+            if s.start:
+                title += f" (scored after the first {s.start} samples)"
+            fig = compare_figure(
+                e.t, e.measured[:, j], s.simulation.y[:, j], ylabel=name, title=title
+            )
+            named.append((_file_name(stem), fig))
+    if len(res.history) > 1:
+        what = f"best of {len(res.starts)} starts" if res.starts else res.method
+        title = f"{what}: cost and gradient norm per iteration"
+        named.append(("convergence", convergence_figure(res.history, title)))
+    if out is None:
+        return [fig for _, fig in named]
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    return [save_figure(fig, out / f"{stem}.png") for stem, fig in named]

@@ -1,0 +1,206 @@
+"""FitResult: what a fit found and how it ended, in scipy.optimize.OptimizeResult's
+vocabulary, with a ``Status`` for every ending.
+
+Results know nothing of reports or files: the application layer reads them.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..engine.metrics import gof
+from ..engine.problem import Problem
+from ..engine.status import Status
+from .uncertainty import Uncertainty, uncertainty
+
+
+def _squeeze(a: np.ndarray) -> np.ndarray:
+    return a[:, 0] if a.ndim == 2 and a.shape[1] == 1 else a
+
+
+def describe(status: Status, detail: str = "") -> str:
+    """The message of an ending: the status's own words, with a detail appended."""
+    return f"{status.message} ({detail})" if detail else status.message
+
+
+@dataclass
+class FitResult:
+    """Outcome of :func:`fit`, with scipy.optimize.OptimizeResult's names where they fit.
+
+    theta : (K,) estimate in natural units, θ layout of ``problem`` (alias ``x``).
+    params : {name: value} for every parameter (fixed ones included).
+    x0 : (N,) initial state, or (E, N) for several experiments.
+    cost : J at theta (alias ``fun``); jac (K,) and hess (K, K) are the exact
+        gradient and Hessian there, whatever the method.
+    grad_norm : ∞-norm of the projected gradient with respect to θ / scale, in cost
+        units (components pushing against an active bound are dropped).
+    status : how the fit ended (a :class:`tensorid.Status`); ``success`` and the
+        start of ``message`` derive from it.
+    nit, nfev : iterations and cost evaluations (finite-difference ones included) of
+        the fit that produced theta; with several starts, of the best start (and its
+        refinement), while ``nit_total`` and ``nfev_total`` count every start.
+    nhev : Hessian-vector products (method "newton-cg").
+    seconds : wall time of the fit, compilation included.
+    history : one dict per iteration: iteration, cost, grad_norm, radius, ...
+    notes : what happened on the way, e.g. trial points where the simulation blew up.
+    """
+
+    problem: Problem
+    method: str
+    theta: np.ndarray
+    params: dict[str, float]
+    x0: np.ndarray
+    cost: float
+    jac: np.ndarray
+    hess: np.ndarray
+    grad_norm: float
+    nit: int
+    nfev: int
+    status: Status
+    message: str
+    seconds: float
+    scale: np.ndarray
+    history: list[dict] = field(default_factory=list)
+    starts: list[dict] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    nhev: int = 0
+    nit_total: int | None = None
+    nfev_total: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.nit_total is None:
+            self.nit_total = self.nit
+        if self.nfev_total is None:
+            self.nfev_total = self.nfev
+
+    @classmethod
+    def at(
+        cls,
+        problem: Problem,
+        method: str,
+        theta: np.ndarray,
+        scale: np.ndarray,
+        status: Status,
+        *,
+        message: str | None = None,
+        nit: int = 0,
+        nfev: int = 1,
+        started: float | None = None,
+        history: list | None = None,
+        evaluate: bool = True,
+    ) -> FitResult:
+        """The result at θ, with the exact gradient and Hessian there. A point whose
+        simulation is not finite gets cost inf and zero derivatives, never NaN."""
+        K = theta.size
+        J, g, H = problem.cost_grad_hess(theta) if evaluate else (np.inf, None, None)
+        if np.isfinite(J) and g is not None and H is not None:
+            phi = theta / scale
+            pg = np.clip(phi - g * scale, problem.lower / scale, problem.upper / scale) - phi
+            grad_norm = float(np.linalg.norm(pg, np.inf))
+        else:
+            J, g, H, grad_norm = np.inf, np.zeros(K), np.zeros((K, K)), np.inf
+        p, x0 = problem.unpack(theta)
+        return cls(
+            problem=problem,
+            method=method,
+            theta=theta,
+            params=dict(zip(problem.model.params, map(float, p), strict=True)),
+            x0=x0[0] if len(problem.experiments) == 1 else x0,
+            cost=float(J),
+            jac=g,
+            hess=H,
+            grad_norm=grad_norm,
+            nit=int(nit),
+            nfev=int(nfev),
+            status=status,
+            message=status.message if message is None else message,
+            seconds=0.0 if started is None else time.perf_counter() - started,
+            scale=scale,
+            history=history or [],
+        )
+
+    @property
+    def success(self) -> bool:
+        """Whether the fit converged (``status.success``)."""
+        return self.status.success
+
+    @property
+    def x(self) -> np.ndarray:
+        """Alias of theta (scipy.optimize.OptimizeResult's name)."""
+        return self.theta
+
+    @property
+    def fun(self) -> float:
+        """Alias of cost (scipy.optimize.OptimizeResult's name)."""
+        return self.cost
+
+    def simulate(self):
+        """Simulations of every experiment at the estimate."""
+        return self.problem.simulate(self.theta)
+
+    def gof(self) -> list:
+        """Goodness of fit per experiment (per output for several outputs)."""
+        sims = self.simulate()
+        return [
+            gof(_squeeze(e.measured), _squeeze(s.y))
+            for e, s in zip(self.problem.experiments, sims, strict=True)
+        ]
+
+    def uncertainty(self, kind: str = "hessian") -> Uncertainty:
+        """Standard errors, 95 % intervals, correlations (see tensorid.fitting.uncertainty);
+        ``kind`` "hessian" uses the exact Hessian, "gauss-newton" its first-order form."""
+        if kind not in ("hessian", "gauss-newton"):
+            raise ValueError("kind must be 'hessian' or 'gauss-newton'")
+        H = self.hess if kind == "hessian" else self.problem.cost_grad_gn(self.theta)[2]
+        return uncertainty(self.problem, self.theta, self.cost, H, kind)
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """Covariance of theta from the exact Hessian, scaled by the residual variance."""
+        return self.uncertainty().covariance
+
+    @property
+    def warnings(self) -> list[str]:
+        """Plain-language warnings: no convergence (with why, e.g. where the simulation
+        blew up), unknowns the data cannot separate, an optimum that is not a strict
+        minimum."""
+        out = [] if self.success else [f"the fit did not converge: {self.message}", *self.notes]
+        if np.isfinite(self.cost):
+            out += self.uncertainty().warnings
+        return out
+
+    def validate(self, data, init_window: int | None = None) -> list:
+        """Score the fitted model on new records (an Experiment or a list of them), as
+        MATLAB's compare does: initial states that were free in the fit are
+        estimated on each record with the parameters held, on its first
+        ``init_window`` samples only when given (the benchmarks' protocol), and the
+        model is scored on the samples after them. Returns a list of
+        :class:`tensorid.fitting.validation.Score`."""
+        from .validation import validate
+
+        return validate(self, data, init_window)
+
+    def summary(self) -> str:
+        """A plain-text table of the estimates with standard errors and intervals."""
+        from .summary import summary_table
+
+        return summary_table(self)
+
+    def plot(self, path=None, validation=None):
+        """Measured against simulated outputs with residuals, and the convergence
+        history. With ``path`` (a folder) the figures are written there as PNG files
+        and their paths returned; without, the matplotlib figures are returned and
+        nothing is written. ``validation``: scores from :meth:`validate`."""
+        from .figures import fit_figures
+
+        return fit_figures(self, path, validation)
+
+    def __repr__(self) -> str:
+        ps = ", ".join(f"{k}={v:.6g}" for k, v in self.params.items())
+        return (
+            f"FitResult(method={self.method!r}, status={self.status}, cost={self.cost:.6g}, "
+            f"nit={self.nit}, params={{{ps}}}, message={self.message!r})"
+        )

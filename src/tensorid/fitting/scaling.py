@@ -1,0 +1,147 @@
+"""Scaled variables and best-point tracking.
+
+Every method works on scaled variables φ = θ / scale and a cost normalised by its
+value at the start, so that the Silverbox parameters (5e-6 .. 4) look alike to the
+optimiser; results are reported in natural units. The ``Tracker`` sees every
+evaluation and remembers the best finite point, so that whatever a method does, a
+fit never returns NaN.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..engine.problem import Problem
+
+
+def auto_scale(theta0: np.ndarray, J0: float, H_gn: np.ndarray) -> np.ndarray:
+    """Typical magnitudes: |θ0| where it is not zero; otherwise the step that changes
+    the cost by about its own size according to the Gauss-Newton curvature."""
+    scale = np.abs(theta0).astype(float)
+    zero = scale == 0
+    if zero.any():
+        with np.errstate(divide="ignore", invalid="ignore"):
+            curv = np.sqrt(max(J0, 1e-300) / np.diag(H_gn))
+        scale[zero] = np.where(np.isfinite(curv[zero]) & (curv[zero] > 0), curv[zero], 1.0)
+    return scale
+
+
+def resolve_scale(K: int, theta0: np.ndarray, J0: float, H_gn: np.ndarray, x_scale) -> np.ndarray:
+    """The scale of θ: from ``x_scale`` ("auto" or K positive magnitudes)."""
+    if isinstance(x_scale, str):
+        if x_scale != "auto":
+            raise ValueError("x_scale must be 'auto' or an array of typical magnitudes")
+        return auto_scale(theta0, J0, H_gn)
+    scale = np.asarray(x_scale, dtype=float).reshape(-1)
+    if scale.shape != (K,) or not (np.isfinite(scale) & (scale > 0)).all():
+        raise ValueError(f"x_scale must hold {K} positive finite values")
+    return scale
+
+
+class Tracker:
+    """Wraps evaluations in scaled variables; remembers the best finite point."""
+
+    def __init__(self, problem: Problem, scale: np.ndarray, J_ref: float, theta0=None):
+        self.problem, self.scale, self.J_ref = problem, scale, J_ref
+        self.theta0 = problem.theta0 if theta0 is None else np.asarray(theta0, dtype=float)
+        self.nfev = 0
+        self.best_phi: np.ndarray | None = None
+        self.best_J = np.inf
+        self.nonfinite = 0
+        self.first_nonfinite: np.ndarray | None = None
+
+    @classmethod
+    def start(cls, problem: Problem, theta0, J0: float, H_gn, x_scale) -> Tracker:
+        """A tracker for a fit from θ0 with cost J0 and Gauss-Newton Hessian H_gn."""
+        scale = resolve_scale(problem.K, theta0, J0, H_gn, x_scale)
+        return cls(problem, scale, J0 if J0 > 0 else 1.0, theta0)
+
+    def theta(self, phi) -> np.ndarray:
+        """Natural units; clipped because θ/scale·scale may miss a bound by an ulp."""
+        return np.clip(self.scale * phi, self.problem.lower, self.problem.upper)
+
+    def phi(self, theta) -> np.ndarray:
+        return np.asarray(theta, dtype=float) / self.scale
+
+    def box(self) -> tuple[np.ndarray, np.ndarray]:
+        """The bounds in scaled units."""
+        return self.problem.lower / self.scale, self.problem.upper / self.scale
+
+    @property
+    def fatol(self) -> float:
+        """The rounding floor of the data, in scaled cost units."""
+        return self.problem.rounding_floor / self.J_ref
+
+    def _seen(self, phi, J):
+        self.nfev += 1
+        if np.isfinite(J) and J < self.best_J:
+            self.best_J, self.best_phi = J, np.array(phi, dtype=float)
+        elif not np.isfinite(J):
+            self.nonfinite += 1
+            if self.first_nonfinite is None:
+                self.first_nonfinite = self.theta(phi)
+
+    def notes(self) -> list[str]:
+        """What the user should know about trial points that were rejected."""
+        if not self.nonfinite or self.first_nonfinite is None:
+            return []
+        why = self.problem.diagnose(self.first_nonfinite) or "the simulation was not finite"
+        return [
+            f"{self.nonfinite} trial point(s) were rejected because the simulation blew "
+            f"up there; the first: {why}"
+        ]
+
+    def scaled(self, phi, J, g, H):
+        """(J, g, H) at θ(φ) in scaled variables, relative to the starting cost."""
+        self._seen(phi, J)
+        if not np.isfinite(J):
+            return np.inf, g, H
+        s = self.scale
+        return J / self.J_ref, g * s / self.J_ref, H * np.outer(s, s) / self.J_ref
+
+    def derivs(self, fn):
+        """φ -> scaled (J, g, H) from ``fn(θ) -> (J, g, H)`` in natural units."""
+
+        def wrapped(phi):
+            return self.scaled(phi, *fn(self.theta(phi)))
+
+        return wrapped
+
+    def derivs_hessp(self, phi):
+        """(J, g, v -> Hv) in scaled units, for truncated-CG steps."""
+        theta = self.theta(phi)
+        J, g = self.problem.cost_grad(theta)
+        self._seen(phi, J)
+        if not np.isfinite(J):
+            return np.inf, g, None
+        s = self.scale
+
+        def hessp(v):
+            Hv = self.problem.cost_grad_hessp(theta, s * v)[2]
+            return np.where(np.isfinite(Hv), Hv, 0.0) * s / self.J_ref
+
+        return J / self.J_ref, g * s / self.J_ref, hessp
+
+    def cost(self, phi):
+        J = self.problem.cost(self.theta(phi))
+        self._seen(phi, J)
+        return J / self.J_ref if np.isfinite(J) else np.inf
+
+    def residuals(self, phi):
+        r = self.problem.residuals(self.theta(phi))
+        J = float(r @ r)
+        self._seen(phi, J if np.isfinite(J) else np.inf)
+        return r / np.sqrt(self.J_ref)
+
+    def recorder(self, history: list, callback):
+        """A trust-region callback that records entries in the user's cost units."""
+
+        def natural(entry):
+            entry = dict(
+                entry, cost=entry["cost"] * self.J_ref, grad_norm=entry["grad_norm"] * self.J_ref
+            )
+            history.append(entry)
+            if callback is not None:
+                callback(entry)
+
+        return natural

@@ -1,0 +1,113 @@
+"""Plain-text presentation of a fit: the estimates table and the metric tables, with
+numbers printed to as many digits as they need and no more."""
+
+from __future__ import annotations
+
+import io
+import math
+
+import numpy as np
+
+
+def plural(n: int, word: str) -> str:
+    """'1 iteration', '2 iterations'."""
+    return f"{n} {word}" if n == 1 else f"{n} {word}s"
+
+
+def significant(value: float, stderr: float | None = None, digits: int = 6) -> str:
+    """``value`` with enough significant digits that a change of one standard error is
+    visible (two digits of the error), at least ``digits``."""
+    if not math.isfinite(value):
+        return str(value)
+    if stderr is not None and math.isfinite(stderr) and stderr > 0 and value != 0:
+        digits = max(
+            digits,
+            int(math.floor(math.log10(abs(value)))) - int(math.floor(math.log10(stderr))) + 2,
+        )
+    return f"{value:.{min(digits, 17)}g}"
+
+
+def interval(lo: float, hi: float, digits: int = 6) -> str:
+    """[lo, hi] with enough significant digits that the two ends differ when printed."""
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        return f"[{lo:.{digits}g}, {hi:.{digits}g}]"
+    d = digits
+    while d < 17 and f"{lo:.{d}g}" == f"{hi:.{d}g}" and lo != hi:
+        d += 1
+    width = hi - lo
+    if width > 0:  # two digits of the width
+        scale = max(abs(lo), abs(hi))
+        need = int(math.floor(math.log10(scale))) - int(math.floor(math.log10(width))) + 2
+        d = max(d, min(need, 17))
+    return f"[{lo:.{d}g}, {hi:.{d}g}]"
+
+
+def stderr_text(se: float) -> str:
+    """A standard error to two significant digits; 'inf' for a flat direction."""
+    if not math.isfinite(se):
+        return "inf" if se > 0 else "–"
+    return f"{se:.2g}"
+
+
+METRICS = ("gof", "rmse", "nrmse")
+
+
+def metric_rows(scores) -> tuple[list[str], list[list[str]]]:
+    """(header, rows) of GOF, RMSE and NRMSE per record and output, for every
+    Score: the one table that the summary, report.md and the CLI print."""
+    header = ["record", "output", "GOF", "RMSE", "NRMSE", "scored samples"]
+    rows = []
+    for s in scores:
+        n = s.experiment.P - s.start
+        scored = f"{n}" if not s.start else f"{n} (after {s.start})"
+        for o in s.simulation.model.outputs:
+            rows.append(
+                [s.label, o, f"{s.gof[o]:.4f}", f"{s.rmse[o]:.4g}", f"{s.nrmse[o]:.4g}", scored]
+            )
+    return header, rows
+
+
+def headline(res) -> str:
+    """One line: method, how it ended, iterations, evaluations, cost."""
+    line = (
+        f"{res.method}: {res.message}; {plural(res.nit, 'iteration')}, "
+        f"{plural(res.nfev, 'cost evaluation')}"
+    )
+    if res.starts:
+        line += (
+            f" (best of {len(res.starts)} starts; all starts: "
+            f"{plural(res.nit_total, 'iteration')}, {plural(res.nfev_total, 'cost evaluation')})"
+        )
+    return line + f"; cost {res.cost:.6g}"
+
+
+def summary_table(res, scores=None) -> str:
+    """The estimates of a FitResult as a plain-text table, then the warnings and, with
+    ``scores`` (see tensorid.fitting.validation), the metric table."""
+    from rich.console import Console
+    from rich.table import Table
+
+    u = res.uncertainty() if np.isfinite(res.cost) else None
+    tab = Table(
+        title=f"{res.problem.model.name}: {'converged' if res.success else 'NOT converged'}"
+    )
+    for col in ("unknown", "estimate", "std. error", "95 % interval"):
+        tab.add_column(col, justify="right" if col != "unknown" else "left")
+    for k, name in enumerate(res.problem.theta_names):
+        se = float(u.stderr[k]) if u else math.nan
+        ci = interval(*u.ci95[k]) if u else "–"
+        tab.add_row(name, significant(res.theta[k], se), stderr_text(se), ci)
+    console = Console(width=110, record=True, file=io.StringIO())
+    console.print(headline(res), soft_wrap=True)
+    console.print(tab)
+    if scores:
+        header, rows = metric_rows(scores)
+        mt = Table(show_edge=False)
+        for c in header:
+            mt.add_column(c, justify="left" if c in ("record", "output") else "right")
+        for r in rows:
+            mt.add_row(*r)
+        console.print(mt)
+    for w in res.warnings:
+        console.print(f"warning: {w}", soft_wrap=True)
+    return console.export_text()

@@ -1,0 +1,129 @@
+"""Scoring a fitted model on records: the training records at the estimate, and new
+records with the initial states re-estimated (MATLAB's compare; the nonlinear
+benchmarks' protocol with an initialisation window).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..engine.data import Experiment
+from ..engine.metrics import gof, nrmse, rmse
+from ..engine.problem import Problem
+from ..engine.simulate import Simulation, simulate
+from .scaling import Tracker
+from .trust_region import minimize_trust_region
+
+
+@dataclass(frozen=True, eq=False)
+class Score:
+    """How well a simulation matches one record, per output.
+
+    ``kind`` is "training" or "validation"; ``x0`` the initial state simulated from;
+    samples before ``start`` (the initialisation window) are not scored.
+    """
+
+    kind: str
+    experiment: Experiment
+    simulation: Simulation
+    x0: np.ndarray
+    start: int = 0
+    init_window: int | None = None
+
+    @property
+    def label(self) -> str:
+        """ "training" or "validation", with the record's name where it adds something."""
+        return record_label(self.kind, self.experiment.name)
+
+    def _pairs(self):
+        y, s = self.experiment.measured[self.start :], self.simulation.y[self.start :]
+        return [(y[:, j], s[:, j]) for j in range(y.shape[1])]
+
+    def _per_output(self, metric) -> dict[str, float]:
+        outs = self.simulation.model.outputs
+        return {o: float(metric(a, b)) for o, (a, b) in zip(outs, self._pairs(), strict=True)}
+
+    @property
+    def gof(self) -> dict[str, float]:
+        """1 - ‖y - ŷ‖ / ‖y - mean y‖ per output (MATLAB's FitPercent / 100)."""
+        return self._per_output(gof)
+
+    @property
+    def rmse(self) -> dict[str, float]:
+        return self._per_output(rmse)
+
+    @property
+    def nrmse(self) -> dict[str, float]:
+        return self._per_output(nrmse)
+
+
+def record_label(kind: str, name: str) -> str:
+    """ "training", or "training 'exp2'": the record's name only when it is not just
+    the kind again (a file train.csv for training, validate.csv for validation)."""
+    plain = name.lower().rstrip("0123456789_- ")
+    if not plain or plain == kind or (len(plain) >= 5 and plain[:5] == kind[:5]):
+        return kind
+    return f"{kind} '{name}'"
+
+
+def training_scores(res) -> list[Score]:
+    """The training records at the estimate."""
+    x0 = np.atleast_2d(res.x0)
+    return [
+        Score("training", e, s, x0[i])
+        for i, (e, s) in enumerate(zip(res.problem.experiments, res.simulate(), strict=True))
+    ]
+
+
+def estimate_x0(problem: Problem) -> np.ndarray:
+    """The free initial states of ``problem`` (whose parameters are all fixed) by
+    trust-region Newton; the start itself when its simulation is not finite."""
+    theta0 = problem.theta0
+    J0, _, H0 = problem.cost_grad_gn(theta0)
+    if not np.isfinite(J0):
+        return theta0
+    tr = Tracker.start(problem, theta0, J0, H0, "auto")
+    lo, hi = tr.box()
+    r = minimize_trust_region(
+        tr.derivs(problem.cost_grad_hess), tr.phi(theta0), lo, hi, fatol=tr.fatol
+    )
+    best = r.x if tr.best_phi is None or r.fun <= tr.best_J else tr.best_phi
+    return tr.theta(best)
+
+
+def validate(res, data, init_window: int | None = None) -> list[Score]:
+    """See FitResult.validate."""
+    exps = [data] if isinstance(data, Experiment) else list(data)
+    prob = res.problem
+    m = prob.model
+    x0_fit = np.atleast_2d(res.x0)[0]
+    out = []
+    for i, e in enumerate(exps):
+        if not isinstance(e, Experiment):
+            raise TypeError(f"validation record {i} is a {type(e).__name__}, not an Experiment")
+        if e.y is None:
+            raise ValueError(f"validation record {i} ({e.name!r}) has no measured outputs")
+        if init_window is not None and not (2 <= int(init_window) < e.P):
+            raise ValueError(
+                f"init_window must be between 2 and {e.P - 1} samples (the record "
+                f"{e.name!r} has {e.P}), got {init_window}"
+            )
+        x0 = x0_fit.copy()
+        if prob.free_x0:
+            window = e if init_window is None else e.window(0, int(init_window))
+            vp = Problem(
+                m,
+                window,
+                p0=res.params,
+                x0=x0_fit,
+                free_x0=prob.free_x0,
+                fixed=list(m.params),
+                discretisation=prob.discretisation,
+            )
+            x0 = vp.unpack(estimate_x0(vp))[1][0]
+        sim = simulate(m, res.params, x0, e, discretisation=prob.discretisation)
+        start = 0 if init_window is None else int(init_window)
+        out.append(Score("validation", e, sim, x0, start, init_window))
+    return out

@@ -1,0 +1,76 @@
+"""`tensorid paper`: the paper study from the command line."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def _paper(args) -> int:
+    from rich.console import Console
+
+    from .study import run
+
+    starts = args.starts if args.starts is not None else (6 if args.quick else 100)
+    if starts < 1:
+        raise ValueError(f"--starts must be at least 1, got {starts}")
+    if args.workers is not None and args.workers < 1:
+        raise ValueError(f"--workers must be at least 1, got {args.workers}")
+    res = run(
+        Path(args.out),
+        starts=starts,
+        quick=args.quick,
+        workers=args.workers,
+        seed=args.seed,
+        progress=not args.no_progress,
+    )
+    sb, tt = res["silverbox"], res["two_tank"]
+    c = Console(highlight=False)
+    c.print(
+        f"[bold]Silverbox[/] paper's model: training cost "
+        f"{sb['paper_model']['train_cost']:.5g}, validation GOF "
+        f"{sb['paper_model']['val_gof']:.4f}; with input offset: validation GOF "
+        f"{sb['offset_model']['val_gof']:.4f}"
+    )
+    c.print(f"[bold]Two-tank[/] GOF {tt['paper_model']['gof']:.4f}")
+    for row in res["robustness"]:
+        c.print(
+            f"  {row['dataset']:9s} {row['accuracy']:7s} {row['method']:12s} converged "
+            f"{row['converged']:3d}/{row['starts']}  failed {row['failed']:3d}  "
+            f"median {row['median_seconds'] * 1e3:7.1f} ms"
+        )
+    c.print(
+        f"Wrote {args.out}/results.json, report.md and figures in {res['meta']['seconds']:.0f} s"
+    )
+    return 0
+
+
+def register(sub) -> None:
+    """Add the paper command to the subparsers ``sub``."""
+    p = sub.add_parser(
+        "paper",
+        help="reproduce the paper's Silverbox and two-tank studies",
+        description="Run the paper's identification problems and robustness "
+        "comparison on the bundled data; write results.json, "
+        "report.md and figures.",
+    )
+    p.add_argument("--out", default="paper-results", help="output folder")
+    p.add_argument(
+        "--starts",
+        type=int,
+        default=None,
+        help="initial guesses per method and accuracy level (default 100; 6 with --quick)",
+    )
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="small version: one accuracy level and few starts (about a minute)",
+    )
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="worker processes for the starts (default: all cores)",
+    )
+    p.add_argument("--seed", type=int, default=0, help="seed of the random starts")
+    p.add_argument("--no-progress", action="store_true", help="no live progress display")
+    p.set_defaults(func=_paper)
