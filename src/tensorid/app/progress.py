@@ -1,7 +1,9 @@
-"""Live progress for long runs, with rich; silent when disabled."""
+"""Live progress for long runs: a rich progress bar on a terminal, plain complete
+lines in a log (no bar, no carriage returns), nothing when disabled."""
 
 from __future__ import annotations
 
+import sys
 import time
 from contextlib import contextmanager
 
@@ -17,38 +19,58 @@ from rich.progress import (
 
 
 class _StudyProgress:
-    def __init__(self, progress: Progress | None, console: Console | None):
-        self.progress, self.console = progress, console
+    """What the paper study reports as it goes. With ``progress`` (a terminal) a
+    bar; with ``log`` (any other stream) a line per step and per tenth of the fits."""
+
+    def __init__(self, progress: Progress | None, console: Console | None, log=None):
+        self.progress, self.console, self.log = progress, console, log
         self._task: TaskID | None = None
         self._t0 = time.perf_counter()
         self._bad = 0
+        self._done = 0
+        self._total = 0
+
+    def _line(self, text: str) -> None:
+        print(f"[{time.perf_counter() - self._t0:6.1f} s] {text}", file=self.log, flush=True)
 
     def step(self, what: str) -> None:
         if self.console:
             self.console.log(what)
+        elif self.log:
+            self._line(what)
 
     def start_robustness(self, n: int, workers: int) -> None:
+        self._total = n
+        self.step(f"Robustness study: {n} fits on {workers} worker process(es)")
         if self.progress:
-            self.step(f"Robustness study: {n} fits on {workers} worker process(es)")
             self._task = self.progress.add_task("robustness", total=n, status="")
 
     def advance(self, result: dict) -> None:
+        self._done += 1
+        self._bad += not result["success"]
+        status = (
+            f"{result['dataset']} {result['method']} rk4x{result['substeps']} "
+            f"(optimizer-reported failures so far: {self._bad})"
+        )
         if self.progress and self._task is not None:
-            self._bad += not result["success"]
-            self.progress.update(
-                self._task,
-                advance=1,
-                status=f"{result['dataset']} {result['method']} rk4x{result['substeps']} "
-                f"(optimizer-reported failures so far: {self._bad})",
-            )
+            self.progress.update(self._task, advance=1, status=status)
+        elif self.log and self._total:
+            tenth = max(1, self._total // 10)
+            if self._done % tenth == 0 or self._done == self._total:
+                self._line(f"robustness: {self._done}/{self._total} fits done; last {status}")
 
 
 @contextmanager
-def study_progress(enabled: bool = True):
+def study_progress(enabled: bool = True, stream=None):
+    """Progress of the paper study on ``stream`` (default: standard error)."""
     if not enabled:
         yield _StudyProgress(None, None)
         return
-    console = Console(stderr=True)
+    stream = sys.stderr if stream is None else stream
+    console = Console(file=stream)
+    if not console.is_terminal:
+        yield _StudyProgress(None, None, log=stream)
+        return
     columns = (
         TextColumn("[bold]{task.description}"),
         BarColumn(),

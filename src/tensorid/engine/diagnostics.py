@@ -67,7 +67,9 @@ def describe_failure(sim: Simulation, scheme, where: str) -> str:
         what = f"output(s) {outs} are not finite although the states are"
     else:
         states = [n for n, ok in zip(m.states, np.isfinite(sim.x[h]), strict=True) if not ok]
-        what = f"state(s) {states} are not finite ({sim.status.message})"
+        what = f"state(s) {states} are not finite"
+        if sim.status is not Status.NONFINITE_STATE:
+            what += f" ({sim.status.message})"
     last = (
         "from the initial state"
         if h == 0

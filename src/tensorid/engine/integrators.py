@@ -17,7 +17,7 @@ equations of the scheme applied to x' = F(x) gives the same scheme applied to th
 augmented system (x, S, T). So stepping (x, S, T) with the scheme gives the exact
 first and second derivatives of the discretised trajectory, also for implicit
 stages (whose augmented stage equations are linear in S and T with the same matrix
-I - h γ F_x as the state's Newton iteration). For the adaptive schemes the step
+I - Δ γ F_x as the state's Newton iteration (Δ the step size)). For the adaptive schemes the step
 sizes are chosen from the states alone and held fixed under differentiation, as in
 CVODES and diffrax: the derivatives are those of the discretisation on the steps
 taken.
@@ -53,8 +53,8 @@ def _n_levels(y) -> int:
     return len(y) if isinstance(y, tuple) else 1
 
 
-def _axpy(y, h, terms):
-    """y + h Σ coef·k over (coef, k) pairs, skipping zero coefficients at trace time."""
+def _axpy(y, step, terms):
+    """y + step Σ coef·k over (coef, k) pairs, skipping zero coefficients at trace time."""
     terms = [(cf, k) for cf, k in terms if cf != 0.0]
     if not terms:
         return y
@@ -63,16 +63,16 @@ def _axpy(y, h, terms):
         acc = terms[0][0] * k_leaves[0]
         for (cf, _), kl in zip(terms[1:], k_leaves[1:], strict=True):
             acc = acc + cf * kl
-        return y_leaf + h * acc
+        return y_leaf + step * acc
 
     return jax.tree_util.tree_map(combine, y, *[k for _, k in terms])
 
 
-def _explicit_stages(a, c, f: Field, y, h, s0, ds) -> list:
-    """The stage derivatives k_i of one explicit step of size h from fraction s0."""
+def _explicit_stages(a, c, f: Field, y, step, s0, ds) -> list:
+    """The stage derivatives k_i of one explicit step of size ``step`` from fraction s0."""
     ks: list = []
     for row, ci in zip(a, c, strict=True):
-        ks.append(f(_axpy(y, h, zip(row, ks, strict=False)), s0 + ci * ds))
+        ks.append(f(_axpy(y, step, zip(row, ks, strict=False)), s0 + ci * ds))
     return ks
 
 
@@ -94,15 +94,15 @@ def _check_tableau(name, a, b, c, order, implicit: bool) -> None:
                 f"scheme {name!r}: c[{i}] = {c[i]} but row {i} of a sums to {sum(row)}"
             )
     if abs(sum(b) - 1.0) > 1e-12:
-        raise ValueError(f"scheme {name!r}: the weights b sum to {sum(b)}, not 1")
+        raise ValueError(f"scheme {name!r}: the weigamma_stepts b sum to {sum(b)}, not 1")
     if not (isinstance(order, int) and order >= 1):
         raise ValueError(f"scheme {name!r}: order must be a positive integer, got {order!r}")
 
 
 @dataclass(frozen=True)
 class ExplicitRungeKutta:
-    """Butcher tableau of an explicit scheme: k_i = f(y + h Σ_{j<i} a_ij k_j, t + c_i h),
-    y_next = y + h Σ b_i k_i."""
+    """Butcher tableau of an explicit scheme: k_i = f(y + Δ Σ_{j<i} a_ij k_j, t + c_i Δ),
+    y_next = y + Δ Σ b_i k_i, Δ the step size."""
 
     name: str
     a: tuple[tuple[float, ...], ...]
@@ -113,24 +113,24 @@ class ExplicitRungeKutta:
     def __post_init__(self) -> None:
         _check_tableau(self.name, self.a, self.b, self.c, self.order, implicit=False)
 
-    def step(self, f: Field, y, h, s0, ds):
-        """One step of size h covering the fraction ds of the interval from s0."""
-        ks = _explicit_stages(self.a, self.c, f, y, h, s0, ds)
-        return _axpy(y, h, zip(self.b, ks, strict=True))
+    def step(self, f: Field, y, step, s0, ds):
+        """One step of size ``step`` covering the fraction ds of the interval from s0."""
+        ks = _explicit_stages(self.a, self.c, f, y, step, s0, ds)
+        return _axpy(y, step, zip(self.b, ks, strict=True))
 
     def interval(self, f: Field, fs: Field, y, dt, carry, substeps: int):
         """Cover one sample interval of length dt with ``substeps`` equal steps;
         returns (y, carry, failure code)."""
-        h, ds = dt / substeps, 1.0 / substeps
-        y = jax.lax.fori_loop(0, substeps, lambda i, yy: self.step(f, yy, h, i * ds, ds), y)
+        step, ds = dt / substeps, 1.0 / substeps
+        y = jax.lax.fori_loop(0, substeps, lambda i, yy: self.step(f, yy, step, i * ds, ds), y)
         return y, carry, jnp.int32(0)
 
 
 @dataclass(frozen=True)
 class NewtonStageSolver:
-    """Solve an implicit stage z = base + γh f(z, s) for the (augmented) value z.
+    """Solve an implicit stage z = base + γΔ f(z, s) for the (augmented) value z.
 
-    Newton on the states alone, with the matrix I - γh F_x, until two updates in a
+    Newton on the states alone, with the matrix I - γΔ F_x, until two updates in a
     row are below ``tol`` relative to max|x| (the second brings every component to
     round-off). Each further level (S, then T) is linear in its own unknowns with
     that same matrix, so one sweep per level solves it exactly. Returns (z, ok); a
@@ -141,7 +141,7 @@ class NewtonStageSolver:
     tol: float
     max_iter: int
 
-    def __call__(self, base, gh, s):
+    def __call__(self, base, gamma_step, s):
         jac = jax.jacfwd(self.fs)
         x_base = _x(base)
         N = x_base.shape[0]
@@ -149,7 +149,9 @@ class NewtonStageSolver:
 
         def body(carry):
             x, it, nconv = carry
-            dx = jnp.linalg.solve(eye - gh * jac(x, s), x - x_base - gh * self.fs(x, s))
+            dx = jnp.linalg.solve(
+                eye - gamma_step * jac(x, s), x - x_base - gamma_step * self.fs(x, s)
+            )
             x = x - dx
             small = jnp.max(jnp.abs(dx)) <= self.tol * jnp.max(jnp.abs(x))
             return x, it + 1, jnp.where(small, nconv + 1, 0)
@@ -163,10 +165,12 @@ class NewtonStageSolver:
         x = jnp.where(ok, x, jnp.nan)
         if _n_levels(base) == 1:
             return x, ok
-        lu = jax.scipy.linalg.lu_factor(eye - gh * jac(x, s))
+        lu = jax.scipy.linalg.lu_factor(eye - gamma_step * jac(x, s))
         z = (x, *base[1:])
         for _ in range(_n_levels(base) - 1):
-            r = jax.tree_util.tree_map(lambda zl, bl, fl: zl - bl - gh * fl, z, base, self.f(z, s))
+            r = jax.tree_util.tree_map(
+                lambda zl, bl, fl: zl - bl - gamma_step * fl, z, base, self.f(z, s)
+            )
             z = (x,) + tuple(
                 zl - jax.scipy.linalg.lu_solve(lu, rl.reshape(N, -1)).reshape(rl.shape)
                 for zl, rl in zip(z[1:], r[1:], strict=True)
@@ -177,7 +181,7 @@ class NewtonStageSolver:
 @dataclass(frozen=True)
 class DiagonallyImplicitRungeKutta:
     """Tableau of a diagonally implicit scheme: row i of ``a`` holds a_i1 ... a_ii, and
-    stage i solves z_i = y + h Σ_{j<i} a_ij k_j + h a_ii f(z_i), k_i = f(z_i).
+    stage i solves z_i = y + Δ Σ_{j<i} a_ij k_j + Δ a_ii f(z_i), k_i = f(z_i).
 
     ``newton_tol``: Newton stops after two updates of x below this, relative."""
 
@@ -192,28 +196,28 @@ class DiagonallyImplicitRungeKutta:
     def __post_init__(self) -> None:
         _check_tableau(self.name, self.a, self.b, self.c, self.order, implicit=True)
 
-    def step(self, f: Field, y, h, s0, ds, solve: NewtonStageSolver):
+    def step(self, f: Field, y, step, s0, ds, solve: NewtonStageSolver):
         """One step; returns (y_next, every stage converged)."""
         ks: list = []
         ok = jnp.bool_(True)
         for i, (row, ci) in enumerate(zip(self.a, self.c, strict=True)):
-            base = _axpy(y, h, zip(row[:i], ks, strict=True))
-            gh = row[i] * h
-            z, ok_i = solve(base, gh, s0 + ci * ds)
+            base = _axpy(y, step, zip(row[:i], ks, strict=True))
+            gamma_step = row[i] * step
+            z, ok_i = solve(base, gamma_step, s0 + ci * ds)
             ok = ok & ok_i
-            # (z - base)/(γh) equals f(z) at the solution and does not amplify the
+            # (z - base)/(γΔ) equals f(z) at the solution and does not amplify the
             # Newton residual by the stiffness, unlike a fresh f(z).
-            ks.append(jax.tree_util.tree_map(lambda zl, bl, g=gh: (zl - bl) / g, z, base))
-        return _axpy(y, h, zip(self.b, ks, strict=True)), ok
+            ks.append(jax.tree_util.tree_map(lambda zl, bl, g=gamma_step: (zl - bl) / g, z, base))
+        return _axpy(y, step, zip(self.b, ks, strict=True)), ok
 
     def interval(self, f: Field, fs: Field, y, dt, carry, substeps: int):
         """Cover one sample interval with ``substeps`` equal implicit steps."""
-        h, ds = dt / substeps, 1.0 / substeps
+        step, ds = dt / substeps, 1.0 / substeps
         solve = NewtonStageSolver(f, fs, self.newton_tol, self.max_newton)
 
         def sub(i, state):
             yy, ok = state
-            y_next, ok_i = self.step(f, yy, h, i * ds, ds, solve)
+            y_next, ok_i = self.step(f, yy, step, i * ds, ds, solve)
             return y_next, ok & ok_i
 
         y, ok = jax.lax.fori_loop(0, substeps, sub, (y, jnp.bool_(True)))
@@ -223,7 +227,7 @@ class DiagonallyImplicitRungeKutta:
 @dataclass(frozen=True)
 class StepSizeController:
     """Accept a step when the RMS of err / (atol + rtol max(|x|, |x_next|)) is at most
-    1; the next step aims at 0.9 of the tolerance (the estimate is O(h^order)),
+    1; the next step aims at 0.9 of the tolerance (the estimate is O(Δ^order)),
     changing by a factor between 0.2 and 5."""
 
     rtol: float
@@ -241,8 +245,8 @@ class StepSizeController:
 
 @dataclass(frozen=True)
 class AdaptiveRungeKutta:
-    """An explicit pair: y_next = y + h Σ b_i k_i, error estimate h Σ (b_i - e_i) k_i
-    with the embedded weights ``e`` (order ``order - 1``). A step is accepted when
+    """An explicit pair: y_next = y + Δ Σ b_i k_i, error estimate Δ Σ (b_i - e_i) k_i
+    with the embedded weigamma_stepts ``e`` (order ``order - 1``). A step is accepted when
     the RMS of err / (atol + rtol max(|x|, |x_next|)) over the states is at most 1;
     at most ``max_steps`` steps per sample interval."""
 
@@ -259,54 +263,56 @@ class AdaptiveRungeKutta:
     def __post_init__(self) -> None:
         _check_tableau(self.name, self.a, self.b, self.c, self.order, implicit=False)
         if len(self.e) != len(self.b) or abs(sum(self.e) - 1.0) > 1e-12:
-            raise ValueError(f"scheme {self.name!r}: e needs one weight per stage, summing to 1")
+            raise ValueError(
+                f"scheme {self.name!r}: e needs one weigamma_stept per stage, summing to 1"
+            )
 
     @property
     def controller(self) -> StepSizeController:
         return StepSizeController(self.rtol, self.atol, self.order)
 
-    def step(self, f: Field, y, h, s0, ds):
+    def step(self, f: Field, y, step, s0, ds):
         """One trial step: (y_next, local error estimate of the states)."""
-        ks = _explicit_stages(self.a, self.c, f, y, h, s0, ds)
-        y1 = _axpy(y, h, zip(self.b, ks, strict=True))
+        ks = _explicit_stages(self.a, self.c, f, y, step, s0, ds)
+        y1 = _axpy(y, step, zip(self.b, ks, strict=True))
         errs = [bi - ei for bi, ei in zip(self.b, self.e, strict=True)]
-        err = _axpy(jnp.zeros_like(_x(y)), h, zip(errs, [_x(k) for k in ks], strict=True))
+        err = _axpy(jnp.zeros_like(_x(y)), step, zip(errs, [_x(k) for k in ks], strict=True))
         return y1, err
 
-    def interval(self, f: Field, fs: Field, y, dt, h0, substeps: int):
+    def interval(self, f: Field, fs: Field, y, dt, step0, substeps: int):
         """Cover one sample interval of length dt with error-controlled steps from the
-        trial step h0 (the carry); returns (y, next trial step, failure code). Step
-        sizes come from the states only, through stop_gradient: they are the
+        trial step ``step0`` (the carry); returns (y, next trial step, failure code). Step
+        sizes come from the states only, througamma_step stop_gradient: they are the
         discretisation, not a function of θ to differentiate."""
         ctl = self.controller
         tiny = 1e-14 * dt
 
         def cond(c):
-            _, s, h, n = c
-            return (s < 1.0) & (n < self.max_steps) & (h > tiny)
+            _, s, step, n = c
+            return (s < 1.0) & (n < self.max_steps) & (step > tiny)
 
         def body(c):
-            y, s, h, n = c
-            h = jnp.minimum(h, (1.0 - s) * dt)
-            ds = h / dt
-            y1, err = self.step(f, y, h, s, ds)
+            y, s, step, n = c
+            step = jnp.minimum(step, (1.0 - s) * dt)
+            ds = step / dt
+            y1, err = self.step(f, y, step, s, ds)
             en = jax.lax.stop_gradient(ctl.error_norm(_x(y), _x(y1), err))
             ok = (en <= 1.0) & jnp.all(jnp.isfinite(_x(y1)))
-            h_next = jax.lax.stop_gradient(h * ctl.factor(en))
+            step_next = jax.lax.stop_gradient(step * ctl.factor(en))
             y = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), y1, y)
             # land exactly on the sample: the last accepted step ends at s = 1
-            s = jnp.where(ok, jnp.where(h >= (1.0 - s) * dt, 1.0, s + ds), s)
-            return y, jax.lax.stop_gradient(s), h_next, n + 1
+            s = jnp.where(ok, jnp.where(step >= (1.0 - s) * dt, 1.0, s + ds), s)
+            return y, jax.lax.stop_gradient(s), step_next, n + 1
 
-        h0 = jax.lax.stop_gradient(h0)
-        y, s, h, _ = jax.lax.while_loop(cond, body, (y, jnp.zeros_like(dt), h0, 0))
+        step0 = jax.lax.stop_gradient(step0)
+        y, s, step, _ = jax.lax.while_loop(cond, body, (y, jnp.zeros_like(dt), step0, 0))
         code = jnp.where(
-            h <= tiny,
+            step <= tiny,
             Status.STEP_UNDERFLOW.code,
             jnp.where(s < 1.0, Status.STEP_LIMIT.code, 0),
         ).astype(jnp.int32)
         y = jax.tree_util.tree_map(lambda a: jnp.where(code != 0, jnp.nan, a), y)
-        return y, h, code
+        return y, step, code
 
 
 Scheme = ExplicitRungeKutta | DiagonallyImplicitRungeKutta | AdaptiveRungeKutta

@@ -1,25 +1,26 @@
-"""The augmented system: states x, first-order sensitivities S = ∂x/∂θ and
-second-order sensitivities T = ∂²x/∂θ², integrated together, with the cost,
-gradient and Hessian accumulated sample by sample.
+"""The augmented system: states x, first-order sensitivities dx = ∂x/∂θ and
+second-order sensitivities d2x = ∂²x/∂θ², integrated together, with the cost,
+gradient and Hessian accumulated sample by sample. (The docs write them S and T;
+in the code S is the paper's number of outputs, so the arrays are named dx, d2x.)
 
 θ (for one experiment) is (free initial states, free parameters). In the paper's
-notation the columns of S are the state transition matrix Φ (free x0 columns) and
-the parameter transition matrix Θ (parameter columns); the blocks of T are Φ¹
-(x0, x0), χ¹/χ² (x0, p) and Θ¹ (p, p). With z = (x, p) and Z = ∂z/∂θ = [S; P]
+notation the columns of dx are the state transition matrix Φ (free x0 columns) and
+the parameter transition matrix Θ (parameter columns); the blocks of d2x are Φ¹
+(x0, x0), χ¹/χ² (x0, p) and Θ¹ (p, p). With z = (x, p) and Z = ∂z/∂θ = [dx; P]
 (P selects the free parameters) the paper's ODEs (7), (9), (13)-(16) read
 
-    dS/dt   = F_z Z                          (Φ and Θ together)
-    dT_jk/dt = F_zz[Z_j, Z_k] + F_x T_jk      (Φ¹, Θ¹, χ¹, χ² together)
+    d(dx)/dt       = F_z Z                           (Φ and Θ together)
+    d(d2x_jk)/dt   = F_zz[Z_j, Z_k] + F_x d2x_jk      (Φ¹, Θ¹, χ¹, χ² together)
 
-T is symmetric in (j, k), so only the K(K+1)/2 pairs j <= k are carried. F_zz is
+d2x is symmetric in (j, k), so only the K(K+1)/2 pairs j <= k are carried. F_zz is
 never formed: F_zz[a, b] + F_z c is one nested forward-mode derivative
 (a jvp of a jvp), so the cost per pair is a small multiple of one F evaluation.
 The output side is the same with C in place of F, giving the paper's gradient
-(18a-b) and Hessian (19-22):
+(18a-b) and Hessian (19-22), h the sample and g the output as in the paper:
 
     J  = Σ_h Σ_g w_g r_g²,                 r = y_obs - C(x, p)
     ∇J = -2 Σ w r C_z Z
-    ∇²J = 2 Σ w (C_z Z)ᵀ(C_z Z) - 2 Σ w r (C_zz[Z, Z] + C_x T)
+    ∇²J = 2 Σ w (C_z Z)ᵀ(C_z Z) - 2 Σ w r (C_zz[Z, Z] + C_x d2x)
 """
 
 from __future__ import annotations
@@ -107,14 +108,14 @@ class Sweeps:
         return x0, p
 
     def _seeds(self):
-        """S(t0) (N, K): unit columns for free initial states; P (M, K): the parameter
+        """dx(t0) (N, K): unit columns for free initial states; P (M, K): the parameter
         rows of Z, constant in time."""
         N, M, K, nx = self.model.N, self.model.M, self.K, len(self.free_states)
-        S0 = np.zeros((N, K))
-        S0[list(self.free_states), list(range(nx))] = 1.0
+        dx0 = np.zeros((N, K))
+        dx0[list(self.free_states), list(range(nx))] = 1.0
         Psel = np.zeros((M, K))
         Psel[list(self.free_params), list(range(nx, K))] = 1.0
-        return S0, Psel
+        return dx0, Psel
 
     def _march(self, field, observe, y0, acc0, t, u, obs, p):
         m = self.model
@@ -136,7 +137,7 @@ class Sweeps:
 
     # -- plain simulation --------------------------------------------------------------
     def _simulate(self, x0, p, t, u):
-        """(xs (P, N), ys (P, S), failure code, sample of the first failure)."""
+        """(xs (P, N), ys (P, outputs), failure code, sample of the first failure)."""
         m = self.model
 
         def field(x, uu):
@@ -172,40 +173,40 @@ class Sweeps:
         """(J, ∇J, 2 Σ w (C_z Z)ᵀ(C_z Z)); the last is None when not ``gauss_newton``."""
         x0, p = self._expand(theta, x0, p)
         m, K = self.model, self.K
-        S0, Psel = self._seeds()
+        dx0, Psel = self._seeds()
         Pt = jnp.asarray(Psel.T)
 
-        def columns(fn, x, S):
-            """(fn_z Z)ᵀ, one row per column of Z = [S; Psel], by forward mode."""
-            return jax.vmap(lambda sx, sp: jax.jvp(fn, (x, p), (sx, sp))[1])(S.T, Pt)
+        def columns(fn, x, dx):
+            """(fn_z Z)ᵀ, one row per column of Z = [dx; Psel], by forward mode."""
+            return jax.vmap(lambda sx, sp: jax.jvp(fn, (x, p), (sx, sp))[1])(dx.T, Pt)
 
         def field(state, uu):
-            x, S = state
-            return m.f(x, p, uu), columns(lambda x_, p_: m.f(x_, p_, uu), x, S).T
+            x, dx = state
+            return m.f(x, p, uu), columns(lambda x_, p_: m.f(x_, p_, uu), x, dx).T
 
         def observe(acc, state, y_h):
             J, g, H = acc
-            x, S = state
+            x, dx = state
             r = y_h - m.h(x, p)
-            D = columns(m.h, x, S)  # (K, S) = (C_z Z)ᵀ
+            D = columns(m.h, x, dx)  # (K, outputs) = (C_z Z)ᵀ
             wr = w * r
             if gauss_newton:
                 H = H + 2.0 * (D * w) @ D.T
             return (J + jnp.sum(wr * r), g - 2.0 * D @ wr, H), None
 
         acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros((K, K)) if gauss_newton else None)
-        (J, g, H), _, _ = self._march(field, observe, (x0, jnp.asarray(S0)), acc0, t, u, y, p)
+        (J, g, H), _, _ = self._march(field, observe, (x0, jnp.asarray(dx0)), acc0, t, u, y, p)
         return J, g, H
 
     # -- second order: (J, ∇J, ∇²J) or (J, ∇J, ∇²J v) by transition tensors ------------
     def _second_order(self, theta, x0, p, t, u, y, w, v=None):
-        """With v None: the packed Hessian (pairs j <= k, see pair_indices), T carried
+        """With v None: the packed Hessian (pairs j <= k, see pair_indices), d2x carried
         for every pair. With a direction v (K,): the product ∇²J v, carrying only
-        U = Σ_k T_jk v_k, whose ODE is dU_j/dt = F_zz[Z_j, Z v] + F_x U_j: 2K + 1
+        d2x_v = Σ_k d2x_jk v_k, whose ODE is d(d2x_v)_j/dt = F_zz[Z_j, Z v] + F_x (d2x_v)_j: 2K + 1
         copies of the state instead of 1 + K + K(K+1)/2."""
         x0, p = self._expand(theta, x0, p)
         m, N, M, K = self.model, self.model.N, self.model.M, self.K
-        S0, Psel = self._seeds()
+        dx0, Psel = self._seeds()
         # the parameter parts of the directions are constants (or Psel v): keeping them
         # apart from the state parts, rather than in z = (x, p), spares the compiled
         # sweep the concatenations, which costs ~30 % of its time on Silverbox
@@ -218,12 +219,12 @@ class Sweeps:
             ncols = K
         Cp = jnp.zeros((ncols, M))
 
-        def directions(S, U):
-            """(a, b, c) per carried column, split into state and parameter parts: its T
-            (or U) column obeys F_zz[a, b] + F_z c (c has no parameter part)."""
+        def directions(dx, d2x_v):
+            """(a, b, c) per carried column, split into state and parameter parts: its d2x
+            (or d2x_v) column obeys F_zz[a, b] + F_z c (c has no parameter part)."""
             if v is None:
-                return (S[:, jj].T, Ap), (S[:, kk].T, Bp), (U.T, Cp)
-            return (S.T, Ap), (jnp.broadcast_to(S @ v, (K, N)), Bp), (U.T, Cp)
+                return (dx[:, jj].T, Ap), (dx[:, kk].T, Bp), (d2x_v.T, Cp)
+            return (dx.T, Ap), (jnp.broadcast_to(dx @ v, (K, N)), Bp), (d2x_v.T, Cp)
 
         def pairs(fn, x, A, B, Cc):
             """(fn_z a, fn_zz[a, b] + fn_z c) for every column, by one nested jvp."""
@@ -237,24 +238,28 @@ class Sweeps:
             return jax.vmap(one)(*A, *B, *Cc)
 
         def field(state, uu):
-            x, S, U = state
-            A, B, Cc = directions(S, U)
+            x, dx, d2x_v = state
+            A, B, Cc = directions(dx, d2x_v)
             Fa, d2 = pairs(lambda x_, p_: m.f(x_, p_, uu), x, A, B, Cc)
             # the first K columns of A are Z itself (diagonal pairs come first)
-            return m.f(x, p, uu), Fa[:K].T, d2.T  # dx, dS = F_z Z, dT = F_zz[Z,Z] + F_x T
+            return (
+                m.f(x, p, uu),
+                Fa[:K].T,
+                d2.T,
+            )  # ẋ, d(dx)/dt = F_z Z, d(d2x)/dt = F_zz[Z,Z] + F_x d2x
 
         def observe(acc, state, y_h):
             J, g, H = acc
-            x, S, U = state
-            A, B, Cc = directions(S, U)
+            x, dx, d2x_v = state
+            A, B, Cc = directions(dx, d2x_v)
             Ca, e2 = pairs(m.h, x, A, B, Cc)
-            D = Ca[:K]  # (K, S) = (C_z Z)ᵀ
+            D = Ca[:K]  # (K, outputs) = (C_z Z)ᵀ
             r = y_h - m.h(x, p)
             wr = w * r
             gn = 2.0 * (D[jj] * D[kk]) @ w if v is None else 2.0 * D @ (w * (v @ D))
             return (J + jnp.sum(wr * r), g - 2.0 * D @ wr, H + gn - 2.0 * e2 @ wr), None
 
-        state0 = (x0, jnp.asarray(S0), jnp.zeros((N, ncols)))
+        state0 = (x0, jnp.asarray(dx0), jnp.zeros((N, ncols)))
         acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros(ncols))
         (J, g, H), _, _ = self._march(field, observe, state0, acc0, t, u, y, p)
         return J, g, H

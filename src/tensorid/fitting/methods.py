@@ -1,8 +1,9 @@
-"""fit(): estimate θ with the exact-derivative trust-region methods, or with the
-finite-difference baselines the paper compares against; one driver for a single
-start, a batch of starts in lock-step, and many starts on workers.
+"""fit() and fit_batch(): estimate θ with the exact-derivative trust-region methods,
+or with the finite-difference baselines the paper compares against, from one start,
+a batch of starts in lock-step, or many starts on workers (the best refined).
 
-Every method works on scaled variables (see scaling.py); whatever a method does, the
+The checks of the user's arguments live here; the iterations in driver.py. Every
+method works on scaled variables (see scaling.py); whatever a method does, the
 result holds the best finite point it evaluated: a fit never returns NaN.
 """
 
@@ -16,12 +17,11 @@ import numpy as np
 
 from ..engine.problem import Problem
 from ..engine.status import Status
-from .baselines import BASELINES, run_baseline
+from .baselines import BASELINES
+from .driver import failed, fit_many
 from .multistart import SAMPLINGS, draw_starts, run_starts
 from .options import FitOptions
 from .results import FitResult, describe
-from .scaling import Tracker
-from .trust_region import minimize_trust_region, trust_region_steps
 
 METHODS = ("newton", "newton-cg", "gauss-newton", *BASELINES)
 LOCKSTEP = ("newton", "gauss-newton")  # methods whose starts can share vmapped calls
@@ -87,7 +87,7 @@ def fit(
     if starts is not None:
         _check_count("starts", starts)
     if starts is None or starts == 1:
-        return _fit_many(problem, method, theta0[None, :], options, started)[0]
+        return fit_many(problem, method, theta0[None, :], options, started)[0]
     batch = _check_batch(method, batch, starts, executor, workers)
     if not (isinstance(spread, int | float) and np.isfinite(spread) and spread >= 0):
         raise ValueError(f"spread must be a finite number >= 0, got {spread!r}")
@@ -125,7 +125,7 @@ def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResul
         raise TypeError("pass either options=FitOptions(...) or keyword options, not both")
     thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
     thetas = np.stack([_check_start(problem, th, "a start") for th in thetas])
-    return _fit_many(problem, method, thetas, opts, started)
+    return fit_many(problem, method, thetas, opts, started)
 
 
 # -- checks -----------------------------------------------------------------------------
@@ -161,145 +161,6 @@ def _check_batch(method, batch, starts, executor, workers) -> int:
     return int(batch)
 
 
-# -- the driver ---------------------------------------------------------------------------
-def _fit_many(problem, method, thetas, options: FitOptions, started) -> list[FitResult]:
-    """Fits from every row of ``thetas``: lock-step for several starts, otherwise one
-    start evaluated point by point. The set-up (cost, scale, tracker) is shared."""
-    batched = len(thetas) > 1
-    if batched:
-        J0, _, H0 = problem.cost_grad_hess_batch(thetas, gauss_newton=True)
-    else:
-        J, _, H = problem.cost_grad_gn(thetas[0])
-        J0, H0 = np.array([J]), H[None]
-    results: list[FitResult | None] = [None] * len(thetas)
-    trackers = {}
-    for i, th in enumerate(thetas):
-        if np.isfinite(J0[i]):
-            trackers[i] = Tracker.start(problem, th, J0[i], H0[i], options.x_scale)
-        else:
-            results[i] = _failed_start(problem, method, th, started)
-    if batched:
-        results = _lockstep(problem, method, trackers, options, started, results)
-    elif trackers:
-        results = [_single(method, trackers[0], options, started)]
-    for r in results:
-        assert r is not None
-        if batched:
-            r.seconds = time.perf_counter() - started
-    return results  # type: ignore[return-value]
-
-
-def _single(method, tr: Tracker, options: FitOptions, started) -> FitResult:
-    """One start, evaluated point by point: any method."""
-    problem, theta0 = tr.problem, tr.theta0
-    history: list[dict] = []
-    record = tr.recorder(history, options.callback)
-    phi0, (lo, hi) = tr.phi(theta0), tr.box()
-    nhev, detail = 0, ""
-    try:
-        if method in BASELINES:
-            phi, nit, status, detail = run_baseline(method, tr, phi0, options, record)
-        else:
-            if method == "newton-cg":
-                fn = tr.derivs_hessp
-            else:
-                fn = tr.derivs(
-                    problem.cost_grad_hess if method == "newton" else problem.cost_grad_gn
-                )
-            r = minimize_trust_region(
-                fn, phi0, lo, hi, fatol=tr.fatol, callback=record, **options.trust_region()
-            )
-            phi, nit, status, detail, nhev = r.x, r.nit, r.status, r.detail, r.nhev
-    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as e:
-        # SciPy's baselines give up in their own ways; an eigen-solver may fail to
-        # converge on a Hessian at the edge of overflow
-        if tr.best_phi is None:
-            return _failed(problem, method, theta0, started, f"{type(e).__name__}: {e}")
-        phi, nit, status = tr.best_phi, len(history), Status.BASELINE_STOPPED
-        detail = f"{method} stopped with {type(e).__name__}: {e}"
-    res = _finish(tr, method, phi, nit, status, detail, started, history)
-    res.nhev = nhev
-    return res
-
-
-def _lockstep(problem, method, trackers: dict, options, started, results) -> list:
-    """The trust-region runs of several starts, their points evaluated together."""
-    gn = method == "gauss-newton"
-    B = len(results)
-    runs, pending = {}, {}
-    for i, tr in trackers.items():
-        history: list[dict] = []
-        lo, hi = tr.box()
-        steps = trust_region_steps(
-            tr.phi(tr.theta0),
-            lo,
-            hi,
-            fatol=tr.fatol,
-            callback=tr.recorder(history, None),
-            **options.trust_region(),
-        )
-        runs[i] = (tr, steps, history)
-        pending[i] = next(steps)
-    while pending:
-        ids = list(pending)
-        points = [runs[i][0].theta(pending[i]) for i in ids]
-        points += [points[0]] * (B - len(ids))  # one shape: one compilation
-        J, g, H = problem.cost_grad_hess_batch(np.array(points), gauss_newton=gn)
-        for k, i in enumerate(ids):
-            tr, steps, history = runs[i]
-            try:
-                pending[i] = steps.send(tr.scaled(pending[i], J[k], g[k], H[k]))
-            except StopIteration as done:
-                r = done.value
-                del pending[i]
-                results[i] = _finish(tr, method, r.x, r.nit, r.status, r.detail, started, history)
-    return results
-
-
-def _finish(tr: Tracker, method, phi, nit, status, detail, started, history) -> FitResult:
-    """The result at the end point, or at the best point seen if that is better."""
-    problem = tr.problem
-    if tr.best_phi is not None and tr.best_J < problem.cost(tr.theta(phi)):
-        phi = tr.best_phi
-    message = describe(status, detail)
-    if not status.success and tr.nonfinite:
-        message += f" ({tr.nonfinite} trial points blew up; see warnings)"
-    res = FitResult.at(
-        problem,
-        method,
-        tr.theta(phi),
-        tr.scale,
-        status,
-        message=message,
-        nit=nit,
-        nfev=tr.nfev,
-        started=started,
-        history=history,
-    )
-    res.notes = tr.notes()
-    return res
-
-
-def _failed_start(problem, method, theta0, started) -> FitResult:
-    """The result for a start where the simulation already blows up, saying where."""
-    why = problem.diagnose(theta0) or "the simulation is not finite at the start"
-    return _failed(problem, method, theta0, started, why + " Choose another initial guess.")
-
-
-def _failed(problem, method, theta0, started, message, status=Status.NONFINITE_START):
-    return FitResult.at(
-        problem,
-        method,
-        theta0,
-        np.ones(problem.K),
-        status,
-        message=message,
-        nfev=1,
-        started=started,
-        evaluate=False,
-    )
-
-
 # -- many starts --------------------------------------------------------------------------
 def fit_task(method: str, options: FitOptions):
     """The task that multistart.run_starts sends to workers: fit each start of a
@@ -310,7 +171,7 @@ def fit_task(method: str, options: FitOptions):
 def _fit_chunk(problem, thetas, *, method: str, options: FitOptions) -> list[dict]:
     """Worker side: fit from each row of ``thetas`` (in lock-step when several)."""
     thetas = np.asarray(thetas, dtype=float)
-    results = _fit_many(problem, method, thetas, options, time.perf_counter())
+    results = fit_many(problem, method, thetas, options, time.perf_counter())
     return [
         {
             "theta0": list(map(float, th)),
@@ -341,10 +202,10 @@ def _best_of(problem, method, runs: list[dict], options: FitOptions, started) ->
         msg = describe(
             Status.ALL_STARTS_FAILED, f"none of the {len(runs)} starts gave a finite cost"
         )
-        res = _failed(problem, method, problem.theta0, started, msg, Status.ALL_STARTS_FAILED)
+        res = failed(problem, method, problem.theta0, started, msg, Status.ALL_STARTS_FAILED)
         res.nit_total, res.nfev_total = nit_all, nfev_all
     else:
-        res = _fit_many(problem, method, np.asarray(best["theta"])[None, :], options, started)[0]
+        res = fit_many(problem, method, np.asarray(best["theta"])[None, :], options, started)[0]
         res.nit_total, res.nfev_total = nit_all + res.nit, nfev_all + res.nfev
         more = [dict(h, iteration=h["iteration"] + best["nit"]) for h in res.history[1:]]
         res.history = histories[best["start"]] + more

@@ -46,7 +46,8 @@ def stderr_text(se: float) -> str:
     """A standard error to two significant digits; 'inf' for a flat direction."""
     if not math.isfinite(se):
         return "inf" if se > 0 else "–"
-    return f"{se:.2g}"
+    text = f"{se:#.2g}"  # '#' keeps the second digit of 4.0e-09
+    return text[:-1] if text.endswith(".") else text
 
 
 METRICS = ("gof", "rmse", "nrmse")

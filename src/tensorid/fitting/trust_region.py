@@ -286,17 +286,10 @@ def trust_region_steps(
     history: list[dict] = []
 
     def record(it, step, rho, accepted):
-        entry = {
-            "iteration": it,
-            "cost": float(J),
-            "grad_norm": float(np.linalg.norm(_projected_gradient(x, g, lo, hi), np.inf)),
-            "radius": float(radius),
-            "step_norm": float(step),
-            "rho": float(rho),
-            "accepted": bool(accepted),
-            "nfev": nfev,
-            "nhev": nhev[0],
-        }
+        pg = float(np.linalg.norm(_projected_gradient(x, g, lo, hi), np.inf))
+        entry = dict(iteration=it, cost=float(J), grad_norm=pg, radius=float(radius))
+        entry.update(step_norm=float(step), rho=float(rho), accepted=bool(accepted))
+        entry.update(nfev=nfev, nhev=nhev[0])
         history.append(entry)
         if callback is not None:
             callback(entry)

@@ -13,13 +13,7 @@ def _f(v, d=4):
 
 
 def render(r: dict, figures: list[str]) -> str:
-    meta, sb, tt = r["meta"], r["silverbox"], r["two_tank"]
-    pm, pe, om, mr = (
-        sb["paper_model"],
-        sb["paper_estimates"],
-        sb["offset_model"],
-        sb["mean_removed"],
-    )
+    meta = r["meta"]
     out = [
         "# Reproducing Saha & Singh with tensorid",
         "",
@@ -37,6 +31,15 @@ def render(r: dict, figures: list[str]) -> str:
         "RK4 with 4 substeps per sample, from the paper's initial guess.",
         "",
     ]
+    out += _silverbox_table(r["silverbox"]) + _silverbox_why(r["silverbox"])
+    out += _two_tank(r["two_tank"])
+    out += ["", "## Robustness: the paper's Table 1", ""]
+    out += _robustness(r) + _robustness_verdict(r["robustness"])
+    return "\n".join(out) + "\n"
+
+
+def _silverbox_table(sb: dict) -> list[str]:
+    pm, pe, om = sb["paper_model"], sb["paper_estimates"], sb["offset_model"]
     rows = []
     for name in ("m", "d", "a", "b", "u0"):
         rows.append(
@@ -70,7 +73,7 @@ def render(r: dict, figures: list[str]) -> str:
         ],
         ["iterations", pm["iterations"], "27 (paper)", om["iterations"]],
     ]
-    out += [
+    out = [
         md_table(
             [
                 "",
@@ -82,8 +85,18 @@ def render(r: dict, figures: list[str]) -> str:
         ),
         "",
     ]
+    return out
+
+
+def _silverbox_why(sb: dict) -> list[str]:
+    pm, pe, om, mr = (
+        sb["paper_model"],
+        sb["paper_estimates"],
+        sb["offset_model"],
+        sb["mean_removed"],
+    )
     cheaper = pm["train_cost"] <= pe["train_cost"]
-    out += [
+    return [
         "![training](silverbox_train.png)",
         "",
         "![validation](silverbox_validation.png)",
@@ -113,6 +126,8 @@ def render(r: dict, figures: list[str]) -> str:
         "",
     ]
 
+
+def _two_tank(tt: dict) -> list[str]:
     tpm, tpe, tz = tt["paper_model"], tt["paper_estimates"], tt["zoh_input"]
     rows = [
         [n, _f(tpm["params"][n], 5), _f(tpe["params"][n], 5), _f(tz["params"][n], 5)]
@@ -128,7 +143,7 @@ def render(r: dict, figures: list[str]) -> str:
         ],
         ["iterations", tpm["iterations"], "100 (paper)", "–"],
     ]
-    out += [
+    out = [
         "## Two-tank",
         "",
         "Model x1' = -p1 √x1 + p2 u, x2' = -p3 √x2 + p4 √x1, y = x2, on the first 501 "
@@ -163,9 +178,7 @@ def render(r: dict, figures: list[str]) -> str:
     ]
     for w in tpm["warnings"] + tpe["warnings"]:
         out.append(f"- **Warning:** {w}")
-    out += ["", "## Robustness: the paper's Table 1", ""]
-    out += _robustness(r)
-    return "\n".join(out) + "\n"
+    return out
 
 
 def _robustness(r: dict) -> list[str]:
@@ -230,6 +243,12 @@ def _robustness(r: dict) -> list[str]:
         "the optimizers, on one and the same simulator.",
         "",
     ]
+    return out
+
+
+def _robustness_verdict(rows: list[dict]) -> list[str]:
+    """One sentence per method: how often it reached the best cost."""
+    out = []
     newton = [x for x in rows if x["method"] == "newton"]
     if newton:
         worst = min(newton, key=lambda x: x["converged"] / x["starts"])

@@ -57,6 +57,18 @@ def _silverbox_validate(model, params, substeps: int, val: Experiment) -> float:
 
 def silverbox_study(out: Path) -> tuple[dict, list[Path]]:
     train, val = datasets.silverbox_train(), datasets.silverbox_validation()
+    paper_model, model, figures = _silverbox_paper_model(out, train, val)
+    offset_model, figure = _silverbox_offset_model(out, val)
+    return {
+        "paper_model": paper_model,
+        "paper_estimates": _silverbox_paper_estimates(model, train, val),
+        "offset_model": offset_model,
+        "mean_removed": _silverbox_mean_removed(model, train, val),
+    }, [*figures, figure]
+
+
+def _silverbox_paper_model(out: Path, train: Experiment, val: Experiment):
+    """The paper's model fitted from the paper's guess, with its two figures."""
     figures = []
     res = fit(benchmarks.silverbox_problem(), method="newton")
     sim_tr = res.simulate()[0]
@@ -95,12 +107,15 @@ def silverbox_study(out: Path) -> tuple[dict, list[Path]]:
             f"{paper_model['val_gof']:.4f} (paper's figure 2)",
         )
     )
+    return paper_model, model, figures
 
-    # the paper's own estimates, on our simulator
+
+def _silverbox_paper_estimates(model, train: Experiment, val: Experiment) -> dict:
+    """The paper's own estimates, on our simulator."""
     pp = benchmarks.silverbox_problem(p0=benchmarks.SILVERBOX_PAPER)
     theta_p = pp.theta0.copy()
     theta_p[0] = benchmarks.SILVERBOX_PAPER_VDOT0
-    paper_estimates = {
+    return {
         "params": benchmarks.SILVERBOX_PAPER,
         "x0": [float(train.measured[0, 0]), benchmarks.SILVERBOX_PAPER_VDOT0],
         "train_cost": pp.cost(theta_p),
@@ -109,7 +124,9 @@ def silverbox_study(out: Path) -> tuple[dict, list[Path]]:
         "reported_val_gof": benchmarks.SILVERBOX_PAPER_VAL_GOF,
     }
 
-    # beyond the paper: the input offset and y(t0) estimated too
+
+def _silverbox_offset_model(out: Path, val: Experiment) -> tuple[dict, Path]:
+    """Beyond the paper: the input offset and y(t0) estimated too."""
     ro = fit(benchmarks.silverbox_problem(offset=True), method="newton")
     om = ro.problem.model
     sim_vo = simulate(om, ro.params, [float(val.measured[0, 0]), 0.0], val)
@@ -122,20 +139,21 @@ def silverbox_study(out: Path) -> tuple[dict, list[Path]]:
         "iterations": ro.nit,
         "success": ro.success,
     }
-    figures.append(
-        compare_plot(
-            out / "silverbox_offset_validation.png",
-            val.t,
-            _y(val),
-            sim_vo.y[:, 0],
-            ylabel="V2 [V]",
-            title=f"Silverbox with input offset u0 = "
-            f"{ro.params['u0'] * 1e3:.2f} mV, validation: GOF "
-            f"{offset_model['val_gof']:.4f}",
-        )
+    figure = compare_plot(
+        out / "silverbox_offset_validation.png",
+        val.t,
+        _y(val),
+        sim_vo.y[:, 0],
+        ylabel="V2 [V]",
+        title=f"Silverbox with input offset u0 = "
+        f"{ro.params['u0'] * 1e3:.2f} mV, validation: GOF "
+        f"{offset_model['val_gof']:.4f}",
     )
+    return offset_model, figure
 
-    # diagnostic: the archive's README removes the record means of V1 and V2
+
+def _silverbox_mean_removed(model, train: Experiment, val: Experiment) -> dict:
+    """Diagnostic: the archive's README removes the record means of V1 and V2."""
     means = datasets._load("silverbox_schroeder80mV.npz")
     mu, my = float(means["record_mean_V1"]), float(means["record_mean_V2"])
     tr_c = Experiment(train.t, train.u - mu, train.measured - my)
@@ -150,19 +168,13 @@ def silverbox_study(out: Path) -> tuple[dict, list[Path]]:
         ),
         method="newton",
     )
-    mean_removed = {
+    return {
         "params": rc.params,
         "train_cost": rc.cost,
         "train_gof": float(rc.gof()[0]),
         "val_gof": _silverbox_validate(model, rc.params, 4, va_c),
         "paper_estimates_val_gof": _silverbox_validate(model, benchmarks.SILVERBOX_PAPER, 4, va_c),
     }
-    return {
-        "paper_model": paper_model,
-        "paper_estimates": paper_estimates,
-        "offset_model": offset_model,
-        "mean_removed": mean_removed,
-    }, figures
 
 
 def two_tank_study(out: Path) -> tuple[dict, list[Path]]:

@@ -1,0 +1,156 @@
+"""The driver behind fit() and fit_batch(): the shared set-up (starting cost, scale,
+tracker), one start evaluated point by point (any method), or several starts in
+lock-step with their points evaluated in one vectorised call; and the result at the
+end, which is the best finite point seen.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..engine.status import Status
+from .baselines import BASELINES, run_baseline
+from .options import FitOptions
+from .results import FitResult, describe
+from .scaling import Tracker
+from .trust_region import minimize_trust_region, trust_region_steps
+
+
+def fit_many(problem, method, thetas, options: FitOptions, started) -> list[FitResult]:
+    """Fits from every row of ``thetas``: lock-step for several starts, otherwise one
+    start evaluated point by point. The set-up (cost, scale, tracker) is shared."""
+    batched = len(thetas) > 1
+    if batched:
+        J0, _, H0 = problem.cost_grad_hess_batch(thetas, gauss_newton=True)
+    else:
+        J, _, H = problem.cost_grad_gn(thetas[0])
+        J0, H0 = np.array([J]), H[None]
+    results: list[FitResult | None] = [None] * len(thetas)
+    trackers = {}
+    for i, th in enumerate(thetas):
+        if np.isfinite(J0[i]):
+            trackers[i] = Tracker.start(problem, th, J0[i], H0[i], options.x_scale)
+        else:
+            results[i] = _failed_start(problem, method, th, started)
+    if batched:
+        results = _lockstep(problem, method, trackers, options, started, results)
+    elif trackers:
+        results = [_single(method, trackers[0], options, started)]
+    for r in results:
+        assert r is not None
+        if batched:
+            r.seconds = time.perf_counter() - started
+    return results  # type: ignore[return-value]
+
+
+def _single(method, tr: Tracker, options: FitOptions, started) -> FitResult:
+    """One start, evaluated point by point: any method."""
+    problem, theta0 = tr.problem, tr.theta0
+    history: list[dict] = []
+    record = tr.recorder(history, options.callback)
+    phi0, (lo, hi) = tr.phi(theta0), tr.box()
+    nhev, detail = 0, ""
+    try:
+        if method in BASELINES:
+            phi, nit, status, detail = run_baseline(method, tr, phi0, options, record)
+        else:
+            if method == "newton-cg":
+                fn = tr.derivs_hessp
+            else:
+                fn = tr.derivs(
+                    problem.cost_grad_hess if method == "newton" else problem.cost_grad_gn
+                )
+            r = minimize_trust_region(
+                fn, phi0, lo, hi, fatol=tr.fatol, callback=record, **options.trust_region()
+            )
+            phi, nit, status, detail, nhev = r.x, r.nit, r.status, r.detail, r.nhev
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as e:
+        # SciPy's baselines give up in their own ways; an eigen-solver may fail to
+        # converge on a Hessian at the edge of overflow
+        if tr.best_phi is None:
+            return failed(problem, method, theta0, started, f"{type(e).__name__}: {e}")
+        phi, nit, status = tr.best_phi, len(history), Status.BASELINE_STOPPED
+        detail = f"{method} stopped with {type(e).__name__}: {e}"
+    res = _finish(tr, method, phi, nit, status, detail, started, history)
+    res.nhev = nhev
+    return res
+
+
+def _lockstep(problem, method, trackers: dict, options, started, results) -> list:
+    """The trust-region runs of several starts, their points evaluated together."""
+    gn = method == "gauss-newton"
+    B = len(results)
+    runs, pending = {}, {}
+    for i, tr in trackers.items():
+        history: list[dict] = []
+        lo, hi = tr.box()
+        steps = trust_region_steps(
+            tr.phi(tr.theta0),
+            lo,
+            hi,
+            fatol=tr.fatol,
+            callback=tr.recorder(history, None),
+            **options.trust_region(),
+        )
+        runs[i] = (tr, steps, history)
+        pending[i] = next(steps)
+    while pending:
+        ids = list(pending)
+        points = [runs[i][0].theta(pending[i]) for i in ids]
+        points += [points[0]] * (B - len(ids))  # one shape: one compilation
+        J, g, H = problem.cost_grad_hess_batch(np.array(points), gauss_newton=gn)
+        for k, i in enumerate(ids):
+            tr, steps, history = runs[i]
+            try:
+                pending[i] = steps.send(tr.scaled(pending[i], J[k], g[k], H[k]))
+            except StopIteration as done:
+                r = done.value
+                del pending[i]
+                results[i] = _finish(tr, method, r.x, r.nit, r.status, r.detail, started, history)
+    return results
+
+
+def _finish(tr: Tracker, method, phi, nit, status, detail, started, history) -> FitResult:
+    """The result at the end point, or at the best point seen if that is better."""
+    problem = tr.problem
+    if tr.best_phi is not None and tr.best_J < problem.cost(tr.theta(phi)):
+        phi = tr.best_phi
+    message = describe(status, detail)
+    if not status.success and tr.nonfinite:
+        message += f" ({tr.nonfinite} trial points blew up; see warnings)"
+    res = FitResult.at(
+        problem,
+        method,
+        tr.theta(phi),
+        tr.scale,
+        status,
+        message=message,
+        nit=nit,
+        nfev=tr.nfev,
+        started=started,
+        history=history,
+    )
+    res.notes = tr.notes()
+    return res
+
+
+def _failed_start(problem, method, theta0, started) -> FitResult:
+    """The result for a start where the simulation already blows up, saying where."""
+    why = problem.diagnose(theta0) or "the simulation is not finite at the start"
+    return failed(problem, method, theta0, started, why + " Choose another initial guess.")
+
+
+def failed(problem, method, theta0, started, message, status=Status.NONFINITE_START):
+    return FitResult.at(
+        problem,
+        method,
+        theta0,
+        np.ones(problem.K),
+        status,
+        message=message,
+        nfev=1,
+        started=started,
+        evaluate=False,
+    )

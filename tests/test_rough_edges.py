@@ -1,0 +1,158 @@
+"""The rough edges a new user hit on the first release, one test each: intervals
+printed too short, plots written unasked, multi-start counts, `simulate` output,
+repeated labels, progress in logs, offline docs, ignored outputs."""
+
+from __future__ import annotations
+
+import io
+import json
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import SILVERBOX_P, silverbox_data, silverbox_model
+
+import tensorid as ti
+from tensorid import cli
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE = ROOT / "examples" / "silverbox"
+
+
+@pytest.fixture(scope="module")
+def silverbox_fit(tmp_path_factory):
+    """The README's fit command on the shipped example, as a user runs it."""
+    out = tmp_path_factory.mktemp("fit") / "silverbox-fit"
+    args = ["fit", str(EXAMPLE / "model.py"), str(EXAMPLE / "train.csv")]
+    args += ["--validate", str(EXAMPLE / "validate.csv"), "--out", str(out), "--no-progress"]
+    assert cli.main(args) == 0
+    return out
+
+
+def _interval_rows(report: str) -> list[tuple[str, str, str, str]]:
+    rows = re.findall(r"^\| (\S+) \| (\S+) \| (\S+) \| \[(\S+), (\S+)\] \|$", report, flags=re.M)
+    return [(n, se, lo, hi) for n, _, se, lo, hi in rows]
+
+
+def test_every_interval_in_report_md_has_visible_width(silverbox_fit):
+    rows = _interval_rows((silverbox_fit / "report.md").read_text())
+    assert {r[0] for r in rows} >= {"m", "d", "a", "b", "u0"}
+    for name, se, lo, hi in rows:
+        assert lo != hi, (name, lo, hi)  # m = 5.17e-6 ± 4e-9 printed as [5e-06, 5e-06]
+        assert float(lo) < float(hi)
+        assert len(se.replace("0.", "").lstrip("0").split("e")[0].replace(".", "")) >= 2, se
+
+
+def test_the_summary_prints_intervals_with_visible_width(capsys, silverbox_fit):
+    d = json.loads((silverbox_fit / "fit.json").read_text())
+    m_lo, m_hi = d["ci95"]["m"]
+    text = ti.fitting.summary.interval(m_lo, m_hi)
+    lo, hi = text.strip("[]").split(", ")
+    assert lo != hi and float(lo) == pytest.approx(m_lo, rel=1e-5)
+
+
+def test_plot_without_a_path_writes_nothing_and_returns_figures(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    prob = ti.Problem(silverbox_model(), silverbox_data(P=200), p0=SILVERBOX_P, x0=[0.0, 0.0])
+    res = ti.fit(prob, maxiter=3)
+    figs = res.plot()
+    assert figs and all(hasattr(f, "savefig") for f in figs)
+    assert list(tmp_path.iterdir()) == []
+    written = res.plot(tmp_path / "figs")
+    assert all(Path(p).is_file() for p in written)
+
+
+def test_multistart_reports_the_best_starts_own_run_and_the_totals():
+    prob = ti.Problem(
+        silverbox_model(),
+        silverbox_data(P=200),
+        p0={k: v * 1.1 for k, v in SILVERBOX_P.items()},
+        x0=[0.0, 0.0],
+    )
+    res = ti.fit(prob, starts=4, workers=1, spread=0.1)
+    best = res.starts[0]
+    assert res.nit >= best["nit"] > 1  # not just the refinement's single iteration
+    assert len(res.history) == res.nit + 1  # the convergence plot has the whole run
+    assert res.nit_total >= sum(s["nit"] for s in res.starts)
+    assert res.nfev_total > res.nfev >= best["nfev"]
+    assert "best of 4 starts" in res.summary() and "all starts" in res.summary()
+
+
+def test_simulate_writes_a_folder_like_fit_and_says_which_x0(tmp_path, capsys, silverbox_fit):
+    out = tmp_path / "sim"
+    args = ["simulate", str(EXAMPLE / "model.py"), str(EXAMPLE / "validate.csv")]
+    rc = cli.main(args + ["--params", str(silverbox_fit / "fit.json"), "--out", str(out)])
+    assert rc == 0
+    header = (out / "simulation.csv").read_text().splitlines()[0].split(",")
+    assert header == ["t", "u", "y", "y_sim", "state_y", "state_ydot"]
+    text = capsys.readouterr().out
+    assert "initial state" in text and "estimated on this record" in text
+    table = np.loadtxt(out / "simulation.csv", delimiter=",", skiprows=1)
+    # estimated, not the training record's x0 silently reused
+    train_x0 = json.loads((silverbox_fit / "fit.json").read_text())["x0"]
+    assert not np.allclose(table[0, 4:], train_x0)
+    assert np.allclose(
+        table[0, 4:], [float(v) for v in re.findall(r"y=(\S+), ydot=(\S+) ", text)[0]], rtol=1e-5
+    )
+
+
+def test_no_label_is_repeated(silverbox_fit, capsys):
+    report = (silverbox_fit / "report.md").read_text()
+    for bad in ("train train", "converged (converged", " 1 iterations", "validate validate"):
+        assert bad not in report
+    args = ["fit", str(EXAMPLE / "model.py"), str(EXAMPLE / "train.csv"), "--no-progress"]
+    cli.main(args + ["--validate", str(EXAMPLE / "validate.csv"), "--out", str(silverbox_fit)])
+    text = capsys.readouterr().out
+    assert "GOF train train" not in text and "GOF validation validate" not in text
+    assert "GOF train:" in text and "GOF validation:" in text
+    p0 = {k: 1.05 * v for k, v in SILVERBOX_P.items()}
+    prob = ti.Problem(silverbox_model(), silverbox_data(P=200), p0=p0, x0=[0.0, 0.0])
+    res = ti.fit(prob, maxiter=1)
+    titles = [ax.get_title() for f in res.plot() for ax in f.axes]
+    assert not any("training: training" in t or "train: train" in t for t in titles)
+    assert "1 iteration," in res.summary() or "1 iteration;" in res.summary()
+
+
+def test_paper_progress_in_a_log_is_whole_lines():
+    from tensorid.app.progress import study_progress
+
+    log = io.StringIO()
+    with study_progress(True, stream=log) as prog:
+        prog.step("Silverbox")
+        prog.start_robustness(20, 2)
+        for i in range(20):
+            prog.advance(
+                {"dataset": "silverbox", "method": "newton", "substeps": 4, "success": i % 3 > 0}
+            )
+    text = log.getvalue()
+    assert "\r" not in text and "━" not in text and "\x1b" not in text
+    lines = text.splitlines()
+    assert lines[0].endswith("Silverbox") and "20/20 fits done" in lines[-1]
+    assert len(lines) <= 2 + 10  # a line per tenth, not per fit
+
+
+def test_docs_need_no_network():
+    config = (ROOT / "mkdocs.yml").read_text()
+    assert "use_directory_urls: false" in config
+    assets = re.findall(r"^\s+- (\S+\.js)\s*$", config, flags=re.M)
+    assert assets and all(not a.startswith("http") for a in assets)
+    assert all((ROOT / "docs" / a).is_file() for a in assets)
+    assert "font: false" in config
+
+
+@pytest.mark.skipif(shutil.which("git") is None, reason="needs git")
+def test_readme_outputs_are_git_ignored():
+    if not (ROOT / ".git").exists():
+        pytest.skip("not a git checkout")
+    for path in (
+        "paper-results/report.md",
+        "silverbox-fit/fit.json",
+        "simulation.csv",
+        "simulation-results/simulation.csv",
+        "fit-results/fit.json",
+    ):
+        r = subprocess.run(["git", "check-ignore", "-q", path], cwd=ROOT)
+        assert r.returncode == 0, f"{path} is not ignored"
