@@ -12,7 +12,7 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 @pytest.mark.parametrize(
     "script,expect",
     [
-        ("silverbox_paper.py", "validation GOF 0.98"),
+        pytest.param("silverbox_paper.py", "validation GOF 0.98", marks=pytest.mark.slow),
         ("two_tank.py", "GOF 0.789"),
         ("text_equations.py", "95 % interval"),
     ],

@@ -69,7 +69,9 @@ def test_explicit_scheme_blows_up_on_robertson_where_implicit_ones_are_accurate(
         assert (np.abs(sim.y - data.measured) / scale).max() < tol, (scheme, substeps)
 
 
-@pytest.mark.parametrize("scheme", ["sdirk3", "sdirk2", "implicit-euler"])
+@pytest.mark.parametrize(
+    "scheme", [pytest.param("sdirk3", marks=pytest.mark.slow), "sdirk2", "implicit-euler"]
+)
 def test_implicit_derivatives_are_exact_on_robertson(robertson, scheme):
     m, data = robertson
     prob = ti.Problem(
@@ -125,7 +127,7 @@ def test_adaptive_error_follows_the_tolerance(scheme):
     assert errs[1] < 1e-6 and errs[1] < errs[0] / 30, errs
 
 
-@pytest.mark.parametrize("scheme", ["dopri5", "bosh3"])
+@pytest.mark.parametrize("scheme", [pytest.param("dopri5", marks=pytest.mark.slow), "bosh3"])
 def test_adaptive_derivatives_are_exact_for_the_steps_taken(scheme):
     m = oscillator_model()
     t = np.linspace(0, 6, 60)
@@ -152,3 +154,28 @@ def test_tolerances_are_checked():
         ti.Problem(m, data, p0=SILVERBOX_P, scheme="dopri5", rtol=1e-16)
     with pytest.raises(ValueError, match="sdirk3"):
         ti.Problem(m, data, p0=SILVERBOX_P, scheme="radau")
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(a=((), (0.5,)), b=(0.5, 0.5), c=(0.0, 1.0)), "row 1 of a sums to 0.5"),
+        (dict(a=((), (1.0,)), b=(0.6, 0.6), c=(0.0, 1.0)), "sum to 1.2"),
+        (dict(a=((),), b=(1.0, 0.0), c=(0.0,)), "one entry per stage"),
+        (dict(a=((), (0.5, 0.5)), b=(0.5, 0.5), c=(0.0, 1.0)), "explicit row 1 has 1"),
+    ],
+)
+def test_a_wrong_tableau_is_refused_when_the_scheme_is_built(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        ti.ExplicitRungeKutta("bad", order=2, **kwargs)
+
+
+def test_every_shipped_scheme_follows_the_protocol():
+    import inspect
+
+    from tensorid.engine.integrators import RungeKuttaScheme
+
+    want = len(inspect.signature(RungeKuttaScheme.interval).parameters) - 1  # self
+    for scheme in ti.SCHEMES.values():
+        assert isinstance(scheme.name, str) and scheme.order >= 1
+        assert len(inspect.signature(scheme.interval).parameters) == want, scheme.name

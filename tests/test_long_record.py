@@ -8,6 +8,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 SCRIPT = """
 import json, resource
@@ -27,6 +28,7 @@ print(json.dumps(out))
 """
 
 
+@pytest.mark.slow
 def test_whole_record_sweep_memory_does_not_grow_with_its_length():
     r = subprocess.run([sys.executable, "-c", SCRIPT], capture_output=True, text=True, check=True)
     out = json.loads(r.stdout.strip().splitlines()[-1])

@@ -11,6 +11,9 @@ import pytest
 from tensorid import benchmarks, cli, datasets, paper
 from tensorid.paper import COMPARED
 
+# the study runs the command line end to end: about 40 s
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def study(tmp_path_factory):

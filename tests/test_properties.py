@@ -172,6 +172,7 @@ def _exact(A: np.ndarray, x0: np.ndarray, Y: np.ndarray):
     return J, g, H
 
 
+@pytest.mark.slow
 @settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     N=st.integers(1, 3),

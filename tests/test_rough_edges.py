@@ -156,3 +156,10 @@ def test_readme_outputs_are_git_ignored():
     ):
         r = subprocess.run(["git", "check-ignore", "-q", path], cwd=ROOT)
         assert r.returncode == 0, f"{path} is not ignored"
+
+
+def test_slow_studies_are_marked_out_of_the_default_run_but_not_out_of_ci():
+    config = (ROOT / "pyproject.toml").read_text()
+    assert "-m 'not slow'" in config and "slow:" in config
+    ci = (ROOT / ".ci" / "run").read_text().splitlines()
+    assert "python -m pytest" in ci and "python -m pytest -m slow" in ci

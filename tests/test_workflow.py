@@ -252,6 +252,7 @@ def test_structurally_non_identifiable_model_is_named():
     assert np.isinf(u_.stderr[1:]).all() and np.isfinite(u_.stderr[0])
 
 
+@pytest.mark.slow
 def test_multistart_local_and_dask_agree(workdir):
     distributed = pytest.importorskip("distributed")
     spec = ti.load_model(workdir / "model.py")

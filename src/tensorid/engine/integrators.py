@@ -33,6 +33,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import Protocol
 
 import jax
 import jax.numpy as jnp
@@ -313,6 +314,17 @@ class AdaptiveRungeKutta:
         ).astype(jnp.int32)
         y = jax.tree_util.tree_map(lambda a: jnp.where(code != 0, jnp.nan, a), y)
         return y, step, code
+
+
+class RungeKuttaScheme(Protocol):
+    """What the march needs of a scheme: its name and order, and ``interval``, which
+    covers one sample interval and returns (y, carry, failure code). The carry is
+    the scheme's own state between intervals (the adaptive schemes' trial step)."""
+
+    name: str
+    order: int
+
+    def interval(self, f: Field, fs: Field, y, dt, carry, substeps: int): ...
 
 
 Scheme = ExplicitRungeKutta | DiagonallyImplicitRungeKutta | AdaptiveRungeKutta

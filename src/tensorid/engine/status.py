@@ -58,6 +58,7 @@ class Status(enum.Enum):
         -1,
     )
     BASELINE_STOPPED = ("stopped", False, -1)  # a SciPy baseline gave up in its own way
+    SOLVER_FAILED = ("stopped: the optimiser raised an error; the best point is kept", False, -1)
     ALL_STARTS_FAILED = ("no start gave a finite cost", False, -1)
     INTERRUPTED = ("interrupted: the best point found so far is kept", False, -1)
 

@@ -52,30 +52,44 @@ def _single(method, tr: Tracker, options: FitOptions, started) -> FitResult:
     record = tr.recorder(history, options.callback)
     phi0, (lo, hi) = tr.phi(theta0), tr.box()
     nhev, detail = 0, ""
+    # what each path may raise: SciPy's baselines give up in their own ways; the
+    # eigen-solver of an exact subproblem may not converge on a Hessian at the edge
+    # of overflow. Anything else is a bug and is not hidden.
+    expected = (
+        (ValueError, ArithmeticError, np.linalg.LinAlgError)
+        if method in BASELINES
+        else (np.linalg.LinAlgError,)
+    )
     try:
         if method in BASELINES:
             phi, nit, status, detail = run_baseline(method, tr, phi0, options, record)
         else:
-            if method == "newton-cg":
-                fn = tr.derivs_hessp
-            else:
-                fn = tr.derivs(
-                    problem.cost_grad_hess if method == "newton" else problem.cost_grad_gn
-                )
             r = minimize_trust_region(
-                fn, phi0, lo, hi, fatol=tr.fatol, callback=record, **options.trust_region()
+                _derivatives(method, tr),
+                phi0,
+                lo,
+                hi,
+                fatol=tr.fatol,
+                callback=record,
+                **options.trust_region(),
             )
             phi, nit, status, detail, nhev = r.x, r.nit, r.status, r.detail, r.nhev
-    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as e:
-        # SciPy's baselines give up in their own ways; an eigen-solver may fail to
-        # converge on a Hessian at the edge of overflow
+    except expected as e:
+        detail = f"{method} raised {type(e).__name__}: {e}"
         if tr.best_phi is None:
-            return failed(problem, method, theta0, started, f"{type(e).__name__}: {e}")
-        phi, nit, status = tr.best_phi, len(history), Status.BASELINE_STOPPED
-        detail = f"{method} stopped with {type(e).__name__}: {e}"
+            return failed(problem, method, theta0, started, detail, Status.SOLVER_FAILED)
+        phi, nit, status = tr.best_phi, len(history), Status.SOLVER_FAILED
     res = _finish(tr, method, phi, nit, status, detail, started, history)
     res.nhev = nhev
     return res
+
+
+def _derivatives(method: str, tr: Tracker):
+    """φ -> scaled (J, g, H or v -> Hv) for an exact-derivative method."""
+    if method == "newton-cg":
+        return tr.derivs_hessp
+    problem = tr.problem
+    return tr.derivs(problem.cost_grad_hess if method == "newton" else problem.cost_grad_gn)
 
 
 def _lockstep(problem, method, trackers: dict, options, started, results) -> list:
