@@ -33,7 +33,7 @@ def silverbox_fit(tmp_path_factory):
 
 
 def _interval_rows(report: str) -> list[tuple[str, str, str, str]]:
-    rows = re.findall(r"^\| (\S+) \| (\S+) \| (\S+) \| \[(\S+), (\S+)\] \|$", report, flags=re.M)
+    rows = re.findall(r"^\| (\S+) \| (\S+) \| (\S+) \| \[(\S+), (\S+)\] \|.*$", report, flags=re.M)
     return [(n, se, lo, hi) for n, _, se, lo, hi in rows]
 
 

@@ -35,3 +35,51 @@ def test_flat_direction_names_only_the_unknowns_involved():
     H[2, 2] = 1e-4
     flat = flat_directions(H, ["m", "k", "c"])
     assert len(flat) == 1 and flat[0][1] == ["k", "c"]
+
+
+def _decay_problem(**kw):
+    m = ti.Model(
+        rhs=lambda x, p, u: -p[0] * x + p[1] * u[0] - p[2],
+        output=lambda x, p: x,
+        states=["x"],
+        params=["k", "b", "d"],
+        inputs=["u"],
+        outputs=["y"],
+    )
+    t = np.linspace(0, 5, 60)
+    u = np.sign(np.sin(2.0 * t))
+    truth = {"k": 1.0, "b": 0.5, "d": kw.pop("d_true", 0.0)}
+    y = ti.simulate(m, truth, [1.0], ti.Experiment(t, u)).y[:, 0]
+    y = y + 0.01 * np.random.default_rng(0).standard_normal(y.size)
+    return ti.Problem(m, ti.Experiment(t, u, y), p0=kw.pop("p0", truth), x0=[1.0], **kw)
+
+
+def test_an_indefinite_hessian_never_gives_a_zero_standard_error_and_names_the_direction():
+    prob = _decay_problem(free_x0=["x"], fixed=["b", "d"])
+    theta = np.array([1.0, 2.0])  # (x(t0), k): a point where the Hessian is indefinite
+    res = ti.FitResult.at(prob, "newton", theta, np.abs(theta), ti.Status.MAXITER)
+    assert np.linalg.eigvalsh(res.hess)[0] < 0  # the case this test is about
+    u = res.uncertainty()
+    assert np.isfinite(u.stderr).all() and (u.stderr > 0).all()
+    assert u.forms == ["gauss-newton", "gauss-newton"]
+    text = " ".join(u.warnings)
+    assert "indefinite" in text and "a direction that moves k" in text
+    assert "Gauss-Newton" in text
+    gn = res.uncertainty("gauss-newton")
+    np.testing.assert_allclose(u.stderr, gn.stderr)
+
+
+def test_a_parameter_on_its_bound_is_flagged_and_its_interval_respects_the_bound():
+    prob = _decay_problem(
+        d_true=-0.05, bounds={"d": (0.0, None)}, p0={"k": 1.0, "b": 0.5, "d": 0.02}
+    )
+    res = ti.fit(prob)
+    assert res.params["d"] == 0.0
+    u = res.uncertainty()
+    assert u.at_bound == {"d": "lower"}
+    k = u.names.index("d")
+    assert u.ci95[k, 0] >= 0.0 and u.ci95[k, 1] > 0.0
+    assert any("d sits on its lower bound" in w for w in res.warnings)
+    assert "on lower bound" in res.summary()
+    d = u.as_dicts()
+    assert d["at_bound"] == {"d": "lower"} and d["ci95"]["d"][0] >= 0.0

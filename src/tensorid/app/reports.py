@@ -10,7 +10,14 @@ from pathlib import Path
 import numpy as np
 
 from ..fitting.figures import pyplot, save_figure
-from ..fitting.summary import headline, interval, metric_rows, significant, stderr_text
+from ..fitting.summary import (
+    headline,
+    interval,
+    interval_note,
+    metric_rows,
+    significant,
+    stderr_text,
+)
 from ..fitting.validation import Score, training_scores
 
 
@@ -114,18 +121,20 @@ def fit_json(res, validation: list[Score]) -> dict:
 
 def fit_report(res, data: dict, scores: list[Score], figures: list[Path]) -> str:
     """report.md of a fit."""
+    u = res.uncertainty() if np.isfinite(res.cost) else None
     rows = []
     for n in res.problem.theta_names:
         se = data.get("stderr", {}).get(n, math.nan)
         ci = data.get("ci95", {}).get(n)
         ci_text = interval(*ci) if ci else "–"
-        rows.append([n, significant(data["estimates"][n], se), stderr_text(se), ci_text])
+        note = interval_note(u, n) if u else ""
+        rows.append([n, significant(data["estimates"][n], se), stderr_text(se), ci_text, note])
     lines = [
         f"# Fit of {res.problem.model.name}",
         "",
         headline(res) + f"; {res.seconds:.2f} s.",
         "",
-        md_table(["unknown", "estimate", "std. error", "95 % interval"], rows),
+        md_table(["unknown", "estimate", "std. error", "95 % interval", "note"], rows),
         "",
     ]
     if data["warnings"]:

@@ -154,8 +154,13 @@ class FitResult:
         ``kind`` "hessian" uses the exact Hessian, "gauss-newton" its first-order form."""
         if kind not in ("hessian", "gauss-newton"):
             raise ValueError("kind must be 'hessian' or 'gauss-newton'")
-        H = self.hess if kind == "hessian" else self.problem.cost_grad_gn(self.theta)[2]
-        return uncertainty(self.problem, self.theta, self.cost, H, kind)
+        problem, theta = self.problem, self.theta
+
+        def gauss_newton():
+            return problem.cost_grad_gn(theta)[2]
+
+        H = self.hess if kind == "hessian" else gauss_newton()
+        return uncertainty(problem, theta, self.cost, H, kind, gauss_newton=gauss_newton)
 
     @property
     def covariance(self) -> np.ndarray:

@@ -50,6 +50,20 @@ def stderr_text(se: float) -> str:
     return text[:-1] if text.endswith(".") else text
 
 
+def interval_note(u, name: str) -> str:
+    """What a reader must know about one interval: an estimate on a bound, an interval
+    cut at a bound, or one from the Gauss-Newton form."""
+    notes = []
+    if name in u.at_bound:
+        notes.append(f"on {u.at_bound[name]} bound")
+    elif name in u.cut:
+        notes.append(f"cut at {u.cut[name]} bound")
+    k = u.names.index(name)
+    if u.forms and u.forms[k] != u.kind:
+        notes.append(f"{u.forms[k]} form")
+    return ", ".join(notes)
+
+
 METRICS = ("gof", "rmse", "nrmse")
 
 
@@ -92,12 +106,16 @@ def summary_table(res, scores=None) -> str:
     tab = Table(
         title=f"{res.problem.model.name}: {'converged' if res.success else 'NOT converged'}"
     )
-    for col in ("unknown", "estimate", "std. error", "95 % interval"):
-        tab.add_column(col, justify="right" if col != "unknown" else "left")
-    for k, name in enumerate(res.problem.theta_names):
+    names = res.problem.theta_names
+    notes = [interval_note(u, n) for n in names] if u else [""] * len(names)
+    columns = ["unknown", "estimate", "std. error", "95 % interval"]
+    for col in columns + (["note"] if any(notes) else []):
+        tab.add_column(col, justify="left" if col in ("unknown", "note") else "right")
+    for k, name in enumerate(names):
         se = float(u.stderr[k]) if u else math.nan
         ci = interval(*u.ci95[k]) if u else "–"
-        tab.add_row(name, significant(res.theta[k], se), stderr_text(se), ci)
+        row = [name, significant(res.theta[k], se), stderr_text(se), ci]
+        tab.add_row(*row, *([notes[k]] if any(notes) else []))
     console = Console(width=110, record=True, file=io.StringIO())
     console.print(headline(res), soft_wrap=True)
     console.print(tab)
