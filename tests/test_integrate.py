@@ -170,12 +170,31 @@ def test_a_wrong_tableau_is_refused_when_the_scheme_is_built(kwargs, match):
         ti.ExplicitRungeKutta("bad", order=2, **kwargs)
 
 
-def test_every_shipped_scheme_follows_the_protocol():
-    import inspect
+def test_a_users_own_scheme_that_follows_the_protocol_runs():
+    from tensorid.engine.integrators import RK4, RungeKuttaScheme
 
-    from tensorid.engine.integrators import RungeKuttaScheme
+    class Halved:  # RK4 with twice the substeps: a scheme the package does not know
+        name, order = "rk4-halved", 4
 
-    want = len(inspect.signature(RungeKuttaScheme.interval).parameters) - 1  # self
-    for scheme in ti.SCHEMES.values():
-        assert isinstance(scheme.name, str) and scheme.order >= 1
-        assert len(inspect.signature(scheme.interval).parameters) == want, scheme.name
+        def interval(self, f, fs, y, dt, carry, substeps):
+            return RK4.interval(f, fs, y, dt, carry, 2 * substeps)
+
+    assert isinstance(Halved(), RungeKuttaScheme) and not isinstance(object(), RungeKuttaScheme)
+    m, data = silverbox_model(), silverbox_data(P=64)
+    own = ti.simulate(m, SILVERBOX_P, [0.01, 0.0], data, scheme=Halved(), substeps=2)
+    ref = ti.simulate(m, SILVERBOX_P, [0.01, 0.0], data, scheme="rk4", substeps=4)
+    np.testing.assert_allclose(own.x, ref.x, rtol=1e-14)
+    with pytest.raises(TypeError, match="scheme object"):
+        ti.Discretisation("rk4")
+
+
+def test_settings_given_twice_are_refused():
+    d = ti.Discretisation.of("heun", 2)
+    m, data = silverbox_model(), silverbox_data(P=32)
+    with pytest.raises(ValueError, match="not both"):
+        ti.simulate(m, SILVERBOX_P, [0.0, 0.0], data, discretisation=d, substeps=8)
+    with pytest.raises(ValueError, match="not both"):
+        ti.Problem(m, data, p0=SILVERBOX_P, discretisation=d, scheme="dopri5")
+    with pytest.raises(ValueError, match="not both"):
+        ti.fit(ti.Problem(m, data, p0=SILVERBOX_P), options=ti.FitOptions(), maxiter=3)
+    assert ti.simulate(m, SILVERBOX_P, [0.0, 0.0], data, discretisation=d).finite

@@ -108,7 +108,7 @@ def test_fit_endings_carry_a_status():
         res = ti.fit(bad, method=method)
         assert res.status is ti.Status.NONFINITE_START and not res.success, method
     base = ti.fit(prob, method="fd-lsq")
-    assert base.status in (ti.Status.BASELINE_CONVERGED, ti.Status.BASELINE_STOPPED)
+    assert base.status is ti.Status.BASELINE_CONVERGED and base.success
 
 
 def test_a_collapsed_trust_region_has_its_status():
@@ -127,6 +127,7 @@ def test_a_collapsed_trust_region_has_its_status():
 def test_fit_json_records_the_status(tmp_path):
     from tensorid.app.reports import fit_json
 
-    prob = ti.Problem(silverbox_model(), silverbox_data(P=100), p0=SILVERBOX_P, x0=[0.0, 0.0])
+    p0 = {k: 1.1 * v for k, v in SILVERBOX_P.items()}
+    prob = ti.Problem(silverbox_model(), silverbox_data(P=100), p0=p0, x0=[0.0, 0.0])
     d = fit_json(ti.fit(prob, maxiter=1), [])
-    assert d["status"] in {str(s) for s in ti.Status}
+    assert d["status"] == "maxiter" and not d["success"]

@@ -18,7 +18,7 @@ from ..engine.simulate import simulate
 from ..fitting.figures import compare_plot, fit_figures
 from ..fitting.methods import fit
 from ..fitting.summary import summary_table
-from ..fitting.validation import Score, estimate_x0, record_label, training_scores
+from ..fitting.validation import Score, estimate_x0, training_scores
 from .files import ModelSpec, load_data, load_model
 from .reports import fit_json, fit_report, write_json
 
@@ -99,7 +99,7 @@ def _gof_lines(scores: list[Score]) -> list[str]:
     kinds = {"training": "train", "validation": "validation"}
     out = []
     for s in scores:
-        label = record_label(s.kind, s.experiment.name).replace(s.kind, kinds[s.kind], 1)
+        label = s.label.replace(s.kind, kinds[s.kind], 1)
         label = label.replace("'", "")
         per = ", ".join(f"{o} {v:.4f}" for o, v in s.gof.items())
         out.append(f"GOF {label}: {per}")
@@ -146,10 +146,11 @@ def _assignments(items: list[str], what: str) -> dict[str, float]:
     return out
 
 
-def _simulation_start(spec: ModelSpec, args, e, params) -> tuple[dict, str]:
-    """The parameters' initial state for ``e``, and where it came from: --x0, else
-    estimated on the record where the model file frees initial states and the record
-    has outputs, else the fit.json's or the model file's x0."""
+def _simulation_start(spec: ModelSpec, args, e, params, disc) -> tuple[dict, str]:
+    """The initial state to simulate ``e`` from, and where it came from: --x0 where
+    given; else estimated on the record (parameters held) for the states the model
+    file frees, when the record has outputs; else the fit.json's or the model
+    file's x0."""
     m = spec.model
     x0 = dict(zip(m.states, spec.x0_array(), strict=True))
     source = "the model file's x0"
@@ -168,7 +169,7 @@ def _simulation_start(spec: ModelSpec, args, e, params) -> tuple[dict, str]:
             x0=[x0[n] for n in m.states],
             free_x0=free,
             fixed=list(m.params),
-            discretisation=discretisation(args),
+            discretisation=disc,
         )
         x0 = dict(zip(m.states, prob.unpack(estimate_x0(prob))[1][0], strict=True))
         source = f"{', '.join(free)} estimated on this record with the parameters held"
@@ -186,8 +187,9 @@ def run_simulate(args) -> int:
     else:
         params.update(_assignments(args.params, "--params"))
     e = load_data([args.data], m, ts=args.ts, require_outputs=False)[0]
-    x0, source = _simulation_start(spec, args, e, params)
-    sim = simulate(m, params, x0, e, discretisation=discretisation(args))
+    disc = discretisation(args)
+    x0, source = _simulation_start(spec, args, e, params, disc)
+    sim = simulate(m, params, x0, e, discretisation=disc)
     out = Path(args.out)
     states = [f"state_{n}" for n in m.states]
     if out.suffix.lower() == ".csv":  # one table, as before: states and simulated outputs

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..fitting.figures import pyplot, save_figure
+from ..fitting.figures import new_figure, save_figure
 from ..fitting.summary import (
     headline,
     interval,
@@ -56,8 +56,8 @@ def write_json(path: Path, data) -> Path:
 def bar_plot(
     path: Path, groups: list[str], series: dict[str, list[float]], *, title: str, ylabel: str
 ) -> Path:
-    plt = pyplot()
-    fig, ax = plt.subplots(figsize=(9, 4))
+    fig = new_figure(figsize=(9, 4))
+    ax = fig.subplots()
     width = 0.8 / max(len(series), 1)
     x = np.arange(len(groups))
     for i, (name, vals) in enumerate(series.items()):
@@ -95,7 +95,7 @@ def fit_json(res, validation: list[Score]) -> dict:
         "iterations": res.nit,
         "function_evaluations": res.nfev,
         "iterations_total": res.nit_total,
-        "function_evaluations_total": res.nfev_total,
+        "function_evaluations_best_start": res.nfev_best,
         "hessian_vector_products": res.nhev,
         "method": res.method,
         "integration": res.problem.discretisation.as_dict(),

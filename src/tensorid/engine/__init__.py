@@ -1,6 +1,6 @@
 """The engine: the model, the measured data, the integrators and the sweeps that
-carry x, S and T (the paper's Φ, Θ, Φ¹, Θ¹, χ¹, χ²), and the Problem that assembles
-them into J, ∇J and ∇²J over θ."""
+carry x, dx = ∂x/∂θ and d2x = ∂²x/∂θ² (the paper's Φ, Θ, Φ¹, Θ¹, χ¹, χ²), and the
+Problem that assembles them into J, ∇J and ∇²J over θ."""
 
 from .data import Experiment
 from .discretisation import INTERPOLATIONS, Discretisation, march

@@ -23,10 +23,10 @@ _DIVERGE = "dynamics that really diverge at these values: start closer"
 def _hints(sim: Simulation, scheme) -> list[str]:
     """Likely causes and remedies, by how the integrator failed."""
     if sim.status is Status.STEP_LIMIT:
-        assert isinstance(scheme, AdaptiveRungeKutta)
+        limit = getattr(scheme, "max_steps", "its limit of")
         return [
             f"a stiff model: the adaptive scheme {scheme.name!r} gave up after "
-            f"{scheme.max_steps} steps within one sample; use scheme='sdirk3'",
+            f"{limit} steps within one sample; use scheme='sdirk3'",
             _DOMAIN,
         ]
     if sim.status is Status.STEP_UNDERFLOW:

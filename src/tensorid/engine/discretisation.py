@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401
-from .integrators import AdaptiveRungeKutta, Scheme, get_scheme
+from .integrators import RungeKuttaScheme, Scheme, _x, get_scheme
 from .status import Status
 
 INTERPOLATIONS = ("linear", "zoh")
@@ -36,11 +36,16 @@ class Discretisation:
         interpolation: "linear" or "zoh".
     """
 
-    scheme: Scheme
+    scheme: Scheme | RungeKuttaScheme
     substeps: int = 4
     interpolation: str = "linear"
 
     def __post_init__(self) -> None:
+        if not isinstance(self.scheme, RungeKuttaScheme):
+            raise TypeError(
+                f"scheme must be a scheme object (name, order, interval(...)), got "
+                f"{type(self.scheme).__name__}; use Discretisation.of('{self.scheme}') for a name"
+            )
         if not isinstance(self.substeps, int | np.integer) or isinstance(self.substeps, bool):
             raise ValueError(f"substeps must be a positive integer, got {self.substeps!r}")
         if self.substeps < 1:
@@ -63,6 +68,23 @@ class Discretisation:
         """The discretisation from user-level settings (scheme by name, tolerances)."""
         return cls(get_scheme(scheme, rtol, atol), substeps, interpolation)
 
+    @classmethod
+    def resolve(cls, given: Discretisation | None, scheme, substeps, interpolation, rtol, atol):
+        """``given``, or one built from the separate settings; both at once is an error
+        (one of them would be silently ignored)."""
+        if given is None:
+            return cls.of(scheme, substeps, interpolation, rtol, atol)
+        if not isinstance(given, Discretisation):
+            raise TypeError(
+                f"discretisation must be a tensorid.Discretisation, got {type(given).__name__}"
+            )
+        defaults = (scheme == "rk4", substeps == 4, interpolation == "linear")
+        if not all(defaults) or rtol is not None or atol is not None:
+            raise ValueError(
+                "give either discretisation= or scheme/substeps/interpolation/rtol/atol, not both"
+            )
+        return given
+
     def as_dict(self) -> dict:
         """What a reader needs to reproduce a cost: scheme, substeps, interpolation and,
         for an adaptive scheme, rtol and atol (fit.json's "integration")."""
@@ -71,8 +93,9 @@ class Discretisation:
             "substeps": self.substeps,
             "interpolation": self.interpolation,
         }
-        if isinstance(self.scheme, AdaptiveRungeKutta):
-            d["rtol"], d["atol"] = self.scheme.rtol, self.scheme.atol
+        for tol in ("rtol", "atol"):
+            if hasattr(self.scheme, tol):
+                d[tol] = getattr(self.scheme, tol)
         return d
 
 
@@ -80,10 +103,6 @@ def input_at(u0: jax.Array, u1: jax.Array, s, interpolation: str) -> jax.Array:
     if interpolation == "zoh":
         return u0
     return u0 + s * (u1 - u0)
-
-
-def _x(y):
-    return y[0] if isinstance(y, tuple) else y
 
 
 def march(

@@ -33,7 +33,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import jax
 import jax.numpy as jnp
@@ -90,12 +90,14 @@ def _check_tableau(name, a, b, c, order, implicit: bool) -> None:
                 f"scheme {name!r}: row {i} of a has {len(row)} entries; an "
                 f"{'implicit' if implicit else 'explicit'} row {i} has {want}"
             )
+        if implicit and row[i] == 0.0:
+            raise ValueError(f"scheme {name!r}: the diagonal a[{i}][{i}] of an implicit row is 0")
         if abs(sum(row) - c[i]) > 1e-12:
             raise ValueError(
                 f"scheme {name!r}: c[{i}] = {c[i]} but row {i} of a sums to {sum(row)}"
             )
     if abs(sum(b) - 1.0) > 1e-12:
-        raise ValueError(f"scheme {name!r}: the weigamma_stepts b sum to {sum(b)}, not 1")
+        raise ValueError(f"scheme {name!r}: the weights b sum to {sum(b)}, not 1")
     if not (isinstance(order, int) and order >= 1):
         raise ValueError(f"scheme {name!r}: order must be a positive integer, got {order!r}")
 
@@ -247,7 +249,7 @@ class StepSizeController:
 @dataclass(frozen=True)
 class AdaptiveRungeKutta:
     """An explicit pair: y_next = y + Δ Σ b_i k_i, error estimate Δ Σ (b_i - e_i) k_i
-    with the embedded weigamma_stepts ``e`` (order ``order - 1``). A step is accepted when
+    with the embedded weights ``e`` (order ``order - 1``). A step is accepted when
     the RMS of err / (atol + rtol max(|x|, |x_next|)) over the states is at most 1;
     at most ``max_steps`` steps per sample interval."""
 
@@ -264,9 +266,7 @@ class AdaptiveRungeKutta:
     def __post_init__(self) -> None:
         _check_tableau(self.name, self.a, self.b, self.c, self.order, implicit=False)
         if len(self.e) != len(self.b) or abs(sum(self.e) - 1.0) > 1e-12:
-            raise ValueError(
-                f"scheme {self.name!r}: e needs one weigamma_stept per stage, summing to 1"
-            )
+            raise ValueError(f"scheme {self.name!r}: e needs one weight per stage, summing to 1")
 
     @property
     def controller(self) -> StepSizeController:
@@ -283,7 +283,7 @@ class AdaptiveRungeKutta:
     def interval(self, f: Field, fs: Field, y, dt, step0, substeps: int):
         """Cover one sample interval of length dt with error-controlled steps from the
         trial step ``step0`` (the carry); returns (y, next trial step, failure code). Step
-        sizes come from the states only, througamma_step stop_gradient: they are the
+        sizes come from the states only, through stop_gradient: they are the
         discretisation, not a function of θ to differentiate."""
         ctl = self.controller
         tiny = 1e-14 * dt
@@ -316,6 +316,7 @@ class AdaptiveRungeKutta:
         return y, step, code
 
 
+@runtime_checkable
 class RungeKuttaScheme(Protocol):
     """What the march needs of a scheme: its name and order, and ``interval``, which
     covers one sample interval and returns (y, carry, failure code). The carry is
@@ -407,8 +408,11 @@ def get_scheme(
             raise ValueError(
                 f"unknown integration scheme {scheme!r}; choose one of {sorted(SCHEMES)}"
             ) from None
-    elif not isinstance(scheme, Scheme):
-        raise TypeError(f"scheme must be a name or a tensorid scheme, got {type(scheme).__name__}")
+    elif not isinstance(scheme, RungeKuttaScheme):
+        raise TypeError(
+            f"scheme must be a name or a scheme object (name, order, interval(...)), got "
+            f"{type(scheme).__name__}"
+        )
     if rtol is None and atol is None:
         return scheme
     if not isinstance(scheme, AdaptiveRungeKutta):

@@ -15,7 +15,7 @@ import numpy as np
 from .. import _config  # noqa: F401
 from .data import Experiment
 from .discretisation import Discretisation
-from .integrators import Scheme
+from .integrators import RungeKuttaScheme, Scheme
 from .model import Model
 from .simulate import Simulation, run_simulation
 from .sweeps import Sweeps, unpack_symmetric
@@ -97,13 +97,9 @@ class Problem:
         self.free_x0 = _name_list("free_x0", free_x0, model.states, "states")
         self.fixed = _name_list("fixed", fixed, model.params, "params")
         self.free_params = [n for n in model.params if n not in self.fixed]
-        if discretisation is None:
-            discretisation = Discretisation.of(scheme, substeps, interpolation, rtol, atol)
-        elif not isinstance(discretisation, Discretisation):
-            raise TypeError(
-                f"discretisation must be a tensorid.Discretisation, got "
-                f"{type(discretisation).__name__}"
-            )
+        discretisation = Discretisation.resolve(
+            discretisation, scheme, substeps, interpolation, rtol, atol
+        )
         self.discretisation = discretisation
         self.weights = self._check_weights(weights)
         self.lower, self.upper = self._check_bounds(bounds or {})
@@ -120,7 +116,7 @@ class Problem:
         ]
 
     @property
-    def scheme(self) -> Scheme:
+    def scheme(self) -> Scheme | RungeKuttaScheme:
         """The integration scheme (of ``discretisation``)."""
         return self.discretisation.scheme
 

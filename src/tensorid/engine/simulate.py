@@ -52,11 +52,12 @@ def run_simulation(sweeps: Sweeps, data: Experiment, x0, p) -> Simulation:
     )
     xs, ys = np.asarray(xs), np.asarray(ys)
     status = Status.from_code(int(code))
-    failed_at: int | None = int(at)
-    if status is Status.OK:
-        bad_y = ~np.isfinite(ys).all(axis=1)
-        failed_at = int(np.argmax(bad_y)) if bad_y.any() else None
-        status = Status.NONFINITE_OUTPUT if bad_y.any() else Status.OK
+    failed_at: int | None = None if status is Status.OK else int(at)
+    bad_y = ~np.isfinite(ys).all(axis=1)
+    first_y = int(np.argmax(bad_y)) if bad_y.any() else None
+    # outputs that fail while the states are still finite fail first
+    if first_y is not None and (failed_at is None or first_y < failed_at):
+        status, failed_at = Status.NONFINITE_OUTPUT, first_y
     return Simulation(sweeps.model, data, xs, ys, status, failed_at)
 
 
@@ -88,8 +89,9 @@ def simulate(
             f"data has {data.u.shape[1]} input column(s) but the model has "
             f"{model.U} inputs {list(model.inputs)}"
         )
-    if discretisation is None:
-        discretisation = Discretisation.of(scheme, substeps, interpolation, rtol, atol)
+    discretisation = Discretisation.resolve(
+        discretisation, scheme, substeps, interpolation, rtol, atol
+    )
     p = model.params_array(params, "params")
     x = model.states_array(x0, "x0")
     return run_simulation(Sweeps(model, (), (), discretisation), data, x, p)

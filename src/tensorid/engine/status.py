@@ -60,12 +60,15 @@ class Status(enum.Enum):
     BASELINE_STOPPED = ("stopped", False, -1)  # a SciPy baseline gave up in its own way
     SOLVER_FAILED = ("stopped: the optimiser raised an error; the best point is kept", False, -1)
     ALL_STARTS_FAILED = ("no start gave a finite cost", False, -1)
-    INTERRUPTED = ("interrupted: the best point found so far is kept", False, -1)
 
     def __init__(self, message: str, success: bool, code: int):
         self.message = message
         self.success = success
         self.code = code
+
+    def describe(self, detail: str = "") -> str:
+        """The message of this ending, with a detail appended when there is one."""
+        return f"{self.message} ({detail})" if detail else self.message
 
     @classmethod
     def from_code(cls, code: int) -> Status:

@@ -13,7 +13,7 @@ import numpy as np
 from ..engine.status import Status
 from .baselines import BASELINES, run_baseline
 from .options import FitOptions
-from .results import FitResult, describe
+from .results import FitResult
 from .scaling import Tracker
 from .trust_region import minimize_trust_region, trust_region_steps
 
@@ -123,6 +123,14 @@ def _lockstep(problem, method, trackers: dict, options, started, results) -> lis
                 r = done.value
                 del pending[i]
                 results[i] = _finish(tr, method, r.x, r.nit, r.status, r.detail, started, history)
+            except np.linalg.LinAlgError as e:  # as in _single: this start ends, not the batch
+                del pending[i]
+                phi = tr.phi(tr.theta0) if tr.best_phi is None else tr.best_phi
+                detail = f"{method} raised LinAlgError: {e}"
+                status = Status.SOLVER_FAILED
+                results[i] = _finish(
+                    tr, method, phi, len(history), status, detail, started, history
+                )
     return results
 
 
@@ -131,7 +139,7 @@ def _finish(tr: Tracker, method, phi, nit, status, detail, started, history) -> 
     problem = tr.problem
     if tr.best_phi is not None and tr.best_J < problem.cost(tr.theta(phi)):
         phi = tr.best_phi
-    message = describe(status, detail)
+    message = status.describe(detail)
     if not status.success and tr.nonfinite:
         message += f" ({tr.nonfinite} trial points blew up; see warnings)"
     res = FitResult.at(

@@ -1,5 +1,7 @@
 """Figures of a fit: measured against simulated outputs with residuals, and the
-convergence history. They are built in memory; writing them is the caller's choice."""
+convergence history. They are built in memory as matplotlib Figure objects, outside
+pyplot (so nothing changes the user's backend and nothing leaks); writing them is the
+caller's choice."""
 
 from __future__ import annotations
 
@@ -8,19 +10,16 @@ from pathlib import Path
 import numpy as np
 
 
-def pyplot():
-    import matplotlib
+def new_figure(**kwargs):
+    """A matplotlib Figure that no pyplot window manager knows of."""
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")  # files only: works on machines with no display
-    import matplotlib.pyplot as plt
-
-    return plt
+    return Figure(**kwargs)
 
 
 def save_figure(fig, path: Path) -> Path:
-    """Write ``fig`` as PNG to ``path`` and release it."""
+    """Write ``fig`` as PNG to ``path``."""
     fig.savefig(path, dpi=120)
-    pyplot().close(fig)
     return path
 
 
@@ -35,10 +34,8 @@ def compare_figure(
     labels: tuple[str, str] = ("measured", "model"),
 ):
     """Measured against simulated output, with the residual below (one output)."""
-    plt = pyplot()
-    fig, (ax, axr) = plt.subplots(
-        2, 1, figsize=(9, 5.5), sharex=True, gridspec_kw={"height_ratios": [3, 1]}
-    )
+    fig = new_figure(figsize=(9, 5.5))
+    ax, axr = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
     ax.plot(t, y_meas, color="0.2", lw=1.0, label=labels[0])
     ax.plot(t, y_sim, color="tab:red", lw=0.9, ls="--", label=labels[1])
     ax.set_ylabel(ylabel)
@@ -60,9 +57,9 @@ def compare_plot(path: Path, *args, **kwargs) -> Path:
 
 def convergence_figure(history: list[dict], title: str):
     """Cost and gradient norm per iteration."""
-    plt = pyplot()
     it = [h["iteration"] for h in history]
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(9, 3.5))
+    fig = new_figure(figsize=(9, 3.5))
+    a1, a2 = fig.subplots(1, 2)
     a1.semilogy(it, [h["cost"] for h in history], "o-", ms=3)
     a1.set_xlabel("iteration")
     a1.set_ylabel("cost J")

@@ -21,7 +21,7 @@ from .baselines import BASELINES
 from .driver import failed, fit_many
 from .multistart import SAMPLINGS, draw_starts, run_starts
 from .options import FitOptions
-from .results import FitResult, describe
+from .results import FitResult
 
 METHODS = ("newton", "newton-cg", "gauss-newton", *BASELINES)
 LOCKSTEP = ("newton", "gauss-newton")  # methods whose starts can share vmapped calls
@@ -81,8 +81,7 @@ def fit(
     """
     started = time.perf_counter()
     _check_method(problem, method)
-    if options is None:
-        options = FitOptions(x_scale, maxiter, gtol, ftol, xtol, callback=callback)
+    options = _options(options, x_scale, maxiter, gtol, ftol, xtol, callback)
     theta0 = _check_start(problem, problem.theta0 if theta0 is None else theta0, "theta0")
     if starts is not None:
         _check_count("starts", starts)
@@ -99,7 +98,7 @@ def fit(
         theta0, problem.lower, problem.upper, starts, spread=spread, sampling=sampling, seed=seed
     )
     runs = run_starts(problem, fit_task(method, options), thetas, executor, workers, batch)
-    return _best_of(problem, method, runs, options, started)
+    return _best_of(problem, method, theta0, runs, options, started)
 
 
 def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResult]:
@@ -129,6 +128,24 @@ def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResul
 
 
 # -- checks -----------------------------------------------------------------------------
+def _options(options, x_scale, maxiter, gtol, ftol, xtol, callback) -> FitOptions:
+    """``options``, or the keywords as FitOptions; both at once is an error (one of them
+    would be silently ignored)."""
+    if options is None:
+        return FitOptions(x_scale, maxiter, gtol, ftol, xtol, callback=callback)
+    d = FitOptions()
+    changed = not (isinstance(x_scale, str) and x_scale == d.x_scale) or callback is not None
+    changed |= (maxiter, gtol, ftol, xtol) != (d.maxiter, d.gtol, d.ftol, d.xtol)
+    if changed:
+        raise ValueError(
+            "give either options=FitOptions(...) or x_scale/maxiter/gtol/ftol/xtol/"
+            "callback, not both"
+        )
+    if not isinstance(options, FitOptions):
+        raise TypeError(f"options must be a tensorid.FitOptions, got {type(options).__name__}")
+    return options
+
+
 def _check_method(problem, method) -> None:
     if not isinstance(problem, Problem):
         raise TypeError(f"fit needs a tensorid.Problem, got {type(problem).__name__}")
@@ -189,9 +206,10 @@ def _fit_chunk(problem, thetas, *, method: str, options: FitOptions) -> list[dic
     ]
 
 
-def _best_of(problem, method, runs: list[dict], options: FitOptions, started) -> FitResult:
+def _best_of(problem, method, theta0, runs: list[dict], options: FitOptions, started):
     """Rank the starts, refine the best here (where the caller's callback can watch
-    it), and report the best start's own run beside the totals of all of them."""
+    it), and report the best start's own run (nit, nfev_best, history) beside the
+    totals of all of them (nit_total, nfev)."""
     for i, r in enumerate(runs):
         r["start"] = i
     ranked = sorted(runs, key=lambda r: (not np.isfinite(r["cost"]), r["cost"]))
@@ -199,18 +217,20 @@ def _best_of(problem, method, runs: list[dict], options: FitOptions, started) ->
     histories = {r["start"]: r.pop("history") for r in runs}
     nit_all, nfev_all = sum(r["nit"] for r in runs), sum(r["nfev"] for r in runs)
     if not np.isfinite(best["cost"]):
-        msg = describe(
-            Status.ALL_STARTS_FAILED, f"none of the {len(runs)} starts gave a finite cost"
-        )
-        res = failed(problem, method, problem.theta0, started, msg, Status.ALL_STARTS_FAILED)
-        res.nit_total, res.nfev_total = nit_all, nfev_all
+        status = Status.ALL_STARTS_FAILED
+        res = failed(problem, method, theta0, started, status.message, status)
+        res.nit = res.nit_total = nit_all
+        res.nfev = nfev_all
     else:
         res = fit_many(problem, method, np.asarray(best["theta"])[None, :], options, started)[0]
-        res.nit_total, res.nfev_total = nit_all + res.nit, nfev_all + res.nfev
-        more = [dict(h, iteration=h["iteration"] + best["nit"]) for h in res.history[1:]]
-        res.history = histories[best["start"]] + more
+        own = histories[best["start"]]
+        # the refinement restarts its count (the trust region records an iteration 0)
+        offset = own[-1]["iteration"] if own else best["nit"]
+        more = [h for h in res.history if not (h["iteration"] == 0 and own)]
+        res.history = own + [dict(h, iteration=h["iteration"] + offset) for h in more]
+        res.nit_total, res.nfev = nit_all + res.nit, nfev_all + res.nfev
+        res.nfev_best = best["nfev"] + res.nfev_best
         res.nit += best["nit"]
-        res.nfev += best["nfev"]
     res.starts = ranked
     res.seconds = time.perf_counter() - started
     return res

@@ -21,11 +21,6 @@ def _squeeze(a: np.ndarray) -> np.ndarray:
     return a[:, 0] if a.ndim == 2 and a.shape[1] == 1 else a
 
 
-def describe(status: Status, detail: str = "") -> str:
-    """The message of an ending: the status's own words, with a detail appended."""
-    return f"{status.message} ({detail})" if detail else status.message
-
-
 @dataclass
 class FitResult:
     """Outcome of :func:`fit`, with scipy.optimize.OptimizeResult's names where they fit.
@@ -39,9 +34,10 @@ class FitResult:
         units (components pushing against an active bound are dropped).
     status : how the fit ended (a :class:`tensorid.Status`); ``success`` and the
         start of ``message`` derive from it.
-    nit, nfev : iterations and cost evaluations (finite-difference ones included) of
-        the fit that produced theta; with several starts, of the best start (and its
-        refinement), while ``nit_total`` and ``nfev_total`` count every start.
+    nit, nfev : iterations and cost evaluations (finite-difference ones included).
+        With several starts, ``nit`` counts the best start's own iterations (and its
+        refinement's) and ``nfev`` every start's evaluations; ``nit_total`` counts
+        every start's iterations and ``nfev_best`` the best start's evaluations.
     nhev : Hessian-vector products (method "newton-cg").
     seconds : wall time of the fit, compilation included.
     history : one dict per iteration: iteration, cost, grad_norm, radius, ...
@@ -68,13 +64,13 @@ class FitResult:
     notes: list[str] = field(default_factory=list)
     nhev: int = 0
     nit_total: int | None = None
-    nfev_total: int | None = None
+    nfev_best: int | None = None
 
     def __post_init__(self) -> None:
         if self.nit_total is None:
             self.nit_total = self.nit
-        if self.nfev_total is None:
-            self.nfev_total = self.nfev
+        if self.nfev_best is None:
+            self.nfev_best = self.nfev
 
     @classmethod
     def at(

@@ -86,12 +86,12 @@ def headline(res) -> str:
     """One line: method, how it ended, iterations, evaluations, cost."""
     line = (
         f"{res.method}: {res.message}; {plural(res.nit, 'iteration')}, "
-        f"{plural(res.nfev, 'cost evaluation')}"
+        f"{plural(res.nfev_best, 'cost evaluation')}"
     )
     if res.starts:
         line += (
             f" (best of {len(res.starts)} starts; all starts: "
-            f"{plural(res.nit_total, 'iteration')}, {plural(res.nfev_total, 'cost evaluation')})"
+            f"{plural(res.nit_total, 'iteration')}, {plural(res.nfev, 'cost evaluation')})"
         )
     return line + f"; cost {res.cost:.6g}"
 

@@ -143,7 +143,7 @@ class TRResult:
 
     @property
     def message(self) -> str:
-        return f"{self.status.message} ({self.detail})" if self.detail else self.status.message
+        return self.status.describe(self.detail)
 
 
 def _projected_gradient(x, g, lo, hi):

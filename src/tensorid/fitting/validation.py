@@ -31,11 +31,12 @@ class Score:
     x0: np.ndarray
     start: int = 0
     init_window: int | None = None
+    alone: bool = True  # the only record of its kind
 
     @property
     def label(self) -> str:
-        """ "training" or "validation", with the record's name where it adds something."""
-        return record_label(self.kind, self.experiment.name)
+        """The kind, with the record's name where it tells records apart."""
+        return record_label(self.kind, self.experiment.name, self.alone)
 
     def _pairs(self):
         y, s = self.experiment.measured[self.start :], self.simulation.y[self.start :]
@@ -59,21 +60,29 @@ class Score:
         return self._per_output(nrmse)
 
 
-def record_label(kind: str, name: str) -> str:
-    """ "training", or "training 'exp2'": the record's name only when it is not just
-    the kind again (a file train.csv for training, validate.csv for validation)."""
-    plain = name.lower().rstrip("0123456789_- ")
-    if not plain or plain == kind or (len(plain) >= 5 and plain[:5] == kind[:5]):
+def record_label(kind: str, name: str, alone: bool = True) -> str:
+    """ "training", or "training 'exp2'": the record's name, unless it is the only
+    record of its kind and its name only repeats the kind (train.csv for training,
+    validate.csv for validation)."""
+    plain = name.lower()
+    if not plain or (alone and plain in _KIND_WORDS[kind]):
         return kind
     return f"{kind} '{name}'"
+
+
+_KIND_WORDS = {
+    "training": ("training", "train", "estimation", "est"),
+    "validation": ("validation", "validate", "valid", "test"),
+}
 
 
 def training_scores(res) -> list[Score]:
     """The training records at the estimate."""
     x0 = np.atleast_2d(res.x0)
+    exps = res.problem.experiments
     return [
-        Score("training", e, s, x0[i])
-        for i, (e, s) in enumerate(zip(res.problem.experiments, res.simulate(), strict=True))
+        Score("training", e, s, x0[i], alone=len(exps) == 1)
+        for i, (e, s) in enumerate(zip(exps, res.simulate(), strict=True))
     ]
 
 
@@ -89,8 +98,8 @@ def estimate_x0(problem: Problem) -> np.ndarray:
     r = minimize_trust_region(
         tr.derivs(problem.cost_grad_hess), tr.phi(theta0), lo, hi, fatol=tr.fatol
     )
-    best = r.x if tr.best_phi is None or r.fun <= tr.best_J else tr.best_phi
-    return tr.theta(best)
+    # the tracker saw every evaluation, the end point included: its best is never worse
+    return tr.theta(r.x if tr.best_phi is None else tr.best_phi)
 
 
 def validate(res, data, init_window: int | None = None) -> list[Score]:
@@ -125,5 +134,5 @@ def validate(res, data, init_window: int | None = None) -> list[Score]:
             x0 = vp.unpack(estimate_x0(vp))[1][0]
         sim = simulate(m, res.params, x0, e, discretisation=prob.discretisation)
         start = 0 if init_window is None else int(init_window)
-        out.append(Score("validation", e, sim, x0, start, init_window))
+        out.append(Score("validation", e, sim, x0, start, init_window, alone=len(exps) == 1))
     return out
