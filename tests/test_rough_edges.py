@@ -185,3 +185,46 @@ def test_slow_studies_are_marked_out_of_the_default_run_but_not_out_of_ci():
     assert "-m 'not slow'" in config and "slow:" in config
     ci = (ROOT / ".ci" / "run").read_text().splitlines()
     assert "python -m pytest" in ci and "python -m pytest -m slow" in ci
+
+
+def test_a_bad_destination_is_refused_before_any_work(tmp_path, capsys):
+    blocker = tmp_path / "taken"
+    blocker.write_text("not a folder")
+    args = ["fit", str(EXAMPLE / "model.py"), str(EXAMPLE / "train.csv"), "--no-progress"]
+    for out in (blocker, blocker / "sub"):
+        assert cli.main(args + ["--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and str(blocker) in err[0] and "file" in err[0]
+
+
+def test_a_failing_figure_write_keeps_fit_json_and_leaves_no_partial_file(
+    tmp_path, capsys, monkeypatch
+):
+    import errno
+
+    from matplotlib.figure import Figure
+
+    def full_disk(self, *a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(Figure, "savefig", full_disk)
+    out = tmp_path / "fit"
+    args = ["fit", str(EXAMPLE / "model.py"), str(EXAMPLE / "train.csv"), "--no-progress"]
+    assert cli.main(args + ["--out", str(out)]) == 1
+    assert json.loads((out / "fit.json").read_text())["success"]
+    assert (out / "report.md").is_file()
+    assert not list(out.glob("*.part")) and not list(out.glob("*.png"))
+    captured = capsys.readouterr()
+    assert "No space left on device" in captured.err and "fit.json was written" in captured.err
+    assert "std. error" in captured.out  # the estimates reached the terminal anyway
+
+
+def test_simulate_says_where_a_simulation_blows_up_and_exits_non_zero(tmp_path, capsys):
+    args = ["simulate", str(EXAMPLE / "model.py"), str(EXAMPLE / "validate.csv")]
+    args += ["--params", "m=1e-12", "--x0", "y=1", "ydot=0", "--out", str(tmp_path / "s")]
+    assert cli.main(args) == 1
+    err = capsys.readouterr().err
+    assert "not finite" in err and "sample" in err and "Likely causes" in err
+    with pytest.warns(RuntimeWarning, match="not finite"):
+        m = silverbox_model()
+        ti.simulate(m, dict(SILVERBOX_P, m=1e-12), [1.0, 0.0], silverbox_data(P=64))

@@ -4,6 +4,8 @@ report.md and figures, with live progress."""
 from __future__ import annotations
 
 import json
+import sys
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -11,15 +13,19 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
+from ..engine.diagnostics import describe_failure
 from ..engine.discretisation import Discretisation
 from ..engine.metrics import gof
 from ..engine.problem import Problem
-from ..engine.simulate import simulate
-from ..fitting.figures import compare_plot, fit_figures
+from ..engine.simulate import run_simulation
+from ..engine.status import Status
+from ..engine.sweeps import Sweeps
+from ..fitting.figures import compare_figure, fit_figures, save_png
 from ..fitting.methods import fit
 from ..fitting.summary import summary_table
 from ..fitting.validation import Score, estimate_x0, training_scores
 from .files import ModelSpec, load_data, load_model
+from .output import check_destination, write_atomic, write_text
 from .reports import fit_json, fit_report, write_json
 
 
@@ -106,8 +112,30 @@ def _gof_lines(scores: list[Score]) -> list[str]:
     return out
 
 
+def _write_results(res, out: Path, scores: list[Score]) -> tuple[list[Path], list[str]]:
+    """fit.json first (the estimates are what matters), then the figures and
+    report.md, each atomically; returns (figures written, failures as one line each).
+    A failing figure or report does not lose fit.json."""
+    out.mkdir(parents=True, exist_ok=True)
+    data = fit_json(res, scores)
+    write_json(out / "fit.json", data)
+    figures, failures = [], []
+    for stem, fig in fit_figures(res, None, scores, named=True):
+        try:
+            figures.append(write_atomic(out / f"{stem}.png", partial(save_png, fig)))
+        except OSError as e:
+            failures.append(f"could not write {out / (stem + '.png')}: {e.strerror or e}")
+    everything = training_scores(res) + scores
+    try:
+        write_text(out / "report.md", fit_report(res, data, everything, figures))
+    except OSError as e:
+        failures.append(f"could not write {out / 'report.md'}: {e.strerror or e}")
+    return figures, failures
+
+
 def run_fit(args) -> int:
     console = Console(stderr=True)
+    check_destination(args.out)
     spec = load_model(args.model)
     m = spec.model
     train = load_data(args.data, m, ts=args.ts, samples=args.samples)
@@ -119,16 +147,17 @@ def run_fit(args) -> int:
     problem = _problem(spec, train, args)
     res = _run(problem, args, console)
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     scores = res.validate(val) if val else []
-    data = fit_json(res, scores)
-    figures = fit_figures(res, out, scores)
-    write_json(out / "fit.json", data)
     everything = training_scores(res) + scores
-    (out / "report.md").write_text(fit_report(res, data, everything, figures))
+    # the estimates reach the terminal before any file is written
     print(summary_table(res, everything))
     for line in _gof_lines(everything):
         print(line)
+    figures, failures = _write_results(res, out, scores)
+    if failures:
+        for f in failures:
+            print(f"tensorid: error: {f}; {out / 'fit.json'} was written", file=sys.stderr)
+        return 1
     print(f"wrote {out}/fit.json, report.md and {len(figures)} figures")
     return 0 if res.success else 1
 
@@ -178,7 +207,22 @@ def _simulation_start(spec: ModelSpec, args, e, params, disc) -> tuple[dict, str
     return x0, source
 
 
+def _simulation_table(m, e, sim, table_only: bool) -> tuple[list[str], np.ndarray]:
+    """(header, rows): as one table (.csv --out) the states and simulated outputs;
+    in a folder also the inputs and the measured outputs."""
+    states = [f"state_{n}" for n in m.states]
+    sims = [f"{o}_sim" for o in m.outputs]
+    if table_only:
+        return ["t", *states, *sims], np.column_stack([e.t, sim.x, sim.y])
+    measured = list(m.outputs) if e.y is not None else []
+    parts = [e.t[:, None], e.u] + ([e.y] if e.y is not None else []) + [sim.y, sim.x]
+    return ["t", *m.inputs, *measured, *sims, *states], np.column_stack(parts)
+
+
 def run_simulate(args) -> int:
+    out = Path(args.out)
+    table_only = out.suffix.lower() == ".csv"
+    check_destination(out.parent if table_only else out)
     spec = load_model(args.model)
     m = spec.model
     params = dict(spec.p0 or {})
@@ -189,40 +233,37 @@ def run_simulate(args) -> int:
     e = load_data([args.data], m, ts=args.ts, require_outputs=False)[0]
     disc = discretisation(args)
     x0, source = _simulation_start(spec, args, e, params, disc)
-    sim = simulate(m, params, x0, e, discretisation=disc)
-    out = Path(args.out)
-    states = [f"state_{n}" for n in m.states]
-    if out.suffix.lower() == ".csv":  # one table, as before: states and simulated outputs
-        header = ["t", *states, *(f"{o}_sim" for o in m.outputs)]
-        table = np.column_stack([e.t, sim.x, sim.y])
-        target = out
-    else:
-        out.mkdir(parents=True, exist_ok=True)
-        measured = list(m.outputs) if e.y is not None else []
-        header = ["t", *m.inputs, *measured, *(f"{o}_sim" for o in m.outputs), *states]
-        parts = [e.t[:, None], e.u] + ([e.y] if e.y is not None else []) + [sim.y, sim.x]
-        table = np.column_stack(parts)
-        target = out / "simulation.csv"
-        if e.y is not None:
-            score = Score("validation", e, sim, np.array([x0[n] for n in m.states]))
-            fit_figures_for_simulation(score, out)
-    np.savetxt(target, table, delimiter=",", header=",".join(header), comments="")
+    sim = run_simulation(Sweeps(m, (), (), disc), e, m.states_array(x0), m.params_array(params))
+    header, table = _simulation_table(m, e, sim, table_only)
+    target = out if table_only else out / "simulation.csv"
+    target.parent.mkdir(parents=True, exist_ok=True)
+    write_atomic(target, partial(_savetxt, table, header))
+    if not table_only and e.y is not None and sim.status is Status.OK:
+        fit_figures_for_simulation(Score("validation", e, sim, m.states_array(x0)), out)
     if e.y is not None:
         for j, o in enumerate(m.outputs):
             print(f"GOF {o}: {gof(e.y[:, j], sim.y[:, j]):.4f}")
     print("initial state " + ", ".join(f"{k}={v:.6g}" for k, v in x0.items()) + f" ({source})")
     print(f"wrote {target}")
+    if sim.status is not Status.OK:
+        why = describe_failure(sim, disc.scheme, f"{args.data}")
+        print(f"tensorid: error: the simulation is not finite: {why}", file=sys.stderr)
+        return 1
     return 0
+
+
+def _savetxt(table: np.ndarray, header: list[str], path: Path) -> None:
+    np.savetxt(path, table, delimiter=",", header=",".join(header), comments="")
 
 
 def fit_figures_for_simulation(score: Score, out: Path) -> None:
     e, s = score.experiment, score.simulation
     for j, name in enumerate(s.model.outputs):
-        compare_plot(
-            out / f"simulation_{name}.png",
+        fig = compare_figure(
             e.t,
             e.measured[:, j],
             s.y[:, j],
             ylabel=name,
             title=f"simulation on {e.name or 'data'}, output {name}: GOF {score.gof[name]:.4f}",
         )
+        write_atomic(out / f"simulation_{name}.png", partial(save_png, fig))

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..fitting.figures import new_figure, save_figure
+from ..fitting.figures import new_figure, save_png
 from ..fitting.summary import (
     headline,
     interval,
@@ -19,6 +19,7 @@ from ..fitting.summary import (
     stderr_text,
 )
 from ..fitting.validation import Score, training_scores
+from .output import write_text
 
 
 def md_table(header: list[str], rows: list[list]) -> str:
@@ -49,8 +50,8 @@ def _jsonable(obj):
 
 
 def write_json(path: Path, data) -> Path:
-    path.write_text(json.dumps(_jsonable(data), indent=2) + "\n")
-    return path
+    """JSON (inf and NaN as null), written atomically."""
+    return write_text(path, json.dumps(_jsonable(data), indent=2) + "\n")
 
 
 def bar_plot(
@@ -68,7 +69,7 @@ def bar_plot(
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3, axis="y")
     fig.tight_layout()
-    return save_figure(fig, path)
+    return save_png(fig, path)
 
 
 # -- a fit ------------------------------------------------------------------------------

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import jax.numpy as jnp
@@ -94,4 +95,13 @@ def simulate(
     )
     p = model.params_array(params, "params")
     x = model.states_array(x0, "x0")
-    return run_simulation(Sweeps(model, (), (), discretisation), data, x, p)
+    sim = run_simulation(Sweeps(model, (), (), discretisation), data, x, p)
+    if sim.status is not Status.OK:
+        h = sim.failed_at or 0
+        warnings.warn(
+            f"the simulation is not finite from sample {h} (t = {data.t[h]:.6g}) on: "
+            f"{sim.status.message}; Simulation.status and failed_at say so too",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+    return sim

@@ -17,9 +17,9 @@ def new_figure(**kwargs):
     return Figure(**kwargs)
 
 
-def save_figure(fig, path: Path) -> Path:
-    """Write ``fig`` as PNG to ``path``."""
-    fig.savefig(path, dpi=120)
+def save_png(fig, path: Path) -> Path:
+    """Write ``fig`` as PNG to ``path`` (whatever its suffix)."""
+    fig.savefig(path, dpi=120, format="png")
     return path
 
 
@@ -52,7 +52,7 @@ def compare_figure(
 
 def compare_plot(path: Path, *args, **kwargs) -> Path:
     """:func:`compare_figure`, written to ``path``."""
-    return save_figure(compare_figure(*args, **kwargs), path)
+    return save_png(compare_figure(*args, **kwargs), path)
 
 
 def convergence_figure(history: list[dict], title: str):
@@ -78,14 +78,15 @@ def _file_name(s: str) -> str:
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in s)
 
 
-def fit_figures(res, out=None, validation=None) -> list:
+def fit_figures(res, out=None, validation=None, named: bool = False) -> list:
     """The figures of a fit: per record and output, measured against simulated (the
     training records, then the ``validation`` scores), and the convergence history
-    of the run that produced the estimate. Returns the matplotlib figures, or, with
-    a folder ``out``, writes them there as PNG and returns their paths."""
+    of the run that produced the estimate. Returns the matplotlib figures (with
+    ``named``, (file stem, figure) pairs), or, with a folder ``out``, writes them
+    there as PNG and returns their paths."""
     from .validation import training_scores
 
-    named = []
+    pairs = []
     for s in training_scores(res) + list(validation or []):
         e = s.experiment
         for j, name in enumerate(res.problem.model.outputs):
@@ -96,13 +97,13 @@ def fit_figures(res, out=None, validation=None) -> list:
             fig = compare_figure(
                 e.t, e.measured[:, j], s.simulation.y[:, j], ylabel=name, title=title
             )
-            named.append((_file_name(stem), fig))
+            pairs.append((_file_name(stem), fig))
     if len(res.history) > 1:
         what = f"best of {len(res.starts)} starts" if res.starts else res.method
         title = f"{what}: cost and gradient norm per iteration"
-        named.append(("convergence", convergence_figure(res.history, title)))
+        pairs.append(("convergence", convergence_figure(res.history, title)))
     if out is None:
-        return [fig for _, fig in named]
+        return pairs if named else [fig for _, fig in pairs]
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    return [save_figure(fig, out / f"{stem}.png") for stem, fig in named]
+    return [save_png(fig, out / f"{stem}.png") for stem, fig in pairs]

@@ -8,8 +8,10 @@ from pathlib import Path
 def _paper(args) -> int:
     from rich.console import Console
 
+    from ..app.output import check_destination
     from .study import run
 
+    check_destination(args.out)
     starts = args.starts if args.starts is not None else (6 if args.quick else 100)
     if starts < 1:
         raise ValueError(f"--starts must be at least 1, got {starts}")

@@ -20,6 +20,7 @@ import numpy as np
 
 from .. import datasets
 from .._config import __version__
+from ..app.output import write_text
 from ..app.progress import study_progress
 from ..app.reports import bar_plot, write_json
 from ..engine.data import Experiment
@@ -429,7 +430,7 @@ def run(
         },
     }
     write_json(out / "results.json", results)
-    (out / "report.md").write_text(render(results, [Path(f).name for f in figs]))
+    write_text(out / "report.md", render(results, [Path(f).name for f in figs]))
     return results
 
 
