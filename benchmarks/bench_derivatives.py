@@ -69,7 +69,7 @@ def main() -> None:
 
     prob = silverbox_problem(substeps=args.substeps)
     theta = prob.theta0
-    sens, (t, u, y) = prob._sens, prob._arrays[0]
+    sens, (t, u, y) = prob._sweeps, prob._arrays[0]
     x0, p, w = jnp.asarray(prob.x0[0]), jnp.asarray(prob.p0), jnp.asarray(prob.weights)
     th = jnp.asarray(theta)
     K = theta.size

@@ -225,6 +225,6 @@ def test_simulate_says_where_a_simulation_blows_up_and_exits_non_zero(tmp_path, 
     assert cli.main(args) == 1
     err = capsys.readouterr().err
     assert "not finite" in err and "sample" in err and "Likely causes" in err
-    with pytest.warns(RuntimeWarning, match="not finite"):
+    with pytest.warns(RuntimeWarning, match="stops being finite"):
         m = silverbox_model()
         ti.simulate(m, dict(SILVERBOX_P, m=1e-12), [1.0, 0.0], silverbox_data(P=64))

@@ -106,8 +106,8 @@ def register(sub) -> None:
         "Initial states that the model file frees are estimated on DATA with the "
         "parameters held, unless --x0 gives them; the one used is printed.",
     )
-    s.add_argument("model")
-    s.add_argument("data")
+    s.add_argument("model", help="model file (Python)")
+    s.add_argument("data", help="data file (.csv, .mat, .npz) with the inputs (outputs optional)")
     s.add_argument(
         "--params",
         nargs="*",
@@ -144,7 +144,12 @@ def integration_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--substeps", type=int, default=4, help="steps per sample interval")
     p.add_argument("--rtol", type=float, default=None, help="adaptive schemes: relative tolerance")
     p.add_argument("--atol", type=float, default=None, help="adaptive schemes: absolute tolerance")
-    p.add_argument("--interpolation", default="linear", choices=["linear", "zoh"])
+    p.add_argument(
+        "--interpolation",
+        default="linear",
+        choices=["linear", "zoh"],
+        help="the input between samples: linear (default) or zero-order hold",
+    )
 
 
 def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:

@@ -86,6 +86,8 @@ def _run(problem: Problem, args, console: Console):
     try:
         if args.no_progress:
             return fit(problem, args.method, **options)
+        if not console.is_terminal:  # a log: one plain line per iteration, no live table
+            return fit(problem, args.method, callback=_log_line(console), **options)
         if args.starts > 1:
             where = "on " + args.scheduler if args.scheduler else "locally"
             console.log(f"running {args.starts} starts {where}...")
@@ -99,6 +101,19 @@ def _run(problem: Problem, args, console: Console):
     finally:
         if client is not None:
             client.close()
+
+
+def _log_line(console: Console):
+    def show(h: dict) -> None:
+        console.print(
+            f"iteration {h['iteration']}: cost {h['cost']:.8g}, gradient norm "
+            f"{h['grad_norm']:.2e}, trust radius {h['radius']:.2e}, "
+            f"{'accepted' if h['accepted'] else 'rejected'}",
+            soft_wrap=True,
+            highlight=False,
+        )
+
+    return show
 
 
 def _gof_lines(scores: list[Score]) -> list[str]:
@@ -238,13 +253,15 @@ def run_simulate(args) -> int:
     target = out if table_only else out / "simulation.csv"
     target.parent.mkdir(parents=True, exist_ok=True)
     write_atomic(target, partial(_savetxt, table, header))
+    written = [target]
     if not table_only and e.y is not None and sim.status is Status.OK:
-        fit_figures_for_simulation(Score("validation", e, sim, m.states_array(x0)), out)
+        score = Score("validation", e, sim, m.states_array(x0))
+        written += fit_figures_for_simulation(score, out)
     if e.y is not None:
         for j, o in enumerate(m.outputs):
             print(f"GOF {o}: {gof(e.y[:, j], sim.y[:, j]):.4f}")
     print("initial state " + ", ".join(f"{k}={v:.6g}" for k, v in x0.items()) + f" ({source})")
-    print(f"wrote {target}")
+    print("wrote " + ", ".join(map(str, written)))
     if sim.status is not Status.OK:
         why = describe_failure(sim, disc.scheme, f"{args.data}")
         print(f"tensorid: error: the simulation is not finite: {why}", file=sys.stderr)
@@ -253,11 +270,13 @@ def run_simulate(args) -> int:
 
 
 def _savetxt(table: np.ndarray, header: list[str], path: Path) -> None:
-    np.savetxt(path, table, delimiter=",", header=",".join(header), comments="")
+    # 17 significant digits: every double read back exactly, without %.18e's noise
+    np.savetxt(path, table, fmt="%.17g", delimiter=",", header=",".join(header), comments="")
 
 
-def fit_figures_for_simulation(score: Score, out: Path) -> None:
+def fit_figures_for_simulation(score: Score, out: Path) -> list[Path]:
     e, s = score.experiment, score.simulation
+    written = []
     for j, name in enumerate(s.model.outputs):
         fig = compare_figure(
             e.t,
@@ -266,4 +285,5 @@ def fit_figures_for_simulation(score: Score, out: Path) -> None:
             ylabel=name,
             title=f"simulation on {e.name or 'data'}, output {name}: GOF {score.gof[name]:.4f}",
         )
-        write_atomic(out / f"simulation_{name}.png", partial(save_png, fig))
+        written.append(write_atomic(out / f"simulation_{name}.png", partial(save_png, fig)))
+    return written

@@ -99,7 +99,7 @@ def simulate(
     if sim.status is not Status.OK:
         h = sim.failed_at or 0
         warnings.warn(
-            f"the simulation is not finite from sample {h} (t = {data.t[h]:.6g}) on: "
+            f"the simulation stops being finite at sample {h} (t = {data.t[h]:.6g}): "
             f"{sim.status.message}; Simulation.status and failed_at say so too",
             RuntimeWarning,
             stacklevel=2,

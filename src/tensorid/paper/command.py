@@ -26,7 +26,7 @@ def _paper(args) -> int:
         progress=not args.no_progress,
     )
     sb, tt = res["silverbox"], res["two_tank"]
-    c = Console(highlight=False)
+    c = Console(highlight=False, soft_wrap=True)  # whole lines in a log too
     c.print(
         f"[bold]Silverbox[/] paper's model: training cost "
         f"{sb['paper_model']['train_cost']:.5g}, validation GOF "
@@ -37,7 +37,7 @@ def _paper(args) -> int:
     for row in res["robustness"]:
         c.print(
             f"  {row['dataset']:9s} {row['accuracy']:7s} {row['method']:12s} converged "
-            f"{row['converged']:3d}/{row['starts']}  failed {row['failed']:3d}  "
+            f"{row['converged']:3d}/{row['starts']}  optimizer said failed {row['failed']:3d}  "
             f"median {row['median_seconds'] * 1e3:7.1f} ms"
         )
     c.print(
@@ -65,7 +65,7 @@ def register(sub) -> None:
     p.add_argument(
         "--quick",
         action="store_true",
-        help="small version: one accuracy level and few starts (about a minute)",
+        help="small version: one accuracy level and few starts (about 40 s)",
     )
     p.add_argument(
         "--workers",
