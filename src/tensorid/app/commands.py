@@ -19,7 +19,7 @@ from ..engine.metrics import gof
 from ..engine.problem import Problem
 from ..engine.simulate import run_simulation
 from ..engine.status import Status
-from ..engine.sweeps import Sweeps
+from ..engine.sweeps import shared_sweeps
 from ..fitting.figures import compare_figure, fit_figures, save_png
 from ..fitting.methods import fit
 from ..fitting.summary import summary_table
@@ -248,7 +248,9 @@ def run_simulate(args) -> int:
     e = load_data([args.data], m, ts=args.ts, require_outputs=False)[0]
     disc = discretisation(args)
     x0, source = _simulation_start(spec, args, e, params, disc)
-    sim = run_simulation(Sweeps(m, (), (), disc), e, m.states_array(x0), m.params_array(params))
+    sim = run_simulation(
+        shared_sweeps(m, (), (), disc), e, m.states_array(x0), m.params_array(params)
+    )
     header, table = _simulation_table(m, e, sim, table_only)
     target = out if table_only else out / "simulation.csv"
     target.parent.mkdir(parents=True, exist_ok=True)

@@ -101,6 +101,7 @@ def fit_json(res, validation: list[Score]) -> dict:
         "method": res.method,
         "integration": res.problem.discretisation.as_dict(),
         "seconds": res.seconds,
+        "compile_seconds": res.compile_seconds,
         "warnings": res.warnings,
         "residual_variance": u.sigma2 if u else None,
         "correlation_names": names,

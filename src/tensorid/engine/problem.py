@@ -18,7 +18,7 @@ from .discretisation import Discretisation
 from .integrators import RungeKuttaScheme, Scheme
 from .model import Model
 from .simulate import Simulation, run_simulation
-from .sweeps import Sweeps, unpack_symmetric
+from .sweeps import shared_sweeps, unpack_symmetric
 
 
 def _name_list(what: str, names, known: Sequence[str], kind: str) -> list[str]:
@@ -105,7 +105,7 @@ class Problem:
         self.lower, self.upper = self._check_bounds(bounds or {})
         if self.K == 0:
             raise ValueError("nothing to estimate: every parameter is fixed and free_x0 is empty")
-        self._sweeps = Sweeps(
+        self._sweeps = shared_sweeps(
             model,
             tuple(model.states.index(n) for n in self.free_x0),
             tuple(model.params.index(n) for n in self.free_params),

@@ -14,7 +14,7 @@ from .discretisation import Discretisation
 from .integrators import Scheme
 from .model import Model
 from .status import Status
-from .sweeps import Sweeps
+from .sweeps import Sweeps, shared_sweeps
 
 
 @dataclass(frozen=True, eq=False)
@@ -95,7 +95,7 @@ def simulate(
     )
     p = model.params_array(params, "params")
     x = model.states_array(x0, "x0")
-    sim = run_simulation(Sweeps(model, (), (), discretisation), data, x, p)
+    sim = run_simulation(shared_sweeps(model, (), (), discretisation), data, x, p)
     if sim.status is not Status.OK:
         h = sim.failed_at or 0
         warnings.warn(

@@ -15,6 +15,7 @@ import time
 
 import numpy as np
 
+from ..engine.compilation import compile_clock
 from ..engine.problem import Problem
 from ..engine.status import Status
 from .baselines import BASELINES
@@ -85,20 +86,26 @@ def fit(
     theta0 = _check_start(problem, problem.theta0 if theta0 is None else theta0, "theta0")
     if starts is not None:
         _check_count("starts", starts)
-    if starts is None or starts == 1:
-        return fit_many(problem, method, theta0[None, :], options, started)[0]
-    batch = _check_batch(method, batch, starts, executor, workers)
-    if not (isinstance(spread, int | float) and np.isfinite(spread) and spread >= 0):
-        raise ValueError(f"spread must be a finite number >= 0, got {spread!r}")
-    if sampling not in SAMPLINGS:
-        raise ValueError(f"sampling must be one of {SAMPLINGS}, got {sampling!r}")
-    if workers is not None:
-        _check_count("workers", workers)
-    thetas = draw_starts(
-        theta0, problem.lower, problem.upper, starts, spread=spread, sampling=sampling, seed=seed
-    )
-    runs = run_starts(problem, fit_task(method, options), thetas, executor, workers, batch)
-    return _best_of(problem, method, theta0, runs, options, started)
+    n = 1 if starts is None else int(starts)
+    if n > 1:
+        batch = _check_batch(method, batch, n, executor, workers)
+        if not (isinstance(spread, int | float) and np.isfinite(spread) and spread >= 0):
+            raise ValueError(f"spread must be a finite number >= 0, got {spread!r}")
+        if sampling not in SAMPLINGS:
+            raise ValueError(f"sampling must be one of {SAMPLINGS}, got {sampling!r}")
+        if workers is not None:
+            _check_count("workers", workers)
+    with compile_clock() as clock:  # this process's compilations (not the workers')
+        if n > 1:
+            lo, hi = problem.lower, problem.upper
+            thetas = draw_starts(theta0, lo, hi, n, spread=spread, sampling=sampling, seed=seed)
+            task = fit_task(method, options)
+            runs = run_starts(problem, task, thetas, executor, workers, int(batch or 1))
+            res = _best_of(problem, method, theta0, runs, options, started)
+        else:
+            res = fit_many(problem, method, theta0[None, :], options, started)[0]
+    res.compile_seconds = clock[0]
+    return res
 
 
 def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResult]:
@@ -124,7 +131,11 @@ def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResul
         raise TypeError("pass either options=FitOptions(...) or keyword options, not both")
     thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
     thetas = np.stack([_check_start(problem, th, "a start") for th in thetas])
-    return fit_many(problem, method, thetas, opts, started)
+    with compile_clock() as clock:
+        results = fit_many(problem, method, thetas, opts, started)
+    for r in results:
+        r.compile_seconds = clock[0]
+    return results
 
 
 # -- checks -----------------------------------------------------------------------------

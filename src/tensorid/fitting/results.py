@@ -39,7 +39,9 @@ class FitResult:
         refinement's) and ``nfev`` every start's evaluations; ``nit_total`` counts
         every start's iterations and ``nfev_best`` the best start's evaluations.
     nhev : Hessian-vector products (method "newton-cg").
-    seconds : wall time of the fit, compilation included.
+    seconds : wall time of the fit, compilation included; ``compile_seconds`` is the
+        part JAX spent compiling in this process (0 when every sweep was compiled
+        already: Problems with the same model, θ layout and discretisation share them).
     history : one dict per iteration: iteration, cost, grad_norm, radius, ...
     notes : what happened on the way, e.g. trial points where the simulation blew up.
     """
@@ -65,6 +67,7 @@ class FitResult:
     nhev: int = 0
     nit_total: int | None = None
     nfev_best: int | None = None
+    compile_seconds: float = 0.0
 
     def __post_init__(self) -> None:
         if self.nit_total is None:

@@ -1,0 +1,53 @@
+"""Compiled sweeps are shared by every Problem with the same model, θ layout and
+discretisation, and a fit reports the time JAX spent compiling."""
+
+from __future__ import annotations
+
+import cloudpickle
+from conftest import SILVERBOX_P, silverbox_data, silverbox_model
+
+import tensorid as ti
+
+
+def _problem(model, data, **kw):
+    p0 = {k: 1.05 * v for k, v in SILVERBOX_P.items()}
+    return ti.Problem(model, data, p0=p0, x0=[0.0, 0.0], **kw)
+
+
+def test_a_second_problem_of_the_same_structure_compiles_nothing():
+    model, data = silverbox_model(), silverbox_data(P=256, seed=7)
+    first = ti.fit(_problem(model, data, substeps=3))
+    second_problem = _problem(model, data, substeps=3, bounds={"m": (1e-7, 1e-3)})
+    second = ti.fit(second_problem)
+    assert first.compile_seconds > 0.05
+    assert second.compile_seconds < 0.05 * first.compile_seconds
+    assert second.params == first.params and second.nit == first.nit
+
+
+def test_another_layout_or_discretisation_gets_its_own_sweeps():
+    model, data = silverbox_model(), silverbox_data(P=64, seed=8)
+    a = _problem(model, data)
+    assert _problem(model, data)._sweeps is a._sweeps
+    assert _problem(model, data, fixed=["a"])._sweeps is not a._sweeps
+    assert _problem(model, data, scheme="heun")._sweeps is not a._sweeps
+    assert _problem(silverbox_model(), data)._sweeps is not a._sweeps  # another model
+
+
+def test_repeated_simulations_compile_once_and_problems_still_travel_to_workers():
+    model, data = silverbox_model(), silverbox_data(P=64, seed=9)
+    with ti.engine.compilation.compile_clock() as first:
+        ti.simulate(model, SILVERBOX_P, [0.0, 0.0], data)
+    with ti.engine.compilation.compile_clock() as again:
+        ti.simulate(model, SILVERBOX_P, [0.01, 0.0], data)
+    assert first[0] > 0 and again[0] == 0.0
+    prob = _problem(model, data)
+    copy = cloudpickle.loads(cloudpickle.dumps(prob))
+    assert copy.cost(copy.theta0) == prob.cost(prob.theta0)
+
+
+def test_fit_json_reports_compile_time():
+    from tensorid.app.reports import fit_json
+
+    model, data = silverbox_model(), silverbox_data(P=64, seed=10)
+    d = fit_json(ti.fit(_problem(model, data), maxiter=2), [])
+    assert d["compile_seconds"] >= 0.0 and d["seconds"] >= d["compile_seconds"]
