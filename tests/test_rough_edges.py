@@ -228,3 +228,15 @@ def test_simulate_says_where_a_simulation_blows_up_and_exits_non_zero(tmp_path, 
     with pytest.warns(RuntimeWarning, match="stops being finite"):
         m = silverbox_model()
         ti.simulate(m, dict(SILVERBOX_P, m=1e-12), [1.0, 0.0], silverbox_data(P=64))
+
+
+def test_ctrl_c_ends_the_command_with_one_line(monkeypatch, capsys, tmp_path):
+    import tensorid.app.commands as commands
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(commands, "fit", interrupted)
+    args = ["fit", str(EXAMPLE / "model.py"), str(EXAMPLE / "train.csv"), "--no-progress"]
+    assert cli.main(args + ["--out", str(tmp_path / "x")]) == 130
+    assert capsys.readouterr().err.strip() == "tensorid: interrupted"

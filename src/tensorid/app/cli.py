@@ -166,3 +166,8 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
             raise
         print(f"tensorid: error: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C: one line, not forty of traceback
+        if os.environ.get("TENSORID_TRACEBACK"):
+            raise
+        print("tensorid: interrupted", file=sys.stderr)
+        return 130
