@@ -240,3 +240,18 @@ def test_ctrl_c_ends_the_command_with_one_line(monkeypatch, capsys, tmp_path):
     args = ["fit", str(EXAMPLE / "model.py"), str(EXAMPLE / "train.csv"), "--no-progress"]
     assert cli.main(args + ["--out", str(tmp_path / "x")]) == 130
     assert capsys.readouterr().err.strip() == "tensorid: interrupted"
+
+
+def test_files_are_written_with_the_usual_permissions(tmp_path):
+    import os
+    import stat
+
+    from tensorid.app.output import write_text
+
+    umask = os.umask(0o022)
+    try:
+        path = write_text(tmp_path / "a.txt", "x")
+    finally:
+        os.umask(umask)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o644
+    assert path.read_text() == "x" and not list(tmp_path.glob("*.part"))

@@ -79,7 +79,38 @@ def test_a_parameter_on_its_bound_is_flagged_and_its_interval_respects_the_bound
     assert u.at_bound == {"d": "lower"}
     k = u.names.index("d")
     assert u.ci95[k, 0] >= 0.0 and u.ci95[k, 1] > 0.0
-    assert any("d sits on its lower bound" in w for w in res.warnings)
+    assert any("d on its lower bound 0 (the data pull it further)" in w for w in res.warnings)
     assert "on lower bound" in res.summary()
     d = u.as_dicts()
     assert d["at_bound"] == {"d": "lower"} and d["ci95"]["d"][0] >= 0.0
+
+
+def test_a_minimum_on_a_bound_is_not_called_a_saddle():
+    # y = x + d²; the data sit 1 above the model, so d wants to grow past its bound 0.1:
+    # along d the full Hessian may curve down, but with d held this is a strict minimum
+    m = ti.Model(
+        rhs=lambda x, p, u: -p[0] * x + p[1] * u[0],
+        output=lambda x, p: x + p[2] ** 2,
+        states=["x"],
+        params=["k", "b", "d"],
+        inputs=["u"],
+        outputs=["y"],
+    )
+    t = np.linspace(0, 5, 80)
+    u = np.sign(np.sin(1.7 * t))
+    y = ti.simulate(m, {"k": 1.0, "b": 0.5, "d": 0.0}, [0.0], ti.Experiment(t, u)).y[:, 0] + 1.0
+    prob = ti.Problem(
+        m,
+        ti.Experiment(t, u, y),
+        p0={"k": 1.0, "b": 0.5, "d": 0.05},
+        x0=[0.0],
+        bounds={"d": (0.0, 0.1)},
+    )
+    res = ti.fit(prob)
+    assert res.params["d"] == 0.1
+    assert np.linalg.eigvalsh(res.hess)[0] < 0  # the full Hessian is indefinite here
+    u_ = res.uncertainty()
+    assert u_.at_bound == {"d": "upper"}
+    assert not any("indefinite" in w for w in u_.warnings), u_.warnings
+    assert u_.forms[u_.names.index("k")] == "hessian"
+    assert np.isfinite(u_.stderr).all() and (u_.stderr > 0).all()

@@ -166,6 +166,11 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
             raise
         print(f"tensorid: error: {e}", file=sys.stderr)
         return 2
+    except OSError as e:  # a write failed after the work: say which file and why
+        if os.environ.get("TENSORID_TRACEBACK"):
+            raise
+        print(f"tensorid: error: {e.filename or ''}: {e.strerror or e}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:  # Ctrl-C: one line, not forty of traceback
         if os.environ.get("TENSORID_TRACEBACK"):
             raise

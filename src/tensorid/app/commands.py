@@ -105,13 +105,13 @@ def _run(problem: Problem, args, console: Console):
 
 def _log_line(console: Console):
     def show(h: dict) -> None:
-        console.print(
-            f"iteration {h['iteration']}: cost {h['cost']:.8g}, gradient norm "
-            f"{h['grad_norm']:.2e}, trust radius {h['radius']:.2e}, "
-            f"{'accepted' if h['accepted'] else 'rejected'}",
-            soft_wrap=True,
-            highlight=False,
-        )
+        parts = [f"iteration {h['iteration']}: cost {h['cost']:.8g}"]
+        for key, label in (("grad_norm", "gradient norm"), ("radius", "trust radius")):
+            if np.isfinite(h[key]):  # the finite-difference baselines have neither
+                parts.append(f"{label} {h[key]:.2e}")
+        if h["iteration"] > 0:
+            parts.append("accepted" if h["accepted"] else "rejected")
+        console.print(", ".join(parts), soft_wrap=True, highlight=False)
 
     return show
 
@@ -171,7 +171,8 @@ def run_fit(args) -> int:
     figures, failures = _write_results(res, out, scores)
     if failures:
         for f in failures:
-            print(f"tensorid: error: {f}; {out / 'fit.json'} was written", file=sys.stderr)
+            print(f"tensorid: error: {f}", file=sys.stderr)
+        print(f"tensorid: {out / 'fit.json'} was written", file=sys.stderr)
         return 1
     print(f"wrote {out}/fit.json, report.md and {len(figures)} figures")
     return 0 if res.success else 1

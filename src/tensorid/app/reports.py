@@ -96,6 +96,7 @@ def fit_json(res, validation: list[Score]) -> dict:
         "iterations": res.nit,
         "function_evaluations": res.nfev,
         "iterations_total": res.nit_total,
+        "function_evaluations_total": res.nfev,
         "function_evaluations_best_start": res.nfev_best,
         "hessian_vector_products": res.nhev,
         "method": res.method,

@@ -12,6 +12,7 @@ import jax
 _EVENTS = "/jax/core/compile/"
 _local = threading.local()
 _registered = False
+_lock = threading.Lock()
 
 
 def _listener(event: str, duration: float, **_) -> None:
@@ -25,9 +26,10 @@ def compile_clock():
     """Within the block, ``clock[0]`` accumulates the seconds JAX spends compiling on
     this thread (nested clocks each see every compilation)."""
     global _registered
-    if not _registered:
-        jax.monitoring.register_event_duration_secs_listener(_listener)
-        _registered = True
+    with _lock:  # registered twice, every compilation would count twice
+        if not _registered:
+            jax.monitoring.register_event_duration_secs_listener(_listener)
+            _registered = True
     clock = [0.0]
     _local.clocks = (*getattr(_local, "clocks", ()), clock)
     try:

@@ -161,6 +161,19 @@ class Model:
         if not jnp.issubdtype(y.dtype, jnp.floating):
             raise TypeError(f"output returned dtype {y.dtype}; it must return floats")
 
+    @property
+    def compiled_sweeps(self) -> dict:
+        """This model's compiled sweeps by (θ layout, discretisation); see
+        tensorid.engine.sweeps.shared_sweeps. Per process: not pickled."""
+        cache = self.__dict__.get("_compiled_sweeps")
+        if cache is None:
+            cache = {}
+            object.__setattr__(self, "_compiled_sweeps", cache)
+        return cache
+
+    def __getstate__(self):
+        return {k: v for k, v in self.__dict__.items() if k != "_compiled_sweeps"}
+
     # Shape-normalised versions used internally: always (N,) and (S,).
     def f(self, x: Array, p: Array, u: Array) -> Array:
         """dx/dt, always of shape (N,)."""

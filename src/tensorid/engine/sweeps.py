@@ -25,7 +25,6 @@ The output side is the same with C in place of F, giving the paper's gradient
 
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass
 
 import jax
@@ -294,22 +293,18 @@ def _entry(name: str):
     return Sweeps.__dict__.get(name)
 
 
-# Compiled sweeps are shared by every Problem (and simulation) with the same model, θ
-# layout and discretisation: jit then recompiles only for new data shapes, so a second
-# Problem fits at the speed of a reused one. Weak keys: a model that is gone frees them.
-_SHARED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
 def shared_sweeps(
     model: Model,
     free_states: tuple[int, ...],
     free_params: tuple[int, ...],
     discretisation: Discretisation,
 ) -> Sweeps:
-    """The Sweeps for this structure, compiled once per process and data shape."""
+    """The Sweeps for this structure, compiled once per process and data shape: every
+    Problem (and simulation) with the same model, θ layout and discretisation shares
+    them, and jit recompiles only for new data shapes. The cache lives on the model,
+    so it goes when the model goes (and is not pickled with it)."""
     key = (tuple(free_states), tuple(free_params), discretisation)
     try:
-        per_model = _SHARED.setdefault(model, {})
-        return per_model.setdefault(key, Sweeps(model, *key))
+        return model.compiled_sweeps.setdefault(key, Sweeps(model, *key))
     except TypeError:  # an unhashable user scheme: not shared
         return Sweeps(model, *key)

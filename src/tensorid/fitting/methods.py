@@ -64,7 +64,7 @@ def fit(
                       MATLAB's grey-box toolbox does
     theta0 : start (K,), natural units; default ``problem.theta0``.
     x_scale, maxiter, gtol, ftol, xtol, callback : see :class:`FitOptions`; or pass
-        ``options=FitOptions(...)`` (which then replaces them all).
+        ``options=FitOptions(...)`` instead (not both).
     starts : with N > 1, fit from theta0 and N - 1 further starts (within the bounds
         where both are finite, else within ±spread of theta0; Latin hypercube or
         uniform ``sampling``, seeded), in parallel through ``executor`` (any
@@ -114,8 +114,8 @@ def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResul
     which costs far less than B separate calls on a CPU. Methods "newton" and
     "gauss-newton"; options as for :func:`fit` (x_scale, maxiter, gtol, ftol,
     xtol, or options=FitOptions(...)). Each result is what
-    ``fit(problem, method, theta0=row)`` returns; its ``seconds`` is the wall time of
-    the whole batch."""
+    ``fit(problem, method, theta0=row)`` returns; its ``seconds`` and
+    ``compile_seconds`` are those of the whole batch."""
     started = time.perf_counter()
     if method not in LOCKSTEP:
         raise ValueError(
@@ -128,7 +128,7 @@ def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResul
             raise TypeError(f"fit_batch got unexpected options {sorted(set(options) - allowed)}")
         opts = FitOptions(**options)
     elif options:
-        raise TypeError("pass either options=FitOptions(...) or keyword options, not both")
+        raise ValueError("pass either options=FitOptions(...) or keyword options, not both")
     thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
     thetas = np.stack([_check_start(problem, th, "a start") for th in thetas])
     with compile_clock() as clock:
@@ -230,8 +230,7 @@ def _best_of(problem, method, theta0, runs: list[dict], options: FitOptions, sta
     if not np.isfinite(best["cost"]):
         status = Status.ALL_STARTS_FAILED
         res = failed(problem, method, theta0, started, status.message, status)
-        res.nit = res.nit_total = nit_all
-        res.nfev = nfev_all
+        res.nit, res.nit_total, res.nfev, res.nfev_best = 0, nit_all, nfev_all, 0
     else:
         res = fit_many(problem, method, np.asarray(best["theta"])[None, :], options, started)[0]
         own = histories[best["start"]]

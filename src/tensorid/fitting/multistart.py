@@ -113,8 +113,8 @@ def run_starts(
     workers = workers or os.cpu_count() or 1
     if executor is not None:
         done = list(executor.map(_run_payload, payloads))
-    elif workers == 1 or len(payloads) == 1:
-        done = [_run_payload(p) for p in payloads]
+    elif workers == 1 or len(payloads) == 1:  # here: no copy, the compiled sweeps are reused
+        done = [task(problem, chunk) for chunk in chunks]
     else:
         with process_pool(min(workers, len(payloads))) as pool:
             done = list(pool.map(_run_payload, payloads))

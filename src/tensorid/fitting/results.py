@@ -159,7 +159,16 @@ class FitResult:
             return problem.cost_grad_gn(theta)[2]
 
         H = self.hess if kind == "hessian" else gauss_newton()
-        return uncertainty(problem, theta, self.cost, H, kind, gauss_newton=gauss_newton)
+        return uncertainty(
+            problem,
+            theta,
+            self.cost,
+            H,
+            kind,
+            gauss_newton=gauss_newton,
+            grad=self.jac,
+            scale=self.scale,
+        )
 
     @property
     def covariance(self) -> np.ndarray:

@@ -107,111 +107,145 @@ def negative_directions(
 
 
 def _variances(H: np.ndarray, sigma2: float, names: list[str], unbounded) -> tuple:
-    """(covariance, variances) from the PSD part of H in Jacobi-scaled units; the
-    unknowns in ``unbounded`` directions get infinite variance. Work in scaled units:
-    on the raw Hessian, rounding makes the smallest eigenvalue's sign meaningless and
-    a relative pinv cutoff would discard exactly the poorly determined directions."""
+    """(covariance, variances) from the positive part of H in Jacobi-scaled units: the
+    eigen-directions with relative eigenvalue above FLAT. The unknowns in
+    ``unbounded`` directions get infinite variance. Work in scaled units: on the raw
+    Hessian, rounding makes the smallest eigenvalue's sign meaningless and a relative
+    cutoff would discard exactly the poorly determined directions."""
     sc = jacobi_scale(H)
-    Hs = 0.5 * (H + H.T) * np.outer(sc, sc)
-    cov = 2.0 * sigma2 * np.linalg.pinv(Hs, rcond=FLAT, hermitian=True) * np.outer(sc, sc)
+    lam, V = np.linalg.eigh(0.5 * (H + H.T) * np.outer(sc, sc))
+    keep = lam > FLAT * max(np.abs(lam).max(), np.finfo(float).tiny)
+    inv = (V[:, keep] / lam[keep]) @ V[:, keep].T
+    cov = 2.0 * sigma2 * inv * np.outer(sc, sc)
     var = np.diag(cov).copy()
-    for _, involved in unbounded:  # pinv would report these as zero
+    for _, involved in unbounded:  # the positive part leaves these out: not zero, unbounded
         for name in involved:
             var[names.index(name)] = np.inf
-    var[~(var >= 0)] = np.inf  # a negative variance is no variance: never print a 0
+    var[~(var > 0) & (sigma2 > 0)] = np.inf  # never print a 0 that is not one
     return cov, var
 
 
-def _bounded(problem, theta, se, ci, names) -> tuple[dict, dict, list[str]]:
-    """Flag estimates on a bound, cut intervals at the bounds; returns (at_bound,
-    cut, warnings). An estimate is on a bound when it is within a millionth of its
-    standard error of it (or within rounding)."""
+def on_bounds(problem, theta, grad=None, scale=None) -> tuple[dict[str, str], np.ndarray]:
+    """({name: "lower" | "upper"} for the unknowns on a bound, and the mask of those
+    the bound holds: the gradient pushes them outward, so the data alone would move
+    them past it). "On" means within rounding: 1e-12 (scale + |θ|), the trust
+    region's own test in scaled units (scale: the fit's typical magnitudes)."""
     lo, hi = np.asarray(problem.lower), np.asarray(problem.upper)
-    near = np.maximum(1e-12 * (1.0 + np.abs(theta)), 1e-6 * np.where(np.isfinite(se), se, 0.0))
-    at_bound, cut, warnings = {}, {}, []
-    for k, name in enumerate(names):
-        side = (
-            "lower"
-            if theta[k] - lo[k] <= near[k]
-            else "upper"
-            if hi[k] - theta[k] <= near[k]
-            else None
-        )
-        if side:
-            at_bound[name] = side
-            bound = lo[k] if side == "lower" else hi[k]
-            warnings.append(
-                f"{name} sits on its {side} bound {bound:g}: the data would move it further "
-                "if allowed, so its interval is one-sided and only indicative (the Wald "
-                "approximation does not hold at a bound); check whether the bound is physical "
-                "or the model is missing something"
-            )
-        if ci[k, 0] < lo[k] or ci[k, 1] > hi[k]:
-            cut[name] = "lower" if ci[k, 0] < lo[k] else "upper"
+    typical = np.ones_like(theta) if scale is None else np.asarray(scale)
+    near = 1e-12 * (typical + np.abs(theta))
+    g = np.zeros_like(theta) if grad is None else np.asarray(grad)
+    on, held = {}, np.zeros(theta.size, dtype=bool)
+    for k, name in enumerate(problem.theta_names):
+        if theta[k] - lo[k] <= near[k]:
+            on[name], held[k] = "lower", g[k] > 0
+        elif hi[k] - theta[k] <= near[k]:
+            on[name], held[k] = "upper", g[k] < 0
+    return on, held
+
+
+def _bound_warning(problem, on: dict[str, str], held: np.ndarray) -> list[str]:
+    if not on:
+        return []
+    names = problem.theta_names
+    items = []
+    for name, side in on.items():
+        k = names.index(name)
+        bound = problem.lower[k] if side == "lower" else problem.upper[k]
+        pushed = " (the data pull it further)" if held[k] else ""
+        items.append(f"{name} on its {side} bound {bound:g}{pushed}")
+    return [
+        "estimates on a bound: " + "; ".join(items) + ". Their intervals are one-sided and "
+        "only indicative (the Wald approximation does not hold at a bound); check whether "
+        "each bound is physical or the model is missing something"
+    ]
+
+
+def _cut(problem, ci: np.ndarray) -> dict[str, str]:
+    """Cut the intervals at the bounds, in place; returns {name: side(s) cut}."""
+    lo, hi = np.asarray(problem.lower), np.asarray(problem.upper)
+    cut = {}
+    for k, name in enumerate(problem.theta_names):
+        sides = [s for s, out in (("lower", ci[k, 0] < lo[k]), ("upper", ci[k, 1] > hi[k])) if out]
+        if sides:
+            cut[name] = "both" if len(sides) == 2 else sides[0]
             ci[k] = np.clip(ci[k], lo[k], hi[k])
-    return at_bound, cut, warnings
+    return cut
+
+
+def _indefinite(H, names, held, kind, gauss_newton) -> tuple:
+    """Directions of negative curvature among the unknowns that no bound holds (at a
+    bound the cost may curve down along the held unknown: that is still a minimum).
+    Returns (H to use, form, unbounded directions, warnings)."""
+    free = ~held
+    free_names = [n for n, f in zip(names, free, strict=True) if f]
+    negative = negative_directions(H[np.ix_(free, free)], free_names) if free.any() else []
+    if not negative:
+        return H, kind, [], []
+    where = "; ".join(
+        f"a direction that moves {', '.join(inv)} (relative curvature {rel:.1e})"
+        for rel, inv in negative
+    )
+    if kind == "hessian" and gauss_newton is not None:
+        H = gauss_newton() if callable(gauss_newton) else gauss_newton
+        kind, unbounded = "gauss-newton", []
+        then = (
+            "the standard errors and intervals below come from the Gauss-Newton form "
+            "(the expected information) instead"
+        )
+    else:
+        unbounded = negative
+        then = "the unknowns in those directions get unbounded intervals"
+    msg = (
+        f"the Hessian is indefinite here: the cost curves downward along {where}, so "
+        f"this is not a strict local minimum; {then}"
+    )
+    return H, kind, unbounded, [msg]
 
 
 def uncertainty(
-    problem, theta: np.ndarray, J: float, H: np.ndarray, kind: str = "hessian", gauss_newton=None
+    problem,
+    theta: np.ndarray,
+    J: float,
+    H: np.ndarray,
+    kind: str = "hessian",
+    gauss_newton=None,
+    grad=None,
+    scale=None,
 ) -> Uncertainty:
-    """Uncertainty of θ at an optimum with cost J and Hessian H (exact or
-    Gauss-Newton, as ``kind`` says). ``gauss_newton``: the Gauss-Newton Hessian (or a
-    function returning it) to fall back on where H is indefinite."""
+    """Uncertainty of θ at an optimum with cost J, gradient ``grad`` and Hessian H
+    (exact or Gauss-Newton, as ``kind`` says). ``gauss_newton``: the Gauss-Newton
+    Hessian (or a function returning it) to fall back on where H is indefinite, and
+    for the unknowns that a bound holds."""
     names = problem.theta_names
     K = theta.size
     n = sum(e.P for e in problem.experiments) * int((problem.weights > 0).sum())
     dof = max(n - K, 1)
     sigma2 = J / dof
-    warnings, form, unbounded = [], kind, []
-    negative = negative_directions(H, names)
-    if negative:
-        where = "; ".join(
-            f"a direction that moves {', '.join(inv)} (relative curvature {rel:.1e})"
-            for rel, inv in negative
-        )
-        if kind == "hessian" and gauss_newton is not None:
-            H = gauss_newton() if callable(gauss_newton) else gauss_newton
-            form = "gauss-newton"
-            then = (
-                "the standard errors and intervals below come from the Gauss-Newton "
-                "form (the expected information) instead"
-            )
-        else:
-            unbounded = negative
-            then = "the unknowns in those directions get unbounded intervals"
-        warnings.append(
-            f"the Hessian is indefinite here: the cost curves downward along {where}, so "
-            f"this is not a strict local minimum; {then}"
-        )
-    flat = flat_directions(H, names)
+    on, held = on_bounds(problem, theta, grad, scale)
+    H_used, form, unbounded, warnings = _indefinite(H, names, held, kind, gauss_newton)
+    flat = flat_directions(H_used, names)
     for rel, involved in flat:
         warnings.append(
             f"not identifiable from these data: the cost is flat (relative curvature "
             f"{rel:.1e}) along a direction that moves {', '.join(involved)} together; "
             "fix one of them, add data that excites them differently, or reparametrise"
         )
-    cov, var = _variances(H, sigma2, names, flat + unbounded)
+    cov, var = _variances(H_used, sigma2, names, flat + unbounded)
+    forms = [form] * K
+    if held.any() and form == "hessian" and gauss_newton is not None:
+        # the exact Hessian along a held unknown describes the cost beyond the bound
+        H_gn = gauss_newton() if callable(gauss_newton) else gauss_newton
+        var[held] = _variances(H_gn, sigma2, names, flat_directions(H_gn, names))[1][held]
+        forms = ["gauss-newton" if h else form for h in held]
     se = np.sqrt(var)
     q = stats.t.ppf(0.975, dof)
     ci = np.stack([theta - q * se, theta + q * se], axis=1)
-    at_bound, cut, bound_warnings = _bounded(problem, theta, se, ci, names)
+    cut = _cut(problem, ci)
     with np.errstate(divide="ignore", invalid="ignore"):
         corr = cov / np.outer(se, se)
     corr = np.where(np.isfinite(corr), corr, np.nan)
     np.fill_diagonal(corr, 1.0)
+    warnings += _bound_warning(problem, on, held)
     return Uncertainty(
-        names,
-        theta,
-        cov,
-        se,
-        ci,
-        corr,
-        float(sigma2),
-        dof,
-        kind,
-        warnings + bound_warnings,
-        [form] * K,
-        at_bound,
-        cut,
+        names, theta, cov, se, ci, corr, float(sigma2), dof, kind, warnings, forms, on, cut
     )

@@ -12,7 +12,8 @@ import numpy as np
 from ..engine.data import Experiment
 from ..engine.metrics import gof, nrmse, rmse
 from ..engine.problem import Problem
-from ..engine.simulate import Simulation, simulate
+from ..engine.simulate import Simulation, run_simulation
+from ..engine.sweeps import shared_sweeps
 from .scaling import Tracker
 from .trust_region import minimize_trust_region
 
@@ -132,7 +133,8 @@ def validate(res, data, init_window: int | None = None) -> list[Score]:
                 discretisation=prob.discretisation,
             )
             x0 = vp.unpack(estimate_x0(vp))[1][0]
-        sim = simulate(m, res.params, x0, e, discretisation=prob.discretisation)
+        sweeps = shared_sweeps(m, (), (), prob.discretisation)
+        sim = run_simulation(sweeps, e, x0, m.params_array(res.params))
         start = 0 if init_window is None else int(init_window)
         out.append(Score("validation", e, sim, x0, start, init_window, alone=len(exps) == 1))
     return out
