@@ -1,7 +1,8 @@
 """FitResult: what a fit found and how it ended, in scipy.optimize.OptimizeResult's
 vocabulary, with a ``Status`` for every ending.
 
-Results know nothing of reports or files: the application layer reads them.
+Results know nothing of reports: the application layer reads them. They write files
+only when asked (``plot(folder)``).
 """
 
 from __future__ import annotations
