@@ -191,7 +191,7 @@ def _assignments(items: list[str], what: str) -> dict[str, float]:
     return out
 
 
-def _simulation_start(spec: ModelSpec, args, e, params, disc) -> tuple[dict, str]:
+def _simulation_start(spec: ModelSpec, args, e, params, disc, fitted) -> tuple[dict, str]:
     """The initial state to simulate ``e`` from, and where it came from: --x0 where
     given; else estimated on the record (parameters held) for the states the model
     file frees, when the record has outputs; else the fit.json's or the model
@@ -199,24 +199,15 @@ def _simulation_start(spec: ModelSpec, args, e, params, disc) -> tuple[dict, str
     m = spec.model
     x0 = dict(zip(m.states, spec.x0_array(), strict=True))
     source = "the model file's x0"
-    if len(args.params) == 1 and args.params[0].endswith(".json"):
-        fitted = json.loads(Path(args.params[0]).read_text())
+    if fitted is not None:
         x0 = dict(zip(m.states, np.atleast_2d(fitted["x0"])[0], strict=True))
         source = f"the x0 of {args.params[0]} (its training record's)"
     given = _assignments(args.x0, "--x0")
     free = [n for n in spec.free_x0 if n not in given]
     x0.update(given)
     if free and e.y is not None:
-        prob = Problem(
-            m,
-            e,
-            p0=params,
-            x0=[x0[n] for n in m.states],
-            free_x0=free,
-            fixed=list(m.params),
-            discretisation=disc,
-        )
-        x0 = dict(zip(m.states, prob.unpack(estimate_x0(prob))[1][0], strict=True))
+        start = [x0[n] for n in m.states]
+        x0 = dict(zip(m.states, estimate_x0(m, params, start, free, e, disc), strict=True))
         source = f"{', '.join(free)} estimated on this record with the parameters held"
     if given:
         source += f"; {', '.join(given)} from --x0"
@@ -242,13 +233,15 @@ def run_simulate(args) -> int:
     spec = load_model(args.model)
     m = spec.model
     params = dict(spec.p0 or {})
+    fitted = None
     if len(args.params) == 1 and args.params[0].endswith(".json"):
-        params.update(json.loads(Path(args.params[0]).read_text())["params"])
+        fitted = json.loads(Path(args.params[0]).read_text())
+        params.update(fitted["params"])
     else:
         params.update(_assignments(args.params, "--params"))
     e = load_data([args.data], m, ts=args.ts, require_outputs=False)[0]
     disc = discretisation(args)
-    x0, source = _simulation_start(spec, args, e, params, disc)
+    x0, source = _simulation_start(spec, args, e, params, disc, fitted)
     sim = run_simulation(
         shared_sweeps(m, (), (), disc), e, m.states_array(x0), m.params_array(params)
     )

@@ -69,6 +69,8 @@ class FitResult:
     nit_total: int | None = None
     nfev_best: int | None = None
     compile_seconds: float = 0.0
+    # the summary, the warnings, fit.json and report.md all read the same uncertainty
+    _uncertainty: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.nit_total is None:
@@ -154,6 +156,13 @@ class FitResult:
         ``kind`` "hessian" uses the exact Hessian, "gauss-newton" its first-order form."""
         if kind not in ("hessian", "gauss-newton"):
             raise ValueError("kind must be 'hessian' or 'gauss-newton'")
+        # keyed on what it depends on, so a result changed by hand is not served stale
+        key = (kind, self.cost, self.theta.tobytes(), id(self.hess))
+        if key not in self._uncertainty:
+            self._uncertainty[key] = self._compute_uncertainty(kind)
+        return self._uncertainty[key]
+
+    def _compute_uncertainty(self, kind: str) -> Uncertainty:
         problem, theta = self.problem, self.theta
 
         def gauss_newton():

@@ -87,9 +87,23 @@ def training_scores(res) -> list[Score]:
     ]
 
 
-def estimate_x0(problem: Problem) -> np.ndarray:
-    """The free initial states of ``problem`` (whose parameters are all fixed) by
-    trust-region Newton; the start itself when its simulation is not finite."""
+def estimate_x0(model, params, x0, free: list[str], record: Experiment, discretisation):
+    """The initial state (N,) for ``record``: the states named in ``free`` estimated by
+    trust-region Newton with the parameters held (MATLAB's compare), the others as in
+    ``x0``; ``x0`` itself where the simulation from it is not finite."""
+    problem = Problem(
+        model,
+        record,
+        p0=params,
+        x0=x0,
+        free_x0=free,
+        fixed=list(model.params),
+        discretisation=discretisation,
+    )
+    return problem.unpack(_free_x0(problem))[1][0]
+
+
+def _free_x0(problem: Problem) -> np.ndarray:
     theta0 = problem.theta0
     J0, _, H0 = problem.cost_grad_gn(theta0)
     if not np.isfinite(J0):
@@ -123,16 +137,7 @@ def validate(res, data, init_window: int | None = None) -> list[Score]:
         x0 = x0_fit.copy()
         if prob.free_x0:
             window = e if init_window is None else e.window(0, int(init_window))
-            vp = Problem(
-                m,
-                window,
-                p0=res.params,
-                x0=x0_fit,
-                free_x0=prob.free_x0,
-                fixed=list(m.params),
-                discretisation=prob.discretisation,
-            )
-            x0 = vp.unpack(estimate_x0(vp))[1][0]
+            x0 = estimate_x0(m, res.params, x0_fit, prob.free_x0, window, prob.discretisation)
         sweeps = shared_sweeps(m, (), (), prob.discretisation)
         sim = run_simulation(sweeps, e, x0, m.params_array(res.params))
         start = 0 if init_window is None else int(init_window)
