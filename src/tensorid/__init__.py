@@ -26,7 +26,7 @@ from .engine.simulate import Simulation, simulate
 from .engine.status import Status
 from .fitting.methods import METHODS, fit, fit_batch
 from .fitting.options import FitOptions
-from .fitting.results import FitResult
+from .fitting.results import FitInterrupted, FitResult
 from .fitting.uncertainty import Uncertainty
 from .fitting.validation import Score
 from .functions import safe_sqrt
@@ -39,6 +39,7 @@ __all__ = [
     "Discretisation",
     "Experiment",
     "ExplicitRungeKutta",
+    "FitInterrupted",
     "FitOptions",
     "FitResult",
     "Model",

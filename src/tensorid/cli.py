@@ -12,7 +12,7 @@ from .paper import command as paper_command
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
+    ap = app_cli.Parser(
         prog="tensorid",
         description="Grey-box system identification with exact gradients and Hessians "
         "from state/parameter transition tensors.",

@@ -20,6 +20,41 @@ def _simulate(args) -> int:
     return run_simulate(args)
 
 
+class Parser(argparse.ArgumentParser):
+    """argparse, with a mistake reported as one line (not the whole usage) that
+    names the argument and says where the help is."""
+
+    def error(self, message: str):  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _count(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}")
+    return n
+
+
+def _non_negative(text: str) -> float:
+    try:
+        x = float(text)
+    except ValueError:
+        x = -1.0
+    if not (x >= 0 and x < float("inf")):
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
+    return x
+
+
+def _positive_seconds(text: str) -> float:
+    x = _non_negative(text)
+    if x == 0:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds > 0, got {text!r}")
+    return x
+
+
 def _samples(text: str) -> tuple[int, int]:
     try:
         a, b = text.split(":")
@@ -71,18 +106,18 @@ def register(sub) -> None:
         metavar="START:STOP",
         help="use samples START:STOP of each validation file",
     )
-    f.add_argument("--starts", type=int, default=1, help="number of starts (multi-start)")
+    f.add_argument("--starts", type=_count, default=1, help="number of starts (multi-start)")
     f.add_argument(
         "--spread",
-        type=float,
+        type=_non_negative,
         default=0.2,
         help="relative spread of the starts around p0 where no bounds are given",
     )
     f.add_argument("--seed", type=int, default=0, help="seed of the starts")
-    f.add_argument("--workers", type=int, default=None, help="local worker processes")
+    f.add_argument("--workers", type=_count, default=None, help="local worker processes")
     f.add_argument(
         "--batch",
-        type=int,
+        type=_count,
         default=None,
         help="starts fitted together in lock-step per task, vectorised (newton, "
         "gauss-newton; default: the starts shared evenly over the local workers)",
@@ -92,6 +127,15 @@ def register(sub) -> None:
         default=None,
         metavar="ADDRESS",
         help="run the starts on a Dask distributed cluster at ADDRESS",
+    )
+    f.add_argument(
+        "--worker-timeout",
+        type=_positive_seconds,
+        default=None,
+        metavar="SECONDS",
+        help="give up on the workers when no start has finished for this long (lost "
+        "workers); the starts that finished are kept (default: 300 with --scheduler, "
+        "no limit locally)",
     )
     integration_options(f)
     f.add_argument("--no-progress", action="store_true", help="no live progress display")

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from functools import partial
 from pathlib import Path
 
@@ -22,10 +24,18 @@ from ..engine.status import Status
 from ..engine.sweeps import shared_sweeps
 from ..fitting.figures import compare_figure, fit_figures, save_png
 from ..fitting.methods import fit
+from ..fitting.results import FitInterrupted
 from ..fitting.summary import summary_table
 from ..fitting.validation import Score, estimate_x0, training_scores
 from .files import ModelSpec, load_data, load_model
-from .output import check_destination, write_atomic, write_text
+from .output import (
+    check_destination,
+    claimed,
+    previous_outputs,
+    replace_outputs,
+    write_atomic,
+    write_text,
+)
 from .reports import fit_json, fit_report, write_json
 
 
@@ -67,13 +77,47 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
     )
 
 
-def _run(problem: Problem, args, console: Console):
-    executor = client = None
-    if args.scheduler:
-        from distributed import Client
+def _connect(address: str, timeout: float):
+    """A Dask client for the scheduler at ``address``, or one line saying why not."""
+    import socket
+    from urllib.parse import urlsplit
 
-        client = Client(args.scheduler)
-        executor = client.get_executor()
+    fix = "check the address and that `dask scheduler` runs there"
+    url = urlsplit(address if "://" in address else "tcp://" + address)
+    if url.scheme == "tcp":
+        try:
+            host, port = url.hostname, url.port
+            if not host or not port:
+                raise ValueError("it has no host:port")
+            # a plain connect first: distributed's own failure leaves tracebacks behind
+            socket.create_connection((host, port), timeout=min(timeout, 10)).close()
+        except (OSError, ValueError) as e:
+            raise ValueError(f"--scheduler {address}: cannot connect ({e}); {fix}") from None
+    from distributed import Client
+
+    try:
+        return Client(address, timeout=min(timeout, 30), set_as_default=False)
+    except (OSError, ValueError, TimeoutError) as e:
+        raise ValueError(f"--scheduler {address}: cannot connect ({e}); {fix}") from None
+
+
+@contextmanager
+def _workers(args) -> Iterator[tuple]:
+    """(executor, timeout) for the starts: a Dask cluster's with --scheduler
+    (connected before any work, closed after), else none (a local pool)."""
+    timeout = args.worker_timeout
+    if not args.scheduler:
+        yield None, timeout
+        return
+    timeout = 300.0 if timeout is None else timeout
+    client = _connect(args.scheduler, timeout)
+    try:
+        yield client.get_executor(), timeout
+    finally:
+        client.close()
+
+
+def _run(problem: Problem, args, console: Console, executor, timeout):
     options = dict(
         starts=args.starts,
         spread=args.spread,
@@ -81,26 +125,23 @@ def _run(problem: Problem, args, console: Console):
         executor=executor,
         workers=args.workers,
         batch=args.batch,
+        timeout=timeout,
     )
     rows: list[dict] = []
-    try:
-        if args.no_progress:
-            return fit(problem, args.method, **options)
-        if not console.is_terminal:  # a log: one plain line per iteration, no live table
-            return fit(problem, args.method, callback=_log_line(console), **options)
-        if args.starts > 1:
-            where = "on " + args.scheduler if args.scheduler else "locally"
-            console.log(f"running {args.starts} starts {where}...")
-        with Live(_progress_table(rows), console=console, refresh_per_second=8) as live:
+    if args.no_progress:
+        return fit(problem, args.method, **options)
+    if not console.is_terminal:  # a log: one plain line per iteration, no live table
+        return fit(problem, args.method, callback=_log_line(console), **options)
+    if args.starts > 1:
+        where = "on " + args.scheduler if args.scheduler else "locally"
+        console.log(f"running {args.starts} starts {where}...")
+    with Live(_progress_table(rows), console=console, refresh_per_second=8) as live:
 
-            def show(entry):
-                rows.append(entry)
-                live.update(_progress_table(rows))
+        def show(entry):
+            rows.append(entry)
+            live.update(_progress_table(rows))
 
-            return fit(problem, args.method, callback=show, **options)
-    finally:
-        if client is not None:
-            client.close()
+        return fit(problem, args.method, callback=show, **options)
 
 
 def _log_line(console: Console):
@@ -127,13 +168,14 @@ def _gof_lines(scores: list[Score]) -> list[str]:
     return out
 
 
-def _write_results(res, out: Path, scores: list[Score]) -> tuple[list[Path], list[str]]:
+def _write_results(res, out: Path, scores: list[Score], old: set[Path]):
     """fit.json first (the estimates are what matters), then the figures and
-    report.md, each atomically; returns (figures written, failures as one line each).
-    A failing figure or report does not lose fit.json."""
+    report.md, each atomically; what an earlier run wrote and this one did not is
+    removed. Returns (figures written, failures as one line each). A failing figure
+    or report does not lose fit.json."""
     out.mkdir(parents=True, exist_ok=True)
     data = fit_json(res, scores)
-    write_json(out / "fit.json", data)
+    written = [write_json(out / "fit.json", data)]
     figures, failures = [], []
     for stem, fig in fit_figures(res, None, scores, named=True):
         try:
@@ -142,9 +184,13 @@ def _write_results(res, out: Path, scores: list[Score]) -> tuple[list[Path], lis
             failures.append(f"could not write {out / (stem + '.png')}: {e.strerror or e}")
     everything = training_scores(res) + scores
     try:
-        write_text(out / "report.md", fit_report(res, data, everything, figures))
+        written.append(write_text(out / "report.md", fit_report(res, data, everything, figures)))
     except OSError as e:
         failures.append(f"could not write {out / 'report.md'}: {e.strerror or e}")
+    try:
+        replace_outputs(out, old, written + figures)
+    except OSError as e:
+        failures.append(f"could not remove the earlier results in {out}: {e.strerror or e}")
     return figures, failures
 
 
@@ -160,22 +206,44 @@ def run_fit(args) -> int:
         else []
     )
     problem = _problem(spec, train, args)
-    res = _run(problem, args, console)
     out = Path(args.out)
-    scores = res.validate(val) if val else []
-    everything = training_scores(res) + scores
-    # the estimates reach the terminal before any file is written
-    print(summary_table(res, everything))
-    for line in _gof_lines(everything):
-        print(line)
-    figures, failures = _write_results(res, out, scores)
+    with _workers(args) as (executor, timeout), claimed(out):
+        old = previous_outputs(out)
+        try:
+            res = _run(problem, args, console, executor, timeout)
+        except FitInterrupted as stop:
+            return _save_interrupted(stop.result, out, old)
+        scores = res.validate(val) if val else []
+        everything = training_scores(res) + scores
+        # the estimates reach the terminal before any file is written
+        print(summary_table(res, everything))
+        for line in _gof_lines(everything):
+            print(line)
+        figures, failures = _write_results(res, out, scores, old)
     if failures:
         for f in failures:
             print(f"tensorid: error: {f}", file=sys.stderr)
         print(f"tensorid: {out / 'fit.json'} was written", file=sys.stderr)
         return 1
     print(f"wrote {out}/fit.json, report.md and {len(figures)} figures")
+    if res.status is Status.WORKERS_LOST:
+        print(f"tensorid: error: {res.message}", file=sys.stderr)
     return 0 if res.success else 1
+
+
+def _save_interrupted(res, out: Path, old: set[Path]) -> int:
+    """Ctrl-C: the best point so far goes to fit.json (status "interrupted") at once;
+    no figures or report (the user is waiting); older results are removed, not
+    mixed in. Exit status 130, as for any interrupted command."""
+    print(summary_table(res, []))
+    written = [write_json(out / "fit.json", fit_json(res, []))]
+    replace_outputs(out, old, written)
+    if np.isfinite(res.cost):
+        saved = f"the best point so far (cost {res.cost:.6g}) is in {written[0]}"
+    else:
+        saved = f"no start had finished; {written[0]} holds the initial guess"
+    print(f"tensorid: interrupted; {saved}", file=sys.stderr)
+    return 130
 
 
 def _assignments(items: list[str], what: str) -> dict[str, float]:

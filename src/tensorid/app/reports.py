@@ -81,7 +81,7 @@ def _metrics(scores: list[Score], metric: str) -> dict:
 
 def fit_json(res, validation: list[Score]) -> dict:
     """Everything fit.json holds (a contract: keys are added, never renamed)."""
-    u = res.uncertainty() if np.isfinite(res.cost) else None
+    u = res.uncertainty() if res.has_uncertainty else None
     names = res.problem.theta_names
     train = training_scores(res)
     d = {
@@ -124,7 +124,7 @@ def fit_json(res, validation: list[Score]) -> dict:
 
 def fit_report(res, data: dict, scores: list[Score], figures: list[Path]) -> str:
     """report.md of a fit."""
-    u = res.uncertainty() if np.isfinite(res.cost) else None
+    u = res.uncertainty() if res.has_uncertainty else None
     rows = []
     for n in res.problem.theta_names:
         se = data.get("stderr", {}).get(n, math.nan)

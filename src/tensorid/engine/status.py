@@ -60,6 +60,13 @@ class Status(enum.Enum):
     BASELINE_STOPPED = ("stopped", False, -1)  # a SciPy baseline gave up in its own way
     SOLVER_FAILED = ("stopped: the optimiser raised an error; the best point is kept", False, -1)
     ALL_STARTS_FAILED = ("no start gave a finite cost", False, -1)
+    # a fit stopped from outside: the best point found so far is kept
+    INTERRUPTED = ("interrupted; the best point found so far is kept", False, -1)
+    WORKERS_LOST = (
+        "the workers stopped answering; the best of the starts that finished is kept",
+        False,
+        -1,
+    )
 
     def __init__(self, message: str, success: bool, code: int):
         self.message = message

@@ -3,13 +3,14 @@ scaling, uncertainty, multi-start and validation on new records."""
 
 from .methods import LOCKSTEP, METHODS, fit, fit_batch
 from .options import FitOptions
-from .results import FitResult
+from .results import FitInterrupted, FitResult
 from .uncertainty import Uncertainty
 from .validation import Score
 
 __all__ = [
     "LOCKSTEP",
     "METHODS",
+    "FitInterrupted",
     "FitOptions",
     "FitResult",
     "Score",

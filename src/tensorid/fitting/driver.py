@@ -79,6 +79,8 @@ def _single(method, tr: Tracker, options: FitOptions, started) -> FitResult:
         if tr.best_phi is None:
             return failed(problem, method, theta0, started, detail, Status.SOLVER_FAILED)
         phi, nit, status = tr.best_phi, len(history), Status.SOLVER_FAILED
+    except KeyboardInterrupt:
+        return interrupted(tr, method, started, history)
     res = _finish(tr, method, phi, nit, status, detail, started, history)
     res.nhev = nhev
     return res
@@ -95,7 +97,6 @@ def _derivatives(method: str, tr: Tracker):
 def _lockstep(problem, method, trackers: dict, options, started, results) -> list:
     """The trust-region runs of several starts, their points evaluated together."""
     gn = method == "gauss-newton"
-    B = len(results)
     runs, pending = {}, {}
     for i, tr in trackers.items():
         history: list[dict] = []
@@ -110,6 +111,19 @@ def _lockstep(problem, method, trackers: dict, options, started, results) -> lis
         )
         runs[i] = (tr, steps, history)
         pending[i] = next(steps)
+    try:
+        _march_together(problem, method, runs, pending, started, results, gn)
+    except KeyboardInterrupt:  # every unfinished start keeps its best point
+        for i in pending:
+            tr, _, history = runs[i]
+            results[i] = interrupted(tr, method, started, history)
+    return results
+
+
+def _march_together(problem, method, runs, pending, started, results, gn) -> None:
+    """Evaluate the pending points of every unfinished start in one call, until none
+    is left; ``results`` is filled in as starts finish."""
+    B = len(results)
     while pending:
         ids = list(pending)
         points = [runs[i][0].theta(pending[i]) for i in ids]
@@ -131,7 +145,6 @@ def _lockstep(problem, method, trackers: dict, options, started, results) -> lis
                 results[i] = _finish(
                     tr, method, phi, len(history), status, detail, started, history
                 )
-    return results
 
 
 def _finish(tr: Tracker, method, phi, nit, status, detail, started, history) -> FitResult:
@@ -153,6 +166,28 @@ def _finish(tr: Tracker, method, phi, nit, status, detail, started, history) -> 
         nfev=tr.nfev,
         started=started,
         history=history,
+    )
+    res.notes = tr.notes()
+    return res
+
+
+def interrupted(tr: Tracker, method, started, history) -> FitResult:
+    """The result of a start stopped by Ctrl-C: its best point, at once (nothing more
+    is evaluated, so the user is not kept waiting)."""
+    theta = tr.theta0 if tr.best_phi is None else tr.theta(tr.best_phi)
+    J = tr.best_J if tr.best_phi is not None else np.inf
+    res = FitResult.at(
+        tr.problem,
+        method,
+        theta,
+        tr.scale,
+        Status.INTERRUPTED,
+        nit=history[-1]["iteration"] if history else 0,
+        nfev=tr.nfev,
+        started=started,
+        history=history,
+        evaluate=False,
+        cost=J,
     )
     res.notes = tr.notes()
     return res

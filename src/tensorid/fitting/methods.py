@@ -20,9 +20,9 @@ from ..engine.problem import Problem
 from ..engine.status import Status
 from .baselines import BASELINES
 from .driver import failed, fit_many
-from .multistart import SAMPLINGS, draw_starts, run_starts
+from .multistart import SAMPLINGS, StartsStopped, draw_starts, run_starts
 from .options import FitOptions
-from .results import FitResult
+from .results import FitInterrupted, FitResult
 
 METHODS = ("newton", "newton-cg", "gauss-newton", *BASELINES)
 LOCKSTEP = ("newton", "gauss-newton")  # methods whose starts can share vmapped calls
@@ -47,6 +47,7 @@ def fit(
     xtol: float = 1e-12,
     callback=None,
     options: FitOptions | None = None,
+    timeout: float | None = None,
 ) -> FitResult:
     """Estimate the free initial states and parameters of ``problem``.
 
@@ -79,6 +80,13 @@ def fit(
         worker (benchmarks/bench_multistart.py: 1.5x on Silverbox). Default: the
         starts shared evenly over the local workers (at most 16 per task) for those
         methods, one start per task for the others or with an ``executor``.
+    timeout : with starts on workers, the seconds to wait for the next start to finish
+        before giving up on them (lost workers): the result is then the best of the
+        starts that finished, with status ``WORKERS_LOST``. Default: wait.
+
+    Ctrl-C (KeyboardInterrupt) stops the fit at once, workers included, and raises
+    :class:`FitInterrupted`, a KeyboardInterrupt whose ``result`` holds the best
+    point found so far (status ``INTERRUPTED``; no error bars).
     """
     started = time.perf_counter()
     _check_method(problem, method)
@@ -95,16 +103,27 @@ def fit(
             raise ValueError(f"sampling must be one of {SAMPLINGS}, got {sampling!r}")
         if workers is not None:
             _check_count("workers", workers)
+        if timeout is not None and not (
+            isinstance(timeout, int | float) and not isinstance(timeout, bool) and timeout > 0
+        ):
+            raise ValueError(f"timeout must be a number of seconds > 0, got {timeout!r}")
     with compile_clock() as clock:  # this process's compilations (not the workers')
         if n > 1:
             lo, hi = problem.lower, problem.upper
             thetas = draw_starts(theta0, lo, hi, n, spread=spread, sampling=sampling, seed=seed)
             task = fit_task(method, options)
-            runs = run_starts(problem, task, thetas, executor, workers, int(batch or 1))
-            res = _best_of(problem, method, theta0, runs, options, started)
+            try:
+                runs = run_starts(
+                    problem, task, thetas, executor, workers, int(batch or 1), timeout
+                )
+                res = _best_of(problem, method, theta0, runs, options, started)
+            except StartsStopped as stop:
+                res = _stopped(problem, method, theta0, stop, started)
         else:
             res = fit_many(problem, method, theta0[None, :], options, started)[0]
     res.compile_seconds = clock[0]
+    if res.status is Status.INTERRUPTED:
+        raise FitInterrupted(res)
     return res
 
 
@@ -115,7 +134,8 @@ def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResul
     "gauss-newton"; options as for :func:`fit` (x_scale, maxiter, gtol, ftol,
     xtol, or options=FitOptions(...)). Each result is what
     ``fit(problem, method, theta0=row)`` returns; its ``seconds`` and
-    ``compile_seconds`` are those of the whole batch."""
+    ``compile_seconds`` are those of the whole batch. Ctrl-C raises
+    :class:`FitInterrupted` with every start's best point so far."""
     started = time.perf_counter()
     if method not in LOCKSTEP:
         raise ValueError(
@@ -135,6 +155,9 @@ def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResul
         results = fit_many(problem, method, thetas, opts, started)
     for r in results:
         r.compile_seconds = clock[0]
+    if any(r.status is Status.INTERRUPTED for r in results):
+        best = min(results, key=lambda r: (not np.isfinite(r.cost), r.cost))
+        raise FitInterrupted(best, results)
     return results
 
 
@@ -243,4 +266,30 @@ def _best_of(problem, method, theta0, runs: list[dict], options: FitOptions, sta
         res.nit += best["nit"]
     res.starts = ranked
     res.seconds = time.perf_counter() - started
+    return res
+
+
+def _stopped(problem, method, theta0, stop: StartsStopped, started) -> FitResult:
+    """The result when the starts could not all finish: the best of those that did,
+    not refined (the user is waiting, or the workers are gone)."""
+    runs = sorted(stop.runs, key=lambda r: (not np.isfinite(r["cost"]), r["cost"]))
+    which = ", ".join(str(i) for i in sorted(r["start"] for r in runs))
+    finished = f"{len(runs)} of {stop.total} starts finished" + (f": {which}" if runs else "")
+    best = runs[0] if runs and np.isfinite(runs[0]["cost"]) else None
+    res = FitResult.at(
+        problem,
+        method,
+        np.asarray(best["theta"]) if best else theta0,
+        np.ones(problem.K),
+        stop.status,
+        message=stop.status.describe(f"{stop.detail}; {finished}"),
+        nit=best["nit"] if best else 0,
+        nfev=sum(r["nfev"] for r in runs),
+        started=started,
+        history=best["history"] if best else [],
+        evaluate=False,
+        cost=best["cost"] if best else np.inf,
+    )
+    res.nit_total = sum(r["nit"] for r in runs)
+    res.starts = [{k: v for k, v in r.items() if k != "history"} for r in runs]
     return res

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import hashlib
 import os
+import signal
+import time
 from collections.abc import Callable
 from concurrent.futures import Executor, ProcessPoolExecutor
 from multiprocessing import get_context
@@ -72,6 +74,9 @@ def process_pool(workers: int) -> ProcessPoolExecutor:
 
 
 def _worker_init(cache: str | None) -> None:
+    # Ctrl-C in a terminal reaches the whole process group: the parent alone
+    # decides (it stops the workers and keeps what finished)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     if cache:
         from .._config import enable_compilation_cache
 
@@ -93,6 +98,17 @@ def _run_payload(payload: tuple) -> list[dict]:
     return task(_WORKER_PROBLEMS[key], thetas)
 
 
+class StartsStopped(Exception):
+    """Raised by :func:`run_starts` when the starts cannot all finish: Ctrl-C
+    (``status`` INTERRUPTED) or workers that stopped answering (WORKERS_LOST).
+    ``runs`` holds the results of the starts that did finish, each with its index
+    ``start``; ``total`` is the number of starts."""
+
+    def __init__(self, status, runs: list[dict], total: int, detail: str):
+        super().__init__(detail)
+        self.status, self.runs, self.total, self.detail = status, runs, total, detail
+
+
 def run_starts(
     problem,
     task: Callable[[Any, list], list[dict]],
@@ -100,22 +116,112 @@ def run_starts(
     executor: Executor | None = None,
     workers: int | None = None,
     batch: int = 1,
+    timeout: float | None = None,
 ) -> list[dict]:
     """``task(problem, chunk)`` for chunks of up to ``batch`` rows of ``thetas``, on
     ``executor``, a local process pool of ``workers``, or here for one worker; the
     task returns one dict per start. Results come back in the order of the starts.
-    ``task`` must be picklable (a module-level function or a partial of one)."""
+    ``task`` must be picklable (a module-level function or a partial of one).
+
+    When no chunk finishes for ``timeout`` seconds (lost workers), on a broken local
+    pool, or on Ctrl-C, the work still running is stopped (local workers are
+    terminated, not waited for) and :class:`StartsStopped` is raised with the starts
+    that finished."""
     import cloudpickle
 
-    blob = cloudpickle.dumps(problem)
     chunks = [thetas[i : i + batch].tolist() for i in range(0, len(thetas), batch)]
-    payloads = [(blob, task, chunk) for chunk in chunks]
     workers = workers or os.cpu_count() or 1
-    if executor is not None:
-        done = list(executor.map(_run_payload, payloads))
-    elif workers == 1 or len(payloads) == 1:  # here: no copy, the compiled sweeps are reused
-        done = [task(problem, chunk) for chunk in chunks]
-    else:
-        with process_pool(min(workers, len(payloads))) as pool:
-            done = list(pool.map(_run_payload, payloads))
+    if executor is None and (workers == 1 or len(chunks) == 1):
+        # here: no copy, the compiled sweeps are reused
+        return _run_here(problem, task, chunks, len(thetas))
+    blob = cloudpickle.dumps(problem)
+    payloads = [(blob, task, chunk) for chunk in chunks]
+    pool = executor or process_pool(min(workers, len(payloads)))
+    complete = False
+    try:
+        done = _collect(pool, payloads, timeout, len(thetas), batch)
+        complete = True
+    finally:
+        if executor is None:
+            _stop_pool(pool, complete)  # type: ignore[arg-type]
     return [r for rs in done for r in rs]
+
+
+def _numbered(chunks_done: dict[int, list[dict]], batch: int) -> list[dict]:
+    """The finished starts, each with its index among all starts."""
+    ordered = sorted(chunks_done.items())
+    return [dict(r, start=c * batch + j) for c, rs in ordered for j, r in enumerate(rs)]
+
+
+def _run_here(problem, task, chunks: list, total: int) -> list[dict]:
+    from ..engine.status import Status
+
+    done: dict[int, list[dict]] = {}
+    for c, chunk in enumerate(chunks):
+        try:
+            rs = task(problem, chunk)
+        except KeyboardInterrupt:
+            rs = []
+        done[c] = rs
+        if len(rs) < len(chunk) or any(r["status"] == str(Status.INTERRUPTED) for r in rs):
+            runs = _numbered(done, len(chunks[0]))
+            raise StartsStopped(Status.INTERRUPTED, runs, total, "interrupted")
+    return [r for c in sorted(done) for r in done[c]]
+
+
+def _collect(pool: Executor, payloads: list, timeout: float | None, total: int, batch: int):
+    """Submit every chunk and gather the results as they come, in the order of the
+    chunks; stop on Ctrl-C, a broken pool or ``timeout`` seconds without progress."""
+    from concurrent.futures import FIRST_COMPLETED, wait
+    from concurrent.futures.process import BrokenProcessPool
+
+    from ..engine.status import Status
+
+    futures = {pool.submit(_run_payload, p): c for c, p in enumerate(payloads)}
+    pending, done = set(futures), {}
+    last = time.monotonic()
+    try:
+        while pending:
+            # short waits keep Ctrl-C prompt whatever the executor
+            finished, pending = wait(pending, timeout=0.25, return_when=FIRST_COMPLETED)
+            for f in finished:
+                done[futures[f]] = f.result()
+                last = time.monotonic()
+            if pending and timeout is not None and time.monotonic() - last > timeout:
+                why = f"no start finished for {timeout:g} s"
+                raise StartsStopped(Status.WORKERS_LOST, _numbered(done, batch), total, why)
+    except KeyboardInterrupt:
+        _cancel(pending)
+        runs = _numbered(done, batch)
+        raise StartsStopped(Status.INTERRUPTED, runs, total, "interrupted") from None
+    except BrokenProcessPool as e:
+        why = f"a worker process died ({e})"
+        raise StartsStopped(Status.WORKERS_LOST, _numbered(done, batch), total, why) from None
+    except StartsStopped:
+        _cancel(pending)
+        raise
+    return [done[c] for c in range(len(payloads))]
+
+
+def _cancel(pending) -> None:
+    for f in pending:
+        f.cancel()
+
+
+def _stop_pool(pool: ProcessPoolExecutor, complete: bool) -> None:
+    """Shut a local pool down; when starts are still running (Ctrl-C, a lost
+    worker), without waiting for them: the workers are terminated (then killed if
+    they linger), so none is left behind."""
+    if complete:
+        pool.shutdown(wait=True)
+        return
+    procs = list(getattr(pool, "_processes", {}).values())
+    for p in procs:
+        p.terminate()
+    # with its workers gone the pool's manager thread ends at once and reaps them
+    pool.shutdown(wait=True, cancel_futures=True)
+    for p in procs:
+        p.join(1.0)
+        if p.is_alive():
+            p.kill()
+            p.join(1.0)

@@ -30,7 +30,8 @@ class FitResult:
     params : {name: value} for every parameter (fixed ones included).
     x0 : (N,) initial state, or (E, N) for several experiments.
     cost : J at theta (alias ``fun``); jac (K,) and hess (K, K) are the exact
-        gradient and Hessian there, whatever the method.
+        gradient and Hessian there, whatever the method (``derivatives`` is False
+        where they were not computed: an interrupted fit, lost workers).
     grad_norm : ∞-norm of the projected gradient with respect to θ / scale, in cost
         units (components pushing against an active bound are dropped).
     status : how the fit ended (a :class:`tensorid.Status`); ``success`` and the
@@ -69,6 +70,7 @@ class FitResult:
     nit_total: int | None = None
     nfev_best: int | None = None
     compile_seconds: float = 0.0
+    derivatives: bool = True  # jac and hess hold the exact derivatives at theta
     # the summary, the warnings, fit.json and report.md all read the same uncertainty
     _uncertainty: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
@@ -93,17 +95,21 @@ class FitResult:
         started: float | None = None,
         history: list | None = None,
         evaluate: bool = True,
+        cost: float = np.inf,
     ) -> FitResult:
         """The result at θ, with the exact gradient and Hessian there. A point whose
-        simulation is not finite gets cost inf and zero derivatives, never NaN."""
+        simulation is not finite gets cost inf and zero derivatives, never NaN.
+        Without ``evaluate`` nothing is computed (an interrupted fit must end at
+        once): the result holds the ``cost`` already known and no derivatives."""
         K = theta.size
-        J, g, H = problem.cost_grad_hess(theta) if evaluate else (np.inf, None, None)
+        J, g, H = problem.cost_grad_hess(theta) if evaluate else (cost, None, None)
         if np.isfinite(J) and g is not None and H is not None:
             phi = theta / scale
             pg = np.clip(phi - g * scale, problem.lower / scale, problem.upper / scale) - phi
             grad_norm = float(np.linalg.norm(pg, np.inf))
         else:
-            J, g, H, grad_norm = np.inf, np.zeros(K), np.zeros((K, K)), np.inf
+            J = J if not evaluate and np.isfinite(J) else np.inf
+            g, H, grad_norm = np.zeros(K), np.zeros((K, K)), np.inf
         p, x0 = problem.unpack(theta)
         return cls(
             problem=problem,
@@ -122,7 +128,14 @@ class FitResult:
             seconds=0.0 if started is None else time.perf_counter() - started,
             scale=scale,
             history=history or [],
+            derivatives=evaluate,
         )
+
+    @property
+    def has_uncertainty(self) -> bool:
+        """Whether error bars can be given: a finite cost with the exact derivatives
+        there (an interrupted fit keeps its best point but not its derivatives)."""
+        return bool(np.isfinite(self.cost)) and self.derivatives
 
     @property
     def success(self) -> bool:
@@ -156,6 +169,11 @@ class FitResult:
         ``kind`` "hessian" uses the exact Hessian, "gauss-newton" its first-order form."""
         if kind not in ("hessian", "gauss-newton"):
             raise ValueError("kind must be 'hessian' or 'gauss-newton'")
+        if not self.has_uncertainty:
+            raise ValueError(
+                f"no error bars for a fit that ended as {self.status}: its derivatives "
+                "were not computed; fit again from result.theta to get them"
+            )
         # keyed on what it depends on, so a result changed by hand is not served stale
         key = (kind, self.cost, self.theta.tobytes(), id(self.hess))
         if key not in self._uncertainty:
@@ -191,7 +209,7 @@ class FitResult:
         blew up), unknowns the data cannot separate, an optimum that is not a strict
         minimum."""
         out = [] if self.success else [f"the fit did not converge: {self.message}", *self.notes]
-        if np.isfinite(self.cost):
+        if self.has_uncertainty:
             out += self.uncertainty().warnings
         return out
 
@@ -227,3 +245,15 @@ class FitResult:
             f"FitResult(method={self.method!r}, status={self.status}, cost={self.cost:.6g}, "
             f"nit={self.nit}, params={{{ps}}}, message={self.message!r})"
         )
+
+
+class FitInterrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`tensorid.fit`. Still a KeyboardInterrupt (a script stops
+    as it always did), but ``result`` holds the best point found so far, with status
+    ``INTERRUPTED``; its ``starts`` list the starts that had finished. From
+    :func:`tensorid.fit_batch`, ``results`` holds every start's result."""
+
+    def __init__(self, result: FitResult, results: list[FitResult] | None = None):
+        super().__init__(result.message)
+        self.result = result
+        self.results = [result] if results is None else results

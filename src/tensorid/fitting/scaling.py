@@ -54,7 +54,9 @@ class Tracker:
     def start(cls, problem: Problem, theta0, J0: float, H_gn, x_scale) -> Tracker:
         """A tracker for a fit from θ0 with cost J0 and Gauss-Newton Hessian H_gn."""
         scale = resolve_scale(problem.K, theta0, J0, H_gn, x_scale)
-        return cls(problem, scale, J0 if J0 > 0 else 1.0, theta0)
+        tracker = cls(problem, scale, J0 if J0 > 0 else 1.0, theta0)
+        tracker.best_J, tracker.best_phi = J0, tracker.phi(theta0)  # the start counts
+        return tracker
 
     def theta(self, phi) -> np.ndarray:
         """Natural units; clipped because θ/scale·scale may miss a bound by an ulp."""

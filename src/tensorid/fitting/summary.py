@@ -6,8 +6,6 @@ from __future__ import annotations
 import io
 import math
 
-import numpy as np
-
 
 def plural(n: int, word: str) -> str:
     """'1 iteration', '2 iterations'."""
@@ -102,7 +100,7 @@ def summary_table(res, scores=None) -> str:
     from rich.console import Console
     from rich.table import Table
 
-    u = res.uncertainty() if np.isfinite(res.cost) else None
+    u = res.uncertainty() if res.has_uncertainty else None
     tab = Table(
         title=f"{res.problem.model.name}: {'converged' if res.success else 'NOT converged'}"
     )

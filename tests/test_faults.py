@@ -1,0 +1,281 @@
+"""Faults during a run: Ctrl-C, lost workers, a busy or reused output folder. Nothing a
+user computed is lost, no worker is left behind, and every ending is one clear line."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import SILVERBOX_P, silverbox_data, silverbox_model
+
+import tensorid as ti
+from tensorid import cli
+from tensorid.fitting.multistart import StartsStopped, run_starts
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE = ROOT / "examples" / "silverbox"
+FIT = ["fit", str(EXAMPLE / "model.py"), str(EXAMPLE / "train.csv"), "--no-progress"]
+
+
+@pytest.fixture(scope="module")
+def problem():
+    p0 = {k: v * 1.3 for k, v in SILVERBOX_P.items()}
+    return ti.Problem(silverbox_model(), silverbox_data(P=400, noise=1e-4), p0=p0)
+
+
+def _interrupt_at(n: int):
+    """A callback that presses Ctrl-C at the n-th iteration."""
+    seen = []
+
+    def callback(entry):
+        seen.append(entry)
+        if len(seen) == n:
+            raise KeyboardInterrupt
+
+    return callback
+
+
+def test_ctrl_c_keeps_the_best_point_of_a_fit(problem):
+    start_cost = problem.cost(problem.theta0)
+    with pytest.raises(ti.FitInterrupted) as info:
+        ti.fit(problem, callback=_interrupt_at(4))
+    res = info.value.result
+    assert isinstance(info.value, KeyboardInterrupt)  # a script still stops
+    assert res.status is ti.Status.INTERRUPTED and not res.success
+    assert np.isfinite(res.cost) and res.cost < start_cost
+    assert res.cost == pytest.approx(problem.cost(res.theta), rel=1e-12)
+    assert not res.has_uncertainty and res.nit == 3
+    with pytest.raises(ValueError, match="fit again from result.theta"):
+        res.uncertainty()
+
+
+def test_ctrl_c_in_lockstep_keeps_every_starts_best_point(problem, monkeypatch):
+    calls = []
+    original = type(problem).cost_grad_hess_batch
+
+    def counted(self, *a, **k):
+        calls.append(1)
+        if len(calls) == 4:
+            raise KeyboardInterrupt
+        return original(self, *a, **k)
+
+    monkeypatch.setattr(type(problem), "cost_grad_hess_batch", counted)
+    thetas = np.stack([problem.theta0, problem.theta0 * 0.9])
+    with pytest.raises(ti.FitInterrupted) as info:
+        ti.fit_batch(problem, "newton", thetas)
+    results = info.value.results
+    assert [r.status for r in results] == [ti.Status.INTERRUPTED] * 2
+    assert all(np.isfinite(r.cost) for r in results)
+    assert info.value.result.cost == min(r.cost for r in results)
+
+
+def test_ctrl_c_during_multistart_here_keeps_the_finished_starts(problem, monkeypatch):
+    import tensorid.fitting.driver as driver
+
+    finished = []
+    original = driver._single
+
+    def second_start_interrupted(method, tr, options, started):
+        if finished:
+            options = options.__class__(**{**vars(options), "callback": _interrupt_at(2)})
+        res = original(method, tr, options, started)
+        finished.append(res)
+        return res
+
+    monkeypatch.setattr(driver, "_single", second_start_interrupted)
+    with pytest.raises(ti.FitInterrupted) as info:
+        ti.fit(problem, starts=4, workers=1, batch=1)
+    res = info.value.result
+    assert res.status is ti.Status.INTERRUPTED
+    assert "2 of 4 starts finished: 0, 1" in res.message
+    assert res.cost == min(r.cost for r in finished)
+    assert [s["start"] for s in res.starts] in ([0, 1], [1, 0])
+
+
+# -- workers that die or stop answering: module-level, so spawned workers can import them
+def _chunk_task(problem, thetas):
+    out = []
+    for th in thetas:
+        if th[0] == 2.0:
+            os._exit(1)  # a worker dies (killed, out of memory)
+        if th[0] == 3.0:
+            time.sleep(60)  # a worker that stops answering
+        out.append({"theta": th, "cost": float(th[0]), "status": "gtol", "nit": 1, "nfev": 1})
+    return out
+
+
+@pytest.mark.parametrize("bad, status", [(2.0, "died"), (3.0, "timeout")])
+def test_lost_workers_end_with_the_finished_starts(bad, status):
+    thetas = np.array([[0.5], [1.5], [bad], [0.25]])
+    started = time.monotonic()
+    with pytest.raises(StartsStopped) as info:
+        run_starts(None, _chunk_task, thetas, workers=2, batch=1, timeout=15.0)
+    took = time.monotonic() - started
+    stop = info.value
+    assert stop.status is ti.Status.WORKERS_LOST and stop.total == 4
+    assert {r["start"] for r in stop.runs} <= {0, 1, 3} and stop.runs
+    assert ("worker process died" in stop.detail) == (status == "died")
+    assert took < 45  # the sleeping worker was not waited for
+    import multiprocessing
+
+    assert not multiprocessing.active_children()
+
+
+def test_a_bad_scheduler_address_is_one_line(capsys, tmp_path):
+    args = FIT + ["--starts", "2", "--out", str(tmp_path / "o")]
+    for address in ("tcp://127.0.0.1:1", "nonsense"):
+        assert cli.main(args + ["--scheduler", address]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"--scheduler {address}: cannot connect" in err[0]
+    assert not (tmp_path / "o").exists()  # refused before any work
+
+
+@pytest.mark.parametrize(
+    "argv, name",
+    [
+        (["--starts", "0"], "--starts"),
+        (["--starts", "-3"], "--starts"),
+        (["--workers", "0"], "--workers"),
+        (["--spread", "-0.5"], "--spread"),
+        (["--spread", "nan"], "--spread"),
+        (["--worker-timeout", "0"], "--worker-timeout"),
+    ],
+)
+def test_bad_counts_are_refused_by_name(argv, name, capsys, tmp_path):
+    with pytest.raises(SystemExit) as info:
+        cli.main(FIT + argv + ["--out", str(tmp_path / "o")])
+    assert info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and name in err[0] and "--help" in err[0]
+
+
+def test_a_busy_folder_is_refused_and_a_dead_runs_lock_taken_over(tmp_path, capsys):
+    out = tmp_path / "o"
+    out.mkdir()
+    sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        (out / ".tensorid.lock").write_text(f"{sleeper.pid}\n")
+        assert cli.main(FIT + ["--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert "another tensorid run" in err and str(sleeper.pid) in err
+    finally:
+        sleeper.kill()
+        sleeper.wait()
+    # the run that held it is gone: the folder is taken over, and the lock released
+    assert cli.main(FIT + ["--out", str(out)]) == 0
+    assert (out / "fit.json").is_file() and not (out / ".tensorid.lock").exists()
+
+
+def test_a_rerun_leaves_no_mix_of_old_and_new_results(tmp_path, capsys):
+    out = tmp_path / "o"
+    out.mkdir()
+    # results of an older run (written before manifests), and a file of the user's
+    (out / "fit.json").write_text("{}")
+    (out / "train_old_record_y.png").write_bytes(b"old")
+    (out / "notes.txt").write_text("mine")
+    assert cli.main(FIT + ["--out", str(out)]) == 0
+    names = {p.name for p in out.iterdir()}
+    assert "train_old_record_y.png" not in names and "notes.txt" in names
+    manifest = (out / ".tensorid-files").read_text().split()
+    assert "fit.json" in manifest and "report.md" in manifest
+    assert set(manifest) <= names
+
+
+def test_ctrl_c_in_the_cli_saves_the_best_point_and_removes_older_results(
+    tmp_path, capsys, monkeypatch
+):
+    import tensorid.app.commands as commands
+
+    out = tmp_path / "o"
+    assert cli.main(FIT + ["--out", str(out)]) == 0
+    assert list(out.glob("*.png"))
+    real_fit = commands.fit
+
+    def pressed(problem, method, **kw):
+        return real_fit(problem, method, **{**kw, "callback": _interrupt_at(3)})
+
+    monkeypatch.setattr(commands, "fit", pressed)
+    capsys.readouterr()
+    assert cli.main(FIT + ["--out", str(out)]) == 130
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "interrupted" in err[0] and "fit.json" in err[0]
+    saved = json.loads((out / "fit.json").read_text())
+    assert saved["status"] == "interrupted" and saved["cost"] > 0
+    assert not list(out.glob("*.png")) and not (out / "report.md").exists()
+    assert not (out / ".tensorid.lock").exists()
+
+
+def _children(pid: int) -> set[int]:
+    """The worker processes of ``pid`` (multiprocessing's resource tracker aside)."""
+    kids: set[int] = set()
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        text = (task / "children").read_text() if (task / "children").exists() else ""
+        kids |= {int(k) for k in text.split()}
+    cmd = {k: Path(f"/proc/{k}/cmdline").read_bytes() for k in kids if Path(f"/proc/{k}").exists()}
+    return {k for k, c in cmd.items() if b"spawn_main" in c}
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs Linux /proc")
+def test_sigint_to_the_cli_mid_multistart_exits_promptly_with_the_best_point(tmp_path):
+    out = tmp_path / "o"
+    args = [sys.executable, "-m", "tensorid", *FIT, "--out", str(out)]
+    args += ["--starts", "64", "--workers", "2", "--batch", "1", "--spread", "0.5"]
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        workers: set[int] = set()
+        while time.monotonic() < deadline and len(workers) < 2:
+            workers = _children(proc.pid)
+            time.sleep(0.2)
+        time.sleep(20)  # let some starts finish (the workers compile first)
+        assert proc.poll() is None, proc.communicate()
+        workers = _children(proc.pid)
+        sent = time.monotonic()
+        proc.send_signal(signal.SIGINT)  # to the parent alone
+        _, err = proc.communicate(timeout=30)
+        took = time.monotonic() - sent
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, err
+    assert took <= 3.0, f"took {took:.1f} s"
+    assert "tensorid: interrupted; the best point so far" in err and "Traceback" not in err
+    saved = json.loads((out / "fit.json").read_text())
+    assert saved["status"] == "interrupted" and saved["starts"]
+    assert all(s["status"] for s in saved["starts"])
+    time.sleep(0.5)
+    assert not [w for w in workers if Path(f"/proc/{w}").exists()], "orphan workers"
+
+
+@pytest.mark.slow
+def test_a_dask_cluster_losing_all_workers_ends_within_the_timeout(problem):
+    distributed = pytest.importorskip("distributed")
+    with (
+        distributed.LocalCluster(
+            n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None
+        ) as cluster,
+        distributed.Client(cluster) as client,
+    ):
+        import threading
+
+        def kill_all():
+            time.sleep(6)
+            for w in list(cluster.workers.values()):
+                os.kill(w.pid, signal.SIGKILL)
+            cluster.scale(0)
+
+        threading.Thread(target=kill_all, daemon=True).start()
+        started = time.monotonic()
+        res = ti.fit(problem, starts=200, executor=client.get_executor(), timeout=5.0)
+        took = time.monotonic() - started
+    assert res.status is ti.Status.WORKERS_LOST and not res.success
+    assert "no start finished for 5 s" in res.message and "of 200 starts finished" in res.message
+    assert took < 6 + 5 + 10
+    assert np.isfinite(res.cost) or not res.starts
