@@ -111,7 +111,9 @@ def _chunk_task(problem, thetas):
     return out
 
 
-@pytest.mark.parametrize("bad, status", [(2.0, "died"), (3.0, "timeout")])
+@pytest.mark.parametrize(
+    "bad, status", [(2.0, "died"), pytest.param(3.0, "timeout", marks=pytest.mark.slow)]
+)
 def test_lost_workers_end_with_the_finished_starts(bad, status):
     thetas = np.array([[0.5], [1.5], [bad], [0.25]])
     started = time.monotonic()

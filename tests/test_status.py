@@ -131,3 +131,13 @@ def test_fit_json_records_the_status(tmp_path):
     prob = ti.Problem(silverbox_model(), silverbox_data(P=100), p0=p0, x0=[0.0, 0.0])
     d = fit_json(ti.fit(prob, maxiter=1), [])
     assert d["status"] == "maxiter" and not d["success"]
+
+
+def test_every_ending_of_a_fit_is_in_the_when_things_go_wrong_page():
+    from pathlib import Path
+
+    page = (Path(__file__).resolve().parents[1] / "docs" / "troubleshooting.md").read_text()
+    simulation = {"ok", "nonfinite_state", "step_limit", "step_underflow", "newton_failed"}
+    missing = [str(s) for s in ti.Status if str(s) not in simulation | {"nonfinite_output"}]
+    missing = [s for s in missing if f"`{s}`" not in page]
+    assert not missing, f"docs/troubleshooting.md does not mention {missing}"

@@ -65,16 +65,21 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
             f"{spec.path} defines no p0: add p0 = {{name: start value}} for "
             f"{list(spec.model.params)}"
         )
-    return Problem(
-        spec.model,
-        train,
-        p0=spec.p0,
-        x0=spec.x0_array(),
-        free_x0=spec.free_x0,
-        fixed=spec.fixed,
-        bounds=spec.bounds,
-        discretisation=discretisation(args),
-    )
+    disc = discretisation(args)
+    try:
+        return Problem(
+            spec.model,
+            train,
+            p0=spec.p0,
+            x0=spec.x0_array(),
+            free_x0=spec.free_x0,
+            fixed=spec.fixed,
+            bounds=spec.bounds,
+            weights=spec.weights,
+            discretisation=disc,
+        )
+    except (ValueError, TypeError) as e:  # the settings come from the model file
+        raise type(e)(f"{spec.path}: {e}") from None
 
 
 def _connect(address: str, timeout: float):
@@ -259,6 +264,32 @@ def _assignments(items: list[str], what: str) -> dict[str, float]:
     return out
 
 
+def _fitted(path: Path, spec: ModelSpec) -> dict:
+    """A fit.json's parameters and initial state, checked against the model."""
+    if not path.is_file():
+        raise FileNotFoundError(f"--params {path} does not exist")
+    try:
+        fitted = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ValueError(f"--params {path} is not valid JSON ({e}); give a fit.json") from None
+    if not isinstance(fitted, dict) or not isinstance(fitted.get("params"), dict):
+        raise ValueError(f"--params {path} holds no params: give a fit.json written by tensorid")
+    bad = [k for k, v in fitted["params"].items() if not isinstance(v, int | float)]
+    if bad:
+        raise ValueError(f"--params {path}: params {bad} are not numbers")
+    if "x0" in fitted:
+        try:
+            x0 = np.atleast_2d(np.asarray(fitted["x0"], dtype=float))
+        except (TypeError, ValueError):
+            x0 = np.zeros((1, 0))
+        if x0.shape[1] != spec.model.N:
+            raise ValueError(
+                f"--params {path}: its x0 has {x0.shape[1]} values, the model has "
+                f"{spec.model.N} states {list(spec.model.states)}"
+            )
+    return fitted
+
+
 def _simulation_start(spec: ModelSpec, args, e, params, disc, fitted) -> tuple[dict, str]:
     """The initial state to simulate ``e`` from, and where it came from: --x0 where
     given; else estimated on the record (parameters held) for the states the model
@@ -267,7 +298,7 @@ def _simulation_start(spec: ModelSpec, args, e, params, disc, fitted) -> tuple[d
     m = spec.model
     x0 = dict(zip(m.states, spec.x0_array(), strict=True))
     source = "the model file's x0"
-    if fitted is not None:
+    if fitted is not None and "x0" in fitted:
         x0 = dict(zip(m.states, np.atleast_2d(fitted["x0"])[0], strict=True))
         source = f"the x0 of {args.params[0]} (its training record's)"
     given = _assignments(args.x0, "--x0")
@@ -303,10 +334,16 @@ def run_simulate(args) -> int:
     params = dict(spec.p0 or {})
     fitted = None
     if len(args.params) == 1 and args.params[0].endswith(".json"):
-        fitted = json.loads(Path(args.params[0]).read_text())
+        fitted = _fitted(Path(args.params[0]), spec)
         params.update(fitted["params"])
     else:
         params.update(_assignments(args.params, "--params"))
+    unknown = sorted(set(params) - set(m.params))
+    if unknown:
+        raise ValueError(
+            f"--params names {unknown}, which the model does not have; its parameters are "
+            f"{list(m.params)}"
+        )
     e = load_data([args.data], m, ts=args.ts, require_outputs=False)[0]
     disc = discretisation(args)
     x0, source = _simulation_start(spec, args, e, params, disc, fitted)

@@ -3,27 +3,37 @@
 A model file is Python. It defines ``model = tensorid.Model(...)`` or, for text
 equations, ``rhs = {state: "expr"}`` with optional ``output``, ``inputs`` and
 ``params``; and it may define ``p0`` (dict), ``x0`` (dict state -> value),
-``free_x0`` (list), ``fixed`` (list) and ``bounds`` (dict name -> (lo, hi)).
+``free_x0`` (list), ``fixed`` (list), ``bounds`` (dict name -> (lo, hi)) and
+``weights`` ("auto" or dict output -> weight). A file that has not finished running
+after TENSORID_MODEL_TIMEOUT seconds (default 60) is stopped with a clear message.
 
 Data files are CSV (a time column ``t``, or a sampling time given as ``ts``, plus
 columns named after the model's inputs and outputs), MATLAB .mat or NumPy .npz
-(variables with those names). Each file is one experiment.
+(variables with those names). Each file is one experiment; ``load_data`` and its
+readers live in :mod:`tensorid.app.datafiles`.
 """
 
 from __future__ import annotations
 
-import csv
 import importlib.util
+import os
+import signal
 import sys
+import threading
+import time
 import traceback
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ..engine.data import Experiment
 from ..engine.equations import model_from_equations
 from ..engine.model import Model
+from .datafiles import load_data
+
+__all__ = ["ModelSpec", "load_data", "load_model"]
 
 
 @dataclass
@@ -37,6 +47,7 @@ class ModelSpec:
     fixed: list = field(default_factory=list)
     bounds: dict = field(default_factory=dict)
     path: Path | None = None
+    weights: dict | list | str | None = None
 
     def x0_array(self) -> np.ndarray:
         """x0 of the model file as an array (N,), states it does not name at 0."""
@@ -51,173 +62,128 @@ class ModelSpec:
         return np.array([x0[s] for s in self.model.states])
 
 
-def _user_frames(exc: BaseException, path: Path) -> str:
-    """The lines of the user's own file in a traceback."""
+class _TooSlow(BaseException):
+    """Raised into a model file that runs past the time limit (a BaseException, so
+    that the file's own ``except Exception`` cannot swallow it)."""
+
+
+@contextmanager
+def _time_limit(seconds: float) -> Iterator[None]:
+    """Interrupt the code inside after ``seconds`` (POSIX main thread; elsewhere no
+    limit). An alarm set by the caller is put back, less the time spent."""
+    if (
+        not hasattr(signal, "setitimer")
+        or threading.current_thread() is not threading.main_thread()
+    ):
+        yield
+        return
+
+    def expired(*_):
+        raise _TooSlow
+
+    before = signal.signal(signal.SIGALRM, expired)
+    outer, _ = signal.setitimer(signal.ITIMER_REAL, seconds)
+    started = time.monotonic()
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, before)
+        if outer:
+            signal.setitimer(signal.ITIMER_REAL, max(outer - (time.monotonic() - started), 1e-3))
+
+
+def _where(exc: BaseException, path: Path) -> str:
+    """Where in the user's file an exception arose: ", line N (code)"."""
+    if isinstance(exc, SyntaxError) and exc.lineno:
+        return f", line {exc.lineno} ({(exc.text or '').strip()})"
     frames = [
         f
         for f in traceback.extract_tb(exc.__traceback__)
         if Path(f.filename).resolve() == path.resolve()
     ]
-    return "".join(f"  {path.name}, line {f.lineno}: {f.line}\n" for f in frames)
+    return f", line {frames[-1].lineno} ({frames[-1].line})" if frames else ""
 
 
-def load_model(path) -> ModelSpec:
-    """Import a model file and return its :class:`ModelSpec`."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"model file {path} does not exist")
+def _run(path: Path):
+    """Import the model file as a fresh module, within the time limit."""
     name = f"_tensorid_model_{abs(hash(path.resolve()))}"
     spec = importlib.util.spec_from_file_location(name, path)
-    if spec is None or spec.loader is None:
-        raise ValueError(f"{path} is not a Python file")
+    if spec is None or spec.loader is None or path.suffix != ".py":
+        raise ValueError(f"{path} is not a Python file; a model file is Python (.py)")
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module
     # worker processes cannot import this file by name: ship its functions by value
     import cloudpickle
 
     cloudpickle.register_pickle_by_value(module)
+    limit = float(os.environ.get("TENSORID_MODEL_TIMEOUT", "60"))
     try:
-        spec.loader.exec_module(module)
-    except Exception as e:
-        where = _user_frames(e, path)
+        with _time_limit(limit):
+            spec.loader.exec_module(module)
+    except _TooSlow:
         raise ValueError(
-            f"the model file {path} failed to run: {type(e).__name__}: {e}\n{where}".rstrip()
+            f"the model file {path} did not finish running within {limit:g} s (an endless "
+            "loop at its top level?); fix it, or set TENSORID_MODEL_TIMEOUT to more seconds"
+        ) from None
+    except Exception as e:
+        raise ValueError(
+            f"the model file {path} failed{_where(e, path)}: {type(e).__name__}: {e}"
         ) from e
-    ns = vars(module)
+    return vars(module)
+
+
+def _names(value):
+    """A list of names, where one name may be given as a string."""
+    return [value] if isinstance(value, str) else value
+
+
+def load_model(path) -> ModelSpec:
+    """Import a model file and return its :class:`ModelSpec`. Every mistake in it is
+    one line that names the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"model file {path} does not exist")
+    ns = _run(path)
+    try:
+        return _spec(ns, path)
+    except (ValueError, TypeError) as e:
+        raise type(e)(f"{path}: {e}") from None
+
+
+def _spec(ns: dict, path: Path) -> ModelSpec:
     if isinstance(ns.get("model"), Model):
         model = ns["model"]
-    elif isinstance(ns.get("rhs"), dict):
+    elif "rhs" in ns and not callable(ns["rhs"]):
+        if not isinstance(ns["rhs"], dict):
+            raise TypeError(
+                f"rhs must be a dict {{state: 'expression'}}, got {type(ns['rhs']).__name__}"
+            )
         model = model_from_equations(
-            ns["rhs"], ns.get("output"), ns.get("inputs", ()), ns.get("params"), name=path.stem
+            ns["rhs"],
+            ns.get("output"),
+            _names(ns.get("inputs", ())),
+            ns.get("params"),
+            name=path.stem,
         )
     else:
         raise ValueError(
-            f"{path} defines neither `model = tensorid.Model(...)` nor text "
-            "equations `rhs = {state: 'expression'}`"
+            "it defines neither `model = tensorid.Model(...)` nor text equations "
+            "`rhs = {state: 'expression'}`"
         )
     out = ModelSpec(model, path=path)
-    for key, kind in (
-        ("p0", dict),
-        ("x0", dict),
-        ("free_x0", list),
-        ("fixed", list),
-        ("bounds", dict),
-    ):
-        if key in ns and ns[key] is not None:
-            value = ns[key]
-            if isinstance(value, tuple) and kind is list:
-                value = list(value)
-            if not isinstance(value, kind):
-                raise TypeError(
-                    f"{path}: {key} must be a {kind.__name__}, got {type(value).__name__}"
-                )
-            setattr(out, key, value)
+    kinds = {"p0": dict, "x0": dict, "free_x0": list, "fixed": list, "bounds": dict}
+    for key, kind in kinds.items():
+        if ns.get(key) is None:
+            continue
+        value = ns[key]
+        if kind is list:
+            value = list(value) if isinstance(value, tuple) else _names(value)
+        if not isinstance(value, kind):
+            raise TypeError(f"{key} must be a {kind.__name__}, got {type(value).__name__}")
+        setattr(out, key, value)
+    weights = ns.get("weights")
+    if weights is not None and not (weights == "auto" or isinstance(weights, dict | list | tuple)):
+        raise ValueError(f"weights must be 'auto' or a dict {{output: weight}}, got {weights!r}")
+    out.weights = weights
     return out
-
-
-def _columns_csv(path: Path) -> dict[str, np.ndarray]:
-    with path.open(newline="") as f:
-        rows = [r for r in csv.reader(f) if r and any(c.strip() for c in r)]
-    if len(rows) < 2:
-        raise ValueError(f"{path} has no data rows under its header")
-    header = [h.strip() for h in rows[0]]
-    body = rows[1:]
-    out = {}
-    for j, name in enumerate(header):
-        if not name:
-            continue  # a trailing comma makes an empty column
-        try:
-            out[name] = np.array(
-                [float(r[j]) if j < len(r) and r[j].strip() else np.nan for r in body]
-            )
-        except ValueError as e:
-            raise ValueError(
-                f"{path}: column {name!r} holds a value that is not a number ({e})"
-            ) from None
-    return out
-
-
-def _columns_mat(path: Path) -> dict[str, np.ndarray]:
-    import scipy.io
-
-    d = scipy.io.loadmat(path)
-    return {
-        k: np.asarray(v, dtype=float).ravel()
-        for k, v in d.items()
-        if not k.startswith("__") and np.asarray(v).size > 1
-    }
-
-
-def _columns_npz(path: Path) -> dict[str, np.ndarray]:
-    with np.load(path) as z:
-        return {k: np.asarray(z[k], dtype=float).ravel() for k in z.files}
-
-
-def load_data(
-    paths,
-    model: Model,
-    ts: float | None = None,
-    samples: tuple[int, int] | None = None,
-    require_outputs: bool = True,
-) -> list[Experiment]:
-    """One Experiment per file, with the model's input and output columns; time from
-    a column ``t`` or from the sampling time ``ts``. ``samples`` = (start, stop)
-    keeps that slice of every file. Without ``require_outputs`` a file may lack the
-    output columns (for simulation)."""
-    if isinstance(paths, str | Path):
-        paths = [paths]
-    exps = []
-    for p in map(Path, paths):
-        if not p.is_file():
-            raise FileNotFoundError(f"data file {p} does not exist")
-        suffix = p.suffix.lower()
-        readers = {
-            ".csv": _columns_csv,
-            ".txt": _columns_csv,
-            ".mat": _columns_mat,
-            ".npz": _columns_npz,
-        }
-        if suffix not in readers:
-            raise ValueError(f"{p}: unknown data format {suffix!r}; use .csv, .mat or .npz")
-        cols = readers[suffix](p)
-        need = list(model.inputs) + list(model.outputs)
-        has_outputs = all(n in cols for n in model.outputs)
-        if not require_outputs and not has_outputs:
-            need = list(model.inputs)
-        missing = [n for n in need if n not in cols]
-        if missing:
-            raise ValueError(
-                f"{p} lacks columns {missing}; expected "
-                f"{(['t'] if ts is None else []) + need} (the model's inputs "
-                f"{list(model.inputs)} and outputs {list(model.outputs)}), found "
-                f"{sorted(cols)}"
-            )
-        for name in (["t"] if "t" in cols and ts is None else []) + need:
-            bad = ~np.isfinite(cols[name])
-            if bad.any():
-                i = int(np.argmax(bad))
-                row = f" (line {i + 2} of the file)" if suffix in (".csv", ".txt") else ""
-                raise ValueError(
-                    f"{p}: column {name!r} has {int(bad.sum())} missing or non-finite "
-                    f"value(s) (empty, NaN or inf), first at sample {i}{row}; remove or "
-                    "fill those samples"
-                )
-        P = next(iter(cols.values())).size if not need else cols[need[0]].size
-        if "t" in cols and ts is None:
-            t = cols["t"]
-        elif ts is not None:
-            if not ts > 0:
-                raise ValueError(f"the sampling time must be positive, got {ts}")
-            t = np.arange(P) * float(ts)
-        else:
-            raise ValueError(
-                f"{p} has no time column 't'; add one or give the sampling "
-                "time (--ts on the command line, ts= in Python)"
-            )
-        u = np.stack([cols[n] for n in model.inputs], axis=1) if model.U else np.zeros((P, 0))
-        y = np.stack([cols[n] for n in model.outputs], axis=1) if has_outputs else None
-        e = Experiment(t, u, y, name=p.stem)
-        if samples is not None:
-            e = e.window(*samples)
-        exps.append(e)
-    return exps

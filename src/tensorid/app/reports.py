@@ -101,6 +101,7 @@ def fit_json(res, validation: list[Score]) -> dict:
         "hessian_vector_products": res.nhev,
         "method": res.method,
         "integration": res.problem.discretisation.as_dict(),
+        "weights": dict(zip(res.problem.model.outputs, res.problem.weights.tolist(), strict=True)),
         "seconds": res.seconds,
         "compile_seconds": res.compile_seconds,
         "warnings": res.warnings,

@@ -91,6 +91,13 @@ class Experiment:
 
     def window(self, start: int, stop: int, name: str | None = None) -> Experiment:
         """Samples [start:stop] as a new experiment (Python slice semantics)."""
+        kept = len(range(*slice(start, stop).indices(self.P)))
+        if kept < 2:
+            raise ValueError(
+                f"samples {start}:{stop} of experiment {self.name!r} keep {kept} sample(s), "
+                f"but a window needs at least 2; the record has {self.P} samples, so "
+                f"choose 0 <= start < stop <= {self.P}"
+            )
         return Experiment(
             self.t[start:stop],
             self.u[start:stop],

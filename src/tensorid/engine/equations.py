@@ -31,10 +31,48 @@ def _parse(where: str, text: str, symbols: dict) -> sp.Expr:
     try:
         expr = sp.sympify(str(text), locals={**_LOCALS, **symbols})
     except (sp.SympifyError, SyntaxError, TypeError) as e:
-        raise ValueError(f"cannot parse {where} = {text!r}: {e}") from None
+        # SymPy's message spans lines; its last line says what was wrong
+        why = [ln.strip() for ln in str(e).splitlines() if ln.strip()][-1:] or ["invalid"]
+        raise ValueError(
+            f"cannot parse {where} = {text!r} ({why[0]}); write it as a Python expression "
+            "such as 'a*x - b*u**2'"
+        ) from None
     if not isinstance(expr, sp.Expr):
         raise ValueError(f"{where} = {text!r} is not an expression")
     return expr
+
+
+def _names(what: str, names) -> list[str]:
+    """A list of names; one name given as a string is one name, not its letters."""
+    if isinstance(names, str):
+        return [names]
+    try:
+        out = list(names)
+    except TypeError:
+        raise TypeError(f"{what} must be a list of names, got {names!r}") from None
+    bad = [n for n in out if not isinstance(n, str)]
+    if bad:
+        raise TypeError(f"{what} must be a list of names (strings), got {bad!r} in it")
+    return out
+
+
+def _unknown_symbols(missing, rhs_e, out_e, states, output, inputs, params) -> str:
+    """Say what an unknown symbol most likely is: a state without an equation (used in
+    rhs), an output expression with a typo, or a parameter left out of ``params``."""
+
+    def users(exprs, keys, n) -> list[str]:
+        return [k for k, e in zip(keys, exprs, strict=True) if sp.Symbol(n) in e.free_symbols]
+
+    lines = []
+    for n in missing:
+        in_rhs, in_out = users(rhs_e, states, n), users(out_e, list(output), n)
+        where = ", ".join([f"rhs[{k!r}]" for k in in_rhs] + [f"output[{k!r}]" for k in in_out])
+        lines.append(
+            f"{n!r} (used in {where}) is not a state, input or parameter: if it is a state, "
+            f"add its equation rhs[{n!r}] = '...'; if a typo, correct it "
+            f"(states {states}, inputs {inputs}); if a parameter, add it to params {params}"
+        )
+    return "; ".join(lines)
 
 
 def model_from_equations(
@@ -48,9 +86,13 @@ def model_from_equations(
     {output: "expression"} (default: every state), ``inputs`` the input names."""
     if not isinstance(rhs, Mapping) or not rhs:
         raise TypeError("rhs must be a dict {state: 'expression for its derivative'}")
+    if output is not None and not isinstance(output, Mapping):
+        raise TypeError(
+            f"output must be a dict {{output name: 'expression'}}, got {type(output).__name__}"
+        )
     states = list(rhs)
     output = dict(output) if output is not None else {s: s for s in states}
-    inputs = list(inputs)
+    inputs = _names("inputs", inputs)
     known = {n: sp.Symbol(n) for n in states + inputs}
     rhs_e = [_parse(f"rhs[{s!r}]", rhs[s], known) for s in states]
     out_e = [_parse(f"output[{o!r}]", output[o], known) for o in output]
@@ -70,12 +112,11 @@ def model_from_equations(
     if params is None:
         params = sorted(found)
     else:
-        params = list(params)
+        params = _names("params", params)
         missing = [n for n in found if n not in params]
         if missing:
             raise ValueError(
-                f"the equations use {missing}, which are neither states "
-                f"{states}, inputs {inputs} nor params {params}"
+                _unknown_symbols(missing, rhs_e, out_e, states, output, inputs, params)
             )
     xs = [sp.Symbol(n) for n in states]
     ps = [sp.Symbol(n) for n in params]

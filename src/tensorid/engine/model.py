@@ -245,7 +245,12 @@ def _named_vector(values, names: Sequence[str], what: str) -> np.ndarray:
         missing = [n for n in names if n not in values]
         if missing:
             raise ValueError(f"{what} is missing values for {missing}")
-        out = np.array([float(values[n]) for n in names], dtype=float)
+        out = np.empty(len(names))
+        for i, n in enumerate(names):
+            try:
+                out[i] = float(values[n])
+            except (TypeError, ValueError):
+                raise ValueError(f"{what}: {n}={values[n]!r} is not a number") from None
     else:
         if np.ndim(values):
             out = np.asarray(values, dtype=float).reshape(-1)

@@ -7,6 +7,7 @@ units. Every check of the user's input happens here, before anything compiles.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
 
 import jax.numpy as jnp
@@ -61,7 +62,10 @@ class Problem:
         (L-stable, for stiff models) "sdirk3", "sdirk2", "implicit-euler"; adaptive
         (error-controlled) "dopri5", "bosh3".
     rtol, atol : error tolerances of an adaptive scheme (defaults 1e-6, 1e-9).
-    weights : dict {output: weight} or array (S,); J = Σ_h Σ_g w_g r_g².
+    weights : dict {output: weight} or array (S,); J = Σ_h Σ_g w_g r_g². "auto":
+        1 / (variance of each measured output, all experiments together), so that
+        outputs on very different scales (volts and micrometres) count alike. Without
+        weights, outputs whose scales differ by more than 1e3 raise a warning.
     discretisation : a :class:`Discretisation`, in place of scheme, substeps,
         interpolation, rtol and atol.
     """
@@ -140,14 +144,22 @@ class Problem:
 
     # -- input checks ---------------------------------------------------------------
     def _check_data(self, data) -> list[Experiment]:
+        if not isinstance(data, Experiment | list | tuple):
+            raise TypeError(
+                f"data must be a tensorid.Experiment or a list of them, got "
+                f"{type(data).__name__}; build one with ti.Experiment(t, u, y) or read "
+                "files with ti.load_data(path, model)"
+            )
         exps = [data] if isinstance(data, Experiment) else list(data)
         if not exps:
             raise ValueError("data is empty: pass an Experiment or a list of them")
         m = self.model
         for i, e in enumerate(exps):
-            where = f"experiment {i}" + (f" ({e.name})" if e.name else "")
             if not isinstance(e, Experiment):
-                raise TypeError(f"{where} is a {type(e).__name__}, not a tensorid.Experiment")
+                raise TypeError(
+                    f"data: experiment {i} is a {type(e).__name__}, not a tensorid.Experiment"
+                )
+            where = f"experiment {i}" + (f" ({e.name})" if e.name else "")
             if e.y is None:
                 raise ValueError(f"{where} has no measured outputs y; a fit needs them")
             if e.u.shape[1] != m.U:
@@ -186,8 +198,28 @@ class Problem:
 
     def _check_weights(self, weights) -> np.ndarray:
         m = self.model
+        scale = self._output_scales()
         if weights is None:
+            if m.S > 1 and scale.min() > 0 and scale.max() / scale.min() > 1e3:
+                sizes = ", ".join(f"{o} ~ {v:.1e}" for o, v in zip(m.outputs, scale, strict=True))
+                warnings.warn(
+                    f"the outputs differ in scale by {scale.max() / scale.min():.0e} ({sizes}) "
+                    "and no weights were given: the fit will all but ignore the small ones; "
+                    "pass weights='auto' (1/variance of each output) or weights={output: w}",
+                    UserWarning,
+                    stacklevel=3,
+                )
             return np.ones(m.S)
+        if isinstance(weights, str):
+            if weights != "auto":
+                raise ValueError(f"weights must be 'auto', a dict or an array, got {weights!r}")
+            if not (scale > 0).all():
+                flat = [o for o, v in zip(m.outputs, scale, strict=True) if not v > 0]
+                raise ValueError(
+                    f"weights='auto' needs outputs that vary; {flat} are constant in the data: "
+                    "give weights={output: w} instead"
+                )
+            return 1.0 / scale**2
         if isinstance(weights, Mapping):
             w = _name_list("weights", list(weights), m.outputs, "outputs")
             out = np.ones(m.S)
@@ -200,6 +232,12 @@ class Problem:
         if not np.isfinite(out).all() or (out < 0).any():
             raise ValueError("weights must be finite and non-negative")
         return out
+
+    def _output_scales(self) -> np.ndarray:
+        """The standard deviation of each measured output, all experiments together."""
+        y = np.concatenate([e.y for e in self.experiments])
+        with np.errstate(over="ignore", invalid="ignore"):
+            return np.nan_to_num(np.std(y, axis=0), nan=np.inf, posinf=np.inf)
 
     def _check_bounds(self, bounds: Mapping) -> tuple[np.ndarray, np.ndarray]:
         m = self.model
@@ -225,8 +263,13 @@ class Problem:
                     ) from None
                 a = -np.inf if a is None else float(a)
                 b = np.inf if b is None else float(b)
-                if np.isnan(a) or np.isnan(b) or a > b:
-                    raise ValueError(f"bounds[{name!r}] = ({a}, {b}) has lo > hi")
+                if np.isnan(a) or np.isnan(b):
+                    raise ValueError(
+                        f"bounds[{name!r}] = ({a}, {b}) holds NaN; give numbers, or None "
+                        "(or -inf/inf) for no bound on that side"
+                    )
+                if a > b:
+                    raise ValueError(f"bounds[{name!r}] = ({a}, {b}) has lo > hi; swap them")
                 lo[k], hi[k] = a, b
         theta0 = self.theta0
         out = (theta0 < lo) | (theta0 > hi)

@@ -195,7 +195,16 @@ def interrupted(tr: Tracker, method, started, history) -> FitResult:
 
 def _failed_start(problem, method, theta0, started) -> FitResult:
     """The result for a start where the simulation already blows up, saying where."""
-    why = problem.diagnose(theta0) or "the simulation is not finite at the start"
+    why = problem.diagnose(theta0)
+    if why is None:  # every simulation is finite: the sum of squares overflowed
+        with np.errstate(over="ignore"):
+            big = max(float(np.abs(e.y).max()) for e in problem.experiments)
+        why = (
+            "the cost overflows at the start although the simulation is finite (the "
+            f"measured outputs reach {big:.1e}): rescale the data, e.g. to units near 1, "
+            "or give weights"
+        )
+        return failed(problem, method, theta0, started, why)
     return failed(problem, method, theta0, started, why + " Choose another initial guess.")
 
 

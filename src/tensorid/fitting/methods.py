@@ -80,13 +80,10 @@ def fit(
         worker (benchmarks/bench_multistart.py: 1.5x on Silverbox). Default: the
         starts shared evenly over the local workers (at most 16 per task) for those
         methods, one start per task for the others or with an ``executor``.
-    timeout : with starts on workers, the seconds to wait for the next start to finish
-        before giving up on them (lost workers): the result is then the best of the
-        starts that finished, with status ``WORKERS_LOST``. Default: wait.
-
-    Ctrl-C (KeyboardInterrupt) stops the fit at once, workers included, and raises
-    :class:`FitInterrupted`, a KeyboardInterrupt whose ``result`` holds the best
-    point found so far (status ``INTERRUPTED``; no error bars).
+    timeout : seconds to wait for the next start to finish on workers; then the best
+        finished start is returned, status ``WORKERS_LOST``. Default: wait.
+    Ctrl-C stops the fit at once, workers included, raising :class:`FitInterrupted`
+    (a KeyboardInterrupt) whose ``result`` is the best point so far.
     """
     started = time.perf_counter()
     _check_method(problem, method)
@@ -97,28 +94,13 @@ def fit(
     n = 1 if starts is None else int(starts)
     if n > 1:
         batch = _check_batch(method, batch, n, executor, workers)
-        if not (isinstance(spread, int | float) and np.isfinite(spread) and spread >= 0):
-            raise ValueError(f"spread must be a finite number >= 0, got {spread!r}")
-        if sampling not in SAMPLINGS:
-            raise ValueError(f"sampling must be one of {SAMPLINGS}, got {sampling!r}")
-        if workers is not None:
-            _check_count("workers", workers)
-        if timeout is not None and not (
-            isinstance(timeout, int | float) and not isinstance(timeout, bool) and timeout > 0
-        ):
-            raise ValueError(f"timeout must be a number of seconds > 0, got {timeout!r}")
+        _check_multistart(spread, sampling, workers, timeout)
     with compile_clock() as clock:  # this process's compilations (not the workers')
         if n > 1:
             lo, hi = problem.lower, problem.upper
             thetas = draw_starts(theta0, lo, hi, n, spread=spread, sampling=sampling, seed=seed)
-            task = fit_task(method, options)
-            try:
-                runs = run_starts(
-                    problem, task, thetas, executor, workers, int(batch or 1), timeout
-                )
-                res = _best_of(problem, method, theta0, runs, options, started)
-            except StartsStopped as stop:
-                res = _stopped(problem, method, theta0, stop, started)
+            where = (executor, workers, int(batch or 1), timeout)
+            res = _many_starts(problem, method, thetas, options, where, started)
         else:
             res = fit_many(problem, method, theta0[None, :], options, started)[0]
     res.compile_seconds = clock[0]
@@ -199,6 +181,19 @@ def _check_count(name: str, n) -> None:
         raise ValueError(f"{name} must be a positive integer, got {n!r}")
 
 
+def _check_multistart(spread, sampling, workers, timeout) -> None:
+    if not (isinstance(spread, int | float) and np.isfinite(spread) and spread >= 0):
+        raise ValueError(f"spread must be a finite number >= 0, got {spread!r}")
+    if sampling not in SAMPLINGS:
+        raise ValueError(f"sampling must be one of {SAMPLINGS}, got {sampling!r}")
+    if workers is not None:
+        _check_count("workers", workers)
+    if timeout is not None and not (
+        isinstance(timeout, int | float) and not isinstance(timeout, bool) and timeout > 0
+    ):
+        raise ValueError(f"timeout must be a number of seconds > 0, got {timeout!r}")
+
+
 def _check_batch(method, batch, starts, executor, workers) -> int:
     if batch is None:
         if method in LOCKSTEP and executor is None:
@@ -217,6 +212,17 @@ def fit_task(method: str, options: FitOptions):
     """The task that multistart.run_starts sends to workers: fit each start of a
     chunk with ``method`` (the caller's callback stays behind)."""
     return functools.partial(_fit_chunk, method=method, options=options.without_callback())
+
+
+def _many_starts(problem, method, thetas, options: FitOptions, where: tuple, started):
+    """Fits from every row of ``thetas`` on workers (``where``: executor, workers,
+    batch, timeout), the best refined; or, if they cannot all finish, the best of
+    those that did."""
+    try:
+        runs = run_starts(problem, fit_task(method, options), thetas, *where)
+    except StartsStopped as stop:
+        return _stopped(problem, method, thetas[0], stop, started)
+    return _best_of(problem, method, thetas[0], runs, options, started)
 
 
 def _fit_chunk(problem, thetas, *, method: str, options: FitOptions) -> list[dict]:

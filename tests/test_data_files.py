@@ -1,0 +1,273 @@
+"""Odd and bad data files: a valid-but-odd file reads the same numbers as a plain CSV;
+a bad one gets one line that names the file, the problem and the fix."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+import scipy.io
+
+import tensorid as ti
+from tensorid import cli
+
+P = 50
+T = np.arange(P) * 0.1
+U = np.round(np.sin(T), 6)
+Y = np.round(np.cos(T), 6)
+
+MODEL = ti.Model(
+    rhs=lambda x, p, u: -p[0] * x + u[0],
+    output=lambda x, p: x,
+    states=["x"],
+    params=["k"],
+    inputs=["u"],
+    outputs=["y"],
+)
+
+MODEL_FILE = """
+import tensorid
+model = tensorid.Model(rhs=lambda x, p, u: -p[0] * x + u[0], output=lambda x, p: x,
+                       states=["x"], params=["k"], inputs=["u"], outputs=["y"])
+p0 = {"k": 1.0}
+"""
+
+
+def _text(sep=",", decimal="."):
+    rows = [sep.join(["t", "u", "y"])]
+    for r in zip(T, U, Y, strict=True):
+        rows.append(sep.join(repr(float(v)).replace(".", decimal) for v in r))
+    return "\n".join(rows) + "\n"
+
+
+def _same_as_plain(path, **kw):
+    (e,) = ti.load_data(path, MODEL, **kw)
+    np.testing.assert_array_equal(e.t, T)
+    np.testing.assert_array_equal(e.u[:, 0], U)
+    np.testing.assert_array_equal(e.measured[:, 0], Y)
+
+
+def _error(path, **kw) -> str:
+    with pytest.raises(ValueError) as info:
+        ti.load_data(path, MODEL, **kw)
+    message = str(info.value)
+    assert "\n" not in message and str(path) in message, message
+    return message
+
+
+def test_a_plain_csv_reads_the_numbers(tmp_path):
+    (tmp_path / "d.csv").write_text(_text())
+    _same_as_plain(tmp_path / "d.csv")
+
+
+# -- MATLAB v7.3 (HDF5) ----------------------------------------------------------------
+def _write_v73(path, variables: dict):
+    """A .mat file the way MATLAB 7.3 writes it: a 512-byte text header, HDF5 after
+    it, each variable a root dataset stored transposed, with a MATLAB_class."""
+    h5py = pytest.importorskip("h5py")
+    with h5py.File(path, "w", userblock_size=512) as f:
+        for name, value in variables.items():
+            a = np.asarray(value)
+            if a.dtype.kind == "c":
+                rec = np.empty(a.shape, dtype=[("real", "<f8"), ("imag", "<f8")])
+                rec["real"], rec["imag"] = a.real, a.imag
+                a, cls = rec, "double"
+            elif a.dtype.kind == "U":  # MATLAB char: UTF-16 code units
+                a, cls = np.array([[ord(c)] for c in str(a)], dtype=np.uint16), "char"
+            else:
+                a, cls = np.atleast_2d(a).T, "double"  # a P x 1 column
+            d = f.create_dataset(name, data=a.T)
+            d.attrs["MATLAB_class"] = np.bytes_(cls)
+        refs = f.create_group("#refs#")
+        refs.create_dataset("a", data=np.zeros(2))
+        f.create_group("meta").attrs["MATLAB_class"] = np.bytes_("struct")
+    header = b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: Mon Jan 1 2024 HDF5 schema"
+    with open(path, "r+b") as f:
+        f.write(header.ljust(116) + b"\0" * 8 + b"\x00\x02IM")
+
+
+def test_mat_v73_reads_through_h5py(tmp_path):
+    path = tmp_path / "d73.mat"
+    _write_v73(path, {"t": T, "u": U, "y": Y, "label": "run one"})
+    _same_as_plain(path)
+
+
+def test_mat_v73_without_h5py_says_how_to_get_it(tmp_path, monkeypatch):
+    path = tmp_path / "d73.mat"
+    _write_v73(path, {"t": T, "u": U, "y": Y})
+    monkeypatch.setitem(sys.modules, "h5py", None)  # import h5py now fails
+    message = _error(path)
+    assert "v7.3" in message and "pip install h5py" in message and "'-v7'" in message
+
+
+def test_mat_v73_char_variable_named_by_the_model_is_refused(tmp_path):
+    path = tmp_path / "d73.mat"
+    _write_v73(path, {"t": T, "u": "abc", "y": Y})
+    assert "variable 'u' is a MATLAB char array, not numbers" in _error(path)
+
+
+# -- damaged MATLAB and NumPy files ----------------------------------------------------
+def test_garbage_mat_is_named_not_a_traceback(tmp_path):
+    path = tmp_path / "junk.mat"
+    path.write_bytes(np.random.default_rng(0).bytes(600))
+    message = _error(path)
+    assert "is not a readable MATLAB .mat file" in message and "re-export" in message
+
+
+@pytest.mark.parametrize("compress", [False, True])
+def test_truncated_mat_is_named(tmp_path, compress):
+    full = tmp_path / "full.mat"
+    scipy.io.savemat(full, {"t": T, "u": U, "y": Y}, do_compression=compress)
+    raw = full.read_bytes()
+    for cut in (0, 10, 100, len(raw) // 2, len(raw) - 8):
+        path = tmp_path / f"cut{cut}.mat"
+        path.write_bytes(raw[:cut])
+        assert "MATLAB .mat file" in _error(path)
+
+
+def test_truncated_or_foreign_npz_is_named(tmp_path):
+    full = tmp_path / "full.npz"
+    np.savez(full, t=T, u=U, y=Y)
+    raw = full.read_bytes()
+    for cut in (0, 3, 100, len(raw) // 2, len(raw) - 30):
+        path = tmp_path / f"cut{cut}.npz"
+        path.write_bytes(raw[:cut])
+        message = _error(path)
+        assert "NumPy .npz file" in message and "np.savez" in message
+    (tmp_path / "text.npz").write_text("t,u,y\n0,1,2\n")
+    assert "not a NumPy .npz file (not a zip archive)" in _error(tmp_path / "text.npz")
+    np.save(tmp_path / "one.npy", U)
+    (tmp_path / "one.npy").rename(tmp_path / "one.npz")
+    assert "single .npy array" in _error(tmp_path / "one.npz")
+
+
+def test_object_array_in_npz_names_the_key_and_is_not_unpickled(tmp_path):
+    path = tmp_path / "obj.npz"
+    np.savez(path, t=T, u=np.array([{"a": 1}] * P, dtype=object), y=Y)
+    message = _error(path)
+    assert "array 'u' holds Python objects" in message and "numeric arrays" in message
+    # an object array the model does not use is no obstacle
+    np.savez(path, t=T, u=U, y=Y, notes=np.array([None, "x"], dtype=object))
+    _same_as_plain(path)
+
+
+# -- complex values --------------------------------------------------------------------
+COMPLEX_MESSAGE = "'u' holds complex values; tensorid fits real signals: split into real"
+
+
+def test_complex_data_is_refused_in_every_format(tmp_path):
+    Uc = U + 1j * T
+    scipy.io.savemat(tmp_path / "c.mat", {"t": T, "u": Uc, "y": Y})
+    np.savez(tmp_path / "c.npz", t=T, u=Uc, y=Y)
+    _write_v73(tmp_path / "c73.mat", {"t": T, "u": Uc, "y": Y})
+    cells = zip(T, Uc, Y, strict=True)
+    rows = ["t,u,y"] + [f"{t:.17g},{u.real:.17g}+{u.imag:.17g}j,{y:.17g}" for t, u, y in cells]
+    (tmp_path / "c.csv").write_text("\n".join(rows) + "\n")
+    for name in ("c.mat", "c.npz", "c73.mat", "c.csv"):
+        message = _error(tmp_path / name)
+        assert COMPLEX_MESSAGE in message, message
+    assert "column 'u'" in _error(tmp_path / "c.csv")
+
+
+def test_complex_data_with_zero_imaginary_part_reads_as_real(tmp_path):
+    np.savez(tmp_path / "c.npz", t=T, u=U + 0j, y=Y)
+    _same_as_plain(tmp_path / "c.npz")
+
+
+# -- text encodings --------------------------------------------------------------------
+def test_utf8_bom_is_stripped(tmp_path):
+    (tmp_path / "bom.csv").write_bytes(b"\xef\xbb\xbf" + _text().encode())
+    _same_as_plain(tmp_path / "bom.csv")
+
+
+@pytest.mark.parametrize("encoding", ["utf-16", "utf-16-le", "utf-16-be"])
+def test_utf16_is_read(tmp_path, encoding):
+    (tmp_path / "wide.csv").write_bytes(_text().encode(encoding))
+    _same_as_plain(tmp_path / "wide.csv")
+
+
+def test_undecodable_bytes_name_file_offset_and_line(tmp_path):
+    text = _text().replace("t,u,y", "t,u,y\n").encode()
+    path = tmp_path / "latin.csv"
+    path.write_bytes(text[:20] + b"\xb5" + text[20:])
+    message = _error(path)
+    line = text[:20].count(b"\n") + 1  # 4: the blank line counts
+    assert f"byte 0xb5 at offset 20 (line {line})" in message
+    assert "save the file as UTF-8" in message
+
+
+def test_binary_file_named_csv_is_not_text(tmp_path):
+    (tmp_path / "book.csv").write_bytes(b"PK\x03\x04\x00\x00\x08\x00" * 20)
+    assert "not a text file" in _error(tmp_path / "book.csv")
+
+
+# -- delimiters ------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "sep,decimal",
+    [(";", "."), (";", ","), ("\t", "."), ("\t", ","), (" ", "."), ("   ", "."), (", ", ".")],
+)
+def test_delimiters_and_decimal_commas_are_detected(tmp_path, sep, decimal):
+    (tmp_path / "d.txt").write_text(_text(sep, decimal))
+    _same_as_plain(tmp_path / "d.txt")
+
+
+def test_a_header_that_does_not_split_says_how_it_was_read(tmp_path):
+    (tmp_path / "pipe.csv").write_text(_text("|"))
+    message = _error(tmp_path / "pipe.csv")
+    assert "lacks columns ['u', 'y']" in message
+    assert "'t|u|y' is one column when read as comma-separated" in message
+
+
+def test_a_text_cell_names_column_and_line(tmp_path):
+    text = _text().splitlines()
+    text[4] = text[4].replace(text[4].split(",")[1], "n/a")
+    (tmp_path / "d.csv").write_text("\n".join(text) + "\n")
+    message = _error(tmp_path / "d.csv")
+    assert "column 'u' holds a value that is not a number, 'n/a' on line 5" in message
+
+
+# -- sample ranges ---------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "samples,why",
+    [
+        ((5000, 6000), "past the end"),
+        ((40, 60), "past the end"),
+        ((30, 20), "START is not below STOP"),
+        ((-5, 10), "a negative index"),
+        ((7, 8), "only one sample"),
+    ],
+)
+def test_samples_outside_the_record_say_how_long_it_is(tmp_path, samples, why):
+    (tmp_path / "d.csv").write_text(_text())
+    message = _error(tmp_path / "d.csv", samples=samples)
+    assert f"has {P} samples, so samples {samples[0]}:{samples[1]} are out of range" in message
+    assert why in message and f"0 <= START < STOP <= {P}" in message
+
+
+def test_experiment_window_states_the_record_length():
+    e = ti.Experiment(T, U, Y, name="rec")
+    with pytest.raises(ValueError, match=f"the record has {P} samples"):
+        e.window(5000, 6000)
+    assert e.window(10, 20).P == 10
+
+
+# -- the command line ------------------------------------------------------------------
+@pytest.mark.parametrize("name", ["junk.mat", "cut.npz", "c.csv", "ok.csv"])
+def test_fit_on_a_bad_file_exits_2_with_one_line(tmp_path, capsys, name):
+    (tmp_path / "model.py").write_text(MODEL_FILE)
+    (tmp_path / "junk.mat").write_bytes(np.random.default_rng(1).bytes(300))
+    (tmp_path / "cut.npz").write_bytes(b"PK\x03\x04" + b"\0" * 40)
+    (tmp_path / "c.csv").write_text("t,u,y\n0,1+2j,0\n0.1,1,0\n")
+    (tmp_path / "ok.csv").write_text(_text())
+    args = ["fit", str(tmp_path / "model.py"), str(tmp_path / name), "--no-progress"]
+    args += ["--out", str(tmp_path / "out")]
+    if name == "ok.csv":
+        args += ["--samples", "5000:6000"]
+    try:
+        rc = cli.main(args)
+    except SystemExit as e:
+        rc = e.code
+    assert rc == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("tensorid:") and name in err[0], err
