@@ -26,6 +26,7 @@ from .engine.simulate import Simulation, simulate
 from .engine.status import Status
 from .fitting.methods import METHODS, fit, fit_batch
 from .fitting.options import FitOptions
+from .fitting.profiles import Profile, profile
 from .fitting.results import FitInterrupted, FitResult
 from .fitting.uncertainty import Uncertainty
 from .fitting.validation import Score
@@ -45,6 +46,7 @@ __all__ = [
     "Model",
     "ModelSpec",
     "Problem",
+    "Profile",
     "Score",
     "Simulation",
     "Status",
@@ -53,6 +55,7 @@ __all__ = [
     "enable_compilation_cache",
     "fit",
     "fit_batch",
+    "profile",
     "gof",
     "load_data",
     "load_model",

@@ -55,6 +55,13 @@ def _positive_seconds(text: str) -> float:
     return x
 
 
+def _level(text: str) -> float:
+    x = _non_negative(text)
+    if not 0 < x < 1:
+        raise argparse.ArgumentTypeError(f"expected a level between 0 and 1, got {text!r}")
+    return x
+
+
 def _samples(text: str) -> tuple[int, int]:
     try:
         a, b = text.split(":")
@@ -136,6 +143,21 @@ def register(sub) -> None:
         help="give up on the workers when no start has finished for this long (lost "
         "workers); the starts that finished are kept (default: 300 with --scheduler, "
         "no limit locally)",
+    )
+    f.add_argument(
+        "--profile",
+        nargs="*",
+        default=None,
+        metavar="NAME",
+        help="profile likelihood of the named unknowns (all free parameters when none "
+        "is named): likelihood-ratio intervals (ci95_profile in fit.json) and a figure each",
+    )
+    f.add_argument(
+        "--profile-level",
+        type=_level,
+        default=0.95,
+        metavar="LEVEL",
+        help="confidence level of the profile intervals (default 0.95)",
     )
     integration_options(f)
     f.add_argument("--no-progress", action="store_true", help="no live progress display")

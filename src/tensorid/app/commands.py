@@ -22,7 +22,7 @@ from ..engine.problem import Problem
 from ..engine.simulate import run_simulation
 from ..engine.status import Status
 from ..engine.sweeps import shared_sweeps
-from ..fitting.figures import compare_figure, fit_figures, save_png
+from ..fitting.figures import compare_figure, fit_figures, profile_figure, save_png
 from ..fitting.methods import fit
 from ..fitting.results import FitInterrupted
 from ..fitting.summary import summary_table
@@ -173,23 +173,24 @@ def _gof_lines(scores: list[Score]) -> list[str]:
     return out
 
 
-def _write_results(res, out: Path, scores: list[Score], old: set[Path]):
+def _write_results(res, out: Path, scores: list[Score], old: set[Path], profiles=None):
     """fit.json first (the estimates are what matters), then the figures and
     report.md, each atomically; what an earlier run wrote and this one did not is
     removed. Returns (figures written, failures as one line each). A failing figure
     or report does not lose fit.json."""
     out.mkdir(parents=True, exist_ok=True)
-    data = fit_json(res, scores)
+    data = fit_json(res, scores, profiles)
     written = [write_json(out / "fit.json", data)]
     figures, failures = [], []
-    for stem, fig in fit_figures(res, None, scores, named=True):
+    for stem, fig in fit_figures(res, None, scores, named=True) + _profile_figures(res, profiles):
         try:
             figures.append(write_atomic(out / f"{stem}.png", partial(save_png, fig)))
         except OSError as e:
             failures.append(f"could not write {out / (stem + '.png')}: {e.strerror or e}")
     everything = training_scores(res) + scores
     try:
-        written.append(write_text(out / "report.md", fit_report(res, data, everything, figures)))
+        report = fit_report(res, data, everything, figures, profiles)
+        written.append(write_text(out / "report.md", report))
     except OSError as e:
         failures.append(f"could not write {out / 'report.md'}: {e.strerror or e}")
     try:
@@ -224,7 +225,8 @@ def run_fit(args) -> int:
         print(summary_table(res, everything))
         for line in _gof_lines(everything):
             print(line)
-        figures, failures = _write_results(res, out, scores, old)
+        profiles = _profiles(res, args)
+        figures, failures = _write_results(res, out, scores, old, profiles)
     if failures:
         for f in failures:
             print(f"tensorid: error: {f}", file=sys.stderr)
@@ -234,6 +236,34 @@ def run_fit(args) -> int:
     if res.status is Status.WORKERS_LOST:
         print(f"tensorid: error: {res.message}", file=sys.stderr)
     return 0 if res.success else 1
+
+
+def _profiles(res, args) -> dict | None:
+    """--profile: the profile likelihood of the named unknowns (all free parameters
+    when none is named), one line each."""
+    if args.profile is None:
+        return None
+    if not res.has_uncertainty:
+        print("tensorid: no profiles: the fit has no finite optimum", file=sys.stderr)
+        return None
+    profiles = res.profile(args.profile or None, level=args.profile_level)
+    for p in profiles.values():
+        print(p.describe())
+    return profiles
+
+
+def _profile_figures(res, profiles) -> list:
+    if not profiles:
+        return []
+    u = res.uncertainty()
+    return [
+        (f"profile_{_stem(name)}", profile_figure(p, u.sigma2, u.stderr[p.index]))
+        for name, p in profiles.items()
+    ]
+
+
+def _stem(name: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in name)
 
 
 def _save_interrupted(res, out: Path, old: set[Path]) -> int:

@@ -79,7 +79,17 @@ def _metrics(scores: list[Score], metric: str) -> dict:
     return {s.experiment.name or str(i): getattr(s, metric) for i, s in enumerate(scores)}
 
 
-def fit_json(res, validation: list[Score]) -> dict:
+def _profile_json(profiles: dict | None) -> dict:
+    if not profiles:
+        return {}
+    return {
+        "ci95_profile": {n: list(p.interval) for n, p in profiles.items()},
+        "profile_ends": {n: dict(p.ends) for n, p in profiles.items()},
+        "profile_level": next(iter(profiles.values())).level,
+    }
+
+
+def fit_json(res, validation: list[Score], profiles: dict | None = None) -> dict:
     """Everything fit.json holds (a contract: keys are added, never renamed)."""
     u = res.uncertainty() if res.has_uncertainty else None
     names = res.problem.theta_names
@@ -120,10 +130,33 @@ def fit_json(res, validation: list[Score]) -> dict:
         d.update(u.as_dicts())
         gn = res.uncertainty("gauss-newton").stderr.tolist()
         d["stderr_gauss_newton"] = dict(zip(names, gn, strict=True))
+    d.update(_profile_json(profiles))
     return d
 
 
-def fit_report(res, data: dict, scores: list[Score], figures: list[Path]) -> str:
+def _profile_lines(profiles: dict | None, data: dict) -> list[str]:
+    if not profiles:
+        return []
+    level = next(iter(profiles.values())).level
+    rows = []
+    for n, p in profiles.items():
+        wald = data.get("ci95", {}).get(n)
+        ends = ", ".join(f"{s}: {e}" for s, e in p.ends.items() if e != "crossed")
+        rows.append([n, interval(*wald) if wald else "–", interval(*p.interval), ends or "–"])
+    return [
+        "",
+        f"## Profile likelihood ({level:.0%})",
+        "",
+        "Likelihood-ratio intervals from the profile of each unknown (the others "
+        "re-optimised), beside the Wald intervals from the standard errors.",
+        "",
+        md_table(["unknown", "Wald 95 %", f"profile {level:.0%}", "not crossed"], rows),
+    ]
+
+
+def fit_report(
+    res, data: dict, scores: list[Score], figures: list[Path], profiles: dict | None = None
+) -> str:
     """report.md of a fit."""
     u = res.uncertainty() if res.has_uncertainty else None
     rows = []
@@ -155,5 +188,6 @@ def fit_report(res, data: dict, scores: list[Score], figures: list[Path]) -> str
                 [[s["start"], s["cost"], s.get("status", ""), s["nit"]] for s in res.starts[:20]],
             ),
         ]
+    lines += _profile_lines(profiles, data)
     lines += ["", "## Figures", ""] + [f"![{f.stem}]({f.name})" for f in figures]
     return "\n".join(lines) + "\n"

@@ -3,6 +3,7 @@ scaling, uncertainty, multi-start and validation on new records."""
 
 from .methods import LOCKSTEP, METHODS, fit, fit_batch
 from .options import FitOptions
+from .profiles import Profile, profile
 from .results import FitInterrupted, FitResult
 from .uncertainty import Uncertainty
 from .validation import Score
@@ -13,8 +14,10 @@ __all__ = [
     "FitInterrupted",
     "FitOptions",
     "FitResult",
+    "Profile",
     "Score",
     "Uncertainty",
     "fit",
     "fit_batch",
+    "profile",
 ]

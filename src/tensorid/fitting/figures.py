@@ -74,6 +74,31 @@ def convergence_figure(history: list[dict], title: str):
     return fig
 
 
+def profile_figure(prof, sigma2: float, stderr: float):
+    """The profile of one unknown: the rise of the cost in units of σ² against its
+    value, the threshold and the interval, beside the Wald parabola (what the
+    standard error alone would say)."""
+    fig = new_figure(figsize=(6, 4))
+    ax = fig.subplots()
+    rise = (prof.costs - prof.costs.min()) / sigma2
+    ax.plot(prof.values, rise, "o-", ms=3, label="profile")
+    if np.isfinite(stderr) and stderr > 0:
+        c = np.linspace(prof.values.min(), prof.values.max(), 200)
+        ax.plot(c, ((c - prof.estimate) / stderr) ** 2, "--", lw=1, label="Wald (quadratic)")
+    ax.axhline(prof.threshold / sigma2, color="k", lw=0.8, label=f"{prof.level:.0%} threshold")
+    for end in prof.interval:
+        if np.isfinite(end):
+            ax.axvline(end, color="C3", lw=0.8)
+    ax.set_xlabel(prof.name)
+    ax.set_ylabel("(PL − Ĵ) / σ²")
+    ax.set_title(prof.describe(), fontsize=8)
+    ax.set_ylim(bottom=0, top=max(2 * prof.threshold / sigma2, 1.0))
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
 def _file_name(s: str) -> str:
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in s)
 

@@ -224,6 +224,13 @@ class FitResult:
 
         return validate(self, data, init_window)
 
+    def profile(self, names=None, level: float = 0.95, **options) -> dict:
+        """Profile likelihood of each unknown in ``names`` (default: every free
+        parameter) with its likelihood-ratio interval: see :func:`tensorid.profile`."""
+        from .profiles import profile
+
+        return profile(self, names, level, **options)
+
     def summary(self) -> str:
         """A plain-text table of the estimates with standard errors and intervals."""
         from .summary import summary_table
