@@ -76,6 +76,7 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
             fixed=spec.fixed,
             bounds=spec.bounds,
             weights=spec.weights,
+            priors=spec.priors or None,
             discretisation=disc,
         )
     except (ValueError, TypeError) as e:  # the settings come from the model file

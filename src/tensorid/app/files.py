@@ -4,7 +4,8 @@ A model file is Python. It defines ``model = tensorid.Model(...)`` or, for text
 equations, ``rhs = {state: "expr"}`` with optional ``output``, ``inputs`` and
 ``params``; and it may define ``p0`` (dict), ``x0`` (dict state -> value),
 ``free_x0`` (list), ``fixed`` (list), ``bounds`` (dict name -> (lo, hi)) and
-``weights`` ("auto" or dict output -> weight). A file that has not finished running
+``weights`` ("auto" or dict output -> weight) and ``priors`` (dict name -> (mean,
+sd)). A file that has not finished running
 after TENSORID_MODEL_TIMEOUT seconds (default 60) is stopped with a clear message.
 
 Data files are CSV (a time column ``t``, or a sampling time given as ``ts``, plus
@@ -48,6 +49,7 @@ class ModelSpec:
     bounds: dict = field(default_factory=dict)
     path: Path | None = None
     weights: dict | list | str | None = None
+    priors: dict = field(default_factory=dict)
 
     def x0_array(self) -> np.ndarray:
         """x0 of the model file as an array (N,), states it does not name at 0."""
@@ -172,7 +174,14 @@ def _spec(ns: dict, path: Path) -> ModelSpec:
             "`rhs = {state: 'expression'}`"
         )
     out = ModelSpec(model, path=path)
-    kinds = {"p0": dict, "x0": dict, "free_x0": list, "fixed": list, "bounds": dict}
+    kinds = {
+        "p0": dict,
+        "x0": dict,
+        "free_x0": list,
+        "fixed": list,
+        "bounds": dict,
+        "priors": dict,
+    }
     for key, kind in kinds.items():
         if ns.get(key) is None:
             continue

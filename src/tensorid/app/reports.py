@@ -112,6 +112,8 @@ def fit_json(res, validation: list[Score], profiles: dict | None = None) -> dict
         "method": res.method,
         "integration": res.problem.discretisation.as_dict(),
         "weights": dict(zip(res.problem.model.outputs, res.problem.weights.tolist(), strict=True)),
+        "priors": {names[i]: list(ms) for i, ms in res.problem.priors.items()},
+        "prior_noise_variance": res.problem.noise_variance if res.problem.priors else None,
         "seconds": res.seconds,
         "compile_seconds": res.compile_seconds,
         "warnings": res.warnings,
@@ -130,6 +132,7 @@ def fit_json(res, validation: list[Score], profiles: dict | None = None) -> dict
         d.update(u.as_dicts())
         gn = res.uncertainty("gauss-newton").stderr.tolist()
         d["stderr_gauss_newton"] = dict(zip(names, gn, strict=True))
+        d["information"] = res.information().as_dict()
     d.update(_profile_json(profiles))
     return d
 
@@ -176,6 +179,8 @@ def fit_report(
     ]
     if data["warnings"]:
         lines += ["## Warnings", ""] + [f"- {w}" for w in data["warnings"]] + [""]
+    if "information" in data:
+        lines += ["## Observed and expected information", "", data["information"]["text"] + ".", ""]
     header, metric_table = metric_rows(scores)
     lines += ["## Goodness of fit", "", md_table(header, metric_table)]
     if res.starts:

@@ -62,6 +62,13 @@ class Problem:
         (L-stable, for stiff models) "sdirk3", "sdirk2", "implicit-euler"; adaptive
         (error-controlled) "dopri5", "bosh3".
     rtol, atol : error tolerances of an adaptive scheme (defaults 1e-6, 1e-9).
+    priors : dict {parameter: (mean, sd)}: Gaussian priors on free parameters (MAP
+        estimation). J gains σ² Σ ((θ_i − mean)/sd)², σ² the variance of a unit-weight
+        residual (``noise``² when given, else estimated from the measured outputs' second
+        differences, ``noise_variance``), so that J/σ² is −2 log posterior; the exact
+        Hessian includes the prior's curvature.
+    noise : standard deviation of a unit-weight residual (weighted measurement noise),
+        for priors.
     weights : dict {output: weight} or array (S,); J = Σ_h Σ_g w_g r_g². "auto":
         1 / (variance of each measured output, all experiments together), so that
         outputs on very different scales (volts and micrometres) count alike. Without
@@ -86,6 +93,8 @@ class Problem:
         rtol: float | None = None,
         atol: float | None = None,
         discretisation: Discretisation | None = None,
+        priors: Mapping[str, tuple[float, float]] | None = None,
+        noise: float | None = None,
     ):
         if not isinstance(model, Model):
             raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
@@ -107,6 +116,7 @@ class Problem:
         self.discretisation = discretisation
         self.weights = self._check_weights(weights)
         self.lower, self.upper = self._check_bounds(bounds or {})
+        self.priors, self.noise_variance = self._check_priors(priors, noise)
         if self.K == 0:
             raise ValueError("nothing to estimate: every parameter is fixed and free_x0 is empty")
         self._sweeps = shared_sweeps(
@@ -231,6 +241,84 @@ class Problem:
                 raise ValueError(f"weights must have one value per output {list(m.outputs)}")
         if not np.isfinite(out).all() or (out < 0).any():
             raise ValueError("weights must be finite and non-negative")
+        return out
+
+    def _check_priors(self, priors, noise) -> tuple[dict, float]:
+        """{θ index: (mean, sd)} for the priors, and the noise variance that weighs them."""
+        if not priors:
+            if noise is not None:
+                raise ValueError("noise is only used with priors; give priors={name: (mean, sd)}")
+            return {}, float("nan")
+        if not isinstance(priors, Mapping):
+            raise TypeError(f"priors must be a dict {{parameter: (mean, sd)}}, got {priors!r}")
+        out = {}
+        for name, spec in priors.items():
+            if name not in self.free_params:
+                why = "fixed" if name in self.fixed else "not a parameter of the model"
+                raise ValueError(
+                    f"priors[{name!r}]: {name!r} is {why}; priors go on free parameters "
+                    f"{self.free_params}"
+                )
+            try:
+                mean, sd = (float(v) for v in spec)
+            except (TypeError, ValueError):
+                raise ValueError(f"priors[{name!r}] must be (mean, sd), got {spec!r}") from None
+            if not (np.isfinite(mean) and np.isfinite(sd) and sd > 0):
+                raise ValueError(f"priors[{name!r}] = ({mean}, {sd}): need a finite mean, sd > 0")
+            out[self.theta_names.index(name)] = (mean, sd)
+        if noise is None:
+            return out, self._noise_from_data()
+        if not (isinstance(noise, int | float) and np.isfinite(noise) and noise > 0):
+            raise ValueError(f"noise must be a standard deviation > 0, got {noise!r}")
+        return out, float(noise) ** 2
+
+    def _noise_from_data(self) -> float:
+        """The variance of a unit-weight residual, from the measured outputs alone: for
+        white noise on a signal that is smooth at the sampling rate, the second
+        difference y[k+1] − 2y[k] + y[k−1] has variance 6σ²."""
+        num = den = 0.0
+        for e in self.experiments:
+            d2 = np.diff(e.measured, n=2, axis=0)
+            num += float((self.weights * (d2**2).sum(axis=0)).sum()) / 6.0
+            den += d2.shape[0] * int((self.weights > 0).sum())
+        return num / max(den, 1.0)
+
+    def _prior_terms(self, theta, parts: str, more, out: list) -> None:
+        """Add the priors' terms to the assembled results (in place)."""
+        idx = np.array(list(self.priors))
+        mean = np.array([m for m, _ in self.priors.values()])
+        prec = self.noise_variance / np.array([sd for _, sd in self.priors.values()]) ** 2
+        d = theta[..., idx] - mean
+        seen_g = False
+        for k, c in enumerate(parts):
+            if c == "J":
+                out[k] = out[k] + (prec * d**2).sum(axis=-1)
+            elif c == "g" and not seen_g:
+                out[k][..., idx] += 2 * prec * d
+                seen_g = True
+            elif c == "g":  # a Hessian-vector product
+                out[k][..., idx] += 2 * prec * np.asarray(more[0])[..., idx]
+            elif c in "HP":
+                out[k][..., idx, idx] += 2 * prec
+            elif c == "r":
+                out[k] = np.concatenate([out[k], (np.sqrt(prec) * d).reshape(-1)])
+
+    def prior_cost(self, theta) -> float:
+        """The priors' part of J at θ (0 without priors)."""
+        theta = np.asarray(theta, dtype=float)
+        return float(
+            sum(
+                self.noise_variance * ((theta[i] - m) / sd) ** 2
+                for i, (m, sd) in self.priors.items()
+            )
+        )
+
+    @property
+    def prior_precision(self) -> np.ndarray:
+        """(K,) the priors' contribution to the diagonal of the Hessian (0 without)."""
+        out = np.zeros(self.K)
+        for i, (_, sd) in self.priors.items():
+            out[i] = 2 * self.noise_variance / sd**2
         return out
 
     def _output_scales(self) -> np.ndarray:
@@ -388,6 +476,8 @@ class Problem:
                     v = unpack_symmetric(v, idx.size) if c == "P" else v
                     acc[..., idx[:, None], idx[None, :]] += v
         out = [np.concatenate(a) if c == "r" else a for a, c in zip(out, parts, strict=True)]
+        if self.priors:
+            self._prior_terms(theta, parts, more, out)
         ok = np.ones(lead, dtype=bool)
         for a in out:
             ok &= (
@@ -412,6 +502,8 @@ class Problem:
             J = J + self._sweeps._cost(
                 theta[self._slices(e)], jnp.asarray(self.x0[e]), jnp.asarray(self.p0), t, u, y, w
             )
+        for i, (mean, sd) in self.priors.items():
+            J = J + self.noise_variance * ((theta[i] - mean) / sd) ** 2
         return J
 
     def residuals(self, theta) -> np.ndarray:

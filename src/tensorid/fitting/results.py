@@ -15,7 +15,7 @@ import numpy as np
 from ..engine.metrics import gof
 from ..engine.problem import Problem
 from ..engine.status import Status
-from .uncertainty import Uncertainty, uncertainty
+from .uncertainty import Information, Uncertainty, information, uncertainty
 
 
 def _squeeze(a: np.ndarray) -> np.ndarray:
@@ -223,6 +223,17 @@ class FitResult:
         from .validation import validate
 
         return validate(self, data, init_window)
+
+    def information(self) -> Information:
+        """Observed (exact Hessian) against expected (Gauss-Newton) information: the
+        standard errors from each side by side, their condition numbers and the least
+        determined direction (see :class:`tensorid.fitting.uncertainty.Information`)."""
+        key = ("information", self.cost, self.theta.tobytes(), id(self.hess))
+        if key not in self._uncertainty:
+            H_gn = self.problem.cost_grad_gn(self.theta)[2]
+            observed, expected = self.uncertainty(), self.uncertainty("gauss-newton")
+            self._uncertainty[key] = information(observed, expected, self.hess, H_gn)
+        return self._uncertainty[key]
 
     def profile(self, names=None, level: float = 0.95, **options) -> dict:
         """Profile likelihood of each unknown in ``names`` (default: every free

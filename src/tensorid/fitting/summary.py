@@ -125,6 +125,8 @@ def summary_table(res, scores=None) -> str:
         for r in rows:
             mt.add_row(*r)
         console.print(mt)
+    if u is not None:
+        console.print("information: " + res.information().describe(), soft_wrap=True)
     for w in res.warnings:
         console.print(f"warning: {w}", soft_wrap=True)
     return console.export_text()

@@ -202,6 +202,20 @@ def _indefinite(H, names, held, kind, gauss_newton) -> tuple:
     return H, kind, unbounded, [msg]
 
 
+def _prior_warning(problem, H: np.ndarray, names: list[str]) -> list[str]:
+    """Name the unknowns whose curvature comes mostly from their prior, not the data."""
+    prior = problem.prior_precision
+    out = []
+    for i in np.nonzero(prior)[0]:
+        share = prior[i] / H[i, i] if H[i, i] > 0 else 1.0
+        if share > 0.5:
+            out.append(
+                f"{names[i]} is determined more by its prior than by the data (the prior "
+                f"gives {min(share, 1.0):.0%} of its curvature): the data say little about it"
+            )
+    return out
+
+
 def uncertainty(
     problem,
     theta: np.ndarray,
@@ -220,7 +234,7 @@ def uncertainty(
     K = theta.size
     n = sum(e.P for e in problem.experiments) * int((problem.weights > 0).sum())
     dof = max(n - K, 1)
-    sigma2 = J / dof
+    sigma2 = (J - problem.prior_cost(theta)) / dof  # the data's residuals only
     on, held = on_bounds(problem, theta, grad, scale)
     H_used, form, unbounded, warnings = _indefinite(H, names, held, kind, gauss_newton)
     flat = flat_directions(H_used, names)
@@ -245,7 +259,85 @@ def uncertainty(
         corr = cov / np.outer(se, se)
     corr = np.where(np.isfinite(corr), corr, np.nan)
     np.fill_diagonal(corr, 1.0)
-    warnings += _bound_warning(problem, on, held)
+    warnings += _bound_warning(problem, on, held) + _prior_warning(problem, H_used, names)
     return Uncertainty(
         names, theta, cov, se, ci, corr, float(sigma2), dof, kind, warnings, forms, on, cut
+    )
+
+
+@dataclass
+class Information:
+    """Observed against expected information at an estimate.
+
+    The observed information is the exact Hessian of J (transition tensors included);
+    the expected information is its Gauss-Newton form 2 JᵀWJ (what the Fisher
+    information would be at the truth, and all a first-order method has). Where the
+    residuals are large or the model strongly nonlinear they differ, and the standard
+    errors with them.
+
+    stderr_observed, stderr_expected : (K,) standard errors from each.
+    condition_observed, condition_expected : condition numbers of each in
+        Jacobi-scaled (unit-free) form; inf where not positive definite.
+    weakest : the least determined combination of unknowns (the eigenvector of the
+        smallest eigenvalue of the scaled observed information), {name: component},
+        largest component 1; ``describe()`` says it in words.
+    """
+
+    names: list[str]
+    stderr_observed: np.ndarray
+    stderr_expected: np.ndarray
+    condition_observed: float
+    condition_expected: float
+    weakest: dict[str, float]
+
+    def describe(self) -> str:
+        """The comparison in one or two sentences."""
+        parts = [f"{n} {c:+.2f}" for n, c in self.weakest.items()]
+        moves = "alone" if len(parts) == 1 else "together"
+        ratio = self.stderr_observed / self.stderr_expected
+        finite = ratio[np.isfinite(ratio)]
+        spread = (
+            f"observed/expected standard errors {finite.min():.2f} to {finite.max():.2f}"
+            if finite.size
+            else "no finite standard error"
+        )
+        return (
+            f"condition number {self.condition_observed:.2e} (observed information, exact "
+            f"Hessian) against {self.condition_expected:.2e} (expected, Gauss-Newton); "
+            f"{spread}; the least determined direction moves {', '.join(parts)} {moves}"
+        )
+
+    def as_dict(self) -> dict:
+        return {
+            "stderr_observed": dict(zip(self.names, self.stderr_observed.tolist(), strict=True)),
+            "stderr_expected": dict(zip(self.names, self.stderr_expected.tolist(), strict=True)),
+            "condition_observed": self.condition_observed,
+            "condition_expected": self.condition_expected,
+            "weakest_direction": dict(self.weakest),
+            "text": self.describe(),
+        }
+
+
+def _condition(H: np.ndarray) -> float:
+    s = jacobi_scale(H)
+    lam = np.linalg.eigvalsh(0.5 * (H + H.T) * np.outer(s, s))
+    return float(lam[-1] / lam[0]) if lam[0] > 0 else np.inf
+
+
+def information(
+    observed: Uncertainty, expected: Uncertainty, H: np.ndarray, H_gn: np.ndarray
+) -> Information:
+    """Compare the uncertainty from the exact Hessian H with the one from its
+    Gauss-Newton form H_gn."""
+    s = jacobi_scale(H)
+    _, V = np.linalg.eigh(0.5 * (H + H.T) * np.outer(s, s))
+    v = V[:, 0] / V[np.abs(V[:, 0]).argmax(), 0]
+    weakest = {n: float(c) for n, c in zip(observed.names, v, strict=True) if abs(c) > 0.1}
+    return Information(
+        observed.names,
+        observed.stderr,
+        expected.stderr,
+        _condition(H),
+        _condition(H_gn),
+        weakest,
     )
