@@ -159,6 +159,12 @@ def register(sub) -> None:
         metavar="LEVEL",
         help="confidence level of the profile intervals (default 0.95)",
     )
+    f.add_argument(
+        "--data-sensitivity",
+        action="store_true",
+        help="which samples drive each estimate: a figure of dθ/dy per noise level, and "
+        "the samples that pulled each estimate most (influential_samples in fit.json)",
+    )
     integration_options(f)
     f.add_argument("--no-progress", action="store_true", help="no live progress display")
     f.set_defaults(func=_fit)

@@ -174,16 +174,21 @@ def _gof_lines(scores: list[Score]) -> list[str]:
     return out
 
 
-def _write_results(res, out: Path, scores: list[Score], old: set[Path], profiles=None):
+def _write_results(res, out: Path, scores: list[Score], old: set[Path], extras=None):
     """fit.json first (the estimates are what matters), then the figures and
     report.md, each atomically; what an earlier run wrote and this one did not is
     removed. Returns (figures written, failures as one line each). A failing figure
     or report does not lose fit.json."""
     out.mkdir(parents=True, exist_ok=True)
-    data = fit_json(res, scores, profiles)
+    extras = extras or {}
+    profiles, influence = extras.get("profiles"), extras.get("influence")
+    data = fit_json(res, scores, profiles, influence)
     written = [write_json(out / "fit.json", data)]
     figures, failures = [], []
-    for stem, fig in fit_figures(res, None, scores, named=True) + _profile_figures(res, profiles):
+    more = _profile_figures(res, profiles)
+    if influence is not None:
+        more.append(("data_sensitivity", influence.figure()))
+    for stem, fig in fit_figures(res, None, scores, named=True) + more:
         try:
             figures.append(write_atomic(out / f"{stem}.png", partial(save_png, fig)))
         except OSError as e:
@@ -226,8 +231,8 @@ def run_fit(args) -> int:
         print(summary_table(res, everything))
         for line in _gof_lines(everything):
             print(line)
-        profiles = _profiles(res, args)
-        figures, failures = _write_results(res, out, scores, old, profiles)
+        extras = {"profiles": _profiles(res, args), "influence": _influence(res, args)}
+        figures, failures = _write_results(res, out, scores, old, extras)
     if failures:
         for f in failures:
             print(f"tensorid: error: {f}", file=sys.stderr)
@@ -251,6 +256,20 @@ def _profiles(res, args) -> dict | None:
     for p in profiles.values():
         print(p.describe())
     return profiles
+
+
+def _influence(res, args):
+    """--data-sensitivity: dθ/dy, and the samples that pulled each estimate most."""
+    if not args.data_sensitivity:
+        return None
+    if not res.has_uncertainty:
+        print("tensorid: no data sensitivity: the fit has no finite optimum", file=sys.stderr)
+        return None
+    influence = res.data_sensitivity()
+    for name in influence.names:
+        record, k, output, pull = influence.most_influential(name, 1)[0]
+        print(f"{name}: pulled most by {record} sample {k} ({output}), by {pull:.3g}")
+    return influence
 
 
 def _profile_figures(res, profiles) -> list:

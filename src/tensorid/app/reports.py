@@ -89,7 +89,7 @@ def _profile_json(profiles: dict | None) -> dict:
     }
 
 
-def fit_json(res, validation: list[Score], profiles: dict | None = None) -> dict:
+def fit_json(res, validation: list[Score], profiles: dict | None = None, influence=None) -> dict:
     """Everything fit.json holds (a contract: keys are added, never renamed)."""
     u = res.uncertainty() if res.has_uncertainty else None
     names = res.problem.theta_names
@@ -134,6 +134,10 @@ def fit_json(res, validation: list[Score], profiles: dict | None = None) -> dict
         d["stderr_gauss_newton"] = dict(zip(names, gn, strict=True))
         d["information"] = res.information().as_dict()
     d.update(_profile_json(profiles))
+    if influence is not None:
+        d["influential_samples"] = {
+            n: [list(row) for row in influence.most_influential(n, 10)] for n in influence.names
+        }
     return d
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Mapping, Sequence
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -553,6 +554,24 @@ class Problem:
             raise ValueError(f"v must have {self.K} entries (one per θ entry), got {v.size}")
         J, g, Hv = self._assemble(self._sweeps.hessp, theta, v, parts="Jgg")
         return J, g, Hv
+
+    def output_sensitivities(self, theta) -> list[np.ndarray]:
+        """∂ŷ/∂θ per experiment, (P, S, K): the simulated outputs' derivatives, exact for
+        the discretised model (forward-mode differentiation of the simulation)."""
+        theta = self.check_theta(theta)
+        out = []
+        for e, (t, u, y) in enumerate(self._arrays):
+            idx = self._slices(e)
+            x0, p, w = jnp.asarray(self.x0[e]), jnp.asarray(self.p0), jnp.ones(self.model.S)
+
+            def outputs(local, x0=x0, p=p, t=t, u=u, y=y, w=w):
+                return y.reshape(-1) - self._sweeps._residuals(local, x0, p, t, u, y, w)
+
+            dy = np.asarray(jax.jacfwd(outputs)(jnp.asarray(theta[idx])))
+            full = np.zeros((dy.shape[0], self.K))
+            full[:, idx] = dy
+            out.append(full.reshape(*np.shape(y), self.K))
+        return out
 
     def simulate(self, theta) -> list[Simulation]:
         """Simulate every experiment at θ; returns a list of Simulation."""

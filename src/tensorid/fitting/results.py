@@ -235,6 +235,13 @@ class FitResult:
             self._uncertainty[key] = information(observed, expected, self.hess, H_gn)
         return self._uncertainty[key]
 
+    def data_sensitivity(self):
+        """dθ̂/dy for every measured sample: which samples drive each estimate (see
+        :class:`tensorid.fitting.influence.DataSensitivity`)."""
+        from .influence import data_sensitivity
+
+        return data_sensitivity(self)
+
     def profile(self, names=None, level: float = 0.95, **options) -> dict:
         """Profile likelihood of each unknown in ``names`` (default: every free
         parameter) with its likelihood-ratio interval: see :func:`tensorid.profile`."""

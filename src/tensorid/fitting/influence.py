@@ -1,0 +1,121 @@
+"""Data sensitivity: how much each estimate moves per unit change of each measured
+sample, to find the samples that drive an estimate (outliers, saturation, a
+transient that alone identifies a parameter).
+
+At an optimum ∇J(θ̂, y) = 0. Differentiating with respect to a sample y_k, with
+J = Σ w (y − ŷ)²,
+
+    dθ̂/dy_k = −H⁻¹ ∂²J/∂θ∂y_k = 2 w_k H⁻¹ ∂ŷ_k/∂θ,
+
+with H the exact Hessian at θ̂ (priors included) and ∂ŷ_k/∂θ the output
+sensitivities, exact for the discretised model. Multiplied by the residual standard
+deviation it reads as "how far θ̂_i moves when sample k moves by one noise level".
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .uncertainty import jacobi_scale
+
+
+@dataclass
+class DataSensitivity:
+    """dθ̂/dy for every sample of every record.
+
+    values : one array per experiment, shape (P, S, K): the change of each estimate
+        per unit change of each sample of each output.
+    names : the unknowns (θ layout); sigma : the residual standard deviation, by which
+        ``scaled`` multiplies (a one-noise-level change of a sample).
+    residuals : one (P, S) array per experiment, y − ŷ at the estimate; ``pull``
+        multiplies by them: how far each sample has pulled each estimate (to first
+        order, the change if the sample were replaced by the model's prediction),
+        which is what points at outliers.
+    """
+
+    names: list[str]
+    values: list[np.ndarray]
+    sigma: float
+    times: list[np.ndarray]
+    outputs: list[str]
+    records: list[str]
+    residuals: list[np.ndarray]
+
+    def scaled(self, name: str) -> list[np.ndarray]:
+        """|dθ̂_name/dy|·σ per experiment, (P, S)."""
+        i = self.names.index(name)
+        return [np.abs(v[:, :, i]) * self.sigma for v in self.values]
+
+    def pull(self, name: str) -> list[np.ndarray]:
+        """dθ̂_name/dy·(y − ŷ) per experiment, (P, S)."""
+        i = self.names.index(name)
+        return [v[:, :, i] * r for v, r in zip(self.values, self.residuals, strict=True)]
+
+    def most_influential(
+        self, name: str, n: int = 5, by: str = "pull"
+    ) -> list[tuple[str, int, str, float]]:
+        """The n samples that matter most to θ̂_name: (record, sample, output, value),
+        ``by`` "pull" (how far each has pulled the estimate: outliers) or "scaled"
+        (how far one noise level would move it: leverage)."""
+        rows = []
+        arrays = self.pull(name) if by == "pull" else self.scaled(name)
+        for e, a in enumerate(np.abs(x) for x in arrays):
+            for k, s in zip(
+                *np.unravel_index(np.argsort(a, axis=None)[::-1][:n], a.shape), strict=True
+            ):
+                rows.append((self.records[e], int(k), self.outputs[s], float(a[k, s])))
+        return sorted(rows, key=lambda r: -r[3])[:n]
+
+    def figure(self, names=None):
+        """One panel per unknown: |dθ̂/dy|·σ against time, per record and output."""
+        from .figures import new_figure
+
+        names = list(self.names if names is None else names)
+        fig = new_figure(figsize=(9, 1.8 + 1.6 * len(names)))
+        axes = np.atleast_1d(fig.subplots(len(names), 1, sharex=True, squeeze=False)[:, 0])
+        for ax, name in zip(axes, names, strict=True):
+            for e, a in enumerate(self.scaled(name)):
+                for s, out in enumerate(self.outputs):
+                    label = f"{self.records[e]}, {out}" if ax is axes[0] else None
+                    ax.plot(self.times[e], a[:, s], lw=0.8, label=label)
+            ax.set_ylabel(f"{name}\nper σ", fontsize=8)
+            ax.grid(alpha=0.3)
+        axes[0].set_title(
+            "change of each estimate when one sample moves by one noise level", fontsize=9
+        )
+        axes[0].legend(fontsize=7)
+        axes[-1].set_xlabel("t")
+        fig.tight_layout()
+        return fig
+
+
+def data_sensitivity(res) -> DataSensitivity:
+    """dθ̂/dy at the estimate of ``res`` (a :class:`FitResult` with error bars)."""
+    if not res.has_uncertainty:
+        raise ValueError(
+            f"data sensitivity needs a fit with a finite optimum; it ended as {res.status}"
+        )
+    problem = res.problem
+    # the inverse in Jacobi-scaled (unit-free) form: in natural units the Hessian's
+    # condition number can reach 1e18, past what a pseudo-inverse resolves
+    sc = jacobi_scale(res.hess)
+    Hs = 0.5 * (res.hess + res.hess.T) * np.outer(sc, sc)
+    Hinv = np.linalg.pinv(Hs, rcond=1e-12, hermitian=True) * np.outer(sc, sc)
+    w = np.asarray(problem.weights)
+    values = [
+        2.0 * (w[:, None] * dy) @ Hinv.T  # (P, S, K)
+        for dy in problem.output_sensitivities(res.theta)
+    ]
+    return DataSensitivity(
+        names=problem.theta_names,
+        values=values,
+        sigma=float(np.sqrt(res.uncertainty().sigma2)),
+        times=[e.t for e in problem.experiments],
+        outputs=list(problem.model.outputs),
+        records=[e.name or str(i) for i, e in enumerate(problem.experiments)],
+        residuals=[
+            e.measured - s.y for e, s in zip(problem.experiments, res.simulate(), strict=True)
+        ],
+    )
