@@ -15,7 +15,6 @@ from conftest import two_tank_model
 import tensorid as ti
 from tensorid import cli
 
-
 DECAY = ti.Model(
     rhs=lambda x, p, u: -x / p[0], states=["x"], params=["tau"],
     output=lambda x, p: x, outputs=["y"],
