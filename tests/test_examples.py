@@ -15,6 +15,7 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
         pytest.param("silverbox_paper.py", "validation GOF 0.98", marks=pytest.mark.slow),
         ("two_tank.py", "GOF 0.789"),
         ("text_equations.py", "95 % interval"),
+        pytest.param("design_two_tank.py", "| p3 | 0.022018 |", marks=pytest.mark.slow),
     ],
 )
 def test_example_runs(script, expect):

@@ -24,6 +24,7 @@ from .engine.model import Model
 from .engine.problem import Problem
 from .engine.simulate import Simulation, simulate
 from .engine.status import Status
+from .fitting.design import InputDesign, design_input
 from .fitting.methods import METHODS, fit, fit_batch
 from .fitting.options import FitOptions
 from .fitting.profiles import Profile, profile
@@ -41,6 +42,7 @@ __all__ = [
     "Experiment",
     "ExplicitRungeKutta",
     "FitInterrupted",
+    "InputDesign",
     "FitOptions",
     "FitResult",
     "Model",
@@ -53,6 +55,7 @@ __all__ = [
     "Uncertainty",
     "__version__",
     "enable_compilation_cache",
+    "design_input",
     "fit",
     "fit_batch",
     "profile",

@@ -1,0 +1,253 @@
+"""Optimal experiment design from the Fisher information.
+
+For Gaussian output noise of standard deviation σ_s on output s, the Fisher information
+of θ at nominal values is
+
+    F(u) = Σ_k Σ_s (∂ŷ_ks/∂θ)ᵀ (∂ŷ_ks/∂θ) / σ_s²,
+
+with the output sensitivities exact for the discretised model (the first-order
+transition matrices); F⁻¹ predicts the covariance of the estimates from an experiment
+with input u. ``design_input`` chooses the input, within a family u = family(a) and
+box limits on the design variables a (amplitude limits), to
+
+* "D": maximise log det F (the volume of the confidence region, in relative units), or
+* "max-variance": minimise the largest relative variance var(θ_i)/θ_i² of the
+  unknowns named,
+
+and reports the predicted standard errors before (at a0) and after. ``verify`` fits
+simulated noisy experiments to check the prediction: what a user should do before
+spending a day on the rig.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import optimize
+
+from ..engine.data import Experiment
+from ..engine.problem import Problem
+from ..engine.simulate import simulate
+
+CRITERIA = ("D", "max-variance")
+
+
+@dataclass
+class InputDesign:
+    """The designed input and what it predicts.
+
+    a, u : the design variables and the input they give, (P, U); a0, u0 the start.
+    stderr_before, stderr_after : predicted standard errors {unknown: value} at a0 and a.
+    criterion : its value before and after (lower is better).
+    """
+
+    names: list[str]
+    theta: np.ndarray
+    a0: np.ndarray
+    a: np.ndarray
+    u0: np.ndarray
+    u: np.ndarray
+    stderr_before: dict[str, float]
+    stderr_after: dict[str, float]
+    criterion: str
+    value_before: float
+    value_after: float
+    problem: Callable[..., Problem] = field(repr=False)
+    noise: np.ndarray = field(repr=False, default_factory=lambda: np.ones(1))
+
+    def describe(self) -> str:
+        rows = [
+            f"  {n}: {self.stderr_before[n] / abs(v):.2%} -> {self.stderr_after[n] / abs(v):.2%}"
+            for n, v in zip(self.names, self.theta, strict=True)
+        ]
+        return "predicted relative standard errors, before -> after:\n" + "\n".join(rows)
+
+    def predict(self, u) -> dict[str, float]:
+        """Predicted standard errors for any input u (P,) or (P, U), e.g. a recorded one."""
+        return _stderr(self.problem(u))
+
+    def verify(self, draws: int = 50, seed: int = 0, designed: bool = True) -> dict[str, float]:
+        """Fit ``draws`` simulated experiments (the designed input, or the start's, with
+        Gaussian noise of the given σ) from the nominal values; return the realised
+        standard deviation of each estimate, to set beside the prediction."""
+        return self.verify_input(self.u if designed else self.u0, draws, seed)
+
+    def verify_input(self, u, draws: int = 50, seed: int = 0) -> dict[str, float]:
+        """As :meth:`verify`, for any input u (e.g. a recorded one)."""
+        from .methods import fit
+
+        clean = self.problem(u).experiments[0].measured
+        rng = np.random.default_rng(seed)
+        estimates = []
+        for _ in range(draws):
+            y = clean + self.noise * rng.standard_normal(clean.shape)
+            res = fit(self.problem(u, y), "gauss-newton")
+            if res.success:
+                estimates.append(res.theta)
+        spread = np.std(np.array(estimates), axis=0, ddof=1)
+        return dict(zip(self.names, spread.tolist(), strict=True))
+
+
+def _fisher(problem: Problem) -> np.ndarray:
+    """F = JᵀWJ with W = 1/σ² (the problem's weights): half the Gauss-Newton Hessian."""
+    _, _, H = problem.cost_grad_gn(problem.theta0)
+    return 0.5 * H
+
+
+def _criterion(F: np.ndarray, theta: np.ndarray, kind: str, pick: np.ndarray) -> float:
+    S = np.abs(theta) + (theta == 0)  # relative units; an unknown at 0 stays absolute
+    Fs = F * np.outer(S, S)
+    if not np.isfinite(Fs).all():
+        return np.inf
+    lam = np.linalg.eigvalsh(0.5 * (Fs + Fs.T))
+    if lam[0] <= 1e-14 * max(lam[-1], 1e-300):
+        return np.inf  # an unknown this input cannot identify
+    if kind == "D":
+        return -float(np.sum(np.log(lam)))
+    cov = np.linalg.inv(Fs)
+    return float(np.max(np.diag(cov)[pick]))
+
+
+def design_input(
+    model,
+    params: dict,
+    t,
+    family: Callable[[np.ndarray], np.ndarray],
+    a0,
+    *,
+    bounds: Sequence[tuple[float, float]] | None = None,
+    x0=None,
+    free_x0: Sequence[str] = (),
+    fixed: Sequence[str] = (),
+    noise=1.0,
+    criterion: str = "D",
+    names: Sequence[str] | None = None,
+    starts: int = 4,
+    seed: int = 0,
+    **problem_options,
+) -> InputDesign:
+    """The input within ``family`` that best identifies the unknowns at ``params``.
+
+    Arguments:
+      model, params : the model and nominal parameter values {name: value}.
+      t : (P,) sample times of the planned experiment.
+      family : a ↦ u, the input (P,) or (P, U) for design variables a; e.g. step
+        levels, or multisine amplitudes per frequency band.
+      a0, bounds : the starting design and box limits [(lo, hi), ...] per variable
+        (amplitude limits; a family can also clip its output to the actuator's range).
+      x0, free_x0, fixed : initial state, and which initial states are unknown and
+        which parameters are known, as for :class:`tensorid.Problem`.
+      noise : output noise standard deviation (scalar, or one per output).
+      criterion : "D" (maximise log det F) or "max-variance" (minimise the largest
+        relative variance among ``names``, default all unknowns).
+      starts : optimisation starts (a0 and random points within the bounds).
+      problem_options : integration settings passed to the Problem (scheme, ...).
+
+    Returns:
+      :class:`InputDesign`, with predicted standard errors before and after.
+    """
+    if criterion not in CRITERIA:
+        raise ValueError(f"criterion must be one of {CRITERIA}, got {criterion!r}")
+    a0 = np.atleast_1d(np.asarray(a0, dtype=float))
+    sigma = np.broadcast_to(np.asarray(noise, dtype=float), (model.S,)).copy()
+    if not (np.isfinite(sigma).all() and (sigma > 0).all()):
+        raise ValueError(f"noise must be standard deviations > 0, got {noise!r}")
+    t = np.asarray(t, dtype=float)
+    x0 = np.zeros(model.N) if x0 is None else model.states_array(x0)
+
+    def problem(u, y=None) -> Problem:
+        """The planned experiment with input u: measured y, or the noise-free outputs."""
+        e = Experiment(t, np.asarray(u, dtype=float).reshape(t.size, -1))
+        y = simulate(model, params, x0, e).y if y is None else y
+        weights = 1.0 / sigma**2
+        return Problem(model, Experiment(t, e.u, y), p0=params, x0=x0, free_x0=free_x0,
+                       fixed=fixed, weights=weights, **problem_options)  # fmt: skip
+
+    base = problem(family(a0))
+    theta = base.theta0
+    pick = np.array([base.theta_names.index(n) for n in (names or base.theta_names)])
+
+    def objective(a):
+        try:
+            return _criterion(_fisher(problem(family(a))), theta, criterion, pick)
+        except ValueError:  # the simulation failed for this input
+            return np.inf
+
+    lo, hi = (
+        (np.array(b, dtype=float) for b in zip(*bounds, strict=True)) if bounds else (None, None)
+    )
+    best = _optimise(objective, a0, lo, hi, starts, seed)
+    before, after = problem(family(a0)), problem(family(best))
+    return InputDesign(
+        names=base.theta_names,
+        theta=theta,
+        a0=a0,
+        a=best,
+        u0=before.experiments[0].u,
+        u=after.experiments[0].u,
+        stderr_before=_stderr(before),
+        stderr_after=_stderr(after),
+        criterion=criterion,
+        value_before=objective(a0),
+        value_after=objective(best),
+        problem=problem,
+        noise=sigma,
+    )
+
+
+def _stderr(problem: Problem) -> dict[str, float]:
+    F = _fisher(problem)
+    try:
+        se = np.sqrt(np.diag(np.linalg.inv(F)))
+    except np.linalg.LinAlgError:
+        se = np.full(problem.K, np.inf)
+    return dict(zip(problem.theta_names, se.tolist(), strict=True))
+
+
+def _optimise(objective, a0, lo, hi, starts: int, seed: int) -> np.ndarray:
+    """The best of L-BFGS-B runs from a0 and random points in the box."""
+    rng = np.random.default_rng(seed)
+    points = [a0]
+    if lo is not None and hi is not None and np.isfinite(lo).all() and np.isfinite(hi).all():
+        points += [lo + rng.uniform(size=a0.size) * (hi - lo) for _ in range(starts - 1)]
+    box = list(zip(lo, hi, strict=True)) if lo is not None else None
+    best, best_value = a0, objective(a0)
+    for p in points:
+        if not np.isfinite(objective(p)):
+            continue
+        r = optimize.minimize(objective, p, method="L-BFGS-B", bounds=box)
+        if r.fun < best_value:
+            best, best_value = np.asarray(r.x), float(r.fun)
+    return best
+
+
+def step_levels(samples: int, levels: int) -> Callable[[np.ndarray], np.ndarray]:
+    """A family of piecewise-constant inputs: ``levels`` equal-length steps over
+    ``samples`` samples, the design variables being the levels."""
+    edges = np.linspace(0, samples, levels + 1).round().astype(int)
+    which = np.searchsorted(edges, np.arange(samples), side="right") - 1
+
+    def family(a):
+        return np.asarray(a, dtype=float)[which]
+
+    return family
+
+
+def multisine(
+    t, frequencies, offset: float = 0.0, limits: tuple[float, float] | None = None
+) -> Callable[[np.ndarray], np.ndarray]:
+    """A family of multisines u = offset + Σ a_j sin(2π f_j t + φ_j), Schroeder phases,
+    the design variables being the amplitudes a_j; clipped to ``limits`` (the
+    actuator's range) when given."""
+    t = np.asarray(t, dtype=float)
+    f = np.asarray(frequencies, dtype=float)
+    phase = -np.pi * np.arange(f.size) * (np.arange(f.size) + 1) / f.size
+    basis = np.sin(2 * np.pi * f[None, :] * t[:, None] + phase[None, :])
+
+    def family(a):
+        u = offset + basis @ np.asarray(a, dtype=float)
+        return np.clip(u, *limits) if limits is not None else u
+
+    return family
