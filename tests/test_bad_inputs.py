@@ -230,7 +230,10 @@ def _cases() -> list:
         if not line.strip() or line.lstrip().startswith("#"):
             continue
         group, what, how, expect = (f.strip() for f in line.split(" | "))
-        out.append(pytest.param(how, expect, id=f"{group}: {what} (line {n})"))
+        # a command that runs a whole fit takes seconds: those run with the slow studies
+        slow = how.startswith("cli ") and not expect.startswith("error")
+        marks = [pytest.mark.slow] if slow else []
+        out.append(pytest.param(how, expect, id=f"{group}: {what} (line {n})", marks=marks))
     return out
 
 

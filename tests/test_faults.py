@@ -112,7 +112,11 @@ def _chunk_task(problem, thetas):
 
 
 @pytest.mark.parametrize(
-    "bad, status", [(2.0, "died"), pytest.param(3.0, "timeout", marks=pytest.mark.slow)]
+    "bad, status",
+    [
+        pytest.param(2.0, "died", marks=pytest.mark.slow),
+        pytest.param(3.0, "timeout", marks=pytest.mark.slow),
+    ],
 )
 def test_lost_workers_end_with_the_finished_starts(bad, status):
     thetas = np.array([[0.5], [1.5], [bad], [0.25]])
@@ -158,28 +162,53 @@ def test_bad_counts_are_refused_by_name(argv, name, capsys, tmp_path):
     assert len(err) == 1 and name in err[0] and "--help" in err[0]
 
 
+HOLD = """
+import fcntl, os, sys, time
+fd = os.open(sys.argv[1], os.O_CREAT | os.O_RDWR)
+fcntl.flock(fd, fcntl.LOCK_EX)
+os.write(fd, str(os.getpid()).encode())
+print("held", flush=True)
+time.sleep(60)
+"""
+
+
 def test_a_busy_folder_is_refused_and_a_dead_runs_lock_taken_over(tmp_path, capsys):
     out = tmp_path / "o"
     out.mkdir()
-    sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    lock = out / ".tensorid.lock"
+    holder = subprocess.Popen(
+        [sys.executable, "-c", HOLD, str(lock)], stdout=subprocess.PIPE, text=True
+    )
     try:
-        (out / ".tensorid.lock").write_text(f"{sleeper.pid}\n")
+        assert holder.stdout.readline().strip() == "held"
         assert cli.main(FIT + ["--out", str(out)]) == 2
         err = capsys.readouterr().err
-        assert "another tensorid run" in err and str(sleeper.pid) in err
+        assert "another tensorid run" in err and str(holder.pid) in err
     finally:
-        sleeper.kill()
-        sleeper.wait()
-    # the run that held it is gone: the folder is taken over, and the lock released
+        holder.kill()
+        holder.wait()
+    # the run that held it died: its lock went with it; the file left behind is no lock
+    assert lock.exists()
     assert cli.main(FIT + ["--out", str(out)]) == 0
-    assert (out / "fit.json").is_file() and not (out / ".tensorid.lock").exists()
+    assert (out / "fit.json").is_file() and not lock.exists()
+
+
+def test_a_folder_of_someone_elses_files_is_left_alone(tmp_path):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "fit.json").write_text('{"mine": true}')  # not a tensorid fit.json
+    (out / "train_notes_y.png").write_bytes(b"mine")
+    (out / "report.md").write_text("my report")
+    assert cli.main(FIT + ["--out", str(out)]) == 0
+    assert (out / "train_notes_y.png").read_bytes() == b"mine"  # not ours: kept
+    assert "params" in json.loads((out / "fit.json").read_text())  # ours now
 
 
 def test_a_rerun_leaves_no_mix_of_old_and_new_results(tmp_path, capsys):
     out = tmp_path / "o"
     out.mkdir()
     # results of an older run (written before manifests), and a file of the user's
-    (out / "fit.json").write_text("{}")
+    (out / "fit.json").write_text('{"params": {}, "estimates": {}, "cost": 1.0}')
     (out / "train_old_record_y.png").write_bytes(b"old")
     (out / "notes.txt").write_text("mine")
     assert cli.main(FIT + ["--out", str(out)]) == 0
@@ -212,6 +241,40 @@ def test_ctrl_c_in_the_cli_saves_the_best_point_and_removes_older_results(
     assert saved["status"] == "interrupted" and saved["cost"] > 0
     assert not list(out.glob("*.png")) and not (out / "report.md").exists()
     assert not (out / ".tensorid.lock").exists()
+
+
+def test_ctrl_c_before_any_start_finished_leaves_the_folder_as_it_was(
+    tmp_path, capsys, monkeypatch
+):
+    import tensorid.app.commands as commands
+    from tensorid.fitting.multistart import StartsStopped
+
+    out = tmp_path / "o"
+    assert cli.main(FIT + ["--out", str(out)]) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+
+    def nothing_finished(*a, **k):
+        raise StartsStopped(ti.Status.INTERRUPTED, [], 8, "interrupted")
+
+    monkeypatch.setattr("tensorid.fitting.methods.run_starts", nothing_finished)
+    capsys.readouterr()
+    assert cli.main(FIT + ["--out", str(out), "--starts", "8"]) == 130
+    assert "as it was" in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    del commands
+
+
+def test_ctrl_c_during_profiles_keeps_the_fit(tmp_path, capsys, monkeypatch):
+    def pressed(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("tensorid.fitting.results.FitResult.profile", pressed)
+    out = tmp_path / "o"
+    assert cli.main(FIT + ["--out", str(out), "--profile"]) == 130
+    err = capsys.readouterr().err
+    assert "interrupted during the profiles" in err and "fit.json was written" in err
+    data = json.loads((out / "fit.json").read_text())
+    assert data["success"] and "ci95_profile" not in data
 
 
 def _children(pid: int) -> set[int]:

@@ -26,7 +26,7 @@ def _linear_record(noise=0.05, seed=0, n=40):
 
 
 def test_derivatives_with_priors_equal_autodiff():
-    e = silverbox_data(P=128, noise=1e-4)
+    e = silverbox_data(P=48, noise=1e-4)
     priors = {"a": (1.0, 0.05), "d": (2e-4, 1e-5)}
     prob = ti.Problem(silverbox_model(), e, p0=SILVERBOX_P, free_x0=["y"], priors=priors)
     theta = prob.theta0 * 1.01
@@ -94,7 +94,7 @@ def test_bad_priors(priors, noise, match):
 
 
 def test_observed_and_expected_information_side_by_side():
-    e = silverbox_data(P=256, noise=1e-3)
+    e = silverbox_data(P=128, noise=1e-3)
     res = ti.fit(ti.Problem(silverbox_model(), e, p0=SILVERBOX_P))
     info = res.information()
     np.testing.assert_allclose(info.stderr_observed, res.uncertainty().stderr)

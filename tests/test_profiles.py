@@ -60,6 +60,7 @@ def test_integrated_profiles_end_where_optimisation_based_ones_do(seed):
         np.testing.assert_allclose(fast[name].interval, slow[name].interval, rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_profiles_of_a_model_with_several_unknowns_agree_with_refits():
     model = two_tank_model()
     t = np.arange(300) * 2.0
@@ -109,6 +110,7 @@ def test_a_direction_the_data_cannot_see_is_named_not_identifiable():
     assert np.isfinite(p.costs).all()
 
 
+@pytest.mark.slow
 def test_profile_intervals_cover_the_truth_where_wald_intervals_do_not():
     """A small version of benchmarks/bench_profiles.py's coverage study (200 draws)."""
     wald = profile = 0

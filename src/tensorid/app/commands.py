@@ -225,23 +225,49 @@ def run_fit(args) -> int:
             res = _run(problem, args, console, executor, timeout)
         except FitInterrupted as stop:
             return _save_interrupted(stop.result, out, old)
-        scores = res.validate(val) if val else []
+        # what follows the fit may be stopped or fail; the fit itself is kept
+        scores, extras, missing, stopped = _after_fit(res, val, args)
         everything = training_scores(res) + scores
         # the estimates reach the terminal before any file is written
         print(summary_table(res, everything))
         for line in _gof_lines(everything):
             print(line)
-        extras = {"profiles": _profiles(res, args), "influence": _influence(res, args)}
         figures, failures = _write_results(res, out, scores, old, extras)
-    if failures:
+    failures = missing + failures
+    if failures or stopped:
         for f in failures:
             print(f"tensorid: error: {f}", file=sys.stderr)
         print(f"tensorid: {out / 'fit.json'} was written", file=sys.stderr)
-        return 1
+        return 130 if stopped else 1
     print(f"wrote {out}/fit.json, report.md and {len(figures)} figures")
     if res.status is Status.WORKERS_LOST:
         print(f"tensorid: error: {res.message}", file=sys.stderr)
     return 0 if res.success else 1
+
+
+def _after_fit(res, val, args) -> tuple[list, dict, list[str], bool]:
+    """Validation, profiles and data sensitivity: (scores, extras, what could not be
+    computed, whether Ctrl-C stopped them). Neither Ctrl-C nor a failure here loses
+    the fit: the results are written without what is missing."""
+    scores: list = []
+    extras: dict = {}
+    steps = [("validation", lambda: res.validate(val) if val else [])]
+    steps += [("profiles", lambda: _profiles(res, args))]
+    steps += [("data sensitivity", lambda: _influence(res, args))]
+    missing: list[str] = []
+    for name, step in steps:
+        try:
+            value = step()
+        except KeyboardInterrupt:
+            return scores, extras, [f"interrupted during the {name}: written without it"], True
+        except (ValueError, ArithmeticError) as e:  # LinAlgError is a ValueError
+            missing.append(f"could not compute the {name} ({e}): written without it")
+            continue
+        if name == "validation":
+            scores = value
+        else:
+            extras["profiles" if name == "profiles" else "influence"] = value
+    return scores, extras, missing, False
 
 
 def _profiles(res, args) -> dict | None:
@@ -250,7 +276,7 @@ def _profiles(res, args) -> dict | None:
     if args.profile is None:
         return None
     if not res.has_uncertainty:
-        print("tensorid: no profiles: the fit has no finite optimum", file=sys.stderr)
+        print(f"tensorid: no profiles: the fit ended as {res.status}", file=sys.stderr)
         return None
     profiles = res.profile(args.profile or None, level=args.profile_level)
     for p in profiles.values():
@@ -263,7 +289,7 @@ def _influence(res, args):
     if not args.data_sensitivity:
         return None
     if not res.has_uncertainty:
-        print("tensorid: no data sensitivity: the fit has no finite optimum", file=sys.stderr)
+        print(f"tensorid: no data sensitivity: the fit ended as {res.status}", file=sys.stderr)
         return None
     influence = res.data_sensitivity()
     for name in influence.names:
@@ -290,13 +316,15 @@ def _save_interrupted(res, out: Path, old: set[Path]) -> int:
     """Ctrl-C: the best point so far goes to fit.json (status "interrupted") at once;
     no figures or report (the user is waiting); older results are removed, not
     mixed in. Exit status 130, as for any interrupted command."""
+    if not np.isfinite(res.cost):  # nothing worth more than what the folder holds
+        print(
+            f"tensorid: interrupted before any start finished; {out} is as it was", file=sys.stderr
+        )
+        return 130
     print(summary_table(res, []))
     written = [write_json(out / "fit.json", fit_json(res, []))]
     replace_outputs(out, old, written)
-    if np.isfinite(res.cost):
-        saved = f"the best point so far (cost {res.cost:.6g}) is in {written[0]}"
-    else:
-        saved = f"no start had finished; {written[0]} holds the initial guess"
+    saved = f"the best point so far (cost {res.cost:.6g}) is in {written[0]}"
     print(f"tensorid: interrupted; {saved}", file=sys.stderr)
     return 130
 

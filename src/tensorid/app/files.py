@@ -48,7 +48,7 @@ class ModelSpec:
     fixed: list = field(default_factory=list)
     bounds: dict = field(default_factory=dict)
     path: Path | None = None
-    weights: dict | list | str | None = None
+    weights: dict | list | tuple | np.ndarray | str | None = None
     priors: dict = field(default_factory=dict)
 
     def x0_array(self) -> np.ndarray:
@@ -192,7 +192,10 @@ def _spec(ns: dict, path: Path) -> ModelSpec:
             raise TypeError(f"{key} must be a {kind.__name__}, got {type(value).__name__}")
         setattr(out, key, value)
     weights = ns.get("weights")
-    if weights is not None and not (weights == "auto" or isinstance(weights, dict | list | tuple)):
+    if weights is not None and not (
+        (isinstance(weights, str) and weights == "auto")
+        or isinstance(weights, dict | list | tuple | np.ndarray)
+    ):
         raise ValueError(f"weights must be 'auto' or a dict {{output: weight}}, got {weights!r}")
     out.weights = weights
     return out

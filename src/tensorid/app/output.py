@@ -65,57 +65,70 @@ MANIFEST = ".tensorid-files"
 _LEGACY = ("fit.json", "report.md", "convergence.png", "train_*.png", "validation_*.png")
 
 
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # someone else's process: alive
-        return True
-    return True
-
-
 @contextmanager
 def claimed(folder, what: str = "--out") -> Iterator[Path]:
-    """Hold ``folder`` for this run: it is created, and a lock file in it keeps a
-    second run from writing into it at the same time (one clear line instead of two
-    runs overwriting each other's files). A lock left by a run that died is taken
-    over; the lock is removed when the run ends, however it ends."""
+    """Hold ``folder`` for this run: it is created, and an exclusive lock on a file in
+    it keeps a second run from writing into it at the same time (one clear line
+    instead of two runs overwriting each other's files). The lock is the operating
+    system's (flock), so a run that dies releases it; the file is removed when the
+    run ends, however it ends."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     lock = folder / LOCK
-    for _ in range(2):
+    try:
+        import fcntl
+    except ImportError:  # no flock (Windows): no lock, as before
+        yield folder
+        return
+    for _ in range(20):
+        fd = os.open(lock, os.O_CREAT | os.O_RDWR, 0o644)
         try:
-            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-            break
-        except FileExistsError:
-            try:
-                pid = int(lock.read_text().strip() or 0)
-            except (OSError, ValueError):
-                pid = 0
-            if pid and pid != os.getpid() and _pid_alive(pid):
-                raise ValueError(
-                    f"{what} {folder} is being written by another tensorid run (process "
-                    f"{pid}); wait for it to finish or choose another folder"
-                ) from None
-            lock.unlink(missing_ok=True)  # its run died: take the folder over
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(fd, 64).decode(errors="replace").strip() or "?"
+            os.close(fd)
+            raise ValueError(
+                f"{what} {folder} is being written by another tensorid run (process "
+                f"{holder}); wait for it to finish or choose another folder"
+            ) from None
+        try:  # held; but the run before may have removed the file we opened
+            if os.fstat(fd).st_ino == os.stat(lock).st_ino:
+                break
+        except FileNotFoundError:
+            pass
+        os.close(fd)
     else:
         raise ValueError(f"{what} {folder}: could not take its lock file {lock}; remove it")
-    with os.fdopen(fd, "w") as f:
-        f.write(f"{os.getpid()}\n")
+    os.ftruncate(fd, 0)
+    os.write(fd, f"{os.getpid()}\n".encode())
     try:
         yield folder
     finally:
-        lock.unlink(missing_ok=True)
+        lock.unlink(missing_ok=True)  # while still held: no other run holds this file
+        os.close(fd)
+
+
+def _written_by_tensorid(path: Path) -> bool:
+    """Whether ``path`` is a fit.json that tensorid wrote."""
+    import json
+
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(data, dict) and {"params", "estimates", "cost"} <= set(data)
 
 
 def previous_outputs(folder: Path) -> set[Path]:
     """The files an earlier run wrote into ``folder`` (from its manifest; for a folder
-    written before manifests, the file names a fit has always used)."""
+    written before manifests and holding a tensorid fit.json, the file names a fit has
+    always used; otherwise none)."""
     manifest = folder / MANIFEST
     if manifest.is_file():
         names = [n for n in manifest.read_text().splitlines() if n and "/" not in n]
         return {folder / n for n in names if n not in (".", "..")}
+    if not _written_by_tensorid(folder / "fit.json"):
+        return set()  # not a folder of tensorid results: nothing in it is ours
     return {p for pattern in _LEGACY for p in folder.glob(pattern)}
 
 

@@ -268,7 +268,13 @@ class Problem:
                 raise ValueError(f"priors[{name!r}] = ({mean}, {sd}): need a finite mean, sd > 0")
             out[self.theta_names.index(name)] = (mean, sd)
         if noise is None:
-            return out, self._noise_from_data()
+            estimate = self._noise_from_data()
+            if not estimate > 0:
+                raise ValueError(
+                    "priors: the measured outputs show no noise to weigh the priors against "
+                    "(their second differences vanish); give noise= (a standard deviation)"
+                )
+            return out, estimate
         if not (isinstance(noise, int | float) and np.isfinite(noise) and noise > 0):
             raise ValueError(f"noise must be a standard deviation > 0, got {noise!r}")
         return out, float(noise) ** 2
@@ -315,7 +321,7 @@ class Problem:
         )
 
     @property
-    def prior_precision(self) -> np.ndarray:
+    def prior_curvature(self) -> np.ndarray:
         """(K,) the priors' contribution to the diagonal of the Hessian (0 without)."""
         out = np.zeros(self.K)
         for i, (_, sd) in self.priors.items():

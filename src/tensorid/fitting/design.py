@@ -58,8 +58,11 @@ class InputDesign:
     noise: np.ndarray = field(repr=False, default_factory=lambda: np.ones(1))
 
     def describe(self) -> str:
+        def rel(se, v):
+            return f"{se / abs(v):.2%}" if v != 0 else f"{se:.3g} (absolute)"
+
         rows = [
-            f"  {n}: {self.stderr_before[n] / abs(v):.2%} -> {self.stderr_after[n] / abs(v):.2%}"
+            f"  {n}: {rel(self.stderr_before[n], v)} -> {rel(self.stderr_after[n], v)}"
             for n, v in zip(self.names, self.theta, strict=True)
         ]
         return "predicted relative standard errors, before -> after:\n" + "\n".join(rows)
@@ -154,17 +157,9 @@ def design_input(
     sigma = np.broadcast_to(np.asarray(noise, dtype=float), (model.S,)).copy()
     if not (np.isfinite(sigma).all() and (sigma > 0).all()):
         raise ValueError(f"noise must be standard deviations > 0, got {noise!r}")
-    t = np.asarray(t, dtype=float)
     x0 = np.zeros(model.N) if x0 is None else model.states_array(x0)
-
-    def problem(u, y=None) -> Problem:
-        """The planned experiment with input u: measured y, or the noise-free outputs."""
-        e = Experiment(t, np.asarray(u, dtype=float).reshape(t.size, -1))
-        y = simulate(model, params, x0, e).y if y is None else y
-        weights = 1.0 / sigma**2
-        return Problem(model, Experiment(t, e.u, y), p0=params, x0=x0, free_x0=free_x0,
-                       fixed=fixed, weights=weights, **problem_options)  # fmt: skip
-
+    setting = dict(x0=x0, free_x0=free_x0, fixed=fixed, **problem_options)
+    problem = _planned(model, params, np.asarray(t, dtype=float), sigma, setting)
     base = problem(family(a0))
     theta = base.theta0
     pick = np.array([base.theta_names.index(n) for n in (names or base.theta_names)])
@@ -197,10 +192,24 @@ def design_input(
     )
 
 
+def _planned(model, params, t, sigma, setting: dict):
+    """The planned experiment as a function of its input u (and, for simulated
+    experiments, of measured y; else the noise-free outputs), weighted by 1/σ²."""
+
+    def problem(u, y=None) -> Problem:
+        e = Experiment(t, np.asarray(u, dtype=float).reshape(t.size, -1))
+        y = simulate(model, params, setting["x0"], e).y if y is None else y
+        return Problem(model, Experiment(t, e.u, y), p0=params, weights=1.0 / sigma**2, **setting)
+
+    return problem
+
+
 def _stderr(problem: Problem) -> dict[str, float]:
     F = _fisher(problem)
     try:
-        se = np.sqrt(np.diag(np.linalg.inv(F)))
+        with np.errstate(invalid="ignore"):
+            se = np.sqrt(np.diag(np.linalg.inv(F)))
+        se = np.where(np.isfinite(se) & (se >= 0), se, np.inf)
     except np.linalg.LinAlgError:
         se = np.full(problem.K, np.inf)
     return dict(zip(problem.theta_names, se.tolist(), strict=True))

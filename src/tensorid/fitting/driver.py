@@ -81,7 +81,10 @@ def _single(method, tr: Tracker, options: FitOptions, started) -> FitResult:
         phi, nit, status = tr.best_phi, len(history), Status.SOLVER_FAILED
     except KeyboardInterrupt:
         return interrupted(tr, method, started, history)
-    res = _finish(tr, method, phi, nit, status, detail, started, history)
+    try:
+        res = _finish(tr, method, phi, nit, status, detail, started, history)
+    except KeyboardInterrupt:  # while evaluating the end point: keep the best seen
+        return interrupted(tr, method, started, history)
     res.nhev = nhev
     return res
 
@@ -135,8 +138,8 @@ def _march_together(problem, method, runs, pending, started, results, gn) -> Non
                 pending[i] = steps.send(tr.scaled(pending[i], J[k], g[k], H[k]))
             except StopIteration as done:
                 r = done.value
-                del pending[i]
                 results[i] = _finish(tr, method, r.x, r.nit, r.status, r.detail, started, history)
+                del pending[i]  # only once finished: Ctrl-C in _finish keeps it pending
             except np.linalg.LinAlgError as e:  # as in _single: this start ends, not the batch
                 del pending[i]
                 phi = tr.phi(tr.theta0) if tr.best_phi is None else tr.best_phi

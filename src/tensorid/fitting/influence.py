@@ -42,11 +42,14 @@ class DataSensitivity:
     outputs: list[str]
     records: list[str]
     residuals: list[np.ndarray]
+    weights: np.ndarray
 
     def scaled(self, name: str) -> list[np.ndarray]:
-        """|dθ̂_name/dy|·σ per experiment, (P, S)."""
+        """|dθ̂_name/dy|·σ_s per experiment, (P, S): σ_s = σ/√w_s is output s's noise
+        level (σ that of a unit-weight residual)."""
         i = self.names.index(name)
-        return [np.abs(v[:, :, i]) * self.sigma for v in self.values]
+        level = self.sigma / np.sqrt(np.where(self.weights > 0, self.weights, np.inf))
+        return [np.abs(v[:, :, i]) * level[None, :] for v in self.values]
 
     def pull(self, name: str) -> list[np.ndarray]:
         """dθ̂_name/dy·(y − ŷ) per experiment, (P, S)."""
@@ -115,6 +118,7 @@ def data_sensitivity(res) -> DataSensitivity:
         times=[e.t for e in problem.experiments],
         outputs=list(problem.model.outputs),
         records=[e.name or str(i) for i, e in enumerate(problem.experiments)],
+        weights=np.asarray(problem.weights, dtype=float),
         residuals=[
             e.measured - s.y for e, s in zip(problem.experiments, res.simulate(), strict=True)
         ],

@@ -173,34 +173,64 @@ def _collect(pool: Executor, payloads: list, timeout: float | None, total: int, 
     """Submit every chunk and gather the results as they come, in the order of the
     chunks; stop on Ctrl-C, a broken pool or ``timeout`` seconds without progress."""
     from concurrent.futures import FIRST_COMPLETED, wait
-    from concurrent.futures.process import BrokenProcessPool
 
     from ..engine.status import Status
 
     futures = {pool.submit(_run_payload, p): c for c, p in enumerate(payloads)}
     pending, done = set(futures), {}
+
+    def finished_so_far():
+        for f in list(pending):
+            if f.done() and not f.cancelled() and f.exception() is None:
+                done[futures[f]] = f.result()
+        return _numbered(done, batch)
+
     last = time.monotonic()
     try:
         while pending:
             # short waits keep Ctrl-C prompt whatever the executor
             finished, pending = wait(pending, timeout=0.25, return_when=FIRST_COMPLETED)
             for f in finished:
-                done[futures[f]] = f.result()
+                done[futures[f]] = _result(f)
                 last = time.monotonic()
             if pending and timeout is not None and time.monotonic() - last > timeout:
                 why = f"no start finished for {timeout:g} s"
                 raise StartsStopped(Status.WORKERS_LOST, _numbered(done, batch), total, why)
     except KeyboardInterrupt:
+        runs = finished_so_far()
         _cancel(pending)
-        runs = _numbered(done, batch)
         raise StartsStopped(Status.INTERRUPTED, runs, total, "interrupted") from None
-    except BrokenProcessPool as e:
-        why = f"a worker process died ({e})"
-        raise StartsStopped(Status.WORKERS_LOST, _numbered(done, batch), total, why) from None
+    except _Lost as e:
+        runs = finished_so_far()
+        _cancel(pending)
+        raise StartsStopped(Status.WORKERS_LOST, runs, total, str(e)) from None
     except StartsStopped:
         _cancel(pending)
         raise
     return [done[c] for c in range(len(payloads))]
+
+
+class _Lost(Exception):
+    """A worker died or its cluster dropped the task."""
+
+
+def _result(future):
+    """A finished chunk's results; a dead worker (a broken local pool, a task the
+    cluster killed or cancelled) is _Lost, anything else the task raised is a bug
+    and is raised as it is."""
+    from concurrent.futures import CancelledError
+    from concurrent.futures.process import BrokenProcessPool
+
+    try:
+        return future.result()
+    except BrokenProcessPool as e:
+        raise _Lost(f"a worker process died ({e})") from None
+    except CancelledError:
+        raise _Lost("the cluster cancelled a task") from None
+    except Exception as e:
+        if type(e).__name__ == "KilledWorker":  # Dask: the task's workers kept dying
+            raise _Lost(f"the cluster lost the workers of a task ({e})") from None
+        raise
 
 
 def _cancel(pending) -> None:

@@ -15,8 +15,9 @@ the profile the optimality of θ_{-i} gives, with the exact Hessian H,
     dθ_{-i}/dc = −H_{-i,-i}⁻¹ H_{-i,i},
 
 an Euler step along which predicts the next point; a few exact-Newton trust-region
-iterations with θ_i held correct it. The interval ends are then found by Brent's
-method on c, each evaluation corrected to convergence. ``method="refit"`` instead
+iterations with θ_i held correct it. Each interval end is then found by safeguarded
+Newton on c (the profile's slope at a re-optimised point is ∂J/∂θ_i, already at
+hand), each evaluation corrected to convergence. ``method="refit"`` instead
 re-fits θ_{-i} from the last point at each trial c (optimisation-based profiles, as
 pyPESTO does): the reference the integration is measured against. Both find the
 interval ends to the same precision; they differ in how they get near them.
@@ -217,7 +218,10 @@ def _end(held: _Held, bracket, J_hat: float, dJ: float, method: str) -> float:
         return (J - J_hat) - dJ, theta
 
     if method == "refit":
-        return float(optimize.brentq(lambda c: excess(c)[0], lo, hi, xtol=tol, rtol=1e-15))
+        try:
+            return float(optimize.brentq(lambda c: excess(c)[0], lo, hi, xtol=tol, rtol=1e-15))
+        except ValueError:  # re-corrected tightly, the outer point fell below: stop there
+            return float(c_out)
     below, above = c_in, c_out  # the profile is under the threshold at one, over at the other
     c = 0.5 * (below + above)
     for _ in range(100):

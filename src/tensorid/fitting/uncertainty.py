@@ -204,7 +204,7 @@ def _indefinite(H, names, held, kind, gauss_newton) -> tuple:
 
 def _prior_warning(problem, H: np.ndarray, names: list[str]) -> list[str]:
     """Name the unknowns whose curvature comes mostly from their prior, not the data."""
-    prior = problem.prior_precision
+    prior = problem.prior_curvature
     out = []
     for i in np.nonzero(prior)[0]:
         share = prior[i] / H[i, i] if H[i, i] > 0 else 1.0
