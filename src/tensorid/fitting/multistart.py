@@ -22,6 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from ..engine.status import Status
+
 SAMPLINGS = ("lhs", "uniform")
 
 
@@ -143,7 +145,15 @@ def run_starts(
         complete = True
     finally:
         if executor is None:
-            _stop_pool(pool, complete)  # type: ignore[arg-type]
+            try:
+                _stop_pool(pool, complete)  # type: ignore[arg-type]
+            except KeyboardInterrupt:  # while the pool shut down: every start is kept
+                _stop_pool(pool, False)  # type: ignore[arg-type]
+                if complete:
+                    runs = _numbered(dict(enumerate(done)), batch)
+                    why = "interrupted"
+                    raise StartsStopped(Status.INTERRUPTED, runs, len(thetas), why) from None
+                # else the StartsStopped already on its way goes on
     return [r for rs in done for r in rs]
 
 
@@ -154,8 +164,6 @@ def _numbered(chunks_done: dict[int, list[dict]], batch: int) -> list[dict]:
 
 
 def _run_here(problem, task, chunks: list, total: int) -> list[dict]:
-    from ..engine.status import Status
-
     done: dict[int, list[dict]] = {}
     for c, chunk in enumerate(chunks):
         try:
@@ -173,8 +181,6 @@ def _collect(pool: Executor, payloads: list, timeout: float | None, total: int, 
     """Submit every chunk and gather the results as they come, in the order of the
     chunks; stop on Ctrl-C, a broken pool or ``timeout`` seconds without progress."""
     from concurrent.futures import FIRST_COMPLETED, wait
-
-    from ..engine.status import Status
 
     futures = {pool.submit(_run_payload, p): c for c, p in enumerate(payloads)}
     pending, done = set(futures), {}
