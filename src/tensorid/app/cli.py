@@ -62,6 +62,19 @@ def _level(text: str) -> float:
     return x
 
 
+def _mapping(text: str) -> dict[str, str]:
+    """NAME=COLUMN,NAME=COLUMN"""
+    out = {}
+    for item in text.split(","):
+        name, eq, column = item.partition("=")
+        if not eq or not name.strip() or not column.strip():
+            raise argparse.ArgumentTypeError(
+                f"expected NAME=COLUMN pairs separated by commas (u=uEst,y=yEst), got {text!r}"
+            )
+        out[name.strip()] = column.strip()
+    return out
+
+
 def _samples(text: str) -> tuple[int, int]:
     try:
         a, b = text.split(":")
@@ -82,7 +95,12 @@ def register(sub) -> None:
         "figures to --out.",
     )
     f.add_argument("model", help="model file (Python)")
-    f.add_argument("data", nargs="+", help="data files (.csv, .mat, .npz), one experiment each")
+    f.add_argument(
+        "data",
+        nargs="+",
+        help="data files (.csv, .mat, .npz), one experiment each; u.mat+y.mat joins files "
+        "holding the inputs and the outputs",
+    )
     f.add_argument("--out", default="fit-results", help="output folder")
     f.add_argument(
         "--method",
@@ -112,6 +130,29 @@ def register(sub) -> None:
         default=None,
         metavar="START:STOP",
         help="use samples START:STOP of each validation file",
+    )
+    f.add_argument(
+        "--columns",
+        type=_mapping,
+        default=None,
+        metavar="NAME=COLUMN,...",
+        help="the training files' column (variable) for each model input/output, e.g. "
+        "u=uEst,y=yEst; t=... for the time column",
+    )
+    f.add_argument(
+        "--validate-columns",
+        type=_mapping,
+        default=None,
+        metavar="NAME=COLUMN,...",
+        help="as --columns, for the validation files (default: --columns)",
+    )
+    f.add_argument(
+        "--init-window",
+        type=_count,
+        default=None,
+        metavar="N",
+        help="validation as the benchmarks do it: initial states estimated on the first N "
+        "samples of each validation record (parameters held), scored after them",
     )
     f.add_argument("--starts", type=_count, default=1, help="number of starts (multi-start)")
     f.add_argument(
@@ -189,6 +230,13 @@ def register(sub) -> None:
     )
     s.add_argument(
         "--x0", nargs="*", default=[], metavar="STATE=VALUE", help="initial state values"
+    )
+    s.add_argument(
+        "--columns",
+        type=_mapping,
+        default=None,
+        metavar="NAME=COLUMN,...",
+        help="DATA's column (variable) for each model input/output, e.g. u=uVal,y=yVal",
     )
     s.add_argument(
         "--ts", type=float, default=None, help="sampling time, for data without a 't' column"

@@ -211,12 +211,21 @@ def run_fit(args) -> int:
     check_destination(args.out)
     spec = load_model(args.model)
     m = spec.model
-    train = load_data(args.data, m, ts=args.ts, samples=args.samples)
+    train = load_data(args.data, m, ts=args.ts, samples=args.samples, columns=args.columns)
+    val_columns = args.validate_columns or args.columns
     val = (
-        load_data(args.validate, m, ts=args.ts, samples=args.validate_samples)
+        load_data(args.validate, m, ts=args.ts, samples=args.validate_samples, columns=val_columns)
         if args.validate
         else []
     )
+    if args.init_window is not None and not val:
+        raise ValueError("--init-window applies to validation records: give --validate FILE")
+    for e in val if args.init_window is not None else []:
+        if not args.init_window < e.P - 1:
+            raise ValueError(
+                f"--init-window {args.init_window} leaves too few samples of the validation "
+                f"record {e.name!r} ({e.P}) to score; give a smaller window"
+            )
     problem = _problem(spec, train, args)
     out = Path(args.out)
     with _workers(args) as (executor, timeout), claimed(out):
@@ -251,7 +260,7 @@ def _after_fit(res, val, args) -> tuple[list, dict, list[str], bool]:
     the fit: the results are written without what is missing."""
     scores: list = []
     extras: dict = {}
-    steps = [("validation", lambda: res.validate(val) if val else [])]
+    steps = [("validation", lambda: res.validate(val, args.init_window) if val else [])]
     steps += [("profiles", lambda: _profiles(res, args))]
     steps += [("data sensitivity", lambda: _influence(res, args))]
     missing: list[str] = []
@@ -422,7 +431,7 @@ def run_simulate(args) -> int:
             f"--params names {unknown}, which the model does not have; its parameters are "
             f"{list(m.params)}"
         )
-    e = load_data([args.data], m, ts=args.ts, require_outputs=False)[0]
+    e = load_data([args.data], m, ts=args.ts, require_outputs=False, columns=args.columns)[0]
     disc = discretisation(args)
     x0, source = _simulation_start(spec, args, e, params, disc, fitted)
     sim = run_simulation(

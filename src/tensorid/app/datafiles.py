@@ -362,13 +362,60 @@ def _window(p: Path, e: Experiment, samples: tuple[int, int]) -> Experiment:
     return e.window(start, stop)
 
 
-def _experiment(p: Path, model: Model, ts, samples, require_outputs: bool) -> Experiment:
+def _read(p: Path) -> _Columns:
     if not p.is_file():
         raise FileNotFoundError(f"data file {p} does not exist")
     suffix = p.suffix.lower()
     if suffix not in _READERS:
         raise ValueError(f"{p}: unknown data format {suffix!r}; use .csv, .mat or .npz")
-    cols = _READERS[suffix](p)
+    return _READERS[suffix](p)
+
+
+def _mapped(p, cols: _Columns, columns: dict | None, model: Model, strict=True) -> _Columns:
+    """The file's signals under the model's names: ``columns`` maps a model input,
+    output or "t" to the file's column (variable, array) name."""
+    if not columns:
+        return cols
+    known = ["t", *model.inputs, *model.outputs]
+    values = dict(cols.values)
+    for name, source in columns.items():
+        if name not in known:
+            raise ValueError(
+                f"columns: {name!r} is not one of the model's inputs, outputs or 't' {known}"
+            )
+        if source not in cols.values:
+            if not strict:  # one of several files: another may hold it
+                continue
+            raise ValueError(
+                f"{p}: columns maps {name!r} to {source!r}, which the file does not have; "
+                f"it has {sorted(cols.values)}"
+            )
+        values[name] = cols.values[source]
+    return _Columns(values, cols.what, cols.lines, cols.note)
+
+
+def _joined(paths: list[Path], parts: list[_Columns]) -> _Columns:
+    """Several files' columns side by side (inputs in one, outputs in another): one
+    name in two files is refused, except a time column that agrees."""
+    values: dict = {}
+    for p, cols in zip(paths, parts, strict=True):
+        for name, v in cols.values.items():
+            if name in values and not (
+                name == "t"
+                and isinstance(v, np.ndarray)
+                and np.array_equal(np.ravel(v), np.ravel(values[name]))
+            ):
+                raise ValueError(
+                    f"{p}: column {name!r} is in more than one of the joined files "
+                    f"{[str(q) for q in paths]}; keep it in one"
+                )
+            values[name] = v
+    lines = parts[0].lines if all(c.lines == parts[0].lines for c in parts) else None
+    return _Columns(values, parts[0].what, lines, "")
+
+
+def _experiment(p, cols: _Columns, model: Model, ts, samples, require_outputs: bool):
+    """The Experiment of one file (or of files joined, ``p`` naming them all)."""
     need = list(model.inputs) + list(model.outputs)
     has_outputs = all(n in cols.values for n in model.outputs)
     if not require_outputs and not has_outputs:
@@ -396,10 +443,30 @@ def _experiment(p: Path, model: Model, ts, samples, require_outputs: bool) -> Ex
     u = np.stack([data[n] for n in model.inputs], axis=1) if model.U else np.zeros((P, 0))
     y = np.stack([data[n] for n in model.outputs], axis=1) if has_outputs else None
     try:
-        e = Experiment(t, u, y, name=p.stem)
+        e = Experiment(t, u, y, name=_stem(p))
     except ValueError as err:  # time not increasing, too short: name the file
         raise ValueError(f"{p}: {err}") from None
     return e if samples is None else _window(p, e, samples)
+
+
+def _stem(p) -> str:
+    return "+".join(Path(q).stem for q in str(p).split("+"))
+
+
+def _needed(cols: _Columns, model: Model, require_outputs: bool) -> list[str]:
+    """The model's signals this file lacks."""
+    need = list(model.inputs) + ([] if not require_outputs else list(model.outputs))
+    return [n for n in need if n not in cols.values]
+
+
+def _one_or_joined(spec, columns, model, ts, samples, require_outputs) -> Experiment:
+    """An Experiment from one file, or from "a.mat+b.mat" joined side by side."""
+    paths = [Path(q) for q in str(spec).split("+")] if not Path(spec).exists() else [Path(spec)]
+    parts = [_read(q) for q in paths]
+    cols = parts[0] if len(parts) == 1 else _joined(paths, parts)
+    label = paths[0] if len(paths) == 1 else "+".join(str(q) for q in paths)
+    cols = _mapped(label, cols, columns, model)
+    return _experiment(label, cols, model, ts, samples, require_outputs)
 
 
 def load_data(
@@ -408,13 +475,38 @@ def load_data(
     ts: float | None = None,
     samples: tuple[int, int] | None = None,
     require_outputs: bool = True,
+    columns: dict[str, str] | None = None,
 ) -> list[Experiment]:
     """One Experiment per file, with the model's input and output columns; time from
     a column ``t`` or from the sampling time ``ts``. ``samples`` = (start, stop)
     keeps that slice of every file. Without ``require_outputs`` a file may lack the
-    output columns (for simulation)."""
+    output columns (for simulation).
+
+    ``columns`` maps model names to the file's names, e.g. ``{"u": "uEst", "y":
+    "yEst"}`` (CSV headers, .mat variables, .npz keys; "t" for the time column), so a
+    file holding training and validation records side by side is read twice with
+    two mappings. Inputs and outputs in separate files are joined side by side: give
+    ``"u.mat+y.mat"``, or a list of files that each lack what the others hold."""
     if isinstance(paths, str | Path):
         paths = [paths]
     if ts is not None and not ts > 0:
         raise ValueError(f"the sampling time must be positive, got {ts}")
-    return [_experiment(Path(p), model, ts, samples, require_outputs) for p in paths]
+    if columns is not None and not isinstance(columns, dict):
+        raise TypeError(f"columns must be a dict {{model name: file column}}, got {columns!r}")
+    paths = list(paths)
+    if len(paths) > 1 and _complementary(paths, columns, model, require_outputs):
+        paths = ["+".join(str(p) for p in paths)]
+    return [_one_or_joined(p, columns, model, ts, samples, require_outputs) for p in paths]
+
+
+def _complementary(paths, columns, model, require_outputs) -> bool:
+    """Whether files that each lack some of the model's signals hold them together
+    (inputs in one file, outputs in another): then they are one experiment."""
+    lacks = []
+    for p in paths:
+        p = Path(p)
+        if not p.is_file():
+            return False
+        cols = _mapped(p, _read(p), columns, model, strict=False)
+        lacks.append(set(_needed(cols, model, require_outputs)))
+    return all(lacks) and not set.intersection(*lacks)
