@@ -201,6 +201,14 @@ def register(sub) -> None:
         help="confidence level of the profile intervals (default 0.95)",
     )
     f.add_argument(
+        "--residual-lags",
+        type=_count,
+        default=25,
+        metavar="M",
+        help="lags of the residual tests (whiteness, independence from the inputs; "
+        "default 25, as MATLAB's resid)",
+    )
+    f.add_argument(
         "--data-sensitivity",
         action="store_true",
         help="which samples drive each estimate: a figure of dθ/dy per noise level, and "

@@ -182,10 +182,13 @@ def _write_results(res, out: Path, scores: list[Score], old: set[Path], extras=N
     out.mkdir(parents=True, exist_ok=True)
     extras = extras or {}
     profiles, influence = extras.get("profiles"), extras.get("influence")
-    data = fit_json(res, scores, profiles, influence)
+    residual = extras.get("residual")
+    data = fit_json(res, scores, profiles, influence, residual)
     written = [write_json(out / "fit.json", data)]
     figures, failures = [], []
     more = _profile_figures(res, profiles)
+    if residual is not None:
+        more.append(("residual_tests", residual.figure()))
     if influence is not None:
         more.append(("data_sensitivity", influence.figure()))
     for stem, fig in fit_figures(res, None, scores, named=True) + more:
@@ -195,7 +198,7 @@ def _write_results(res, out: Path, scores: list[Score], old: set[Path], extras=N
             failures.append(f"could not write {out / (stem + '.png')}: {e.strerror or e}")
     everything = training_scores(res) + scores
     try:
-        report = fit_report(res, data, everything, figures, profiles)
+        report = fit_report(res, data, everything, figures, profiles, residual)
         written.append(write_text(out / "report.md", report))
     except OSError as e:
         failures.append(f"could not write {out / 'report.md'}: {e.strerror or e}")
@@ -263,6 +266,7 @@ def _after_fit(res, val, args) -> tuple[list, dict, list[str], bool]:
     steps = [("validation", lambda: res.validate(val, args.init_window) if val else [])]
     steps += [("profiles", lambda: _profiles(res, args))]
     steps += [("data sensitivity", lambda: _influence(res, args))]
+    steps += [("residual tests", lambda: _residual_tests(res, args))]
     missing: list[str] = []
     for name, step in steps:
         try:
@@ -275,8 +279,20 @@ def _after_fit(res, val, args) -> tuple[list, dict, list[str], bool]:
         if name == "validation":
             scores = value
         else:
-            extras["profiles" if name == "profiles" else "influence"] = value
+            keys = {"profiles": "profiles", "data sensitivity": "influence"}
+            extras[keys.get(name, "residual")] = value
     return scores, extras, missing, False
+
+
+def _residual_tests(res, args):
+    """Whiteness and independence of the residuals, one line each (a fit with a
+    finite cost only)."""
+    if not np.isfinite(res.cost):
+        return None
+    tests = res.residual_tests(args.residual_lags)
+    for line in tests.lines():
+        print(f"residuals: {line}")
+    return tests
 
 
 def _profiles(res, args) -> dict | None:

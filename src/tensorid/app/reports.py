@@ -89,7 +89,9 @@ def _profile_json(profiles: dict | None) -> dict:
     }
 
 
-def fit_json(res, validation: list[Score], profiles: dict | None = None, influence=None) -> dict:
+def fit_json(
+    res, validation: list[Score], profiles: dict | None = None, influence=None, residual=None
+) -> dict:
     """Everything fit.json holds (a contract: keys are added, never renamed)."""
     u = res.uncertainty() if res.has_uncertainty else None
     names = res.problem.theta_names
@@ -134,6 +136,10 @@ def fit_json(res, validation: list[Score], profiles: dict | None = None, influen
         d["stderr_gauss_newton"] = dict(zip(names, gn, strict=True))
         d["information"] = res.information().as_dict()
     d.update(_profile_json(profiles))
+    if np.isfinite(res.cost):
+        d.update({k: v for k, v in res.criteria().items() if k in ("aic", "aicc", "bic")})
+    if residual is not None:
+        d["residual_tests"] = residual.as_dict()
     if influence is not None:
         d["influential_samples"] = {
             n: [list(row) for row in influence.most_influential(n, 10)] for n in influence.names
@@ -162,7 +168,12 @@ def _profile_lines(profiles: dict | None, data: dict) -> list[str]:
 
 
 def fit_report(
-    res, data: dict, scores: list[Score], figures: list[Path], profiles: dict | None = None
+    res,
+    data: dict,
+    scores: list[Score],
+    figures: list[Path],
+    profiles: dict | None = None,
+    residual=None,
 ) -> str:
     """report.md of a fit."""
     u = res.uncertainty() if res.has_uncertainty else None
@@ -197,6 +208,15 @@ def fit_report(
                 [[s["start"], s["cost"], s.get("status", ""), s["nit"]] for s in res.starts[:20]],
             ),
         ]
+    if residual is not None:
+        lines += [
+            "",
+            f"## Residual analysis ({residual.level:.0%}, lags up to {residual.max_lag})",
+            "",
+        ]
+        lines += [f"- {line}" for line in residual.lines()]
+    if data.get("aic") is not None:
+        lines += ["", f"AIC {data['aic']:.6g}, AICc {data['aicc']:.6g}, BIC {data['bic']:.6g}."]
     lines += _profile_lines(profiles, data)
     lines += ["", "## Figures", ""] + [f"![{f.stem}]({f.name})" for f in figures]
     return "\n".join(lines) + "\n"

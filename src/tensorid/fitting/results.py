@@ -235,6 +235,20 @@ class FitResult:
             self._uncertainty[key] = information(observed, expected, self.hess, H_gn)
         return self._uncertainty[key]
 
+    def residual_tests(self, max_lag: int = 25, level: float = 0.99):
+        """Whiteness of the residuals and their independence from the inputs, as
+        MATLAB's ``resid`` (see :mod:`tensorid.fitting.residuals`)."""
+        from .residuals import residual_tests
+
+        return residual_tests(self, max_lag, level)
+
+    def criteria(self) -> dict:
+        """AIC, AICc and BIC (Gaussian residuals of unknown variance), with n and K:
+        for comparing model structures fitted to the same data."""
+        from .residuals import information_criteria
+
+        return information_criteria(self)
+
     def data_sensitivity(self):
         """dθ̂/dy for every measured sample: which samples drive each estimate (see
         :class:`tensorid.fitting.influence.DataSensitivity`)."""

@@ -127,6 +127,12 @@ def summary_table(res, scores=None) -> str:
         console.print(mt)
     if u is not None:
         console.print("information: " + res.information().describe(), soft_wrap=True)
+        c = res.criteria()
+        console.print(
+            f"AIC {c['aic']:.6g}, AICc {c['aicc']:.6g}, BIC {c['bic']:.6g} "
+            f"(n = {c['n']}, K = {c['K']}; lower is better, for models of the same data)",
+            soft_wrap=True,
+        )
     for w in res.warnings:
         console.print(f"warning: {w}", soft_wrap=True)
     return console.export_text()

@@ -1,0 +1,179 @@
+"""Residual analysis as MATLAB's ``resid`` does it, and the information criteria for
+comparing model structures.
+
+Whiteness: the residuals' normalised autocorrelation r(τ), τ = 1..M, should be that
+of white noise; the portmanteau statistic Q = N Σ r(τ)² is then χ² with M degrees of
+freedom, and the test passes when Q is below its quantile at the stated level.
+Independence: the normalised cross-correlation of the residuals with each input for
+τ = 0..M (the residual now against the input τ samples earlier) should vanish: a
+model missing a dynamic leaves the past input in the residual. Q = N Σ r_eu(τ)² is χ²
+with M + 1 degrees of freedom. The figure shows r with the ±z/√N band of the level,
+as MATLAB draws it; the pass/fail comes from Q, which for 25 lags holds its level
+(a band test on every lag would fail a correct model one time in five).
+
+Information criteria, with Gaussian residuals of unknown variance: for n residuals
+and K unknowns, −2 log L = n (log(2π J/n) + 1), AIC = −2 log L + 2K,
+AICc = AIC + 2K(K + 1)/(n − K − 1), BIC = −2 log L + K log n. Lower is better; only
+differences between models fitted to the same data mean anything.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+
+@dataclass
+class Correlation:
+    """One correlation test: the correlation per lag, its statistic and verdict."""
+
+    what: str  # "whiteness of y" or "y against input u"
+    lags: np.ndarray
+    values: np.ndarray
+    statistic: float
+    threshold: float
+    passed: bool
+
+    def line(self) -> str:
+        """The test in words."""
+        verdict = "passes" if self.passed else "FAILS"
+        side = "below" if self.passed else "above"
+        shown = self.values[1:] if self.what.startswith("whiteness") else self.values
+        return (
+            f"{self.what}: {verdict} (Q = {self.statistic:.1f}, {side} "
+            f"{self.threshold:.1f}; largest |r| {np.max(np.abs(shown)):.3f})"
+        )
+
+
+@dataclass
+class ResidualTests:
+    """Whiteness per output and independence from each input, at ``level``."""
+
+    level: float
+    max_lag: int
+    samples: int
+    bound: float  # z/√N: the band the figure draws
+    whiteness: list[Correlation]
+    independence: list[Correlation]
+
+    @property
+    def passed(self) -> bool:
+        return all(c.passed for c in self.whiteness + self.independence)
+
+    def lines(self) -> list[str]:
+        """One line per test, in words."""
+        return [c.line() for c in self.whiteness + self.independence]
+
+    def as_dict(self) -> dict:
+        def one(c: Correlation) -> dict:
+            return {
+                "test": c.what,
+                "passed": c.passed,
+                "statistic": c.statistic,
+                "threshold": c.threshold,
+                "correlation": c.values.tolist(),
+                "lags": c.lags.tolist(),
+            }
+
+        return {
+            "level": self.level,
+            "max_lag": self.max_lag,
+            "samples": self.samples,
+            "band": self.bound,
+            "whiteness": [one(c) for c in self.whiteness],
+            "independence": [one(c) for c in self.independence],
+        }
+
+    def figure(self):
+        """Autocorrelation and cross-correlation panels with the ±z/√N band."""
+        from .figures import new_figure
+
+        tests = self.whiteness + self.independence
+        fig = new_figure(figsize=(9, 1.2 + 2.0 * len(tests)))
+        axes = fig.subplots(len(tests), 1, squeeze=False)[:, 0]
+        for ax, c in zip(axes, tests, strict=True):
+            ax.axhspan(-self.bound, self.bound, color="C0", alpha=0.15, lw=0)
+            ax.vlines(c.lags, 0, c.values, color="C3" if not c.passed else "C0")
+            ax.plot(c.lags, c.values, "o", ms=3, color="C3" if not c.passed else "C0")
+            ax.axhline(0, color="k", lw=0.6)
+            ax.set_title(f"{c.what}: {'passes' if c.passed else 'fails'}", fontsize=9)
+            ax.set_ylabel("r(τ)")
+            ax.grid(alpha=0.3)
+        axes[-1].set_xlabel("lag τ (samples)")
+        fig.tight_layout()
+        return fig
+
+
+def _correlation(a: list[np.ndarray], b: list[np.ndarray], lags: int) -> np.ndarray:
+    """Σ a[k] b[k − τ] / √(Σa² Σb²) for τ = 0..lags, pooled over the records."""
+    num = np.zeros(lags + 1)
+    for x, y in zip(a, b, strict=True):
+        x, y = x - x.mean(), y - y.mean()
+        for tau in range(min(lags, x.size - 1) + 1):
+            num[tau] += x[tau:] @ y[: x.size - tau]
+    den = np.sqrt(
+        sum((x - x.mean()) @ (x - x.mean()) for x in a)
+        * sum((y - y.mean()) @ (y - y.mean()) for y in b)
+    )
+    return num / den if den > 0 else np.zeros(lags + 1)
+
+
+def residual_tests(res, max_lag: int = 25, level: float = 0.99) -> ResidualTests:
+    """Whiteness of each output's residuals and their independence from each input.
+
+    Arguments:
+      res : a FitResult with a finite cost.
+      max_lag : the largest lag (MATLAB's default M = 25).
+      level : the confidence level of the tests and the band (0.99 as MATLAB).
+
+    Returns:
+      :class:`ResidualTests`.
+    """
+    if not (isinstance(max_lag, int) and max_lag >= 1):
+        raise ValueError(f"max_lag must be a whole number >= 1, got {max_lag!r}")
+    if not 0 < level < 1:
+        raise ValueError(f"level must be between 0 and 1, got {level!r}")
+    problem = res.problem
+    model = problem.model
+    sims = res.simulate()
+    exps = problem.experiments
+    N = sum(e.P for e in exps)
+    white, indep = [], []
+    q_white = stats.chi2.ppf(level, max_lag)
+    q_cross = stats.chi2.ppf(level, max_lag + 1)
+    for j, out in enumerate(model.outputs):
+        err = [e.measured[:, j] - s.y[:, j] for e, s in zip(exps, sims, strict=True)]
+        r = _correlation(err, err, max_lag)
+        Q = float(N * np.sum(r[1:] ** 2))
+        lags = np.arange(max_lag + 1)
+        white.append(Correlation(f"whiteness of {out}", lags, r, Q, q_white, Q <= q_white))
+        for i, name in enumerate(model.inputs):
+            u = [e.u[:, i] for e in exps]
+            c = _correlation(err, u, max_lag)
+            Qc = float(N * np.sum(c**2))
+            indep.append(
+                Correlation(f"{out} against input {name}", lags, c, Qc, q_cross, Qc <= q_cross)
+            )
+    bound = float(stats.norm.ppf(0.5 + level / 2) / np.sqrt(N))
+    return ResidualTests(level, max_lag, N, bound, white, indep)
+
+
+def information_criteria(res) -> dict[str, float]:
+    """AIC, AICc and BIC of a fit (see the module's docstring), with n and K."""
+    problem = res.problem
+    n = sum(e.P for e in problem.experiments) * int((problem.weights > 0).sum())
+    K = problem.K
+    J = res.cost - problem.prior_cost(res.theta)
+    if not (np.isfinite(J) and J > 0 and n > K + 1):
+        return {"aic": np.nan, "aicc": np.nan, "bic": np.nan, "n": n, "K": K}
+    m2logL = n * (np.log(2 * np.pi * J / n) + 1)
+    aic = m2logL + 2 * K
+    return {
+        "aic": float(aic),
+        "aicc": float(aic + 2 * K * (K + 1) / (n - K - 1)),
+        "bic": float(m2logL + K * np.log(n)),
+        "n": n,
+        "K": K,
+    }

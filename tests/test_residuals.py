@@ -1,0 +1,82 @@
+"""Residual analysis (MATLAB's resid) and information criteria: a correct model on
+white-noise data passes at the stated level, a model missing a dynamic fails, and AIC
+and BIC prefer the right structure."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import tensorid as ti
+from tensorid import cli
+
+SECOND = ti.Model(
+    rhs=lambda x, p, u: jnp.stack([x[1], -p[0] * x[0] - p[1] * x[1] + p[2] * u[0]]),
+    states=["x", "v"], params=["k", "c", "g"], inputs=["u"],
+    output=lambda x, p: x[:1], outputs=["y"], name="second-order",
+)  # fmt: skip
+FIRST = ti.Model(
+    rhs=lambda x, p, u: -p[0] * x + p[1] * u[0], states=["x"], params=["a", "b"],
+    inputs=["u"], output=lambda x, p: x, outputs=["y"], name="first-order",
+)  # fmt: skip
+T = np.arange(600) * 0.05
+
+
+def _record(seed: int) -> ti.Experiment:
+    rng = np.random.default_rng(seed)
+    u = rng.standard_normal(T.size)
+    y = ti.simulate(SECOND, {"k": 4.0, "c": 0.8, "g": 1.0}, [0, 0], ti.Experiment(T, u)).y
+    return ti.Experiment(T, u, y + 0.01 * rng.standard_normal(y.shape))
+
+
+def test_a_correct_model_is_white_and_a_missing_dynamic_is_not():
+    seeds = range(20)
+    white = missing = 0
+    for seed in seeds:
+        e = _record(seed)
+        right = ti.fit(ti.Problem(SECOND, e, p0={"k": 3.0, "c": 0.5, "g": 1.2}))
+        tests = right.residual_tests()
+        white += tests.whiteness[0].passed and tests.independence[0].passed
+        wrong = ti.fit(ti.Problem(FIRST, e, p0={"a": 1.0, "b": 1.0}))
+        missing += not wrong.residual_tests().whiteness[0].passed
+        if seed == 0:
+            assert right.criteria()["aic"] < wrong.criteria()["aic"]
+            assert right.criteria()["bic"] < wrong.criteria()["bic"]
+    assert white / len(seeds) >= 0.9
+    assert missing == len(seeds)
+
+
+def test_the_statistics_are_those_of_the_textbook():
+    e = _record(1)
+    res = ti.fit(ti.Problem(SECOND, e, p0={"k": 3.0, "c": 0.5, "g": 1.2}))
+    tests = res.residual_tests(max_lag=10, level=0.95)
+    err = (e.y - res.simulate()[0].y)[:, 0]
+    err = err - err.mean()
+    r = np.array([err[k:] @ err[: err.size - k] for k in range(11)]) / (err @ err)
+    np.testing.assert_allclose(tests.whiteness[0].values, r, rtol=1e-10)
+    assert tests.whiteness[0].statistic == pytest.approx(600 * np.sum(r[1:] ** 2))
+    assert tests.bound == pytest.approx(1.959964 / np.sqrt(600), rel=1e-6)
+    c = res.criteria()
+    J, n, K = res.cost, 600, 3
+    assert c["aic"] == pytest.approx(n * (np.log(2 * np.pi * J / n) + 1) + 2 * K)
+    assert c["bic"] == pytest.approx(n * (np.log(2 * np.pi * J / n) + 1) + K * np.log(n))
+    with pytest.raises(ValueError, match="max_lag"):
+        res.residual_tests(max_lag=0)
+
+
+def test_the_command_line_reports_the_tests(tmp_path, capsys):
+    example = Path(__file__).resolve().parents[1] / "examples" / "silverbox"
+    out = tmp_path / "fit"
+    args = ["fit", str(example / "model.py"), str(example / "train.csv"), "--out", str(out)]
+    assert cli.main(args + ["--no-progress", "--residual-lags", "10"]) == 0
+    data = json.loads((out / "fit.json").read_text())
+    assert data["residual_tests"]["max_lag"] == 10 and len(data["residual_tests"]["whiteness"]) == 1
+    assert {"aic", "aicc", "bic"} <= set(data)
+    report = (out / "report.md").read_text()
+    assert "## Residual analysis" in report and "whiteness of y" in report
+    assert (out / "residual_tests.png").is_file()
+    assert "residuals: whiteness of y" in capsys.readouterr().out
