@@ -22,7 +22,13 @@ from ..engine.problem import Problem
 from ..engine.simulate import run_simulation
 from ..engine.status import Status
 from ..engine.sweeps import shared_sweeps
-from ..fitting.figures import compare_figure, fit_figures, profile_figure, save_png
+from ..fitting.figures import (
+    compare_figure,
+    file_name,
+    fit_figures,
+    profile_figure,
+    save_png,
+)
 from ..fitting.methods import fit
 from ..fitting.results import FitInterrupted
 from ..fitting.summary import summary_table
@@ -328,13 +334,9 @@ def _profile_figures(res, profiles) -> list:
         return []
     u = res.uncertainty()
     return [
-        (f"profile_{_stem(name)}", profile_figure(p, u.sigma2, u.stderr[p.index]))
+        (f"profile_{file_name(name)}", profile_figure(p, u.sigma2, u.stderr[p.index]))
         for name, p in profiles.items()
     ]
-
-
-def _stem(name: str) -> str:
-    return "".join(c if c.isalnum() or c in "-_" else "_" for c in name)
 
 
 def _save_interrupted(res, out: Path, old: set[Path]) -> int:

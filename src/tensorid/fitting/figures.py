@@ -99,7 +99,8 @@ def profile_figure(prof, sigma2: float, stderr: float):
     return fig
 
 
-def _file_name(s: str) -> str:
+def file_name(s: str) -> str:
+    """A label as a file stem: letters, digits, - and _ kept, the rest _."""
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in s)
 
 
@@ -122,7 +123,7 @@ def fit_figures(res, out=None, validation=None, named: bool = False) -> list:
             fig = compare_figure(
                 e.t, e.measured[:, j], s.simulation.y[:, j], ylabel=name, title=title
             )
-            pairs.append((_file_name(stem), fig))
+            pairs.append((file_name(stem), fig))
     if len(res.history) > 1:
         what = f"best of {len(res.starts)} starts" if res.starts else res.method
         title = f"{what}: cost and gradient norm per iteration"
