@@ -19,6 +19,7 @@ from .data import Experiment
 from .discretisation import Discretisation
 from .integrators import RungeKuttaScheme, Scheme
 from .model import Model
+from .shooting import Shooting, resolve_segments
 from .simulate import Simulation, run_simulation
 from .sweeps import shared_sweeps, unpack_symmetric
 
@@ -76,6 +77,12 @@ class Problem:
         weights, outputs whose scales differ by more than 1e3 raise a warning.
     discretisation : a :class:`Discretisation`, in place of scheme, substeps,
         interpolation, rtol and atol.
+    segments : multiple shooting: cut each experiment into this many segments (or a
+        list, one count per experiment), each with its own initial state as an unknown
+        and continuity as a constraint (see :mod:`tensorid.engine.shooting`); 1, the
+        default, is single shooting. θ, ``theta0`` and every result stay in the layout
+        above; only :func:`tensorid.fit` sees the segments.
+    segment_length : instead of segments: samples per segment (about).
     """
 
     def __init__(
@@ -96,6 +103,8 @@ class Problem:
         discretisation: Discretisation | None = None,
         priors: Mapping[str, tuple[float, float]] | None = None,
         noise: float | None = None,
+        segments: int | Sequence[int] | None = None,
+        segment_length: int | None = None,
     ):
         if not isinstance(model, Model):
             raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
@@ -129,6 +138,13 @@ class Problem:
         self._arrays = [
             (jnp.asarray(e.t), jnp.asarray(e.u), jnp.asarray(e.y)) for e in self.experiments
         ]
+        counts = resolve_segments(self.experiments, segments, segment_length)
+        self.shooting = Shooting(self, counts) if counts else None
+
+    @property
+    def segments(self) -> list[int]:
+        """The number of shooting segments of each experiment (all 1: single shooting)."""
+        return self.shooting.counts if self.shooting else [1] * len(self.experiments)
 
     @property
     def scheme(self) -> Scheme | RungeKuttaScheme:

@@ -60,6 +60,11 @@ class Status(enum.Enum):
     BASELINE_STOPPED = ("stopped", False, -1)  # a SciPy baseline gave up in its own way
     SOLVER_FAILED = ("stopped: the optimiser raised an error; the best point is kept", False, -1)
     ALL_STARTS_FAILED = ("no start gave a finite cost", False, -1)
+    DEFECTS_REMAIN = (
+        "stopped: multiple shooting left continuity defects above their tolerance",
+        False,
+        -1,
+    )
     # a fit stopped from outside: the best point found so far is kept
     INTERRUPTED = ("interrupted; the best point found so far is kept", False, -1)
     WORKERS_LOST = (

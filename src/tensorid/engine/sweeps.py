@@ -61,8 +61,8 @@ class _Compiled:
     per instance (``batched``: vmapped over a leading axis of θ, one start per row).
     Compiled functions are per process: pickling a Sweeps drops them."""
 
-    def __init__(self, sweep: str, batched: bool = False):
-        self.sweep, self.batched = sweep, batched
+    def __init__(self, sweep: str, batched: bool = False, axes=(0,) + (None,) * 6):
+        self.sweep, self.batched, self.axes = sweep, batched, axes
 
     def __set_name__(self, owner, name: str) -> None:
         self.name = name
@@ -74,7 +74,7 @@ class _Compiled:
         if fn is None:
             fn = getattr(obj, self.sweep)
             if self.batched:
-                fn = jax.vmap(fn, in_axes=(0,) + (None,) * 6)
+                fn = jax.vmap(fn, in_axes=self.axes)
             fn = jax.jit(fn)
             obj.__dict__[self.name] = fn
         return fn
@@ -117,12 +117,22 @@ class Sweeps:
         Psel[list(self.free_params), list(range(nx, K))] = 1.0
         return dx0, Psel
 
-    def _march(self, field, observe, y0, acc0, t, u, obs, p):
+    def _march(self, field, observe, y0, acc0, t, u, obs, p, end=False):
+        """``march`` with the model's F; with ``end``, the accumulator comes back as
+        (accumulator, the augmented state at the last sample)."""
         m = self.model
 
         def state_field(x, uu):
             return m.f(x, p, uu)
 
+        if end:
+            inner = observe
+
+            def observe(acc, y, obs_h):
+                acc, out = inner(acc[0], y, obs_h)
+                return (acc, y), out
+
+            acc0 = (acc0, y0)
         return march(
             field,
             observe,
@@ -169,8 +179,9 @@ class Sweeps:
         return (jnp.sqrt(w) * (y - ys)).reshape(-1)
 
     # -- first order: (J, ∇J) and the Gauss-Newton Hessian -----------------------------
-    def _first_order(self, theta, x0, p, t, u, y, w, gauss_newton=True):
-        """(J, ∇J, 2 Σ w (C_z Z)ᵀ(C_z Z)); the last is None when not ``gauss_newton``."""
+    def _first_order(self, theta, x0, p, t, u, y, w, gauss_newton=True, end=False):
+        """(J, ∇J, 2 Σ w (C_z Z)ᵀ(C_z Z)); the last is None when not ``gauss_newton``.
+        With ``end``, also (x, dx) at the last sample (see _weighted for y and w)."""
         x0, p = self._expand(theta, x0, p)
         m, K = self.model, self.K
         dx0, Psel = self._seeds()
@@ -184,9 +195,10 @@ class Sweeps:
             x, dx = state
             return m.f(x, p, uu), columns(lambda x_, p_: m.f(x_, p_, uu), x, dx).T
 
-        def observe(acc, state, y_h):
+        def observe(acc, state, obs_h):
             J, g, H = acc
             x, dx = state
+            y_h, w = _weighted(obs_h, w_all)
             r = y_h - m.h(x, p)
             D = columns(m.h, x, dx)  # (K, outputs) = (C_z Z)ᵀ
             wr = w * r
@@ -195,15 +207,18 @@ class Sweeps:
             return (J + jnp.sum(wr * r), g - 2.0 * D @ wr, H), None
 
         acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros((K, K)) if gauss_newton else None)
-        (J, g, H), _, _ = self._march(field, observe, (x0, jnp.asarray(dx0)), acc0, t, u, y, p)
-        return J, g, H
+        w_all = w
+        state0 = (x0, jnp.asarray(dx0))
+        acc, _, _ = self._march(field, observe, state0, acc0, t, u, y, p, end)
+        return (*acc[0], acc[1]) if end else acc
 
     # -- second order: (J, ∇J, ∇²J) or (J, ∇J, ∇²J v) by transition tensors ------------
-    def _second_order(self, theta, x0, p, t, u, y, w, v=None):
+    def _second_order(self, theta, x0, p, t, u, y, w, v=None, end=False):
         """With v None: the packed Hessian (pairs j <= k, see pair_indices), d2x carried
         for every pair. With a direction v (K,): the product ∇²J v, carrying only
         d2x_v = Σ_k d2x_jk v_k, whose ODE is d(d2x_v)_j/dt = F_zz[Z_j, Z v] + F_x (d2x_v)_j: 2K + 1
-        copies of the state instead of 1 + K + K(K+1)/2."""
+        copies of the state instead of 1 + K + K(K+1)/2. With ``end``, also
+        (x, dx, d2x) at the last sample (see _weighted for y and w)."""
         x0, p = self._expand(theta, x0, p)
         m, N, M, K = self.model, self.model.N, self.model.M, self.K
         dx0, Psel = self._seeds()
@@ -248,9 +263,10 @@ class Sweeps:
                 d2.T,
             )  # ẋ, d(dx)/dt = F_z Z, d(d2x)/dt = F_zz[Z,Z] + F_x d2x
 
-        def observe(acc, state, y_h):
+        def observe(acc, state, obs_h):
             J, g, H = acc
             x, dx, d2x_v = state
+            y_h, w = _weighted(obs_h, w_all)
             A, B, Cc = directions(dx, d2x_v)
             Ca, e2 = pairs(m.h, x, A, B, Cc)
             D = Ca[:K]  # (K, outputs) = (C_z Z)ᵀ
@@ -261,11 +277,21 @@ class Sweeps:
 
         state0 = (x0, jnp.asarray(dx0), jnp.zeros((N, ncols)))
         acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros(ncols))
-        (J, g, H), _, _ = self._march(field, observe, state0, acc0, t, u, y, p)
-        return J, g, H
+        w_all = w
+        acc, _, _ = self._march(field, observe, state0, acc0, t, u, y, p, end)
+        return (*acc[0], acc[1]) if end else acc
 
     def _hessp(self, theta, v, x0, p, t, u, y, w):
         return self._second_order(theta, x0, p, t, u, y, w, v=v)
+
+    # -- one shooting segment: per-sample weights W (P, S), and the end state ------------
+    def _segment(self, theta, x0, p, t, u, y, W):
+        """(J, ∇J, packed ∇²J, (x, dx, d2x) at the last sample) over one segment."""
+        return self._second_order(theta, x0, p, t, u, (y, W), None, end=True)
+
+    def _segment_gn(self, theta, x0, p, t, u, y, W):
+        """(J, ∇J, Gauss-Newton Hessian, (x, dx) at the last sample) over one segment."""
+        return self._first_order(theta, x0, p, t, u, (y, W), None, end=True)
 
     def _gradient(self, theta, x0, p, t, u, y, w):
         return self._first_order(theta, x0, p, t, u, y, w, gauss_newton=False)[:2]
@@ -281,12 +307,21 @@ class Sweeps:
     # one start per row of theta: multi-start in lock-step, one call for all
     first_order_batch = _Compiled("_first_order", batched=True)
     second_order_batch = _Compiled("_second_order", batched=True)
+    # the segments of a multiple-shooting problem, one per row (each its own x0 and data)
+    segments = _Compiled("_segment", batched=True, axes=(0, 0, None, 0, 0, 0, 0))
+    segments_gn = _Compiled("_segment_gn", batched=True, axes=(0, 0, None, 0, 0, 0, 0))
 
     def __getstate__(self):
         return {k: v for k, v in self.__dict__.items() if not isinstance(_entry(k), _Compiled)}
 
     def __setstate__(self, state):
         self.__dict__.update(state)
+
+
+def _weighted(obs_h, w):
+    """(y_h, w_h): a segment sweep passes per-sample weights with the data, obs = (y, W),
+    which zero the sample a segment shares with the next; otherwise w is per output."""
+    return obs_h if isinstance(obs_h, tuple) else (obs_h, w)
 
 
 def _entry(name: str):

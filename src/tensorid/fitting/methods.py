@@ -23,6 +23,7 @@ from .driver import failed, fit_many
 from .multistart import SAMPLINGS, StartsStopped, draw_starts, run_starts
 from .options import FitOptions
 from .results import FitInterrupted, FitResult
+from .shooting import fit_shooting
 
 METHODS = ("newton", "newton-cg", "gauss-newton", *BASELINES)
 LOCKSTEP = ("newton", "gauss-newton")  # methods whose starts can share vmapped calls
@@ -102,7 +103,7 @@ def fit(
             where = (executor, workers, int(batch or 1), timeout)
             res = _many_starts(problem, method, thetas, options, where, started)
         else:
-            res = fit_many(problem, method, theta0[None, :], options, started)[0]
+            res = _fits(problem, method, theta0[None, :], options, started)[0]
     res.compile_seconds = clock[0]
     if res.status is Status.INTERRUPTED:
         raise FitInterrupted(res)
@@ -134,7 +135,7 @@ def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResul
     thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
     thetas = np.stack([_check_start(problem, th, "a start") for th in thetas])
     with compile_clock() as clock:
-        results = fit_many(problem, method, thetas, opts, started)
+        results = _fits(problem, method, thetas, opts, started)
     for r in results:
         r.compile_seconds = clock[0]
     if any(r.status is Status.INTERRUPTED for r in results):
@@ -167,6 +168,19 @@ def _check_method(problem, method) -> None:
         raise TypeError(f"fit needs a tensorid.Problem, got {type(problem).__name__}")
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {list(METHODS)}")
+    if problem.shooting is not None and method in BASELINES:
+        raise ValueError(
+            f"method {method!r} is single shooting only; with segments use 'newton' or "
+            "'gauss-newton', or build the Problem without segments"
+        )
+
+
+def _fits(problem, method, thetas, options: FitOptions, started) -> list[FitResult]:
+    """Fits from every row of ``thetas``: by multiple shooting (one after another) when
+    the problem has segments, else by the driver (lock-step for several)."""
+    if problem.shooting is None:
+        return fit_many(problem, method, thetas, options, started)
+    return [fit_shooting(problem, method, th, options, started) for th in thetas]
 
 
 def _check_start(problem: Problem, theta, what: str) -> np.ndarray:
@@ -228,7 +242,7 @@ def _many_starts(problem, method, thetas, options: FitOptions, where: tuple, sta
 def _fit_chunk(problem, thetas, *, method: str, options: FitOptions) -> list[dict]:
     """Worker side: fit from each row of ``thetas`` (in lock-step when several)."""
     thetas = np.asarray(thetas, dtype=float)
-    results = fit_many(problem, method, thetas, options, time.perf_counter())
+    results = _fits(problem, method, thetas, options, time.perf_counter())
     return [
         {
             "theta0": list(map(float, th)),
@@ -241,6 +255,7 @@ def _fit_chunk(problem, thetas, *, method: str, options: FitOptions) -> list[dic
             "seconds": res.seconds,
             "message": res.message,
             "history": res.history,
+            "shooting": res.shooting,
         }
         for th, res in zip(thetas, results, strict=True)
     ]
@@ -270,6 +285,7 @@ def _best_of(problem, method, theta0, runs: list[dict], options: FitOptions, sta
         res.nit_total, res.nfev = nit_all + res.nit, nfev_all + res.nfev
         res.nfev_best = best["nfev"] + res.nfev_best
         res.nit += best["nit"]
+        res.shooting = best.get("shooting")
     res.starts = ranked
     res.seconds = time.perf_counter() - started
     return res

@@ -24,6 +24,11 @@ class FitOptions:
         radius: the first trust radius, in scaled units.
         max_radius: the largest trust radius.
         callback: called with each iteration's history entry (a dict), natural units.
+        polish: multiple shooting only: finish with single shooting from the
+            multiple-shooting solution, so that estimates and error bars are those of
+            the one continuous trajectory.
+        defect_tol: multiple shooting only: the largest continuity defect allowed,
+            relative to each state's scale.
     """
 
     x_scale: str | np.ndarray = "auto"
@@ -34,11 +39,13 @@ class FitOptions:
     radius: float = 0.1
     max_radius: float = 1e4
     callback: Callable[[dict], None] | None = None
+    polish: bool = True
+    defect_tol: float = 1e-8
 
     def __post_init__(self) -> None:
         if not isinstance(self.maxiter, int | np.integer) or self.maxiter < 1:
             raise ValueError(f"maxiter must be a positive integer, got {self.maxiter!r}")
-        for name in ("gtol", "ftol", "xtol"):
+        for name in ("gtol", "ftol", "xtol", "defect_tol"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {v!r}")

@@ -46,6 +46,11 @@ class FitResult:
         already: Problems with the same model, θ layout and discretisation share them).
     history : one dict per iteration: iteration, cost, grad_norm, radius, ...
     notes : what happened on the way, e.g. trial points where the simulation blew up.
+    shooting : for a multiple-shooting problem, its stage: segments (per experiment),
+        nit, outer (augmented-Lagrangian iterations), nfev, cost (of the segments,
+        defects aside), max_defect (largest continuity defect relative to the state
+        scale), defect_tol, status, seconds, polished (and polish_nit). None for
+        single shooting.
     """
 
     problem: Problem
@@ -71,6 +76,7 @@ class FitResult:
     nfev_best: int | None = None
     compile_seconds: float = 0.0
     derivatives: bool = True  # jac and hess hold the exact derivatives at theta
+    shooting: dict | None = None  # multiple shooting: segments, defects, its own counts
     # the summary, the warnings, fit.json and report.md all read the same uncertainty
     _uncertainty: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
