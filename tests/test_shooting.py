@@ -1,0 +1,231 @@
+"""Multiple shooting: the lifted problem's derivatives against autodiff of the
+discretised Lagrangian, exact recovery, bounds, the user's θ layout, bad requests."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from test_sensitivity import PROBLEMS
+
+import tensorid as ti
+
+
+def segmented(prob: ti.Problem, segments, **kw) -> ti.Problem:
+    """The same problem cut into segments."""
+    args = dict(
+        p0=prob.p0,
+        x0=prob.x0,
+        free_x0=prob.free_x0,
+        fixed=prob.fixed,
+        weights=prob.weights,
+        discretisation=prob.discretisation,
+        segments=segments,
+    )
+    args.update(kw)
+    return ti.Problem(prob.model, prob.experiments, **args)
+
+
+def lotka_volterra():
+    return ti.Model(
+        rhs=lambda x, p, u: jnp.stack(
+            [p[0] * x[0] - p[1] * x[0] * x[1], -p[2] * x[1] + p[3] * x[0] * x[1]]
+        ),
+        states=["prey", "pred"],
+        params=["a", "b", "c", "d"],
+        name="lotka-volterra",
+    )
+
+
+LV_TRUE = {"a": 1.0, "b": 0.5, "c": 1.0, "d": 0.3}
+
+
+def lv_data(P=301, T=30.0, noise=0.0, seed=1):
+    t = np.linspace(0, T, P)
+    sim = ti.simulate(lotka_volterra(), LV_TRUE, [2.0, 1.0], ti.Experiment(t, np.zeros((P, 0))))
+    y = sim.y * (1 + noise * np.random.default_rng(seed).standard_normal(sim.y.shape))
+    return ti.Experiment(t, np.zeros((P, 0)), y)
+
+
+def _check_lagrangian(sh, z, rtol=1e-9, forward=False):
+    """``forward``: forward-over-forward autodiff for the reference (the while loops of
+    adaptive steps and implicit stages have no reverse mode)."""
+    lam = np.random.default_rng(0).normal(size=len(sh.defect_rows) * sh.N)
+    L = sh.evaluate(z)
+    g, H = L.g + L.A.T @ lam, L.H + sh.curvature(L, lam)
+
+    def lagrangian(zz):
+        J, c = sh.jax_pieces(zz)
+        return J + c @ lam
+
+    zj = jnp.asarray(z)
+    J_ref, c_ref = sh.jax_pieces(zj)
+    grad = jax.jacfwd if forward else jax.grad
+    hess = jax.jacfwd(jax.jacfwd(lagrangian)) if forward else jax.hessian(lagrangian)
+    g_ref = np.asarray(grad(lagrangian)(zj))
+    H_ref = np.asarray(hess(zj))
+    A_ref = np.asarray(jax.jacfwd(lambda zz: sh.jax_pieces(zz)[1])(zj))
+    assert L.J == pytest.approx(float(J_ref), rel=1e-12)
+    np.testing.assert_allclose(L.c, c_ref, atol=1e-12 * (1 + np.abs(c_ref).max()))
+    np.testing.assert_allclose(L.A, A_ref, atol=rtol * np.abs(A_ref).max())
+    np.testing.assert_allclose(g, g_ref, atol=rtol * np.abs(g_ref).max())
+    np.testing.assert_allclose(H, H_ref, atol=rtol * np.abs(H_ref).max())
+    # the Gauss-Newton variant: same cost, gradient and constraints
+    gn = sh.evaluate(z, exact=False)
+    np.testing.assert_allclose(gn.g, L.g, rtol=1e-12, atol=1e-14 * np.abs(L.g).max())
+    np.testing.assert_array_equal(gn.c, L.c)
+
+
+@pytest.mark.parametrize("name, prob, theta", PROBLEMS, ids=[p[0] for p in PROBLEMS])
+def test_lagrangian_gradient_and_hessian_equal_autodiff(name, prob, theta):
+    """∇L and ∇²L of L = J + λᵀc from the segments' transition tensors equal
+    jax.grad/jax.hessian of the discretised Lagrangian (plain simulations), on every
+    model of the sensitivity tests (several experiments, fixed parameters, fixed and
+    free x0, weights, schemes)."""
+    sh = segmented(prob, 3).shooting
+    z = sh.start(theta)
+    z = z * (1 + 0.02 * np.random.default_rng(1).standard_normal(z.size))  # open the gaps
+    _check_lagrangian(sh, z)
+
+
+@pytest.mark.parametrize("scheme", ["dopri5", "sdirk3"])
+def test_lagrangian_is_exact_with_adaptive_and_implicit_schemes(scheme):
+    data = lv_data(P=61, T=12.0, noise=0.02)
+    prob = ti.Problem(
+        lotka_volterra(), data, p0=LV_TRUE, x0=[2.0, 1.0], free_x0=["pred"], scheme=scheme
+    )
+    sh = segmented(prob, 4).shooting
+    _check_lagrangian(sh, sh.start(prob.theta0 * 1.1), forward=True)
+
+
+def test_noise_free_record_is_recovered_exactly_from_a_far_start():
+    data = lv_data(P=201, T=40.0)
+    prob = ti.Problem(
+        lotka_volterra(),
+        data,
+        p0={"a": 1.5, "b": 0.3, "c": 0.6, "d": 0.45},
+        x0=[1.0, 2.0],
+        free_x0=["prey", "pred"],
+        segments=8,
+    )
+    for method in ("newton", "gauss-newton"):
+        res = ti.fit(prob, method)
+        assert res.success, res.message
+        assert res.shooting["max_defect"] <= 1e-8
+        assert res.shooting["polished"]
+        for k, v in LV_TRUE.items():
+            assert res.params[k] == pytest.approx(v, rel=1e-7)
+        np.testing.assert_allclose(res.x0, [2.0, 1.0], rtol=1e-7)
+        # the user's layout: the result is the single-shooting problem's
+        assert res.theta.shape == (prob.K,) and res.cost == pytest.approx(prob.cost(res.theta))
+
+
+def test_without_polish_the_segments_solution_is_one_continuous_trajectory():
+    data = lv_data(P=201, T=30.0, noise=0.05)
+    prob = ti.Problem(
+        lotka_volterra(),
+        data,
+        p0={"a": 1.3, "b": 0.6, "c": 0.8, "d": 0.25},
+        x0=[2.0, 1.0],
+        free_x0=["prey", "pred"],
+        segments=5,
+    )
+    res = ti.fit(prob, options=ti.FitOptions(polish=False))
+    polished = ti.fit(prob)
+    assert res.success and not res.shooting["polished"]
+    assert res.shooting["max_defect"] <= 1e-8
+    # the segments' cost is the single-shooting cost of (params, x0) up to the defects
+    assert res.shooting["cost"] == pytest.approx(res.cost, rel=1e-6)
+    assert res.cost == pytest.approx(polished.cost, rel=1e-8)
+    np.testing.assert_allclose(res.theta, polished.theta, rtol=1e-5)
+
+
+def test_an_active_bound_at_the_solution_converges():
+    data = lv_data(P=201, T=30.0, noise=0.02)
+    prob = ti.Problem(
+        lotka_volterra(),
+        data,
+        p0={"a": 0.8, "b": 0.5, "c": 1.0, "d": 0.3},
+        x0=[2.0, 1.0],
+        bounds={"a": (0.5, 0.9)},
+        segments=6,
+    )
+    res = ti.fit(prob)
+    assert res.success, res.message
+    assert res.params["a"] == pytest.approx(0.9, abs=1e-12)
+    assert res.shooting["max_defect"] <= 1e-8
+    single = ti.fit(
+        ti.Problem(prob.model, data, p0=res.params, x0=[2.0, 1.0], bounds={"a": (0.5, 0.9)})
+    )
+    assert res.cost == pytest.approx(single.cost, rel=1e-9)
+
+
+def test_segments_per_experiment_and_by_length():
+    data = [lv_data(P=121, T=20.0, noise=0.02, seed=s) for s in (1, 2)]
+    prob = ti.Problem(lotka_volterra(), data, p0=LV_TRUE, x0=[2.0, 1.0], segments=[3, 1])
+    assert prob.segments == [3, 1] and prob.shooting.segments == 4
+    by_length = ti.Problem(lotka_volterra(), data, p0=LV_TRUE, x0=[2.0, 1.0], segment_length=41)
+    assert by_length.segments == [3, 3]
+    assert (
+        ti.Problem(lotka_volterra(), data, p0=LV_TRUE, x0=[2.0, 1.0], segments=1).shooting is None
+    )
+    res = ti.fit(prob, "gauss-newton")
+    assert res.success and res.shooting["segments"] == [3, 1]
+
+
+def test_segment_states_start_from_the_data_where_an_output_measures_them():
+    data = lv_data(P=101, T=20.0, noise=0.0)
+    prob = ti.Problem(
+        lotka_volterra(), data, p0=LV_TRUE, x0=[5.0, 5.0], free_x0=["prey"], segments=4
+    )
+    sh = prob.shooting
+    assert sh.measured_states() == {0: 0, 1: 1}
+    z = sh.start(prob.theta0)
+    k = sh.bounds[0]
+    assert z[sh.state_slice(0, 0)] == pytest.approx(data.y[0, :1])  # free prey from the data
+    for i in range(1, 4):
+        np.testing.assert_allclose(z[sh.state_slice(0, i)], data.y[k[i]])
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (dict(segments=0), "positive integers"),
+        (dict(segments=[2]), "2 experiments"),
+        (dict(segments=100), "at most 60"),
+        (dict(segments=2, segment_length=10), "not both"),
+        (dict(segment_length=2), "at least 3"),
+    ],
+)
+def test_bad_segment_requests_are_one_clear_line(kwargs, message):
+    data = [lv_data(P=121, T=20.0), lv_data(P=121, T=20.0, seed=2)]
+    with pytest.raises(ValueError, match=message):
+        ti.Problem(lotka_volterra(), data, p0=LV_TRUE, x0=[2.0, 1.0], **kwargs)
+
+
+def test_finite_difference_baselines_refuse_segments():
+    prob = ti.Problem(lotka_volterra(), lv_data(), p0=LV_TRUE, x0=[2.0, 1.0], segments=3)
+    with pytest.raises(ValueError, match="single shooting only"):
+        ti.fit(prob, "fd-lsq")
+
+
+@pytest.mark.slow
+def test_multiple_shooting_escapes_the_local_minima_of_single_shooting():
+    """The issue's case: 9 periods, 5 % noise, starts within ±50 %: single shooting
+    reaches the best cost from about a third of them, multiple shooting from all."""
+    from tensorid.fitting.multistart import draw_starts
+
+    data = lv_data(P=601, T=60.0, noise=0.05)
+    kw = dict(p0=LV_TRUE, x0=[2.0, 1.0], free_x0=["prey", "pred"])
+    kw["bounds"] = {k: (1e-3, None) for k in LV_TRUE}
+    single = ti.Problem(lotka_volterra(), data, **kw)
+    multiple = ti.Problem(lotka_volterra(), data, segments=10, **kw)
+    starts = draw_starts(
+        single.theta0, single.lower, single.upper, 21, spread=0.5, sampling="uniform", seed=3
+    )[1:]
+    c1 = np.array([ti.fit(single, theta0=s).cost for s in starts])
+    cm = np.array([ti.fit(multiple, theta0=s).cost for s in starts])
+    best = min(c1.min(), cm.min())
+    assert (cm <= best * (1 + 1e-6)).mean() >= 0.95
+    assert (c1 <= best * (1 + 1e-6)).mean() <= 0.6
