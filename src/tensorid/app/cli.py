@@ -154,6 +154,28 @@ def register(sub) -> None:
         help="validation as the benchmarks do it: initial states estimated on the first N "
         "samples of each validation record (parameters held), scored after them",
     )
+    f.add_argument(
+        "--segments",
+        type=_count,
+        default=None,
+        metavar="S",
+        help="multiple shooting: cut each record into S segments, each with its own "
+        "initial state, joined by continuity constraints; for long, oscillating or "
+        "poorly initialised records (method newton or gauss-newton)",
+    )
+    f.add_argument(
+        "--segment-length",
+        type=_count,
+        default=None,
+        metavar="N",
+        help="multiple shooting with segments of about N samples (instead of --segments)",
+    )
+    f.add_argument(
+        "--no-polish",
+        action="store_true",
+        help="with segments: report the multiple-shooting solution without the final "
+        "single-shooting polish",
+    )
     f.add_argument("--starts", type=_count, default=1, help="number of starts (multi-start)")
     f.add_argument(
         "--spread",

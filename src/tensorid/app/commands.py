@@ -84,6 +84,8 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
             weights=spec.weights,
             priors=spec.priors or None,
             discretisation=disc,
+            segments=args.segments,
+            segment_length=args.segment_length,
         )
     except (ValueError, TypeError) as e:  # the settings come from the model file
         raise type(e)(f"{spec.path}: {e}") from None
@@ -138,6 +140,7 @@ def _run(problem: Problem, args, console: Console, executor, timeout):
         workers=args.workers,
         batch=args.batch,
         timeout=timeout,
+        polish=not args.no_polish,
     )
     rows: list[dict] = []
     if args.no_progress:

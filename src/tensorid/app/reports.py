@@ -118,6 +118,8 @@ def fit_json(
         "prior_noise_variance": res.problem.noise_variance if res.problem.priors else None,
         "seconds": res.seconds,
         "compile_seconds": res.compile_seconds,
+        "segments": res.problem.segments,
+        "shooting": res.shooting,
         "warnings": res.warnings,
         "residual_variance": u.sigma2 if u else None,
         "correlation_names": names,

@@ -49,6 +49,7 @@ def fit(
     callback=None,
     options: FitOptions | None = None,
     timeout: float | None = None,
+    polish: bool = True,
 ) -> FitResult:
     """Estimate the free initial states and parameters of ``problem``.
 
@@ -83,12 +84,17 @@ def fit(
         methods, one start per task for the others or with an ``executor``.
     timeout : seconds to wait for the next start to finish on workers; then the best
         finished start is returned, status ``WORKERS_LOST``. Default: wait.
+    polish : for a Problem with segments (multiple shooting, methods "newton",
+        "newton-cg" (exact Lagrangian Hessian, as "newton") and "gauss-newton"):
+        finish with single shooting from the multiple-shooting solution (default), so
+        that estimates, cost and error bars are those of one continuous trajectory;
+        ``result.shooting`` reports the segments' stage (defects, iterations).
     Ctrl-C stops the fit at once, workers included, raising :class:`FitInterrupted`
     (a KeyboardInterrupt) whose ``result`` is the best point so far.
     """
     started = time.perf_counter()
     _check_method(problem, method)
-    options = _options(options, x_scale, maxiter, gtol, ftol, xtol, callback)
+    options = _options(options, x_scale, maxiter, gtol, ftol, xtol, callback, polish)
     theta0 = _check_start(problem, problem.theta0 if theta0 is None else theta0, "theta0")
     if starts is not None:
         _check_count("starts", starts)
@@ -145,18 +151,19 @@ def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResul
 
 
 # -- checks -----------------------------------------------------------------------------
-def _options(options, x_scale, maxiter, gtol, ftol, xtol, callback) -> FitOptions:
+def _options(options, x_scale, maxiter, gtol, ftol, xtol, callback, polish=True) -> FitOptions:
     """``options``, or the keywords as FitOptions; both at once is an error (one of them
     would be silently ignored)."""
     if options is None:
-        return FitOptions(x_scale, maxiter, gtol, ftol, xtol, callback=callback)
+        return FitOptions(x_scale, maxiter, gtol, ftol, xtol, callback=callback, polish=polish)
     d = FitOptions()
     changed = not (isinstance(x_scale, str) and x_scale == d.x_scale) or callback is not None
+    changed |= polish is not True
     changed |= (maxiter, gtol, ftol, xtol) != (d.maxiter, d.gtol, d.ftol, d.xtol)
     if changed:
         raise ValueError(
             "give either options=FitOptions(...) or x_scale/maxiter/gtol/ftol/xtol/"
-            "callback, not both"
+            "callback/polish, not both"
         )
     if not isinstance(options, FitOptions):
         raise TypeError(f"options must be a tensorid.FitOptions, got {type(options).__name__}")

@@ -55,6 +55,8 @@ class FitOptions:
                 raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
         if isinstance(self.x_scale, str) and self.x_scale != "auto":
             raise ValueError("x_scale must be 'auto' or an array of typical magnitudes")
+        if not isinstance(self.polish, bool):
+            raise TypeError(f"polish must be True or False, got {self.polish!r}")
         if self.callback is not None and not callable(self.callback):
             raise TypeError(f"callback must be callable, got {type(self.callback).__name__}")
 

@@ -91,7 +91,15 @@ def headline(res) -> str:
             f" (best of {len(res.starts)} starts; all starts: "
             f"{plural(res.nit_total, 'iteration')}, {plural(res.nfev, 'cost evaluation')})"
         )
-    return line + f"; cost {res.cost:.6g}"
+    line += f"; cost {res.cost:.6g}"
+    if res.shooting:
+        sh = res.shooting
+        line += (
+            f"; multiple shooting over {sum(sh['segments'])} segments: "
+            f"{plural(sh['nit'], 'iteration')} in {sh['outer']} outer, largest defect "
+            f"{sh['max_defect']:.1e}" + (", then single-shooting polish" if sh["polished"] else "")
+        )
+    return line
 
 
 def summary_table(res, scores=None) -> str:
