@@ -1,8 +1,10 @@
 """The paper's two benchmark problems, Silverbox and two-tank (models, start values,
-the paper's estimates): ``tensorid.benchmarks`` is the documented name of
-``tensorid.paper.problems``."""
+the paper's estimates), and a Lotka–Volterra record where single shooting has local
+minima: ``tensorid.benchmarks`` is the documented name of ``tensorid.paper.problems``."""
 
 from .paper.problems import (
+    LOTKA_VOLTERRA_TRUE,
+    LOTKA_VOLTERRA_X0,
     SILVERBOX_GUESS,
     SILVERBOX_PAPER,
     SILVERBOX_PAPER_VAL_GOF,
@@ -10,6 +12,8 @@ from .paper.problems import (
     TWO_TANK_GUESS,
     TWO_TANK_PAPER,
     TWO_TANK_PAPER_GOF,
+    lotka_volterra_model,
+    lotka_volterra_problem,
     silverbox_model,
     silverbox_offset_model,
     silverbox_problem,
@@ -18,6 +22,8 @@ from .paper.problems import (
 )
 
 __all__ = [
+    "LOTKA_VOLTERRA_TRUE",
+    "LOTKA_VOLTERRA_X0",
     "SILVERBOX_GUESS",
     "SILVERBOX_PAPER",
     "SILVERBOX_PAPER_VAL_GOF",
@@ -25,6 +31,8 @@ __all__ = [
     "TWO_TANK_GUESS",
     "TWO_TANK_PAPER",
     "TWO_TANK_PAPER_GOF",
+    "lotka_volterra_model",
+    "lotka_volterra_problem",
     "silverbox_model",
     "silverbox_offset_model",
     "silverbox_problem",

@@ -8,6 +8,7 @@ x2' = -p3 √x2 + p4 √x1, y = x2, initial levels from the first sample.
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 
 from .. import datasets
 from ..engine.model import Model
@@ -122,5 +123,50 @@ def two_tank_problem(p0=None, substeps: int = 4, samples: int = 501, **kw) -> Pr
         p0=TWO_TANK_GUESS if p0 is None else p0,
         x0=datasets.two_tank_levels(samples)[0],
         substeps=substeps,
+        **kw,
+    )
+
+
+# -- a problem of our own: where single shooting falls into local minima ---------------
+LOTKA_VOLTERRA_TRUE = {"a": 1.0, "b": 0.5, "c": 1.0, "d": 0.3}
+LOTKA_VOLTERRA_X0 = {"prey": 2.0, "pred": 1.0}
+
+
+def _lotka_volterra_rhs(x, p, u):
+    return jnp.stack([p[0] * x[0] - p[1] * x[0] * x[1], -p[2] * x[1] + p[3] * x[0] * x[1]])
+
+
+def lotka_volterra_model() -> Model:
+    """prey' = a·prey − b·prey·pred, pred' = −c·pred + d·prey·pred; both measured."""
+    return Model(
+        rhs=_lotka_volterra_rhs,
+        states=["prey", "pred"],
+        params=["a", "b", "c", "d"],
+        name="lotka-volterra",
+    )
+
+
+def lotka_volterra_problem(
+    p0=None, samples: int = 601, noise: float = 0.05, seed: int = 1, **kw
+) -> Problem:
+    """A synthetic Lotka–Volterra record: t ∈ [0, 60] (about nine periods), both
+    populations measured with ``noise`` relative Gaussian noise (seeded), the initial
+    populations free; positive parameters (bounded below by 1e-3)."""
+    from ..engine.data import Experiment
+    from ..engine.simulate import simulate
+
+    t = np.linspace(0.0, 60.0, samples)
+    u = np.zeros((samples, 0))
+    model = lotka_volterra_model()
+    clean = simulate(model, LOTKA_VOLTERRA_TRUE, LOTKA_VOLTERRA_X0, Experiment(t, u)).y
+    rng = np.random.default_rng(seed)
+    y = clean * (1.0 + noise * rng.standard_normal(clean.shape))
+    kw.setdefault("bounds", {n: (1e-3, None) for n in LOTKA_VOLTERRA_TRUE})
+    return Problem(
+        model,
+        Experiment(t, u, y, name="lotka-volterra"),
+        p0=LOTKA_VOLTERRA_TRUE if p0 is None else p0,
+        x0=LOTKA_VOLTERRA_X0,
+        free_x0=["prey", "pred"],
         **kw,
     )
