@@ -36,7 +36,7 @@ def _paper(args) -> int:
     c.print(f"[bold]Two-tank[/] GOF {tt['paper_model']['gof']:.4f}")
     for row in res["robustness"]:
         c.print(
-            f"  {row['dataset']:9s} {row['accuracy']:7s} {row['method']:12s} converged "
+            f"  {row['dataset']:9s} {row['accuracy']:7s} {row['method']:17s} converged "
             f"{row['converged']:3d}/{row['starts']}  optimizer said failed {row['failed']:3d}  "
             f"median {row['median_seconds'] * 1e3:7.1f} ms"
         )

@@ -34,8 +34,10 @@ from . import problems as benchmarks
 from .report import render
 
 # the paper's comparison: exact Newton and Gauss-Newton against the finite-difference
-# baselines (newton-cg, for large K, is benchmarked in benchmarks/bench_scaling.py)
-COMPARED = ("newton", "gauss-newton", "fd-bfgs", "fd-lsq")
+# baselines (newton-cg, for large K, is benchmarked in benchmarks/bench_scaling.py),
+# and a fifth column of our own: exact Newton by multiple shooting with SEGMENTS segments
+COMPARED = ("newton", "gauss-newton", "fd-bfgs", "fd-lsq", "multiple-shooting")
+SEGMENTS = 5
 
 # RK4 substeps per sample for the three accuracy levels of the robustness study, in
 # place of the paper's solver tolerances 1e-10, 1e-12, 1e-14 (see report.md)
@@ -237,11 +239,11 @@ def draw_starts(guess: np.ndarray, n: int, seed: int) -> np.ndarray:
 
 
 @cache
-def _worker_problem(dataset: str, substeps: int):
+def _worker_problem(dataset: str, substeps: int, segments: int | None = None):
     prob = (
-        benchmarks.silverbox_problem(substeps=substeps)
+        benchmarks.silverbox_problem(substeps=substeps, segments=segments)
         if dataset == "silverbox"
-        else benchmarks.two_tank_problem(substeps=substeps)
+        else benchmarks.two_tank_problem(substeps=substeps, segments=segments)
     )
     th = prob.theta0
     # compile every path once, so that the timed fits below exclude compilation
@@ -259,8 +261,9 @@ def _worker_problem(dataset: str, substeps: int):
 def robustness_task(task: tuple) -> dict:
     """One start of one method at one accuracy level (runs in a worker process)."""
     dataset, method, substeps, index, theta0 = task
-    prob = _worker_problem(dataset, substeps)
-    res = fit(prob, method=method, theta0=np.asarray(theta0))
+    shooting = method == "multiple-shooting"
+    prob = _worker_problem(dataset, substeps, SEGMENTS if shooting else None)
+    res = fit(prob, method="newton" if shooting else method, theta0=np.asarray(theta0))
     if not np.isfinite(res.cost):
         val_gof = -np.inf
     elif dataset == "silverbox":
@@ -426,6 +429,7 @@ def run(
             "accuracy_levels": {f"rk4x{s}": s for s in levels},
             "integration_error": errors,
             "converged_rtol": CONVERGED_RTOL,
+            "segments": SEGMENTS,
             "seconds": time.perf_counter() - t_start,
         },
     }
