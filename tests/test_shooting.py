@@ -229,3 +229,38 @@ def test_multiple_shooting_escapes_the_local_minima_of_single_shooting():
     best = min(c1.min(), cm.min())
     assert (cm <= best * (1 + 1e-6)).mean() >= 0.95
     assert (c1 <= best * (1 + 1e-6)).mean() <= 0.6
+
+
+def test_multistart_with_segments_keeps_the_shooting_report():
+    from tensorid.benchmarks import lotka_volterra_problem
+
+    prob = lotka_volterra_problem(samples=201, segments=4)
+    res = ti.fit(prob, "gauss-newton", starts=3, workers=1, spread=0.3, batch=3)
+    assert res.success and len(res.starts) == 3
+    assert res.shooting["segments"] == [4] and res.shooting["max_defect"] <= 1e-8
+    assert all(s["shooting"]["segments"] == [4] for s in res.starts)
+
+
+def test_cli_fit_with_segments_records_them(tmp_path):
+    import json
+
+    from tensorid.cli import main
+
+    data = lv_data(P=151, T=25.0, noise=0.02)
+    csv = tmp_path / "lv.csv"
+    np.savetxt(csv, np.column_stack([data.t, data.y]), delimiter=",", header="t,prey,pred",
+               comments="")  # fmt: skip
+    model = tmp_path / "lv.py"
+    model.write_text(
+        'states = ["prey", "pred"]\nparams = ["a", "b", "c", "d"]\n'
+        'rhs = {"prey": "a*prey - b*prey*pred", "pred": "-c*pred + d*prey*pred"}\n'
+        'p0 = {"a": 1.3, "b": 0.4, "c": 0.8, "d": 0.35}\nx0 = {"prey": 2.0, "pred": 1.0}\n'
+        'free_x0 = ["prey", "pred"]\n'
+    )
+    out = tmp_path / "out"
+    args = ["fit", str(model), str(csv), "--segments", "5", "--out", str(out), "--no-progress"]
+    assert main(args) == 0
+    d = json.loads((out / "fit.json").read_text())
+    assert d["segments"] == [5] and d["shooting"]["polished"] and d["success"]
+    assert d["shooting"]["max_defect"] <= 1e-8
+    assert d["params"]["a"] == pytest.approx(1.0, rel=0.05)
