@@ -31,7 +31,17 @@ from .fitting.profiles import Profile, profile
 from .fitting.results import FitInterrupted, FitResult
 from .fitting.uncertainty import Uncertainty
 from .fitting.validation import Score
-from .functions import safe_sqrt
+from .functions import (
+    coulomb_friction,
+    dead_zone,
+    safe_sqrt,
+    saturation,
+    smooth_abs,
+    smooth_max,
+    smooth_min,
+    smooth_sign,
+    stribeck_friction,
+)
 
 __all__ = [
     "METHODS",
@@ -66,5 +76,13 @@ __all__ = [
     "nrmse",
     "rmse",
     "safe_sqrt",
+    "smooth_abs",
+    "smooth_sign",
+    "smooth_max",
+    "smooth_min",
+    "saturation",
+    "dead_zone",
+    "coulomb_friction",
+    "stribeck_friction",
     "simulate",
 ]
