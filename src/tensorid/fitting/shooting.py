@@ -22,6 +22,7 @@ import time
 import numpy as np
 
 from ..engine.status import Status
+from .arrow import ArrowSolver
 from .driver import failed, fit_many
 from .options import FitOptions
 from .results import FitResult
@@ -29,6 +30,7 @@ from .trust_region import minimize_trust_region
 
 MU0 = 10.0  # first penalty, in units of the starting cost per (defect / state scale)²
 MAX_OUTER = 12
+ARROW_FROM = 100  # unknowns from which the block-arrow solver beats the dense one
 
 
 def fit_shooting(problem, method: str, theta0, options: FitOptions, started) -> FitResult:
@@ -114,6 +116,8 @@ class _Run:
         self.history: list[dict] = []
         self.best = z0
         self.J, self.defect = J0, np.inf
+        # the state unknowns come first in z: the banded block of the arrow
+        self.subproblem = ArrowSolver(sh.nz_states) if sh.nz >= ARROW_FROM else None
 
     def _z_scale(self, z0, states) -> np.ndarray:
         sh, pr = self.sh, self.problem
@@ -172,6 +176,7 @@ class _Run:
                 self.lo,
                 self.hi,
                 callback=self._record(lam, mu),
+                subproblem=self.subproblem,
                 **dict(opts.trust_region(), maxiter=budget, gtol=gtol),
             )
             phi, self.nit = r.x, self.nit + r.nit

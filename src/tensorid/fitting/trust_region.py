@@ -176,8 +176,9 @@ def _cauchy_step(x, g, curv, lo, hi, free, radius):
     return alpha * v, float(-alpha * vv + 0.5 * alpha**2 * curv)
 
 
-def _newton_step(g, H, free, radius, nhev):
-    """(s, Hs, vᵀHv) for the free variables, v = -g: exactly from a matrix H, or by
+def _newton_step(g, H, free, radius, nhev, subproblem=None):
+    """(s, Hs, vᵀHv) for the free variables, v = -g: exactly from a matrix H (by
+    ``subproblem(g, H, radius, free)`` where given: a structured solver), or by
     truncated CG from a product function H(v)."""
     s, Hs = np.zeros_like(g), np.zeros_like(g)
     if callable(H):
@@ -191,16 +192,19 @@ def _newton_step(g, H, free, radius, nhev):
         s[free], Hs[free], curv = steihaug_cg(g[free], hessp, radius, 2 * int(free.sum()) + 2)
         return s, Hs, curv
     Hf = H[np.ix_(free, free)]
-    s[free], _ = solve_subproblem(g[free], Hf, radius)
+    if subproblem is None:
+        s[free], _ = solve_subproblem(g[free], Hf, radius)
+    else:
+        s[free], _ = subproblem(g[free], Hf, radius, free)
     Hs[free] = Hf @ s[free]
     return s, Hs, float(g[free] @ Hf @ g[free])
 
 
-def _candidate_step(x, g, H, lo, hi, free, radius, nhev) -> tuple[np.ndarray, float]:
+def _candidate_step(x, g, H, lo, hi, free, radius, nhev, sub=None) -> tuple[np.ndarray, float]:
     """The best of three feasible steps by the model's prediction: the Newton (or CG)
     step projected onto the box, truncated at the box, and the Cauchy step. Returns
     (step, predicted decrease)."""
-    s, Hs, curv = _newton_step(g, H, free, radius, nhev)
+    s, Hs, curv = _newton_step(g, H, free, radius, nhev, sub)
     d_proj = np.clip(x + s, lo, hi) - x
     beta = min(1.0, _room(x, s, lo, hi))
     d_trunc = beta * s
@@ -273,6 +277,7 @@ def trust_region_steps(
     fatol: float = 0.0,
     eta: float = 0.1,
     callback: Callable[[dict], None] | None = None,
+    subproblem: Callable | None = None,
 ) -> Generator[np.ndarray, tuple, TRResult]:
     """The trust-region iteration as a generator: it yields each point x where it
     needs (J, g, H), is sent them back, and returns the TRResult. This lets a caller
@@ -304,7 +309,8 @@ def trust_region_steps(
             status = Status.GTOL if pg_norm <= gtol else Status.ROUNDING_FLOOR
             it -= 1
             break
-        d, pred = _candidate_step(x, g, H, lo, hi, ~_held(x, g, lo, hi), radius, nhev)
+        free = ~_held(x, g, lo, hi)
+        d, pred = _candidate_step(x, g, H, lo, hi, free, radius, nhev, subproblem)
         step = float(np.linalg.norm(d))
         xscale = 1.0 + np.linalg.norm(x, np.inf)
         if not pred > 0 or step == 0.0:
