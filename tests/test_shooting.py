@@ -77,7 +77,13 @@ def _check_lagrangian(sh, z, rtol=1e-9, forward=False):
     np.testing.assert_array_equal(gn.c, L.c)
 
 
-@pytest.mark.parametrize("name, prob, theta", PROBLEMS, ids=[p[0] for p in PROBLEMS])
+# the autodiff reference compiles every segment unrolled (15-40 s a model): two models
+# in the default run, all of them in the slow one
+QUICK = ("two-tank fixed x0, zoh", "decay K=1 N=1 euler")
+CASES = [p if p[0] in QUICK else pytest.param(*p, marks=pytest.mark.slow) for p in PROBLEMS]
+
+
+@pytest.mark.parametrize("name, prob, theta", CASES, ids=[p[0] for p in PROBLEMS])
 def test_lagrangian_gradient_and_hessian_equal_autodiff(name, prob, theta):
     """∇L and ∇²L of L = J + λᵀc from the segments' transition tensors equal
     jax.grad/jax.hessian of the discretised Lagrangian (plain simulations), on every
@@ -89,6 +95,7 @@ def test_lagrangian_gradient_and_hessian_equal_autodiff(name, prob, theta):
     _check_lagrangian(sh, z)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scheme", ["dopri5", "sdirk3"])
 def test_lagrangian_is_exact_with_adaptive_and_implicit_schemes(scheme):
     data = lv_data(P=61, T=12.0, noise=0.02)

@@ -76,19 +76,15 @@ def fit(
         ranked in ``result.starts``. The local pool spawns fresh processes, which
         re-import the calling script: guard a script's top level with
         ``if __name__ == "__main__":``.
-    batch : with starts, fit this many starts together in each task, in lock-step,
-        their evaluations vectorised into one jax.vmap call (see fit_batch; methods
-        "newton" and "gauss-newton"). On a CPU this raises the throughput of each
-        worker (benchmarks/bench_multistart.py: 1.5x on Silverbox). Default: the
-        starts shared evenly over the local workers (at most 16 per task) for those
-        methods, one start per task for the others or with an ``executor``.
+    batch : with starts, fit this many starts per task in lock-step, evaluated in one
+        jax.vmap call (see fit_batch; "newton", "gauss-newton"; 1.5x the throughput on
+        Silverbox). Default: the starts shared evenly over the local workers (at most
+        16 per task) for those methods, one start per task otherwise.
     timeout : seconds to wait for the next start to finish on workers; then the best
         finished start is returned, status ``WORKERS_LOST``. Default: wait.
-    polish : for a Problem with segments (multiple shooting, methods "newton",
-        "newton-cg" (exact Lagrangian Hessian, as "newton") and "gauss-newton"):
-        finish with single shooting from the multiple-shooting solution (default), so
-        that estimates, cost and error bars are those of one continuous trajectory;
-        ``result.shooting`` reports the segments' stage (defects, iterations).
+    polish : with segments (multiple shooting: "newton", "newton-cg" as "newton", or
+        "gauss-newton"), end with single shooting from its solution (default), so that
+        the result is one continuous trajectory; ``result.shooting`` reports the stage.
     Ctrl-C stops the fit at once, workers included, raising :class:`FitInterrupted`
     (a KeyboardInterrupt) whose ``result`` is the best point so far.
     """
