@@ -66,8 +66,7 @@ def fit(
       "fd-lsq"        scipy least_squares (trf) with a finite-difference Jacobian, as
                       MATLAB's grey-box toolbox does
     theta0 : start (K,), natural units; default ``problem.theta0``.
-    x_scale, maxiter, gtol, ftol, xtol, callback : see :class:`FitOptions`; or pass
-        ``options=FitOptions(...)`` instead (not both).
+    x_scale, maxiter, gtol, ftol, xtol, callback : see :class:`FitOptions` (or options=).
     starts : with N > 1, fit from theta0 and N - 1 further starts (within the bounds
         where both are finite, else within ±spread of theta0; Latin hypercube or
         uniform ``sampling``, seeded), in parallel through ``executor`` (any
