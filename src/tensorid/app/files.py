@@ -2,7 +2,7 @@
 
 A model file is Python. It defines ``model = tensorid.Model(...)`` or, for text
 equations, ``rhs = {state: "expr"}`` with optional ``output``, ``inputs`` and
-``params``; and it may define ``p0`` (dict), ``x0`` (dict state -> value),
+``params`` (and ``input_delays``, dict input -> seconds); and it may define ``p0`` (dict), ``x0`` (dict state -> value),
 ``free_x0`` (list), ``fixed`` (list), ``bounds`` (dict name -> (lo, hi)) and
 ``weights`` ("auto" or dict output -> weight) and ``priors`` (dict name -> (mean,
 sd)). A file that has not finished running
@@ -156,6 +156,11 @@ def load_model(path) -> ModelSpec:
 def _spec(ns: dict, path: Path) -> ModelSpec:
     if isinstance(ns.get("model"), Model):
         model = ns["model"]
+        if ns.get("input_delays") and not model.input_delays:
+            raise ValueError(
+                "input_delays is set beside a tensorid.Model: pass it to the model, "
+                "tensorid.Model(..., input_delays={...})"
+            )
     elif "rhs" in ns and not callable(ns["rhs"]):
         if not isinstance(ns["rhs"], dict):
             raise TypeError(
@@ -167,6 +172,7 @@ def _spec(ns: dict, path: Path) -> ModelSpec:
             _names(ns.get("inputs", ())),
             ns.get("params"),
             name=path.stem,
+            input_delays=ns.get("input_delays"),
         )
     else:
         raise ValueError(

@@ -43,6 +43,29 @@ def _names(kind: str, names: Sequence[str] | None) -> tuple[str, ...]:
     return out
 
 
+def _check_delays(delays, inputs) -> dict | None:
+    if not delays:
+        return None
+    if not isinstance(delays, dict):
+        raise TypeError(f"input_delays must be a dict {{input: seconds}}, got {delays!r}")
+    out = {}
+    for name, tau in delays.items():
+        if name not in inputs:
+            raise ValueError(
+                f"input_delays names {name!r}, which is not an input; the inputs are {list(inputs)}"
+            )
+        try:
+            tau = float(tau)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"input_delays[{name!r}] must be a number of seconds, got {tau!r}"
+            ) from None
+        if not (np.isfinite(tau) and tau >= 0):
+            raise ValueError(f"input_delays[{name!r}] = {tau}: give a finite delay >= 0 seconds")
+        out[name] = tau
+    return out
+
+
 @dataclass(frozen=True, eq=False)
 class Model:
     """A nonlinear state-space model.
@@ -58,6 +81,13 @@ class Model:
     states, params, inputs, outputs : lists of names
         Names of x, p, u and y entries, in order. Names must be unique across
         states and params, because bounds and fixed lists refer to both.
+    input_delays : dict {input: seconds}, optional
+        Known transport or computation delays: the model sees u(t − τ) for that input
+        (before the record starts, its first sample). The delayed input is exact at
+        every sample instant (the record interpolated at t_k − τ, linearly or held as
+        the Problem's interpolation says); between samples the integrator interpolates
+        those values, so a delay of whole samples is exact throughout. Known, not
+        estimated: the derivatives stay exact.
     """
 
     rhs: Callable[[Array, Array, Array], Array]
@@ -68,6 +98,7 @@ class Model:
     inputs: Sequence[str] = ()
     outputs: Sequence[str] = None  # type: ignore[assignment]
     name: str = "model"
+    input_delays: dict | None = None
     _scalar_output: bool = field(default=False, init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -106,6 +137,7 @@ class Model:
         set_(self, "params", params)
         set_(self, "inputs", inputs)
         set_(self, "outputs", outputs)
+        set_(self, "input_delays", _check_delays(self.input_delays, inputs))
         self._check_shapes()
 
     # sizes, in the paper's letters
@@ -173,6 +205,23 @@ class Model:
 
     def __getstate__(self):
         return {k: v for k, v in self.__dict__.items() if k != "_compiled_sweeps"}
+
+    def delayed(self, t, u, interpolation: str = "linear") -> np.ndarray:
+        """The inputs the model sees at the sample times t: u(t − τ) for each delayed
+        input (``input_delays``), u itself for the others."""
+        u = np.asarray(u, dtype=float)
+        if not self.input_delays:
+            return u
+        t = np.asarray(t, dtype=float)
+        out = u.copy()
+        for name, tau in self.input_delays.items():
+            j = self.inputs.index(name)
+            if interpolation == "zoh":  # the last sample at or before t − τ
+                k = np.searchsorted(t, t - tau * (1 - 1e-12), side="right") - 1
+                out[:, j] = u[np.clip(k, 0, len(t) - 1), j]
+            else:
+                out[:, j] = np.interp(t - tau, t, u[:, j])
+        return out
 
     # Shape-normalised versions used internally: always (N,) and (S,).
     def f(self, x: Array, p: Array, u: Array) -> Array:

@@ -136,10 +136,15 @@ class Problem:
             discretisation,
         )
         self._arrays = [
-            (jnp.asarray(e.t), jnp.asarray(e.u), jnp.asarray(e.y)) for e in self.experiments
+            (jnp.asarray(e.t), jnp.asarray(self.inputs(e)), jnp.asarray(e.y))
+            for e in self.experiments
         ]
         counts = resolve_segments(self.experiments, segments, segment_length)
         self.shooting = Shooting(self, counts) if counts else None
+
+    def inputs(self, e: Experiment) -> np.ndarray:
+        """The inputs the model sees on experiment e: delayed where the model says so."""
+        return self.model.delayed(e.t, e.u, self.discretisation.interpolation)
 
     @property
     def segments(self) -> list[int]:

@@ -183,7 +183,7 @@ class Shooting:
         W = np.tile(self.problem.weights, (k[i + 1] - k[i] + 1, 1))
         if i < len(k) - 2:
             W[-1] = 0.0  # the shared sample belongs to the next segment
-        return ex.t[sl], ex.u[sl], ex.y[sl], W
+        return ex.t[sl], self.problem.inputs(ex)[sl], ex.y[sl], W
 
     # -- evaluation ------------------------------------------------------------------------
     def evaluate(self, z, exact: bool = True) -> Lifted:
@@ -261,6 +261,7 @@ class Shooting:
         free = [pr.model.states.index(n) for n in pr.free_x0]
         for e, k in enumerate(self.bounds):
             ex, s = pr.experiments[e], x0[e].copy()
+            u = pr.inputs(ex)
             for i in range(len(k) - 1):
                 for n, o in measured.items():
                     if i > 0 or n in free:
@@ -268,7 +269,7 @@ class Shooting:
                 z[self.state_slice(e, i)] = s[free] if i == 0 else s
                 sl = slice(k[i], k[i + 1] + 1)
                 xs, _, _, _ = self.state_sweeps.simulate(
-                    jnp.asarray(s), jnp.asarray(p), jnp.asarray(ex.t[sl]), jnp.asarray(ex.u[sl])
+                    jnp.asarray(s), jnp.asarray(p), jnp.asarray(ex.t[sl]), jnp.asarray(u[sl])
                 )
                 end = np.asarray(xs)[-1]
                 s = end.copy() if np.isfinite(end).all() else s  # a blow-up restarts here
@@ -314,6 +315,7 @@ class Shooting:
         w = jnp.asarray(pr.weights)
         for e, k in enumerate(self.bounds):
             ex = pr.experiments[e]
+            u = pr.inputs(ex)
             x = jnp.asarray(pr.x0[e])
             free = [pr.model.states.index(n) for n in pr.free_x0]
             p = (
@@ -327,7 +329,7 @@ class Shooting:
                 else:
                     s = z[self.state_slice(e, i)]
                 sl = slice(k[i], k[i + 1] + 1)
-                xs, ys, _, _ = self.state_sweeps._simulate(s, p, ex.t[sl], ex.u[sl])
+                xs, ys, _, _ = self.state_sweeps._simulate(s, p, ex.t[sl], u[sl])
                 r = jnp.asarray(ex.y[sl]) - ys
                 last = i == len(k) - 2
                 J = J + jnp.sum(w * (r if last else r[:-1]) ** 2)

@@ -48,8 +48,9 @@ class Simulation:
 
 def run_simulation(sweeps: Sweeps, data: Experiment, x0, p) -> Simulation:
     """Simulate with compiled ``sweeps`` and read the integrator's failure code."""
+    u = sweeps.model.delayed(data.t, data.u, sweeps.discretisation.interpolation)
     xs, ys, code, at = sweeps.simulate(
-        jnp.asarray(x0), jnp.asarray(p), jnp.asarray(data.t), jnp.asarray(data.u)
+        jnp.asarray(x0), jnp.asarray(p), jnp.asarray(data.t), jnp.asarray(u)
     )
     xs, ys = np.asarray(xs), np.asarray(ys)
     status = Status.from_code(int(code))

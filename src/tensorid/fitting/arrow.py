@@ -19,7 +19,7 @@ g nearly orthogonal to the lowest eigenvector) the dense solver takes over.
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve, cholesky_banded, cho_solve_banded
+from scipy.linalg import cho_factor, cho_solve, cho_solve_banded, cholesky_banded
 
 from .trust_region import solve_subproblem
 
