@@ -1,12 +1,12 @@
 """Model files and data files.
 
 A model file is Python. It defines ``model = tensorid.Model(...)`` or, for text
-equations, ``rhs = {state: "expr"}`` with optional ``output``, ``inputs`` and
-``params`` (and ``input_delays``, dict input -> seconds); and it may define ``p0``
-(dict), ``x0`` (dict state -> value), ``free_x0`` (list), ``fixed`` (list), ``bounds`` (dict name -> (lo, hi)) and
-``weights`` ("auto" or dict output -> weight) and ``priors`` (dict name -> (mean,
-sd)). A file that has not finished running
-after TENSORID_MODEL_TIMEOUT seconds (default 60) is stopped with a clear message.
+equations, ``rhs = {state: "expr"}`` with optional ``output``, ``inputs``, ``params``
+and ``input_delays`` (dict input -> seconds); and it may define ``p0`` (dict), ``x0``
+(dict state -> value), ``free_x0`` (list), ``fixed`` (list), ``bounds`` (dict name ->
+(lo, hi)), ``weights`` ("auto" or dict output -> weight) and ``priors`` (dict name ->
+(mean, sd)). A file that has not finished running after TENSORID_MODEL_TIMEOUT
+seconds (default 60) is stopped with a clear message.
 
 Data files are CSV (a time column ``t``, or a sampling time given as ``ts``, plus
 columns named after the model's inputs and outputs), MATLAB .mat or NumPy .npz
