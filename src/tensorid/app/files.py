@@ -2,7 +2,8 @@
 
 A model file is Python. It defines ``model = tensorid.Model(...)`` or, for text
 equations, ``rhs = {state: "expr"}`` with optional ``output``, ``inputs``, ``params``
-and ``input_delays`` (dict input -> seconds); and it may define ``p0`` (dict), ``x0``
+``input_delays`` (dict input -> seconds) and ``discrete`` (True: rhs gives x[k+1]);
+and it may define ``p0`` (dict), ``x0``
 (dict state -> value), ``free_x0`` (list), ``fixed`` (list), ``bounds`` (dict name ->
 (lo, hi)), ``weights`` ("auto" or dict output -> weight) and ``priors`` (dict name ->
 (mean, sd)). A file that has not finished running after TENSORID_MODEL_TIMEOUT
@@ -173,6 +174,7 @@ def _spec(ns: dict, path: Path) -> ModelSpec:
             ns.get("params"),
             name=path.stem,
             input_delays=ns.get("input_delays"),
+            discrete=ns.get("discrete", False),
         )
     else:
         raise ValueError(

@@ -85,6 +85,30 @@ class Discretisation:
             )
         return given
 
+    def for_model(self, model) -> Discretisation:
+        """This discretisation, checked against the model's kind of time: a discrete-time
+        model steps once per sample (the default settings become that); a
+        continuous-time one cannot use the discrete map."""
+        from .integrators import DISCRETE, DiscreteMap
+
+        discrete = isinstance(self.scheme, DiscreteMap)
+        if not model.discrete:
+            if discrete:
+                raise ValueError(
+                    "scheme 'discrete' is for discrete-time models: "
+                    "build the model with tensorid.Model(..., discrete=True)"
+                )
+            return self
+        if discrete:
+            return Discretisation(DISCRETE, 1, "zoh")
+        if (self.scheme.name, self.substeps) == ("rk4", 4):  # the defaults: not a choice
+            return Discretisation(DISCRETE, 1, "zoh")
+        raise ValueError(
+            f"{model.name} is a discrete-time model (x[k+1] = f(x[k], p, u[k])): it steps "
+            f"once per sample; drop scheme={self.scheme.name!r} and substeps="
+            f"{self.substeps}"
+        )
+
     def as_dict(self) -> dict:
         """What a reader needs to reproduce a cost: scheme, substeps, interpolation and,
         for an adaptive scheme, rtol and atol (fit.json's "integration")."""

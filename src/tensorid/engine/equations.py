@@ -82,10 +82,11 @@ def model_from_equations(
     params: Sequence[str] | None = None,
     name: str = "model",
     input_delays: Mapping[str, float] | None = None,
+    discrete: bool = False,
 ) -> Model:
     """A Model from text equations: ``rhs`` {state: "dx/dt expression"}, ``output``
     {output: "expression"} (default: every state), ``inputs`` the input names,
-    ``input_delays`` {input: seconds} (see Model)."""
+    ``input_delays`` {input: seconds} and ``discrete`` (rhs gives x[k+1]; see Model)."""
     if not isinstance(rhs, Mapping) or not rhs:
         raise TypeError("rhs must be a dict {state: 'expression for its derivative'}")
     if output is not None and not isinstance(output, Mapping):
@@ -150,4 +151,5 @@ def model_from_equations(
         outputs=list(output),
         name=name,
         input_delays=dict(input_delays) if input_delays else None,
+        discrete=discrete,
     )

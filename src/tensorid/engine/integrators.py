@@ -316,6 +316,26 @@ class AdaptiveRungeKutta:
         return y, step, code
 
 
+@dataclass(frozen=True)
+class DiscreteMap:
+    """A discrete-time model, x[k+1] = f(x[k], p, u[k]): one application of the map
+    per sample interval, the input taken at the interval's start.
+
+    The sweeps' augmented fields become maps too, and stay exact: for z = (x, p),
+    ∂x[k+1]/∂θ = f_z Z and ∂²x[k+1]/∂θ² = f_zz[Z, Z] + f_x ∂²x[k]/∂θ², the same
+    expressions that the continuous-time sweeps integrate (the chain rule of the map
+    in place of the variational equations)."""
+
+    name: str = "discrete"
+    order: int = 1
+
+    def interval(self, f: Field, fs: Field, y, dt, carry, substeps: int):
+        return f(y, 0.0), carry, jnp.int32(0)
+
+
+DISCRETE = DiscreteMap()
+
+
 @runtime_checkable
 class RungeKuttaScheme(Protocol):
     """What the march needs of a scheme: its name and order, and ``interval``, which
@@ -328,7 +348,7 @@ class RungeKuttaScheme(Protocol):
     def interval(self, f: Field, fs: Field, y, dt, carry, substeps: int): ...
 
 
-Scheme = ExplicitRungeKutta | DiagonallyImplicitRungeKutta | AdaptiveRungeKutta
+Scheme = ExplicitRungeKutta | DiagonallyImplicitRungeKutta | AdaptiveRungeKutta | DiscreteMap
 
 EULER = ExplicitRungeKutta("euler", ((),), (1.0,), (0.0,), 1)
 HEUN = ExplicitRungeKutta("heun", ((), (1.0,)), (0.5, 0.5), (0.0, 1.0), 2)

@@ -81,6 +81,10 @@ class Model:
     states, params, inputs, outputs : lists of names
         Names of x, p, u and y entries, in order. Names must be unique across
         states and params, because bounds and fixed lists refer to both.
+    discrete : bool
+        A discrete-time model: ``rhs`` returns x[k+1] = f(x[k], p, u[k]) on the
+        experiment's sampling grid (uniform) instead of dx/dt; the derivatives are
+        exact by the same recursion (see integrators.DiscreteMap).
     input_delays : dict {input: seconds}, optional
         Known transport or computation delays: the model sees u(t − τ) for that input
         (before the record starts, its first sample). The delayed input is exact at
@@ -99,6 +103,7 @@ class Model:
     outputs: Sequence[str] = None  # type: ignore[assignment]
     name: str = "model"
     input_delays: dict | None = None
+    discrete: bool = False
     _scalar_output: bool = field(default=False, init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -138,6 +143,8 @@ class Model:
         set_(self, "inputs", inputs)
         set_(self, "outputs", outputs)
         set_(self, "input_delays", _check_delays(self.input_delays, inputs))
+        if not isinstance(self.discrete, bool):
+            raise TypeError(f"discrete must be True or False, got {self.discrete!r}")
         self._check_shapes()
 
     # sizes, in the paper's letters

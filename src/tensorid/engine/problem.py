@@ -122,7 +122,7 @@ class Problem:
         self.free_params = [n for n in model.params if n not in self.fixed]
         discretisation = Discretisation.resolve(
             discretisation, scheme, substeps, interpolation, rtol, atol
-        )
+        ).for_model(model)
         self.discretisation = discretisation
         self.weights = self._check_weights(weights)
         self.lower, self.upper = self._check_bounds(bounds or {})
@@ -199,6 +199,13 @@ class Problem:
                     f"{where} has {e.u.shape[1]} input column(s) but the model "
                     f"has {m.U} inputs {list(m.inputs)}"
                 )
+            if m.discrete and e.P > 2:
+                dt = np.diff(e.t)
+                if np.abs(dt - dt.mean()).max() > 1e-6 * abs(dt.mean()):
+                    raise ValueError(
+                        f"{where}: a discrete-time model steps once per sample, but the "
+                        "sample times are not uniform; resample the record to one rate"
+                    )
             if e.y.shape[1] != m.S:
                 raise ValueError(
                     f"{where} has {e.y.shape[1]} output column(s) but the model "

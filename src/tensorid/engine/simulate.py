@@ -93,7 +93,7 @@ def simulate(
         )
     discretisation = Discretisation.resolve(
         discretisation, scheme, substeps, interpolation, rtol, atol
-    )
+    ).for_model(model)
     p = model.params_array(params, "params")
     x = model.states_array(x0, "x0")
     sim = run_simulation(shared_sweeps(model, (), (), discretisation), data, x, p)
