@@ -77,9 +77,9 @@ def _check_lagrangian(sh, z, rtol=1e-9, forward=False):
     np.testing.assert_array_equal(gn.c, L.c)
 
 
-# the autodiff reference compiles every segment unrolled (15-40 s a model): two models
-# in the default run, all of them in the slow one
-QUICK = ("two-tank fixed x0, zoh", "decay K=1 N=1 euler")
+# the autodiff reference compiles every segment unrolled (8-40 s a model): one model in
+# the default run, all of them in the slow one
+QUICK = ("decay K=1 N=1 euler",)
 CASES = [p if p[0] in QUICK else pytest.param(*p, marks=pytest.mark.slow) for p in PROBLEMS]
 
 
