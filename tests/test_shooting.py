@@ -326,3 +326,69 @@ def test_many_segments_use_the_block_arrow_solver_and_agree_with_the_dense_one(m
     dense = ti.fit(prob, "gauss-newton")
     assert arrow.success and dense.success
     assert arrow.cost == pytest.approx(dense.cost, rel=1e-9)
+
+
+def test_ctrl_c_ends_a_batch_of_segmented_starts_at_once():
+    prob = ti.Problem(lotka_volterra(), lv_data(noise=0.05), p0=LV_TRUE, x0=[2.0, 1.0],
+                      free_x0=["prey", "pred"], segments=4)  # fmt: skip
+    calls = []
+
+    def stop(entry):
+        calls.append(entry)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+
+    starts = prob.theta0 * np.array([[1.3], [0.8], [1.2]])
+    opts = ti.FitOptions(callback=stop)
+    with pytest.raises(ti.FitInterrupted) as caught:
+        ti.fit_batch(prob, "gauss-newton", starts, options=opts)
+    assert len(calls) == 2
+    assert [str(r.status) for r in caught.value.results] == ["interrupted"] * 3
+    # an interrupted fit never returns a point worse than its start
+    for r, th in zip(caught.value.results, starts, strict=True):
+        assert r.cost <= prob.cost(th)
+
+
+def test_without_polish_multistart_keeps_the_segments_solution():
+    from tensorid.benchmarks import lotka_volterra_problem
+
+    prob = lotka_volterra_problem(samples=201, segments=4)
+    res = ti.fit(prob, "gauss-newton", starts=2, workers=1, spread=0.3, polish=False)
+    assert res.success and not res.shooting["polished"]
+    assert all(h.get("stage") == "multiple shooting" for h in res.history)
+    assert all(np.isfinite(h["cost"]) and "lagrangian" in h for h in res.history)
+
+
+def test_a_segment_that_blows_up_from_the_data_starts_from_the_simulation_instead():
+    """x' = a·x² − x: from the measured x(0) = 1.5 and a = 0.9 the first segment (2 s)
+    blows up (at t = 1.35 s), while the user's start x0 = 1 does not."""
+    m = ti.Model(rhs=lambda x, p, u: p[0] * x**2 - x, states=["x"], params=["a"])
+    t = np.linspace(0, 4, 81)
+    y = ti.simulate(m, [0.5], [1.5], ti.Experiment(t, None)).y
+    prob = ti.Problem(m, ti.Experiment(t, None, y), p0=[0.9], x0=[1.0], free_x0=["x"], segments=2)
+    assert np.isfinite(prob.cost(prob.theta0))
+    sh = prob.shooting
+    assert not sh.evaluate(sh.start(prob.theta0)).finite
+    res = ti.fit(prob)
+    assert res.success, res.message
+    assert res.params["a"] == pytest.approx(0.5, rel=1e-7)
+
+
+def test_cli_segment_mistakes_name_the_flag(tmp_path, capsys):
+    from tensorid.cli import main
+
+    data = lv_data(P=101, T=20.0)
+    csv = tmp_path / "lv.csv"
+    np.savetxt(csv, np.column_stack([data.t, data.y]), delimiter=",", header="t,prey,pred",
+               comments="")  # fmt: skip
+    model = tmp_path / "lv.py"
+    model.write_text(
+        'states = ["prey", "pred"]\nparams = ["a", "b", "c", "d"]\n'
+        'rhs = {"prey": "a*prey - b*prey*pred", "pred": "-c*pred + d*prey*pred"}\n'
+        'p0 = {"a": 1.0, "b": 0.5, "c": 1.0, "d": 0.3}\nx0 = {"prey": 2.0, "pred": 1.0}\n'
+    )
+    assert (
+        main(["fit", str(model), str(csv), "--segments", "1000", "--out", str(tmp_path / "o")]) == 2
+    )
+    err = capsys.readouterr().err
+    assert "--segments" in err and "at most 50" in err and "lv.py" not in err

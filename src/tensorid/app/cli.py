@@ -154,7 +154,8 @@ def register(sub) -> None:
         help="validation as the benchmarks do it: initial states estimated on the first N "
         "samples of each validation record (parameters held), scored after them",
     )
-    f.add_argument(
+    seg = f.add_mutually_exclusive_group()
+    seg.add_argument(
         "--segments",
         type=_count,
         default=None,
@@ -163,7 +164,7 @@ def register(sub) -> None:
         "initial state, joined by continuity constraints; for long, oscillating or "
         "poorly initialised records (method newton or gauss-newton)",
     )
-    f.add_argument(
+    seg.add_argument(
         "--segment-length",
         type=_count,
         default=None,

@@ -19,6 +19,7 @@ from ..engine.diagnostics import describe_failure
 from ..engine.discretisation import Discretisation
 from ..engine.metrics import gof
 from ..engine.problem import Problem
+from ..engine.shooting import resolve_segments
 from ..engine.simulate import run_simulation
 from ..engine.status import Status
 from ..engine.sweeps import shared_sweeps
@@ -72,6 +73,10 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
             f"{list(spec.model.params)}"
         )
     disc = discretisation(args)
+    try:  # the segments are the command line's, not the model file's
+        resolve_segments(train, args.segments, args.segment_length)
+    except ValueError as e:
+        raise ValueError(f"--segments/--segment-length: {e}") from None
     try:
         return Problem(
             spec.model,

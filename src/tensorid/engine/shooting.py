@@ -20,7 +20,6 @@ exact, from the same sweeps, all segments of one length in one vmapped call.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import jax.numpy as jnp
@@ -51,7 +50,7 @@ def resolve_segments(experiments, segments, segment_length) -> list[int] | None:
     elif segments is None:
         return None
     else:
-        counts = list(segments) if isinstance(segments, Sequence) else [segments] * E
+        counts = list(segments) if np.ndim(segments) == 1 else [segments] * E
         if len(counts) != E:
             raise ValueError(f"segments has {len(counts)} entries but there are {E} experiments")
         for n in counts:
@@ -59,9 +58,10 @@ def resolve_segments(experiments, segments, segment_length) -> list[int] | None:
                 raise ValueError(f"segments must be positive integers, got {segments!r}")
     for e, n in zip(experiments, counts, strict=True):
         if n > 1 and (len(e.t) - 1) // n < 2:
+            most = max(1, (len(e.t) - 1) // 2)
             raise ValueError(
                 f"segments: {n} segments leave fewer than 2 sample intervals each in an "
-                f"experiment of {len(e.t)} samples; use at most {(len(e.t) - 1) // 2}"
+                f"experiment of {len(e.t)} samples; use at most {most}"
             )
     counts = [int(n) for n in counts]
     return counts if max(counts) > 1 else None
@@ -248,14 +248,14 @@ class Shooting:
         return out
 
     # -- the start -------------------------------------------------------------------------
-    def start(self, theta) -> np.ndarray:
+    def start(self, theta, from_data: bool = True) -> np.ndarray:
         """z from the user's θ: every segment's state from a simulation at θ restarted
         at each segment, with the states an output measures directly taken from the
-        data (the first segment's free x0 included)."""
+        data (the first segment's free x0 included) unless not ``from_data``."""
         pr = self.problem
         theta = pr.check_theta(theta)
         p, x0 = pr.unpack(theta)
-        measured = self.measured_states()
+        measured = self.measured_states() if from_data else {}
         z = np.zeros(self.nz)
         z[self.param_slice()] = theta[len(self.counts) * len(pr.free_x0) :]
         free = [pr.model.states.index(n) for n in pr.free_x0]

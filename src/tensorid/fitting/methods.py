@@ -127,7 +127,7 @@ def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResul
         )
     opts = options.pop("options", None)
     if opts is None:
-        allowed = {"x_scale", "maxiter", "gtol", "ftol", "xtol"}
+        allowed = {"x_scale", "maxiter", "gtol", "ftol", "xtol", "polish"}
         if set(options) - allowed:
             raise TypeError(f"fit_batch got unexpected options {sorted(set(options) - allowed)}")
         opts = FitOptions(**options)
@@ -172,8 +172,8 @@ def _check_method(problem, method) -> None:
         raise ValueError(f"unknown method {method!r}; choose one of {list(METHODS)}")
     if problem.shooting is not None and method in BASELINES:
         raise ValueError(
-            f"method {method!r} is single shooting only; with segments use 'newton' or "
-            "'gauss-newton', or build the Problem without segments"
+            f"method {method!r} is single shooting only; with segments (multiple "
+            "shooting) use 'newton' or 'gauss-newton', or drop the segments"
         )
 
 
@@ -182,7 +182,16 @@ def _fits(problem, method, thetas, options: FitOptions, started) -> list[FitResu
     the problem has segments, else by the driver (lock-step for several)."""
     if problem.shooting is None:
         return fit_many(problem, method, thetas, options, started)
-    return [fit_shooting(problem, method, th, options, started) for th in thetas]
+    out: list[FitResult] = []
+    for th in thetas:
+        if out and out[-1].status is Status.INTERRUPTED:  # Ctrl-C ends the batch
+            out.append(
+                FitResult.at(problem, method, th, np.ones(problem.K), Status.INTERRUPTED,
+                             started=started, evaluate=False, cost=problem.cost(th))
+            )  # fmt: skip
+        else:
+            out.append(fit_shooting(problem, method, th, options, started))
+    return out
 
 
 def _check_start(problem: Problem, theta, what: str) -> np.ndarray:
@@ -278,7 +287,7 @@ def _best_of(problem, method, theta0, runs: list[dict], options: FitOptions, sta
         res = failed(problem, method, theta0, started, status.message, status)
         res.nit, res.nit_total, res.nfev, res.nfev_best = 0, nit_all, nfev_all, 0
     else:
-        res = fit_many(problem, method, np.asarray(best["theta"])[None, :], options, started)[0]
+        res = _refined(problem, method, best, options, started)
         own = histories[best["start"]]
         # the refinement restarts its count (the trust region records an iteration 0)
         offset = own[-1]["iteration"] if own else best["nit"]
@@ -287,9 +296,23 @@ def _best_of(problem, method, theta0, runs: list[dict], options: FitOptions, sta
         res.nit_total, res.nfev = nit_all + res.nit, nfev_all + res.nfev
         res.nfev_best = best["nfev"] + res.nfev_best
         res.nit += best["nit"]
-        res.shooting = best.get("shooting")
     res.starts = ranked
     res.seconds = time.perf_counter() - started
+    return res
+
+
+def _refined(problem, method, best: dict, options: FitOptions, started) -> FitResult:
+    """The best start refined by single shooting; with segments and no polish, the
+    best start's own multiple-shooting solution as it is (refining it would polish)."""
+    theta = np.asarray(best["theta"])
+    if problem.shooting is not None and not options.polish:
+        status = Status[best["status"].upper()]
+        res = FitResult.at(problem, method, theta, np.ones(problem.K), status,
+                           message=best["message"], started=started)  # fmt: skip
+        res.nit = res.nfev = res.nfev_best = 0
+    else:
+        res = fit_many(problem, method, theta[None, :], options, started)[0]
+    res.shooting = best.get("shooting")
     return res
 
 

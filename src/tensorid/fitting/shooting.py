@@ -39,15 +39,25 @@ def fit_shooting(problem, method: str, theta0, options: FitOptions, started) -> 
     sh = problem.shooting
     z0 = sh.start(theta0)
     first = sh.evaluate(z0, exact=False)
+    if not first.finite:  # a segment blows up from the measured states: simulate instead
+        z0 = sh.start(theta0, from_data=False)
+        first = sh.evaluate(z0, exact=False)
     if not first.finite:
-        why = problem.diagnose(theta0) or "a segment's simulation is not finite at the start"
+        why = problem.diagnose(theta0) or (
+            "a segment's simulation is not finite at the start, although the whole "
+            "record's is; try more segments or another initial guess"
+        )
         return failed(problem, method, theta0, started, why + " Choose another initial guess.")
     run = _Run(problem, method, z0, first.J, options)
     try:
         z, status, detail = run.solve()
     except KeyboardInterrupt:
         z, status, detail = run.best, Status.INTERRUPTED, ""
+    except np.linalg.LinAlgError as e:  # as in driver._single: the best point is kept
+        z, status, detail = run.best, Status.SOLVER_FAILED, f"{method} raised LinAlgError: {e}"
     theta = sh.to_theta(z)
+    if status is Status.INTERRUPTED and problem.cost(theta0) < problem.cost(theta):
+        theta = np.asarray(theta0, dtype=float)  # stopped before the segments beat the start
     info = dict(
         segments=list(sh.counts),
         nit=run.nit,
@@ -60,8 +70,6 @@ def fit_shooting(problem, method: str, theta0, options: FitOptions, started) -> 
         seconds=time.perf_counter() - started,
         polished=False,
     )
-    for h in run.history:
-        h["stage"] = "multiple shooting"
     if status is not Status.INTERRUPTED and options.polish:
         res = fit_many(problem, method, theta[None, :], options, started)[0]
         info["polished"] = True
@@ -90,7 +98,7 @@ def fit_shooting(problem, method: str, theta0, options: FitOptions, started) -> 
             cost=problem.cost(theta) if status is Status.INTERRUPTED else np.inf,
         )
     res.shooting = info
-    if run.defect > run.ctol:
+    if run.defect > run.ctol and np.isfinite(run.defect):
         res.notes.append(
             f"multiple shooting stopped with a continuity defect of {run.defect:.1e} "
             f"(relative to the state scale; tolerance {run.ctol:.0e})"
@@ -116,6 +124,7 @@ class _Run:
         self.history: list[dict] = []
         self.best = z0
         self.J, self.defect = J0, np.inf
+        self.costs_seen: dict[float, float] = {}
         # the state unknowns come first in z: the banded block of the arrow
         self.subproblem = ArrowSolver(sh.nz_states) if sh.nz >= ARROW_FROM else None
 
@@ -155,6 +164,7 @@ class _Run:
             H = L.H * np.outer(s, s) / self.J_ref + mu * A.T @ A
             if self.exact and w.size:
                 H += sh.curvature(L, w / self.cscale) * np.outer(s, s)
+            self.costs_seen[float(val)] = L.J  # the history reports J beside L_A
             return val, grad, H
 
         return fun
@@ -165,10 +175,11 @@ class _Run:
         phi = self.best / self.scale
         lam, mu = np.zeros(self.cscale.size), MU0
         status, detail, previous = Status.MAXITER, "", np.inf
-        for self.outer in range(1, MAX_OUTER + 1):
+        for outer in range(1, MAX_OUTER + 1):
             budget = opts.maxiter - self.nit
             if budget <= 0:
                 break
+            self.outer = outer
             gtol = max(opts.gtol, 1e-3 * 10.0 ** (1 - self.outer))
             r = minimize_trust_region(
                 self.lagrangian(lam, mu),
@@ -198,14 +209,24 @@ class _Run:
         return self.best, status, detail
 
     def _record(self, lam, mu):
+        """History entries in the user's units: ``cost`` is J, ``lagrangian`` the
+        augmented Lagrangian the inner solve minimises; each inner solve's iteration
+        0 (the previous one's end point) is recorded once."""
+        seen = self.costs_seen
+
         def record(entry):
+            if entry["iteration"] == 0 and self.history:
+                return
+            scaled = entry["cost"]
             self.history.append(
                 dict(
                     entry,
                     iteration=entry["iteration"] + self.nit,
-                    cost=entry["cost"] * self.J_ref,
+                    cost=seen.get(float(scaled), np.nan),
+                    lagrangian=scaled * self.J_ref,
                     grad_norm=entry["grad_norm"] * self.J_ref,
                     penalty=float(mu),
+                    stage="multiple shooting",
                 )
             )
             if self.options.callback is not None:

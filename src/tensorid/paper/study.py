@@ -252,6 +252,10 @@ def _worker_problem(dataset: str, substeps: int, segments: int | None = None):
     prob.cost(th)
     prob.residuals(th)
     prob.simulate(th)
+    if prob.shooting is not None:  # the segments' sweeps, so that its timings exclude them too
+        z = prob.shooting.start(th)
+        prob.shooting.evaluate(z)
+        prob.shooting.evaluate(z, exact=False)
     if dataset == "silverbox":
         val = datasets.silverbox_validation()
         simulate(prob.model, prob.p0, [0.0, 0.0], val, substeps=substeps)
