@@ -8,7 +8,10 @@
    without the optional [bench] extra);
 3. bench_multistart: multi-start throughput, pools and vmap batches;
 4. bench_scaling: time against P, K and N, and Newton-CG against Newton;
-5. bench_long_record: the whole 131,072-sample record, time and peak memory.
+5. bench_long_record: the whole 131,072-sample record, time and peak memory;
+6. bench_shooting and bench_shooting_sqp: multiple against single shooting
+   (robustness, cost, scaling with S, the block-arrow solver) and the augmented
+   Lagrangian against a line-search SQP.
 
 Each runs in its own process (so one's compilation cache or memory does not
 flatter the next); --quick passes each script its short form.
@@ -37,6 +40,8 @@ def main() -> None:
         ("bench_multistart.py", ["--starts", "8"] if q else []),
         ("bench_scaling.py", ["--quick"] if q else []),
         ("bench_long_record.py", ["--samples", "16384"] if q else []),
+        ("bench_shooting.py", ["--quick"] if q else []),
+        ("bench_shooting_sqp.py", ["--quick"] if q else []),
     ]
     for script, extra in runs:
         print(f"\n# {script} {' '.join(extra)}\n", flush=True)
