@@ -10,6 +10,8 @@ import pytest
 from test_sensitivity import PROBLEMS
 
 import tensorid as ti
+from tensorid.benchmarks import LOTKA_VOLTERRA_TRUE as LV_TRUE
+from tensorid.benchmarks import lotka_volterra_model as lotka_volterra
 
 
 def segmented(prob: ti.Problem, segments, **kw) -> ti.Problem:
@@ -25,20 +27,6 @@ def segmented(prob: ti.Problem, segments, **kw) -> ti.Problem:
     )
     args.update(kw)
     return ti.Problem(prob.model, prob.experiments, **args)
-
-
-def lotka_volterra():
-    return ti.Model(
-        rhs=lambda x, p, u: jnp.stack(
-            [p[0] * x[0] - p[1] * x[0] * x[1], -p[2] * x[1] + p[3] * x[0] * x[1]]
-        ),
-        states=["prey", "pred"],
-        params=["a", "b", "c", "d"],
-        name="lotka-volterra",
-    )
-
-
-LV_TRUE = {"a": 1.0, "b": 0.5, "c": 1.0, "d": 0.3}
 
 
 def lv_data(P=301, T=30.0, noise=0.0, seed=1):

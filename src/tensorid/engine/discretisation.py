@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401
-from .integrators import RungeKuttaScheme, Scheme, _x, get_scheme
+from .integrators import DISCRETE, DiscreteMap, RungeKuttaScheme, Scheme, _x, get_scheme
 from .status import Status
 
 INTERPOLATIONS = ("linear", "zoh")
@@ -89,8 +89,6 @@ class Discretisation:
         """This discretisation, checked against the model's kind of time: a discrete-time
         model steps once per sample (the default settings become that); a
         continuous-time one cannot use the discrete map."""
-        from .integrators import DISCRETE, DiscreteMap
-
         discrete = isinstance(self.scheme, DiscreteMap)
         if not model.discrete:
             if discrete:

@@ -127,6 +127,10 @@ class Shooting:
             pos += nx + (n - 1) * self.N
         self.block_start, self.nz_states = starts, pos
         self.nz = pos + len(problem.free_params)
+        # where θ's entries (free x0 of each experiment, then parameters) sit in z
+        self.theta_index = np.concatenate(
+            [self.state_slice(e, 0) for e in range(len(counts))] + [self.param_slice()]
+        ).astype(int)
         self.first_sweeps = problem._sweeps
         self.state_sweeps = shared_sweeps(
             m,
@@ -155,10 +159,7 @@ class Shooting:
 
     def to_theta(self, z) -> np.ndarray:
         """The user's θ (free x0 of each experiment, free parameters) from z."""
-        z = np.asarray(z, dtype=float)
-        E = len(self.counts)
-        xs = [z[self.state_slice(e, 0)] for e in range(E)]
-        return np.concatenate(xs + [z[self.param_slice()]])
+        return np.asarray(z, dtype=float)[self.theta_index]
 
     def _groups(self) -> list[_Group]:
         pr = self.problem
@@ -177,13 +178,17 @@ class Shooting:
             out.append(_Group(first, members, t, u, y, W, x0, local))
         return out
 
+    def _inputs(self, e: int) -> np.ndarray:
+        """Experiment e's inputs as the model sees them (delayed), from the Problem."""
+        return np.asarray(self.problem._arrays[e][1])
+
     def _segment_data(self, e: int, i: int):
         ex, k = self.problem.experiments[e], self.bounds[e]
         sl = slice(k[i], k[i + 1] + 1)
         W = np.tile(self.problem.weights, (k[i + 1] - k[i] + 1, 1))
         if i < len(k) - 2:
             W[-1] = 0.0  # the shared sample belongs to the next segment
-        return ex.t[sl], self.problem.inputs(ex)[sl], ex.y[sl], W
+        return ex.t[sl], self._inputs(e)[sl], ex.y[sl], W
 
     # -- evaluation ------------------------------------------------------------------------
     def evaluate(self, z, exact: bool = True) -> Lifted:
@@ -224,15 +229,13 @@ class Shooting:
         return Lifted(J, g, H, c, A, ends)
 
     def _priors(self, z, J, g, H):
-        theta = self.to_theta(z)
-        where = np.concatenate([self.state_slice(e, 0) for e in range(len(self.counts))])
-        where = np.concatenate([where, self.param_slice()])
-        J = J + self.problem.prior_cost(theta)
-        for i, (mean, sd) in self.problem.priors.items():
-            prec = self.problem.noise_variance / sd**2
-            g[where[i]] += 2 * prec * (theta[i] - mean)
-            H[where[i], where[i]] += 2 * prec
-        return J, g, H
+        """The priors' terms, as the Problem adds them in θ's layout, placed into z's."""
+        pr, w = self.problem, self.theta_index
+        out = [0.0, np.zeros(pr.K), np.zeros((pr.K, pr.K))]
+        pr._prior_terms(self.to_theta(z), "JgH", (), out)
+        g[w] += out[1]
+        H[np.ix_(w, w)] += out[2]
+        return J + float(out[0]), g, H
 
     def curvature(self, lifted: Lifted, v: np.ndarray) -> np.ndarray:
         """Σ_k v_k ∇²c_k (nz, nz): each segment's end tensor contracted with its share of
@@ -261,7 +264,7 @@ class Shooting:
         free = [pr.model.states.index(n) for n in pr.free_x0]
         for e, k in enumerate(self.bounds):
             ex, s = pr.experiments[e], x0[e].copy()
-            u = pr.inputs(ex)
+            u = self._inputs(e)
             for i in range(len(k) - 1):
                 for n, o in measured.items():
                     if i > 0 or n in free:
@@ -290,16 +293,6 @@ class Shooting:
                     break
         return out
 
-    def max_defect(self, z, scale) -> float:
-        """The largest defect relative to the state scale (0 for one segment each)."""
-        c = self.evaluate_defects(z)
-        if not c.size:
-            return 0.0
-        return float(np.max(np.abs(c) / np.tile(scale, len(self.defect_rows))))
-
-    def evaluate_defects(self, z) -> np.ndarray:
-        return self.evaluate(z, exact=False).c
-
     def state_scale(self, z) -> np.ndarray:
         """(N,) typical magnitudes of the states over the segments' starts at z."""
         rows = [z[self.state_slice(e, i + 1)] for e, i in self.defect_rows]
@@ -315,7 +308,7 @@ class Shooting:
         w = jnp.asarray(pr.weights)
         for e, k in enumerate(self.bounds):
             ex = pr.experiments[e]
-            u = pr.inputs(ex)
+            u = self._inputs(e)
             x = jnp.asarray(pr.x0[e])
             free = [pr.model.states.index(n) for n in pr.free_x0]
             p = (
@@ -335,13 +328,7 @@ class Shooting:
                 J = J + jnp.sum(w * (r if last else r[:-1]) ** 2)
                 if not last:
                     cs.append(xs[-1] - z[self.state_slice(e, i + 1)])
+        theta = z[self.theta_index]
         for i, (mean, sd) in pr.priors.items():
-            theta_i = self.to_theta_jax(z)[i]
-            J = J + pr.noise_variance * ((theta_i - mean) / sd) ** 2
+            J = J + pr.noise_variance * ((theta[i] - mean) / sd) ** 2
         return J, (jnp.concatenate(cs) if cs else jnp.zeros(0))
-
-    def to_theta_jax(self, z):
-        E = len(self.counts)
-        return jnp.concatenate(
-            [z[self.state_slice(e, 0)] for e in range(E)] + [z[self.param_slice()]]
-        )

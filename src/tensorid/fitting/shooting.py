@@ -141,9 +141,7 @@ class _Run:
     def _box(self):
         sh, pr = self.sh, self.problem
         lo, hi = np.full(sh.nz, -np.inf), np.full(sh.nz, np.inf)
-        E, nx = len(sh.counts), len(pr.free_x0)
-        where = np.concatenate([sh.state_slice(e, 0) for e in range(E)] + [sh.param_slice()])
-        lo[where], hi[where] = pr.lower[: E * nx + len(pr.free_params)], pr.upper
+        lo[sh.theta_index], hi[sh.theta_index] = pr.lower, pr.upper
         return lo / self.scale, hi / self.scale
 
     def lagrangian(self, lam, mu):
