@@ -80,3 +80,20 @@ def test_the_command_line_reports_the_tests(tmp_path, capsys):
     assert "## Residual analysis" in report and "whiteness of y" in report
     assert (out / "residual_tests.png").is_file()
     assert "residuals: whiteness of y" in capsys.readouterr().out
+
+
+def test_an_input_constant_on_every_record_is_not_tested():
+    # EMPS' estimation record holds the force pulses' input at zero: a correlation
+    # with it is 0/0, and a "passes" would be a verdict without a test
+    rng = np.random.default_rng(3)
+    u = np.stack([rng.standard_normal(T.size), np.zeros(T.size)], axis=1)
+    model = ti.Model(
+        rhs=lambda x, p, u: -p[0] * x + p[1] * u[0] + u[1], states=["x"], params=["a", "b"],
+        inputs=["u", "pulses"], output=lambda x, p: x, outputs=["y"],
+    )  # fmt: skip
+    y = ti.simulate(model, {"a": 2.0, "b": 1.0}, [0.0], ti.Experiment(T, u)).y
+    res = ti.fit(ti.Problem(model, ti.Experiment(T, u, y), p0={"a": 1.0, "b": 2.0}))
+    tests = res.residual_tests()
+    assert [c.what for c in tests.independence] == ["y against input u"]
+    assert tests.constant_inputs == ["pulses"] and tests.as_dict()["constant_inputs"] == ["pulses"]
+    assert "input pulses: not tested" in tests.lines()[-1]

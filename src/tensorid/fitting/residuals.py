@@ -19,7 +19,7 @@ differences between models fitted to the same data mean anything.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import stats
@@ -57,6 +57,8 @@ class ResidualTests:
     bound: float  # z/√N: the band the figure draws
     whiteness: list[Correlation]
     independence: list[Correlation]
+    # inputs constant on every record: no correlation to test, so no verdict
+    constant_inputs: list[str] = field(default_factory=list)
 
     @property
     def passed(self) -> bool:
@@ -64,7 +66,10 @@ class ResidualTests:
 
     def lines(self) -> list[str]:
         """One line per test, in words."""
-        return [c.line() for c in self.whiteness + self.independence]
+        return [c.line() for c in self.whiteness + self.independence] + [
+            f"input {name}: not tested (constant on every record, so nothing to correlate)"
+            for name in self.constant_inputs
+        ]
 
     def as_dict(self) -> dict:
         def one(c: Correlation) -> dict:
@@ -84,6 +89,7 @@ class ResidualTests:
             "band": self.bound,
             "whiteness": [one(c) for c in self.whiteness],
             "independence": [one(c) for c in self.independence],
+            "constant_inputs": self.constant_inputs,
         }
 
     def figure(self):
@@ -141,6 +147,11 @@ def residual_tests(res, max_lag: int = 25, level: float = 0.99) -> ResidualTests
     exps = problem.experiments
     N = sum(e.P for e in exps)
     white, indep = [], []
+    constant = [
+        name
+        for i, name in enumerate(model.inputs)
+        if all(np.ptp(e.u[:, i]) == 0 for e in exps)
+    ]
     q_white = stats.chi2.ppf(level, max_lag)
     q_cross = stats.chi2.ppf(level, max_lag + 1)
     for j, out in enumerate(model.outputs):
@@ -150,6 +161,8 @@ def residual_tests(res, max_lag: int = 25, level: float = 0.99) -> ResidualTests
         lags = np.arange(max_lag + 1)
         white.append(Correlation(f"whiteness of {out}", lags, r, Q, q_white, Q <= q_white))
         for i, name in enumerate(model.inputs):
+            if name in constant:
+                continue
             u = [e.u[:, i] for e in exps]
             c = _correlation(err, u, max_lag)
             Qc = float(N * np.sum(c**2))
@@ -157,7 +170,7 @@ def residual_tests(res, max_lag: int = 25, level: float = 0.99) -> ResidualTests
                 Correlation(f"{out} against input {name}", lags, c, Qc, q_cross, Qc <= q_cross)
             )
     bound = float(stats.norm.ppf(0.5 + level / 2) / np.sqrt(N))
-    return ResidualTests(level, max_lag, N, bound, white, indep)
+    return ResidualTests(level, max_lag, N, bound, white, indep, constant)
 
 
 def information_criteria(res) -> dict[str, float]:
