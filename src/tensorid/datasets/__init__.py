@@ -14,6 +14,10 @@ SILVERBOX_TS = 2**14 / 1e7  # s; fs = 10^7 / 2^14 ≈ 610.35 Hz
 SILVERBOX_TRAIN = (10584, 11608)  # the paper's points 10585..11608 (1-based), one period
 SILVERBOX_VALIDATION = (11608, 13655)
 TWO_TANK_TS = 5.0  # s, inferred by reproducing the paper (see README.md)
+EMPS_TS = 1e-3  # s
+EMPS_INIT_WINDOW = 20  # samples: the benchmark's state-initialisation window on the test record
+# the benchmark document's reference model (inverse-model least squares, IDIM-LS)
+EMPS_IDIM_LS = {"M": 95.1089, "Fv": 203.5034, "Fc": 20.3935, "offset": -3.1648}
 
 
 @cache
@@ -84,3 +88,36 @@ def two_tank_levels(samples: int = 501) -> np.ndarray:
     the original y), column 1 the lower tank x2."""
     d = _load("two_tank.npz")
     return np.stack([d["y"][1, :samples], d["y"][0, :samples]], axis=1)
+
+
+def emps_record(record: str = "estimation") -> dict:
+    """One EMPS record as arrays: ``t`` (k·1 ms), ``vir`` (controller output, the
+    force on the load is gtau·vir), ``qm`` (motor position, m), ``qg`` (reference
+    position, m), ``pulses`` (the force pulses added to vir, in vir's units; zero on
+    the estimation record), and the constants ``kp``, ``kv`` and ``gtau``.
+    ``record`` is "estimation" (DATA_EMPS) or "test" (DATA_EMPS_PULSES)."""
+    if record not in ("estimation", "test"):
+        raise ValueError(f'record must be "estimation" or "test", got {record!r}')
+    d = _load("emps.npz")
+    out = {k: d[f"{record}_{k}"] for k in ("vir", "qm", "qg")}
+    n = out["qm"].size
+    pulses = d["test_pulses"].astype(float) if record == "test" else np.zeros(n)
+    return {
+        "t": np.arange(n) * EMPS_TS,
+        **out,
+        "pulses": pulses,
+        **{k: float(d[k]) for k in ("kp", "kv", "gtau")},
+    }
+
+
+def emps(record: str = "estimation", closed_loop: bool = False) -> Experiment:
+    """The EMPS positioning system (24,841 samples at 1 ms), as the benchmark splits it:
+    ``record`` "estimation" for fitting, "test" (with force pulses) for validation with
+    a 20-sample initialisation window (``EMPS_INIT_WINDOW``).
+
+    Open loop (default): u = vir, y = qm. Closed loop: u = (qg, pulses), y = qm, for a
+    model that holds the controller (see ``examples/emps``)."""
+    d = emps_record(record)
+    u = np.stack([d["qg"], d["pulses"]], axis=1) if closed_loop else d["vir"]
+    name = f"emps-{record}" + ("-closed-loop" if closed_loop else "")
+    return Experiment(d["t"], u, d["qm"], name=name)
