@@ -148,9 +148,7 @@ def residual_tests(res, max_lag: int = 25, level: float = 0.99) -> ResidualTests
     N = sum(e.P for e in exps)
     white, indep = [], []
     constant = [
-        name
-        for i, name in enumerate(model.inputs)
-        if all(np.ptp(e.u[:, i]) == 0 for e in exps)
+        name for i, name in enumerate(model.inputs) if all(np.ptp(e.u[:, i]) == 0 for e in exps)
     ]
     q_white = stats.chi2.ppf(level, max_lag)
     q_cross = stats.chi2.ppf(level, max_lag + 1)
