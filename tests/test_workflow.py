@@ -102,7 +102,7 @@ def test_fit_command_end_to_end(workdir, capsys):
         "warnings",
     ):
         assert key in d, key
-    assert d["success"] and d["method"] == "newton" and d["warnings"] == []
+    assert d["success"] and d["method"] == "auto" and d["warnings"] == []
     for name, value in TRUTH.items():
         lo, hi = d["ci95"][name]
         assert lo < value < hi, (name, lo, value, hi)

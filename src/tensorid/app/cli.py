@@ -104,12 +104,13 @@ def register(sub) -> None:
     f.add_argument("--out", default="fit-results", help="output folder")
     f.add_argument(
         "--method",
-        default="newton",
+        default="auto",
         # tensorid.METHODS, spelled out so that --help need not import JAX
-        choices=["newton", "newton-cg", "gauss-newton", "fd-bfgs", "fd-lsq"],
-        help="newton: exact Hessian (default); newton-cg: exact Hessian-vector products "
-        "with truncated CG, for many unknowns; gauss-newton; fd-bfgs and fd-lsq: "
-        "finite-difference baselines",
+        choices=["auto", "newton", "newton-cg", "gauss-newton", "fd-bfgs", "fd-lsq"],
+        help="auto (default): Gauss-Newton while it converges fast, the exact Hessian "
+        "where it turns slow or at a saddle; newton: exact Hessian; newton-cg: exact "
+        "Hessian-vector products with truncated CG, for many unknowns; gauss-newton; "
+        "fd-bfgs and fd-lsq: finite-difference baselines",
     )
     f.add_argument(
         "--validate", nargs="*", default=[], metavar="DATA", help="validation data files"
@@ -162,7 +163,7 @@ def register(sub) -> None:
         metavar="S",
         help="multiple shooting: cut each record into S segments, each with its own "
         "initial state, joined by continuity constraints; for long, oscillating or "
-        "poorly initialised records (method newton or gauss-newton)",
+        "poorly initialised records (method auto, newton or gauss-newton)",
     )
     seg.add_argument(
         "--segment-length",
@@ -190,7 +191,7 @@ def register(sub) -> None:
         "--batch",
         type=_count,
         default=None,
-        help="starts fitted together in lock-step per task, vectorised (newton, "
+        help="starts fitted together in lock-step per task, vectorised (auto, newton, "
         "gauss-newton; default: the starts shared evenly over the local workers)",
     )
     f.add_argument(

@@ -120,6 +120,7 @@ def fit_json(
         "compile_seconds": res.compile_seconds,
         "segments": res.problem.segments,
         "shooting": res.shooting,
+        "hybrid": res.hybrid,
         "warnings": res.warnings,
         "residual_variance": u.sigma2 if u else None,
         "correlation_names": names,

@@ -558,15 +558,23 @@ class Problem:
         J, g, H = self._assemble(self._sweeps.first_order, self.check_theta(theta), parts="JgH")
         return J, g, H
 
-    def cost_grad_hess_batch(
-        self, thetas, gauss_newton: bool = False
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def cost_grad_hess_gn(self, theta) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        """(J, ∇J, ∇²J, Gauss-Newton Hessian) from one second-order sweep: the
+        Gauss-Newton part is a term of the exact Hessian, so it comes for free."""
+        return tuple(
+            self._assemble(self._sweeps.second_order_both, self.check_theta(theta), parts="JgPP")
+        )
+
+    def cost_grad_hess_batch(self, thetas, gauss_newton: bool = False, both: bool = False):
         """cost_grad_hess (or cost_grad_gn) at every row of ``thetas`` (B, K) in one
         vectorised (jax.vmap) call per experiment: (J (B,), g (B, K), H (B, K, K)),
-        J inf where a simulation blows up."""
+        J inf where a simulation blows up. With ``both``, as cost_grad_hess_gn: the
+        Gauss-Newton Hessians (B, K, K) follow."""
         thetas = np.asarray(thetas, dtype=float)
         if thetas.ndim != 2 or thetas.shape[1] != self.K:
             raise ValueError(f"thetas must have shape (B, {self.K}), got {thetas.shape}")
+        if both:
+            return tuple(self._assemble(self._sweeps.second_order_both_batch, thetas, parts="JgPP"))
         if gauss_newton:
             J, g, H = self._assemble(self._sweeps.first_order_batch, thetas, parts="JgH")
         else:

@@ -213,12 +213,14 @@ class Sweeps:
         return (*acc[0], acc[1]) if end else acc
 
     # -- second order: (J, ∇J, ∇²J) or (J, ∇J, ∇²J v) by transition tensors ------------
-    def _second_order(self, theta, x0, p, t, u, y, w, v=None, end=False):
+    def _second_order(self, theta, x0, p, t, u, y, w, v=None, end=False, both=False):
         """With v None: the packed Hessian (pairs j <= k, see pair_indices), d2x carried
         for every pair. With a direction v (K,): the product ∇²J v, carrying only
         d2x_v = Σ_k d2x_jk v_k, whose ODE is d(d2x_v)_j/dt = F_zz[Z_j, Z v] + F_x (d2x_v)_j: 2K + 1
         copies of the state instead of 1 + K + K(K+1)/2. With ``end``, also
-        (x, dx, d2x) at the last sample (see _weighted for y and w)."""
+        (x, dx, d2x) at the last sample (see _weighted for y and w). With ``both``
+        (v None), also the packed Gauss-Newton part: it is a term of the sum anyway,
+        and the hybrid method compares the two models."""
         x0, p = self._expand(theta, x0, p)
         m, N, M, K = self.model, self.model.N, self.model.M, self.K
         dx0, Psel = self._seeds()
@@ -264,7 +266,7 @@ class Sweeps:
             )  # ẋ, d(dx)/dt = F_z Z, d(d2x)/dt = F_zz[Z,Z] + F_x d2x
 
         def observe(acc, state, obs_h):
-            J, g, H = acc
+            J, g, H = acc[:3]
             x, dx, d2x_v = state
             y_h, w = _weighted(obs_h, w_all)
             A, B, Cc = directions(dx, d2x_v)
@@ -273,13 +275,19 @@ class Sweeps:
             r = y_h - m.h(x, p)
             wr = w * r
             gn = 2.0 * (D[jj] * D[kk]) @ w if v is None else 2.0 * D @ (w * (v @ D))
-            return (J + jnp.sum(wr * r), g - 2.0 * D @ wr, H + gn - 2.0 * e2 @ wr), None
+            out = (J + jnp.sum(wr * r), g - 2.0 * D @ wr, H + gn - 2.0 * e2 @ wr)
+            return (out + (acc[3] + gn,) if both else out), None
 
         state0 = (x0, jnp.asarray(dx0), jnp.zeros((N, ncols)))
         acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros(ncols))
+        acc0 = acc0 + (jnp.zeros(ncols),) if both else acc0
         w_all = w
         acc, _, _ = self._march(field, observe, state0, acc0, t, u, y, p, end)
         return (*acc[0], acc[1]) if end else acc
+
+    def _second_order_both(self, theta, x0, p, t, u, y, w):
+        """(J, ∇J, packed ∇²J, packed Gauss-Newton Hessian)."""
+        return self._second_order(theta, x0, p, t, u, y, w, both=True)
 
     def _hessp(self, theta, v, x0, p, t, u, y, w):
         return self._second_order(theta, x0, p, t, u, y, w, v=v)
@@ -307,6 +315,8 @@ class Sweeps:
     # one start per row of theta: multi-start in lock-step, one call for all
     first_order_batch = _Compiled("_first_order", batched=True)
     second_order_batch = _Compiled("_second_order", batched=True)
+    second_order_both = _Compiled("_second_order_both")
+    second_order_both_batch = _Compiled("_second_order_both", batched=True)
     # the segments of a multiple-shooting problem, one per row (each its own x0 and data)
     segments = _Compiled("_segment", batched=True, axes=(0, 0, None, 0, 0, 0, 0))
     segments_gn = _Compiled("_segment_gn", batched=True, axes=(0, 0, None, 0, 0, 0, 0))

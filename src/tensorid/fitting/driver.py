@@ -12,10 +12,11 @@ import numpy as np
 
 from ..engine.status import Status
 from .baselines import BASELINES, run_baseline
+from .hybrid import Hybrid
 from .options import FitOptions
 from .results import FitResult
 from .scaling import Tracker
-from .trust_region import minimize_trust_region, trust_region_steps
+from .trust_region import minimize_trust_region, negative_curvature, trust_region_steps
 
 
 def fit_many(problem, method, thetas, options: FitOptions, started) -> list[FitResult]:
@@ -64,15 +65,19 @@ def _single(method, tr: Tracker, options: FitOptions, started) -> FitResult:
         if method in BASELINES:
             phi, nit, status, detail = run_baseline(method, tr, phi0, options, record)
         else:
+            hybrid = Hybrid(problem.K, ftol=options.ftol) if method == "auto" else None
+            fun = _derivatives(method, tr, hybrid)
             r = minimize_trust_region(
-                _derivatives(method, tr),
-                phi0,
-                lo,
-                hi,
-                fatol=tr.fatol,
-                callback=record,
-                **options.trust_region(),
+                fun, phi0, lo, hi, fatol=tr.fatol, callback=record, **options.trust_region()
             )
+            while hybrid is not None and _at_saddle(tr, hybrid, r, options):
+                # Gauss-Newton converged where ∇²J curves downward: go on with it
+                more = minimize_trust_region(
+                    fun, r.x, lo, hi, fatol=tr.fatol, callback=_after(record, r.nit),
+                    **(options.trust_region() | {"maxiter": options.maxiter - r.nit}),
+                )  # fmt: skip
+                more.nit += r.nit
+                r = more
             phi, nit, status, detail, nhev = r.x, r.nit, r.status, r.detail, r.nhev
     except expected as e:
         detail = f"{method} raised {type(e).__name__}: {e}"
@@ -86,59 +91,114 @@ def _single(method, tr: Tracker, options: FitOptions, started) -> FitResult:
     except KeyboardInterrupt:  # while evaluating the end point: keep the best seen
         return interrupted(tr, method, started, history)
     res.nhev = nhev
+    if method == "auto":
+        res.hybrid = hybrid.report()
     return res
 
 
-def _derivatives(method: str, tr: Tracker):
-    """φ -> scaled (J, g, H or v -> Hv) for an exact-derivative method."""
+def _derivatives(method: str, tr: Tracker, hybrid: Hybrid | None = None):
+    """φ -> scaled (J, g, H or v -> Hv) for an exact-derivative method; for "auto",
+    the sweep and the model ``hybrid`` chooses."""
+    problem = tr.problem
     if method == "newton-cg":
         return tr.derivs_hessp
-    problem = tr.problem
-    return tr.derivs(problem.cost_grad_hess if method == "newton" else problem.cost_grad_gn)
+    if method != "auto":
+        return tr.derivs(problem.cost_grad_hess if method == "newton" else problem.cost_grad_gn)
+    assert hybrid is not None
+
+    def fun(phi):
+        theta = tr.theta(phi)
+        if hybrid.exact:
+            J, g, H, G = problem.cost_grad_hess_gn(theta)
+        else:
+            (J, g, G), H = problem.cost_grad_gn(theta), None
+        return hybrid.take(phi, *tr.scaled(phi, J, g, G), _scaled_hessian(tr, J, H))
+
+    return fun
+
+
+def _scaled_hessian(tr: Tracker, J, H):
+    """H in the tracker's scaled units (None stays None, as does a failed point's)."""
+    if H is None or not np.isfinite(J):
+        return None
+    return H * np.outer(tr.scale, tr.scale) / tr.J_ref
+
+
+def _at_saddle(tr: Tracker, hybrid: Hybrid, r, options: FitOptions) -> bool:
+    """Did a run that ended in Gauss-Newton mode stop where ∇²J has negative
+    curvature along the unknowns off their bounds? Then ``hybrid`` goes exact."""
+    if hybrid.checked or not r.status.success or r.nit >= options.maxiter:
+        return False
+    hybrid.checked = True
+    theta = tr.theta(r.x)
+    J, g, H = tr.problem.cost_grad_hess(theta)
+    lo, hi = tr.problem.lower, tr.problem.upper
+    tol = 1e-12 * (1 + np.abs(theta))
+    off = (theta > lo + tol) & (theta < hi - tol)
+    tr.known = (theta, J, g, H)  # the result at this point needs them too
+    if not np.isfinite(J) or not negative_curvature(_scaled_hessian(tr, J, H)[np.ix_(off, off)]):
+        return False
+    hybrid.exact, hybrid.current = True, None
+    hybrid.saddles += 1
+    return True
+
+
+def _after(record, offset: int):
+    """A recorder whose iteration numbers continue from ``offset`` (its iteration 0,
+    the restart point, is already recorded)."""
+
+    def shifted(entry):
+        if entry["iteration"] > 0:
+            record(dict(entry, iteration=entry["iteration"] + offset))
+
+    return shifted
 
 
 def _lockstep(problem, method, trackers: dict, options, started, results) -> list:
     """The trust-region runs of several starts, their points evaluated together."""
-    gn = method == "gauss-newton"
     runs, pending = {}, {}
     for i, tr in trackers.items():
         history: list[dict] = []
-        lo, hi = tr.box()
-        steps = trust_region_steps(
-            tr.phi(tr.theta0),
-            lo,
-            hi,
-            fatol=tr.fatol,
-            callback=tr.recorder(history, None),
-            **options.trust_region(),
-        )
-        runs[i] = (tr, steps, history)
+        hybrid = Hybrid(problem.K, ftol=options.ftol) if method == "auto" else None
+        steps = _steps(tr, tr.phi(tr.theta0), options, tr.recorder(history, None))
+        runs[i] = [tr, steps, history, hybrid, 0]  # 0: iterations before a restart
         pending[i] = next(steps)
     try:
-        _march_together(problem, method, runs, pending, started, results, gn)
+        _march_together(problem, method, runs, pending, options, started, results)
     except KeyboardInterrupt:  # every unfinished start keeps its best point
         for i in pending:
-            tr, _, history = runs[i]
+            tr, _, history, *_ = runs[i]
             results[i] = interrupted(tr, method, started, history)
     return results
 
 
-def _march_together(problem, method, runs, pending, started, results, gn) -> None:
-    """Evaluate the pending points of every unfinished start in one call, until none
-    is left; ``results`` is filled in as starts finish."""
-    B = len(results)
+def _steps(tr: Tracker, phi, options: FitOptions, callback, maxiter=None):
+    lo, hi = tr.box()
+    kw = options.trust_region() | ({} if maxiter is None else {"maxiter": maxiter})
+    return trust_region_steps(phi, lo, hi, fatol=tr.fatol, callback=callback, **kw)
+
+
+def _march_together(problem, method, runs, pending, options, started, results) -> None:
+    """Evaluate the pending points of every unfinished start together, until none is
+    left; ``results`` is filled in as starts finish."""
     while pending:
-        ids = list(pending)
-        points = [runs[i][0].theta(pending[i]) for i in ids]
-        points += [points[0]] * (B - len(ids))  # one shape: one compilation
-        J, g, H = problem.cost_grad_hess_batch(np.array(points), gauss_newton=gn)
-        for k, i in enumerate(ids):
-            tr, steps, history = runs[i]
+        values = _evaluate_together(problem, method, runs, pending, len(results))
+        for i, value in values.items():
+            tr, steps, history, hybrid, before = runs[i]
             try:
-                pending[i] = steps.send(tr.scaled(pending[i], J[k], g[k], H[k]))
+                pending[i] = steps.send(value)
             except StopIteration as done:
                 r = done.value
+                r.nit += before
+                if hybrid is not None and _at_saddle(tr, hybrid, r, options):
+                    record = _after(tr.recorder(history, None), r.nit)
+                    runs[i][1] = _steps(tr, r.x, options, record, options.maxiter - r.nit)
+                    runs[i][4] = r.nit
+                    pending[i] = next(runs[i][1])
+                    continue
                 results[i] = _finish(tr, method, r.x, r.nit, r.status, r.detail, started, history)
+                if hybrid is not None:
+                    results[i].hybrid = hybrid.report()
                 del pending[i]  # only once finished: Ctrl-C in _finish keeps it pending
             except np.linalg.LinAlgError as e:  # as in _single: this start ends, not the batch
                 del pending[i]
@@ -148,6 +208,35 @@ def _march_together(problem, method, runs, pending, started, results, gn) -> Non
                 results[i] = _finish(
                     tr, method, phi, len(history), status, detail, started, history
                 )
+
+
+def _evaluate_together(problem, method, runs, pending, B) -> dict:
+    """Scaled (J, g, H) at every pending point: one vectorised call per kind of sweep
+    (Gauss-Newton, exact, or, for "auto" in exact mode, both), padded to B points so
+    that each kind compiles once."""
+    groups: dict[str, list] = {}
+    for i in pending:
+        hybrid = runs[i][3]
+        exact = hybrid.exact if hybrid is not None else method == "newton"
+        groups.setdefault(("both" if hybrid else "exact") if exact else "gn", []).append(i)
+    out = {}
+    for kind, ids in groups.items():
+        points = [runs[i][0].theta(pending[i]) for i in ids]
+        points += [points[0]] * (B - len(ids))
+        vals = problem.cost_grad_hess_batch(
+            np.array(points), gauss_newton=kind == "gn", both=kind == "both"
+        )
+        for k, i in enumerate(ids):
+            tr, hybrid, phi = runs[i][0], runs[i][3], pending[i]
+            J, g, H = vals[0][k], vals[1][k], vals[2][k]
+            if hybrid is None:
+                out[i] = tr.scaled(phi, J, g, H)
+            elif kind == "both":
+                scaled = tr.scaled(phi, J, g, vals[3][k])
+                out[i] = hybrid.take(phi, *scaled, _scaled_hessian(tr, J, H))
+            else:
+                out[i] = hybrid.take(phi, *tr.scaled(phi, J, g, H))
+    return out
 
 
 def _finish(tr: Tracker, method, phi, nit, status, detail, started, history) -> FitResult:
@@ -169,6 +258,7 @@ def _finish(tr: Tracker, method, phi, nit, status, detail, started, history) -> 
         nfev=tr.nfev,
         started=started,
         history=history,
+        known=tr.known,
     )
     res.notes = tr.notes()
     return res

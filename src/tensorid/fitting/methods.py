@@ -25,13 +25,13 @@ from .options import FitOptions
 from .results import FitInterrupted, FitResult
 from .shooting import fit_shooting
 
-METHODS = ("newton", "newton-cg", "gauss-newton", *BASELINES)
-LOCKSTEP = ("newton", "gauss-newton")  # methods whose starts can share vmapped calls
+METHODS = ("auto", "newton", "newton-cg", "gauss-newton", *BASELINES)
+LOCKSTEP = ("auto", "newton", "gauss-newton")  # methods whose starts can share vmapped calls
 
 
 def fit(
     problem: Problem,
-    method: str = "newton",
+    method: str = "auto",
     *,
     theta0=None,
     starts: int | None = None,
@@ -54,12 +54,12 @@ def fit(
     """Estimate the free initial states and parameters of ``problem``.
 
     method:
+      "auto"          (default) Gauss-Newton while it converges fast, the exact
+                      Hessian where it does not or at a saddle (see hybrid.py)
       "newton"        trust-region Newton with the exact Hessian from transition tensors
-      "newton-cg"     trust-region Newton with truncated conjugate gradients on exact
-                      Hessian-vector products (one forward-over-forward sweep of 2K + 1
-                      state copies each, against 1 + K + K(K+1)/2 for the full
-                      Hessian): for many unknowns; the final Hessian for the error
-                      bars is still computed once
+      "newton-cg"     trust-region Newton with truncated CG on exact Hessian-vector
+                      products (one sweep of 2K + 1 state copies each, against
+                      1 + K + K(K+1)/2 for the full Hessian): for many unknowns
       "gauss-newton"  trust-region Gauss-Newton (Levenberg-Marquardt) with the exact
                       Jacobian from first-order sensitivities
       "fd-bfgs"       BFGS (L-BFGS-B with bounds) with a finite-difference gradient
@@ -81,9 +81,9 @@ def fit(
         16 per task) for those methods, one start per task otherwise.
     timeout : seconds to wait for the next start to finish on workers; then the best
         finished start is returned, status ``WORKERS_LOST``. Default: wait.
-    polish : with segments (multiple shooting: "newton", "newton-cg" as "newton", or
-        "gauss-newton"), end with single shooting from its solution (default), so that
-        the result is one continuous trajectory; ``result.shooting`` reports the stage.
+    polish : with segments (multiple shooting: "auto", "newton" and "newton-cg" by
+        the exact Lagrangian Hessian, or "gauss-newton"), end with single shooting
+        from its solution (default); ``result.shooting`` reports the stage.
     Ctrl-C stops the fit at once, workers included, raising :class:`FitInterrupted`
     (a KeyboardInterrupt) whose ``result`` is the best point so far.
     """
@@ -173,7 +173,7 @@ def _check_method(problem, method) -> None:
     if problem.shooting is not None and method in BASELINES:
         raise ValueError(
             f"method {method!r} is single shooting only; with segments (multiple "
-            "shooting) use 'newton' or 'gauss-newton', or drop the segments"
+            "shooting) use 'auto', 'newton' or 'gauss-newton', or drop the segments"
         )
 
 

@@ -77,6 +77,7 @@ class FitResult:
     compile_seconds: float = 0.0
     derivatives: bool = True  # jac and hess hold the exact derivatives at theta
     shooting: dict | None = None  # multiple shooting: segments, defects, its own counts
+    hybrid: dict | None = None  # method "auto": evaluations of each kind, mode switches
     # the summary, the warnings, fit.json and report.md all read the same uncertainty
     _uncertainty: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
@@ -102,13 +103,18 @@ class FitResult:
         history: list | None = None,
         evaluate: bool = True,
         cost: float = np.inf,
+        known: tuple | None = None,
     ) -> FitResult:
         """The result at θ, with the exact gradient and Hessian there. A point whose
         simulation is not finite gets cost inf and zero derivatives, never NaN.
         Without ``evaluate`` nothing is computed (an interrupted fit must end at
-        once): the result holds the ``cost`` already known and no derivatives."""
+        once): the result holds the ``cost`` already known and no derivatives.
+        ``known`` = (θ, J, g, H) spares the evaluation when it was at this θ."""
         K = theta.size
-        J, g, H = problem.cost_grad_hess(theta) if evaluate else (cost, None, None)
+        if evaluate and known is not None and np.array_equal(known[0], theta):
+            J, g, H = known[1:]
+        else:
+            J, g, H = problem.cost_grad_hess(theta) if evaluate else (cost, None, None)
         if np.isfinite(J) and g is not None and H is not None:
             phi = theta / scale
             pg = np.clip(phi - g * scale, problem.lower / scale, problem.upper / scale) - phi

@@ -49,6 +49,7 @@ class Tracker:
         self.best_J = np.inf
         self.nonfinite = 0
         self.first_nonfinite: np.ndarray | None = None
+        self.known: tuple | None = None  # (θ, J, g, H) computed already at some θ
 
     @classmethod
     def start(cls, problem: Problem, theta0, J0: float, H_gn, x_scale) -> Tracker:

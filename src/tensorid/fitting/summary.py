@@ -92,6 +92,13 @@ def headline(res) -> str:
             f"{plural(res.nit_total, 'iteration')}, {plural(res.nfev, 'cost evaluation')})"
         )
     line += f"; cost {res.cost:.6g}"
+    if res.hybrid and not res.starts:
+        h = res.hybrid
+        line += (
+            f"; {h['gauss_newton_evaluations']} Gauss-Newton and "
+            f"{plural(h['exact_evaluations'], 'exact-Hessian evaluation')}"
+            + (", past a saddle" if h["saddles_left"] else "")
+        )
     if res.shooting:
         sh = res.shooting
         line += (

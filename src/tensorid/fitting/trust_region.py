@@ -7,10 +7,9 @@ Hessians far from the optimum are handled, and near it the step is the Newton
 step, so convergence is quadratic. Bounds are handled by an active set (variables
 on a bound with the gradient pushing outward are held) and a projected step.
 
-When only Hessian-vector products are available (H given as a function v -> Hv),
-the subproblem is solved approximately by Steihaug-Toint truncated conjugate
-gradients instead, to the forcing tolerance ||r|| <= min(0.5, sqrt||g||) ||g||,
-which keeps convergence superlinear.
+With Hessian-vector products only (H a function v -> Hv), the subproblem is solved
+approximately by Steihaug-Toint truncated CG instead, to the forcing tolerance
+||r|| <= min(0.5, sqrt||g||) ||g||, which keeps convergence superlinear.
 
 A trial point where the cost is not finite (the simulation blew up) is an ordinary
 rejected step: ρ = -inf, the radius shrinks, and the iterate stays where it was.
@@ -157,10 +156,6 @@ def _room(x, v, lo, hi) -> float:
     return max(float(r.min()), 0.0)
 
 
-def _model(g, d, Hd) -> float:
-    return float(g @ d + 0.5 * d @ Hd)
-
-
 def _cauchy_step(x, g, curv, lo, hi, free, radius):
     """Minimiser of the model along the steepest-descent direction v of the free
     variables (curv = vᵀHv), within the radius and the bounds: a step with guaranteed
@@ -209,12 +204,12 @@ def _candidate_step(x, g, H, lo, hi, free, radius, nhev, sub=None) -> tuple[np.n
     beta = min(1.0, _room(x, s, lo, hi))
     d_trunc = beta * s
     d_cauchy, m_cauchy = _cauchy_step(x, g, curv, lo, hi, free, radius)
-    m_s = _model(g, s, Hs)
+    m_s = float(g @ s + 0.5 * s @ Hs)
     if np.array_equal(d_proj, s):
         m_proj = m_s
     else:
         nhev[0] += callable(H)
-        m_proj = _model(g, d_proj, H(d_proj) if callable(H) else H @ d_proj)
+        m_proj = float(g @ d_proj + 0.5 * d_proj @ (H(d_proj) if callable(H) else H @ d_proj))
     m_trunc = float(beta * (g @ s) + 0.5 * beta**2 * (s @ Hs))
     values = [m_proj, m_trunc, m_cauchy]
     best = int(np.argmin(values))
@@ -233,6 +228,16 @@ def _held(x, g, lo, hi) -> np.ndarray:
     """Variables on a bound with the gradient pushing outward: held this iteration."""
     tol_b = 1e-12 * (1.0 + np.abs(x))
     return ((x <= lo + tol_b) & (g > 0)) | ((x >= hi - tol_b) & (g < 0))
+
+
+def negative_curvature(H: np.ndarray) -> bool:
+    """Does the (scaled) Hessian curve downward, beyond rounding?"""
+    lam = np.linalg.eigvalsh(0.5 * (H + H.T)) if H.size else np.zeros(1)
+    return bool(lam[0] < -1e-8 * max(1.0, abs(lam[-1])))
+
+
+def _downhill(H, free) -> bool:
+    return not callable(H) and free.sum() <= 500 and negative_curvature(H[np.ix_(free, free)])
 
 
 def _collapsed(J: float, pred: float, pg_norm: float, gtol: float) -> Status:
@@ -305,11 +310,12 @@ def trust_region_steps(
     status, it = Status.MAXITER, 0
     for it in range(1, maxiter + 1):
         pg_norm = float(np.linalg.norm(_projected_gradient(x, g, lo, hi), np.inf))
-        if pg_norm <= gtol or J <= fatol:
+        free = ~_held(x, g, lo, hi)
+        # a saddle is not converged: its negative curvature is a way down (dense H only)
+        if J <= fatol or (pg_norm <= gtol and not _downhill(H, free)):
             status = Status.GTOL if pg_norm <= gtol else Status.ROUNDING_FLOOR
             it -= 1
             break
-        free = ~_held(x, g, lo, hi)
         d, pred = _candidate_step(x, g, H, lo, hi, free, radius, nhev, subproblem)
         step = float(np.linalg.norm(d))
         xscale = 1.0 + np.linalg.norm(x, np.inf)
