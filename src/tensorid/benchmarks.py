@@ -1,6 +1,7 @@
 """The paper's two benchmark problems, Silverbox and two-tank (models, start values,
-the paper's estimates), and a Lotka–Volterra record where single shooting has local
-minima: ``tensorid.benchmarks`` is the documented name of ``tensorid.paper.problems``."""
+the paper's estimates), a Lotka–Volterra record where single shooting has local
+minima, and a chain of masses whose size sets N and K: ``tensorid.benchmarks`` is
+the documented name of ``tensorid.paper.problems``."""
 
 from .paper.problems import (
     LOTKA_VOLTERRA_TRUE,
@@ -14,6 +15,9 @@ from .paper.problems import (
     TWO_TANK_PAPER_GOF,
     lotka_volterra_model,
     lotka_volterra_problem,
+    mass_chain_model,
+    mass_chain_problem,
+    mass_chain_truth,
     silverbox_model,
     silverbox_offset_model,
     silverbox_problem,
@@ -33,6 +37,9 @@ __all__ = [
     "TWO_TANK_PAPER_GOF",
     "lotka_volterra_model",
     "lotka_volterra_problem",
+    "mass_chain_model",
+    "mass_chain_problem",
+    "mass_chain_truth",
     "silverbox_model",
     "silverbox_offset_model",
     "silverbox_problem",
