@@ -123,3 +123,33 @@ def test_bundled_windows_are_the_papers():
     with pytest.raises(ValueError, match="holds samples"):
         datasets.silverbox(0, 100)
     assert benchmarks.silverbox_problem().theta_names == ["ydot(t0)", "m", "d", "a", "b"]
+
+
+def test_accuracy_levels_are_substeps_or_the_papers_tolerances():
+    from tensorid.paper.study import all_levels, level_options
+
+    assert all_levels() == (
+        "rk4x4", "rk4x16", "rk4x64", "dopri5-1e-10", "dopri5-1e-12", "dopri5-1e-14",
+    )  # fmt: skip
+    assert level_options(16) == {"substeps": 16}
+    assert level_options("dopri5-1e-12") == {"scheme": "dopri5", "rtol": 1e-12, "atol": 1e-12}
+    # rtol 1e-14 is below 100 eps: raised to it, as MATLAB's ode45 does
+    assert level_options("dopri5-1e-14")["rtol"] == pytest.approx(2.22e-14, rel=1e-3)
+    with pytest.raises(ValueError, match="rk4xN"):
+        level_options("rk45-1e-6")
+    assert cli.main(["paper", "--levels", "euler", "--out", "never-written"]) == 2
+
+
+def test_the_adaptive_rows_stand_beside_the_papers_table_1(tmp_path):
+    # one start per method at the paper's loosest tolerance, both data sets
+    runs = paper.robustness_study(1, ["dopri5-1e-10"], workers=1)
+    rows = paper.summarise(runs, ["dopri5-1e-10"])
+    assert {r["accuracy"] for r in rows} == {"dopri5-1e-10"} and len(rows) == 2 * len(COMPARED)
+    assert all(r["tolerance"] == 1e-10 and r["substeps"] is None for r in rows)
+    from tensorid.paper.report import _robustness
+
+    meta = {"starts": 1, "seed": 0, "workers": 1, "converged_rtol": 1e-6, "segments": 5,
+            "integration_error": paper.integration_errors(["dopri5-1e-10"])}  # fmt: skip
+    text = "\n".join(_robustness({"meta": meta, "robustness": rows}))
+    assert "Beside the paper's Table 1" in text and "| silverbox | 1e-10 | aborted |" in text
+    assert meta["integration_error"]["silverbox"]["dopri5-1e-10"] < 1e-6

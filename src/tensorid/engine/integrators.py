@@ -416,6 +416,9 @@ SCHEMES: dict[str, Scheme] = {
 }
 
 
+RTOL_FLOOR = 100 * math.ulp(1.0)  # 2.2e-14: below it, steps chase round-off
+
+
 def get_scheme(
     scheme: str | Scheme, rtol: float | None = None, atol: float | None = None
 ) -> Scheme:
@@ -445,6 +448,9 @@ def get_scheme(
     atol = scheme.atol if atol is None else float(atol)
     if not (rtol > 0 and atol >= 0 and math.isfinite(rtol) and math.isfinite(atol)):
         raise ValueError(f"need rtol > 0 and atol >= 0, finite; got rtol={rtol}, atol={atol}")
-    if rtol < 1e-13:
-        raise ValueError(f"rtol={rtol:g} is below double-precision round-off; use rtol >= 1e-13")
+    if rtol < RTOL_FLOOR:
+        raise ValueError(
+            f"rtol={rtol:g} is below double-precision round-off; use rtol >= {RTOL_FLOOR:.3g} "
+            "(100 machine epsilons, the floor MATLAB's solvers raise smaller values to)"
+        )
     return replace(scheme, rtol=rtol, atol=atol)

@@ -17,6 +17,14 @@ def _paper(args) -> int:
         raise ValueError(f"--starts must be at least 1, got {starts}")
     if args.workers is not None and args.workers < 1:
         raise ValueError(f"--workers must be at least 1, got {args.workers}")
+    if args.levels:
+        from .study import level_options
+
+        for level in args.levels:
+            try:
+                level_options(level)
+            except ValueError as e:
+                raise ValueError(f"--levels: {e}") from None
     res = run(
         Path(args.out),
         starts=starts,
@@ -24,6 +32,7 @@ def _paper(args) -> int:
         workers=args.workers,
         seed=args.seed,
         progress=not args.no_progress,
+        levels=args.levels,
     )
     sb, tt = res["silverbox"], res["two_tank"]
     c = Console(highlight=False, soft_wrap=True)  # whole lines in a log too
@@ -36,7 +45,7 @@ def _paper(args) -> int:
     c.print(f"[bold]Two-tank[/] GOF {tt['paper_model']['gof']:.4f}")
     for row in res["robustness"]:
         c.print(
-            f"  {row['dataset']:9s} {row['accuracy']:7s} {row['method']:17s} converged "
+            f"  {row['dataset']:9s} {row['accuracy']:12s} {row['method']:17s} converged "
             f"{row['converged']:3d}/{row['starts']}  optimizer said failed {row['failed']:3d}  "
             f"median {row['median_seconds'] * 1e3:7.1f} ms"
         )
@@ -66,6 +75,15 @@ def register(sub) -> None:
         "--quick",
         action="store_true",
         help="small version: one accuracy level and few starts (about 40 s)",
+    )
+    p.add_argument(
+        "--levels",
+        nargs="+",
+        default=None,
+        metavar="LEVEL",
+        help="accuracy levels of the robustness study: rk4xN (RK4, N substeps per sample) "
+        "or dopri5-TOL (adaptive, rtol = atol = TOL); default rk4x4 rk4x16 rk4x64 "
+        "dopri5-1e-10 dopri5-1e-12 dopri5-1e-14 (rk4x4 with --quick)",
     )
     p.add_argument(
         "--workers",

@@ -24,6 +24,7 @@ from ..app.output import write_text
 from ..app.progress import study_progress
 from ..app.reports import bar_plot, write_json
 from ..engine.data import Experiment
+from ..engine.integrators import RTOL_FLOOR
 from ..engine.metrics import gof
 from ..engine.problem import Problem
 from ..engine.simulate import simulate
@@ -36,13 +37,43 @@ from .report import render
 # the paper's comparison: exact Newton and Gauss-Newton against the finite-difference
 # baselines (newton-cg, for large K, is benchmarked in benchmarks/bench_scaling.py),
 # and a fifth column of our own: exact Newton by multiple shooting with SEGMENTS segments
-COMPARED = ("newton", "gauss-newton", "fd-bfgs", "fd-lsq", "multiple-shooting")
+COMPARED = ("newton", "gauss-newton", "fd-bfgs", "fd-lsq", "multiple-shooting", "auto")
 SEGMENTS = 5
 
-# RK4 substeps per sample for the three accuracy levels of the robustness study, in
-# place of the paper's solver tolerances 1e-10, 1e-12, 1e-14 (see report.md)
+# the accuracy levels of the robustness study: RK4 with 4, 16 and 64 substeps per
+# sample (a smooth simulator, "rk4x4" ...), and the paper's own levels, the adaptive
+# dopri5 at rtol = atol = 1e-10, 1e-12, 1e-14 ("dopri5-1e-10" ...), where step-size
+# control reacts to every change of θ, finite differences included, as in MATLAB
 ACCURACY_LEVELS = (4, 16, 64)
+ADAPTIVE_TOLERANCES = (1e-10, 1e-12, 1e-14)
 QUICK_LEVELS = (4,)
+
+
+def level_name(level) -> str:
+    """ "rk4x16" for 16 substeps; a name passes through."""
+    return level if isinstance(level, str) else f"rk4x{int(level)}"
+
+
+def level_options(level) -> dict:
+    """The Problem/simulate options of a level: {"substeps": n} or the adaptive
+    scheme with its tolerances."""
+    name = level_name(level)
+    if name.startswith("rk4x") and name[4:].isdigit():
+        return {"substeps": int(name[4:])}
+    if name.startswith("dopri5-"):
+        tol = float(name[7:])
+        # rtol below 100 eps is raised to it, as MATLAB's ode45 does with RelTol 1e-14
+        return {"scheme": "dopri5", "rtol": max(tol, RTOL_FLOOR), "atol": tol}
+    raise ValueError(f"unknown accuracy level {name!r}: use rk4xN (N substeps) or dopri5-TOL")
+
+
+def all_levels() -> tuple[str, ...]:
+    """Every level of the full study, fixed-step first."""
+    return tuple(map(level_name, ACCURACY_LEVELS)) + tuple(
+        f"dopri5-{t:g}" for t in ADAPTIVE_TOLERANCES
+    )
+
+
 SPREAD = 0.2
 CONVERGED_RTOL = 1e-6
 
@@ -52,9 +83,10 @@ def _y(e: Experiment) -> np.ndarray:
     return e.measured[:, 0]
 
 
-def _silverbox_validate(model, params, substeps: int, val: Experiment) -> float:
+def _silverbox_validate(model, params, level, val: Experiment) -> float:
     """Validation as in the paper: y(t0) measured, ẏ(t0) = 0."""
-    sim = simulate(model, params, [float(val.measured[0, 0]), 0.0], val, substeps=substeps)
+    x0 = [float(val.measured[0, 0]), 0.0]
+    sim = simulate(model, params, x0, val, **level_options(level))
     return float(gof(_y(val), sim.y[:, 0]))
 
 
@@ -239,11 +271,12 @@ def draw_starts(guess: np.ndarray, n: int, seed: int) -> np.ndarray:
 
 
 @cache
-def _worker_problem(dataset: str, substeps: int, segments: int | None = None):
+def _worker_problem(dataset: str, level, segments: int | None = None):
+    options = level_options(level) | {"segments": segments}
     prob = (
-        benchmarks.silverbox_problem(substeps=substeps, segments=segments)
+        benchmarks.silverbox_problem(**options)
         if dataset == "silverbox"
-        else benchmarks.two_tank_problem(substeps=substeps, segments=segments)
+        else benchmarks.two_tank_problem(**options)
     )
     th = prob.theta0
     # compile every path once, so that the timed fits below exclude compilation
@@ -258,28 +291,29 @@ def _worker_problem(dataset: str, substeps: int, segments: int | None = None):
         prob.shooting.evaluate(z, exact=False)
     if dataset == "silverbox":
         val = datasets.silverbox_validation()
-        simulate(prob.model, prob.p0, [0.0, 0.0], val, substeps=substeps)
+        simulate(prob.model, prob.p0, [0.0, 0.0], val, **level_options(level))
     return prob
 
 
 def robustness_task(task: tuple) -> dict:
     """One start of one method at one accuracy level (runs in a worker process)."""
-    dataset, method, substeps, index, theta0 = task
+    dataset, method, level, index, theta0 = task
     shooting = method == "multiple-shooting"
-    prob = _worker_problem(dataset, substeps, SEGMENTS if shooting else None)
+    prob = _worker_problem(dataset, level, SEGMENTS if shooting else None)
     res = fit(prob, method="newton" if shooting else method, theta0=np.asarray(theta0))
     if not np.isfinite(res.cost):
         val_gof = -np.inf
     elif dataset == "silverbox":
         val_gof = _silverbox_validate(
-            prob.model, res.params, substeps, datasets.silverbox_validation()
+            prob.model, res.params, level, datasets.silverbox_validation()
         )
     else:
         val_gof = float(res.gof()[0])
     return {
         "dataset": dataset,
         "method": method,
-        "substeps": substeps,
+        "accuracy": level_name(level),
+        "substeps": level_options(level).get("substeps"),
         "start": index,
         "cost": res.cost,
         "success": res.success,
@@ -304,11 +338,9 @@ def robustness_study(
     tasks = []
     for dataset in ("silverbox", "two_tank"):
         thetas = draw_starts(_guess(dataset), starts, seed)
-        for substeps in levels:
+        for level in map(level_name, levels):
             for method in COMPARED:
-                tasks += [
-                    (dataset, method, substeps, i, th.tolist()) for i, th in enumerate(thetas)
-                ]
+                tasks += [(dataset, method, level, i, th.tolist()) for i, th in enumerate(thetas)]
     if workers <= 1:
         out = []
         for t in tasks:
@@ -329,8 +361,8 @@ def summarise(runs: list[dict], levels) -> list[dict]:
     """One row per (dataset, method, accuracy level), as in results.json."""
     rows = []
     for dataset in ("silverbox", "two_tank"):
-        for substeps in levels:
-            level = [r for r in runs if r["dataset"] == dataset and r["substeps"] == substeps]
+        for name in map(level_name, levels):
+            level = [r for r in runs if r["dataset"] == dataset and r["accuracy"] == name]
             costs = [r["cost"] for r in level if np.isfinite(r["cost"])]
             best = min(costs) if costs else np.inf
             for method in COMPARED:
@@ -346,8 +378,9 @@ def summarise(runs: list[dict], levels) -> list[dict]:
                     {
                         "dataset": dataset,
                         "method": method,
-                        "accuracy": f"rk4x{substeps}",
-                        "substeps": substeps,
+                        "accuracy": name,
+                        "substeps": level_options(name).get("substeps"),
+                        "tolerance": level_options(name).get("atol"),
                         "starts": len(rs),
                         "converged": int(conv),
                         "failed": int(failed),
@@ -379,10 +412,11 @@ def integration_errors(levels) -> dict:
             x0 = datasets.two_tank_levels()[0]
         ref = simulate(m, p, x0, e, substeps=2048).y[:, 0]
         out[dataset] = {
-            f"rk4x{s}": float(
-                np.abs(simulate(m, p, x0, e, substeps=s).y[:, 0] - ref).max() / np.abs(ref).max()
+            level_name(lv): float(
+                np.abs(simulate(m, p, x0, e, **level_options(lv)).y[:, 0] - ref).max()
+                / np.abs(ref).max()
             )
-            for s in levels
+            for lv in levels
         }
     return out
 
@@ -396,10 +430,15 @@ def run(
     workers: int | None = None,
     seed: int = 0,
     progress: bool = True,
+    levels=None,
 ) -> dict:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    levels = QUICK_LEVELS if quick else ACCURACY_LEVELS
+    if levels is None:
+        levels = QUICK_LEVELS if quick else all_levels()
+    levels = tuple(map(level_name, levels))
+    for lv in levels:
+        level_options(lv)  # an unknown level fails here, before any work
     workers = workers or os.cpu_count() or 1
     t_start = time.perf_counter()
     with study_progress(enabled=progress) as prog:
@@ -430,7 +469,10 @@ def run(
             "seed": seed,
             "spread": SPREAD,
             "workers": workers,
-            "accuracy_levels": {f"rk4x{s}": s for s in levels},
+            "accuracy_levels": {
+                lv: level_options(lv).get("substeps", level_options(lv).get("atol"))
+                for lv in levels
+            },
             "integration_error": errors,
             "converged_rtol": CONVERGED_RTOL,
             "segments": SEGMENTS,
@@ -442,10 +484,14 @@ def run(
     return results
 
 
+def _level_order(group: tuple[str, str]) -> tuple:
+    """(data set, fixed-step levels by substeps, then adaptive by tolerance)."""
+    options = level_options(group[1])
+    return (group[0], "substeps" not in options, options.get("substeps", -options.get("atol", 0)))
+
+
 def _robustness_figure(out: Path, rows: list[dict]) -> Path:
-    groups = sorted(
-        {(r["dataset"], r["accuracy"]) for r in rows}, key=lambda g: (g[0], int(g[1][4:]))
-    )
+    groups = sorted({(r["dataset"], r["accuracy"]) for r in rows}, key=_level_order)
     series = {
         m: [
             next(
