@@ -75,6 +75,7 @@ def run_row(make_problem, make_starts, repeats: int) -> dict:
     out = {}
     for method in METHODS:
         ti.fit(problem, method, theta0=thetas[0], maxiter=2)  # compile
+        problem.cost_grad_hess_gn(thetas[0])  # auto's exact mode
         costs, its, secs, exact = [], [], [], []
         for th in thetas:
             times = []

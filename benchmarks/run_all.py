@@ -11,7 +11,9 @@
 5. bench_long_record: the whole 131,072-sample record, time and peak memory;
 6. bench_shooting and bench_shooting_sqp: multiple against single shooting
    (robustness, cost, scaling with S, the block-arrow solver) and the augmented
-   Lagrangian against a line-search SQP.
+   Lagrangian against a line-search SQP;
+7. bench_methods: newton, gauss-newton and the default auto side by side, from
+   Silverbox to a chain of 32 masses (--quick leaves out the two large chains).
 
 Each runs in its own process (so one's compilation cache or memory does not
 flatter the next); --quick passes each script its short form.
@@ -42,6 +44,10 @@ def main() -> None:
         ("bench_long_record.py", ["--samples", "16384"] if q else []),
         ("bench_shooting.py", ["--quick"] if q else []),
         ("bench_shooting_sqp.py", ["--quick"] if q else []),
+        (
+            "bench_methods.py",
+            ["--quick", "--rows", "Silverbox", "two-tank", "N = 10", "Lotka"] if q else [],
+        ),
     ]
     for script, extra in runs:
         print(f"\n# {script} {' '.join(extra)}\n", flush=True)

@@ -38,6 +38,8 @@ def test_the_bundled_records_are_the_benchmarks():
     assert emps("test", closed_loop=True).u.shape == (24841, 2)
     with pytest.raises(ValueError, match='"estimation" or "test"'):
         emps_record("validation")
+    emps_record()["qm"][0] = 123.0  # a user's change stays in the user's copy
+    assert emps_record()["qm"][0] != 123.0
 
 
 def test_the_models_controller_reproduces_the_recorded_controller_output():

@@ -18,17 +18,19 @@ from tensorid.benchmarks import lotka_volterra_problem, silverbox_problem
 # residuals r1 = 1 - a, r2 = 1 + a - 2a² (outputs a and 2a² - a, both measured as 1):
 # at a = 0 the gradient r1 r1' + r2 r2' = -1 + 1 vanishes and Gauss-Newton's curvature
 # r1'² + r2'² = 2 is positive, but the exact one adds r2 r2'' = -4: a maximum of J
-# that Gauss-Newton takes for a minimum
+# that Gauss-Newton takes for a minimum. A third output exp(b), measured as e, gives
+# Gauss-Newton some iterations before it gets there (a stays 0: its gradient is 0).
 SADDLE = ti.Model(
     rhs=lambda x, p, u: 0.0 * x,
-    output=lambda x, p: jnp.stack([p[0], 2.0 * p[0] ** 2 - p[0]]),
-    states=["x"], params=["a"], outputs=["y1", "y2"], name="hidden-maximum",
+    output=lambda x, p: jnp.stack([p[0], 2.0 * p[0] ** 2 - p[0], jnp.exp(p[1])]),
+    states=["x"], params=["a", "b"], outputs=["y1", "y2", "y3"], name="hidden-maximum",
 )  # fmt: skip
 T = np.linspace(0.0, 1.0, 11)
 
 
 def _saddle_problem() -> ti.Problem:
-    return ti.Problem(SADDLE, ti.Experiment(T, None, np.ones((T.size, 2))), p0=[0.0], x0=[0.0])
+    y = np.tile([1.0, 1.0, np.e], (T.size, 1))
+    return ti.Problem(SADDLE, ti.Experiment(T, None, y), p0=[0.0, -1.0], x0=[0.0])
 
 
 def test_auto_is_gauss_newton_where_gauss_newton_converges_fast():
@@ -58,13 +60,17 @@ def test_auto_goes_on_past_a_saddle_where_gauss_newton_stops():
     prob = _saddle_problem()
     gn = ti.fit(prob, "gauss-newton")
     assert gn.success and gn.params["a"] == 0.0  # stopped at the maximum, "converged"
-    assert gn.hess[0, 0] < 0 and gn.cost == pytest.approx(2 * T.size)
+    assert gn.params["b"] == pytest.approx(1.0) and gn.nit > 1
+    assert np.linalg.eigvalsh(gn.hess)[0] < 0 and gn.cost == pytest.approx(2 * T.size)
     auto = ti.fit(prob)
     assert auto.success and auto.hybrid["saddles_left"] == 1
-    assert auto.cost < gn.cost and auto.hess[0, 0] > 0 and abs(auto.jac[0]) < 1e-8
-    # iteration numbers continue across the restart
+    assert auto.cost < gn.cost and np.linalg.eigvalsh(auto.hess)[0] > 0
+    assert np.abs(auto.jac).max() < 1e-8 and auto.params["b"] == pytest.approx(1.0)
+    # counts continue across the restart, which came after Gauss-Newton's iterations
     its = [h["iteration"] for h in auto.history]
-    assert its == sorted(its) and its[-1] == auto.nit
+    assert its == list(range(auto.nit + 1)) and auto.nit > gn.nit
+    nfev = [h["nfev"] for h in auto.history]
+    assert nfev == sorted(nfev) and len(set(nfev)) == len(nfev)
 
 
 def test_auto_in_lockstep_equals_auto_one_start_at_a_time():
@@ -76,7 +82,7 @@ def test_auto_in_lockstep_equals_auto_one_start_at_a_time():
         alone = ti.fit(prob, "auto", theta0=start)
         assert res.nit == alone.nit and res.hybrid == alone.hybrid
         assert res.cost == pytest.approx(alone.cost, rel=1e-9)
-    saddle = ti.fit_batch(_saddle_problem(), "auto", [[0.0], [0.0]])
+    saddle = ti.fit_batch(_saddle_problem(), "auto", [[0.0, -1.0], [0.0, -1.0]])
     alone = ti.fit(_saddle_problem())
     assert all(r.hybrid == alone.hybrid and r.cost == alone.cost for r in saddle)
 
@@ -87,4 +93,7 @@ def test_the_command_line_fits_with_auto_by_default(tmp_path):
     args = ["fit", str(example / "model.py"), str(example / "train.csv"), "--out", str(out)]
     assert cli.main(args + ["--no-progress"]) == 0
     data = json.loads((out / "fit.json").read_text())
-    assert data["method"] == "auto" and data["hybrid"]["exact_evaluations"] >= 0
+    assert data["method"] == "auto"
+    h = data["hybrid"]  # Silverbox: Gauss-Newton all the way
+    assert h["gauss_newton_evaluations"] == data["function_evaluations"] > 1
+    assert h["exact_evaluations"] == h["switches"] == h["saddles_left"] == 0

@@ -7,8 +7,8 @@ its first 20 samples) and set beside the benchmark document's IDIM-LS reference 
     python examples/emps/run.py [--out emps-study] [--figures DIR]
 
 Writes results.json and the figures to --out (the docs' figures come from
-``--figures docs/figures``) and prints the tables of docs/emps.md. About 2 minutes on
-a 2-core machine.
+``--figures docs/figures``) and prints the tables of docs/emps.md. About 1 minute on
+a 2-core machine (2½ with --starts 8).
 """
 
 from __future__ import annotations

@@ -49,7 +49,7 @@ class _StudyProgress:
         self._done += 1
         self._bad += not result["success"]
         status = (
-            f"{result['dataset']} {result['method']} rk4x{result['substeps']} "
+            f"{result['dataset']} {result['method']} {result['accuracy']} "
             f"(optimizer-reported failures so far: {self._bad})"
         )
         if self.progress and self._task is not None:

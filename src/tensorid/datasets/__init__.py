@@ -99,7 +99,7 @@ def emps_record(record: str = "estimation") -> dict:
     if record not in ("estimation", "test"):
         raise ValueError(f'record must be "estimation" or "test", got {record!r}')
     d = _load("emps.npz")
-    out = {k: d[f"{record}_{k}"] for k in ("vir", "qm", "qg")}
+    out = {k: d[f"{record}_{k}"].copy() for k in ("vir", "qm", "qg")}  # not the cache's
     n = out["qm"].size
     pulses = d["test_pulses"].astype(float) if record == "test" else np.zeros(n)
     return {

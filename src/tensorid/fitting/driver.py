@@ -53,47 +53,75 @@ def _single(method, tr: Tracker, options: FitOptions, started) -> FitResult:
     record = tr.recorder(history, options.callback)
     phi0, (lo, hi) = tr.phi(theta0), tr.box()
     nhev, detail = 0, ""
+    hybrid = Hybrid(problem.K) if method == "auto" else None
     # what each path may raise: SciPy's baselines give up in their own ways; the
     # eigen-solver of an exact subproblem may not converge on a Hessian at the edge
     # of overflow. Anything else is a bug and is not hidden.
-    expected = (
-        (ValueError, ArithmeticError, np.linalg.LinAlgError)
-        if method in BASELINES
-        else (np.linalg.LinAlgError,)
-    )
+    expected = (ValueError, ArithmeticError) * (method in BASELINES) + (np.linalg.LinAlgError,)
     try:
         if method in BASELINES:
             phi, nit, status, detail = run_baseline(method, tr, phi0, options, record)
+        elif method == "auto":
+            r = _auto(tr, hybrid, phi0, options, record)
+            phi, nit, status, detail, nhev = r.x, r.nit, r.status, r.detail, r.nhev
         else:
-            hybrid = Hybrid(problem.K, ftol=options.ftol) if method == "auto" else None
-            fun = _derivatives(method, tr, hybrid)
-            r = minimize_trust_region(
-                fun, phi0, lo, hi, fatol=tr.fatol, callback=record, **options.trust_region()
-            )
-            while hybrid is not None and _at_saddle(tr, hybrid, r, options):
-                # Gauss-Newton converged where ∇²J curves downward: go on with it
-                more = minimize_trust_region(
-                    fun, r.x, lo, hi, fatol=tr.fatol, callback=_after(record, r.nit),
-                    **(options.trust_region() | {"maxiter": options.maxiter - r.nit}),
-                )  # fmt: skip
-                more.nit += r.nit
-                r = more
+            fun, opts = _derivatives(method, tr), options.trust_region()
+            r = minimize_trust_region(fun, phi0, lo, hi, fatol=tr.fatol, callback=record, **opts)
             phi, nit, status, detail, nhev = r.x, r.nit, r.status, r.detail, r.nhev
     except expected as e:
         detail = f"{method} raised {type(e).__name__}: {e}"
+        status = Status.SOLVER_FAILED
         if tr.best_phi is None:
-            return failed(problem, method, theta0, started, detail, Status.SOLVER_FAILED)
-        phi, nit, status = tr.best_phi, len(history), Status.SOLVER_FAILED
+            return _with(hybrid, failed(problem, method, theta0, started, detail, status))
+        phi, nit = tr.best_phi, len(history)
     except KeyboardInterrupt:
-        return interrupted(tr, method, started, history)
+        return _with(hybrid, interrupted(tr, method, started, history))
     try:
         res = _finish(tr, method, phi, nit, status, detail, started, history)
     except KeyboardInterrupt:  # while evaluating the end point: keep the best seen
-        return interrupted(tr, method, started, history)
+        return _with(hybrid, interrupted(tr, method, started, history))
     res.nhev = nhev
-    if method == "auto":
+    return _with(hybrid, res)
+
+
+def _with(hybrid: Hybrid | None, res: FitResult) -> FitResult:
+    """``res``, with what method "auto" used (on every path, failures included)."""
+    if hybrid is not None:
         res.hybrid = hybrid.report()
     return res
+
+
+def _auto(tr: Tracker, hybrid: Hybrid, phi0, options: FitOptions, record):
+    """The trust-region run of method "auto", on past a saddle where Gauss-Newton
+    converged but ∇²J curves downward (once: the restart runs in exact mode)."""
+    lo, hi = tr.box()
+    fun = _derivatives("auto", tr, hybrid)
+    r = minimize_trust_region(
+        fun, phi0, lo, hi, fatol=tr.fatol, callback=_observed(record, hybrid),
+        **options.trust_region(),
+    )  # fmt: skip
+    if _at_saddle(tr, hybrid, r, options):
+        more = minimize_trust_region(
+            fun, r.x, lo, hi, fatol=tr.fatol,
+            callback=_observed(_after(record, r.nit, r.nfev), hybrid),
+            **(options.trust_region() | {"maxiter": options.maxiter - r.nit}),
+        )  # fmt: skip
+        more.nit += r.nit
+        more.nhev += r.nhev
+        if more.status is Status.MAXITER:
+            more.detail = f"maxiter={options.maxiter}"
+        r = more
+    return r
+
+
+def _observed(record, hybrid: Hybrid):
+    """A trust-region callback that shows each step to ``hybrid`` first."""
+
+    def both(entry):
+        hybrid.observe(entry)
+        record(entry)
+
+    return both
 
 
 def _derivatives(method: str, tr: Tracker, hybrid: Hybrid | None = None):
@@ -107,12 +135,12 @@ def _derivatives(method: str, tr: Tracker, hybrid: Hybrid | None = None):
     assert hybrid is not None
 
     def fun(phi):
-        theta = tr.theta(phi)
-        if hybrid.exact:
+        theta, exact = tr.theta(phi), hybrid.exact
+        if exact:
             J, g, H, G = problem.cost_grad_hess_gn(theta)
         else:
             (J, g, G), H = problem.cost_grad_gn(theta), None
-        return hybrid.take(phi, *tr.scaled(phi, J, g, G), _scaled_hessian(tr, J, H))
+        return hybrid.take(phi, *tr.scaled(phi, J, g, G), _scaled_hessian(tr, J, H), exact)
 
     return fun
 
@@ -138,18 +166,18 @@ def _at_saddle(tr: Tracker, hybrid: Hybrid, r, options: FitOptions) -> bool:
     tr.known = (theta, J, g, H)  # the result at this point needs them too
     if not np.isfinite(J) or not negative_curvature(_scaled_hessian(tr, J, H)[np.ix_(off, off)]):
         return False
-    hybrid.exact, hybrid.current = True, None
-    hybrid.saddles += 1
+    hybrid.restart_exact()
     return True
 
 
-def _after(record, offset: int):
-    """A recorder whose iteration numbers continue from ``offset`` (its iteration 0,
-    the restart point, is already recorded)."""
+def _after(record, iterations: int, evaluations: int):
+    """A recorder whose counts continue from a run's (its iteration 0, the restart
+    point, is that run's last and already recorded)."""
 
     def shifted(entry):
         if entry["iteration"] > 0:
-            record(dict(entry, iteration=entry["iteration"] + offset))
+            it, nfev = entry["iteration"] + iterations, entry["nfev"] + evaluations
+            record(dict(entry, iteration=it, nfev=nfev))
 
     return shifted
 
@@ -159,16 +187,18 @@ def _lockstep(problem, method, trackers: dict, options, started, results) -> lis
     runs, pending = {}, {}
     for i, tr in trackers.items():
         history: list[dict] = []
-        hybrid = Hybrid(problem.K, ftol=options.ftol) if method == "auto" else None
-        steps = _steps(tr, tr.phi(tr.theta0), options, tr.recorder(history, None))
+        hybrid = Hybrid(problem.K) if method == "auto" else None
+        record = tr.recorder(history, None)
+        callback = record if hybrid is None else _observed(record, hybrid)
+        steps = _steps(tr, tr.phi(tr.theta0), options, callback)
         runs[i] = [tr, steps, history, hybrid, 0]  # 0: iterations before a restart
         pending[i] = next(steps)
     try:
         _march_together(problem, method, runs, pending, options, started, results)
     except KeyboardInterrupt:  # every unfinished start keeps its best point
         for i in pending:
-            tr, _, history, *_ = runs[i]
-            results[i] = interrupted(tr, method, started, history)
+            tr, _, history, hybrid, _ = runs[i]
+            results[i] = _with(hybrid, interrupted(tr, method, started, history))
     return results
 
 
@@ -191,51 +221,52 @@ def _march_together(problem, method, runs, pending, options, started, results) -
                 r = done.value
                 r.nit += before
                 if hybrid is not None and _at_saddle(tr, hybrid, r, options):
-                    record = _after(tr.recorder(history, None), r.nit)
+                    record = _observed(_after(tr.recorder(history, None), r.nit, r.nfev), hybrid)
                     runs[i][1] = _steps(tr, r.x, options, record, options.maxiter - r.nit)
                     runs[i][4] = r.nit
                     pending[i] = next(runs[i][1])
                     continue
-                results[i] = _finish(tr, method, r.x, r.nit, r.status, r.detail, started, history)
-                if hybrid is not None:
-                    results[i].hybrid = hybrid.report()
+                if before and r.status is Status.MAXITER:
+                    r.detail = f"maxiter={options.maxiter}"
+                res = _finish(tr, method, r.x, r.nit, r.status, r.detail, started, history)
+                results[i] = _with(hybrid, res)
                 del pending[i]  # only once finished: Ctrl-C in _finish keeps it pending
             except np.linalg.LinAlgError as e:  # as in _single: this start ends, not the batch
                 del pending[i]
                 phi = tr.phi(tr.theta0) if tr.best_phi is None else tr.best_phi
                 detail = f"{method} raised LinAlgError: {e}"
                 status = Status.SOLVER_FAILED
-                results[i] = _finish(
-                    tr, method, phi, len(history), status, detail, started, history
-                )
+                res = _finish(tr, method, phi, len(history), status, detail, started, history)
+                results[i] = _with(hybrid, res)
 
 
 def _evaluate_together(problem, method, runs, pending, B) -> dict:
-    """Scaled (J, g, H) at every pending point: one vectorised call per kind of sweep
-    (Gauss-Newton, exact, or, for "auto" in exact mode, both), padded to B points so
-    that each kind compiles once."""
-    groups: dict[str, list] = {}
-    for i in pending:
-        hybrid = runs[i][3]
-        exact = hybrid.exact if hybrid is not None else method == "newton"
-        groups.setdefault(("both" if hybrid else "exact") if exact else "gn", []).append(i)
+    """Scaled (J, g, H) at every pending point, in one vectorised call padded to B
+    points (one compilation). For "auto", one second-order sweep for all as soon as
+    any start is in exact mode (the others use its Gauss-Newton part: one sweep of B
+    costs less than two), else a first-order one."""
+    hybrids = [runs[i][3] for i in pending]
+    if method == "auto":
+        kind = "both" if any(h.exact for h in hybrids) else "gn"
+    else:
+        kind = "exact" if method == "newton" else "gn"
+    ids = list(pending)
+    points = [runs[i][0].theta(pending[i]) for i in ids]
+    points += [points[0]] * (B - len(ids))
+    vals = problem.cost_grad_hess_batch(
+        np.array(points), gauss_newton=kind == "gn", both=kind == "both"
+    )
     out = {}
-    for kind, ids in groups.items():
-        points = [runs[i][0].theta(pending[i]) for i in ids]
-        points += [points[0]] * (B - len(ids))
-        vals = problem.cost_grad_hess_batch(
-            np.array(points), gauss_newton=kind == "gn", both=kind == "both"
-        )
-        for k, i in enumerate(ids):
-            tr, hybrid, phi = runs[i][0], runs[i][3], pending[i]
-            J, g, H = vals[0][k], vals[1][k], vals[2][k]
-            if hybrid is None:
-                out[i] = tr.scaled(phi, J, g, H)
-            elif kind == "both":
-                scaled = tr.scaled(phi, J, g, vals[3][k])
-                out[i] = hybrid.take(phi, *scaled, _scaled_hessian(tr, J, H))
-            else:
-                out[i] = hybrid.take(phi, *tr.scaled(phi, J, g, H))
+    for k, i in enumerate(ids):
+        tr, hybrid, phi = runs[i][0], runs[i][3], pending[i]
+        J, g, H = vals[0][k], vals[1][k], vals[2][k]
+        if hybrid is None:
+            out[i] = tr.scaled(phi, J, g, H)
+        elif kind == "both":  # the Gauss-Newton part, and ∇²J where the start asked for it
+            exact = _scaled_hessian(tr, J, H) if hybrid.exact else None
+            out[i] = hybrid.take(phi, *tr.scaled(phi, J, g, vals[3][k]), exact, hybrid.exact)
+        else:
+            out[i] = hybrid.take(phi, *tr.scaled(phi, J, g, H), None, False)
     return out
 
 

@@ -9,20 +9,20 @@ at the paper's sizes). The residual term pays where residuals are large, the mod
 is strongly nonlinear, or the cost curves downward; elsewhere it only costs. So a fit
 by ``Hybrid`` goes in two modes:
 
-- **Gauss-Newton mode** (the start): (J, g, H_GN) at each point. Gauss-Newton
-  converges quadratically where the residual term vanishes and only linearly where
-  it does not, so the sign that the term matters is linear convergence: three
-  accepted steps running, each predicted well (ρ > 3/4, so the trust region no
-  longer limits them) and each lowering the cost by more than half as much as the
-  one before. Then exact mode, if it pays: at the observed rate r, Gauss-Newton
-  needs about log(ftol·J/ΔJ)/log r more steps to meet ftol, Newton a handful
-  (NEWTON_STEPS), each costing (K + 2)/2 Gauss-Newton evaluations (the ratio of the
-  columns the two sweeps carry; measured: 2-4 at K = 5, 6 at K = 11, more beyond, so
-  an underestimate where it matters least). A fixed cost model, not timings, so
-  that a fit is the same fit on every machine and every run. (Mispredicted steps far
-  from the optimum are no sign: there the exact Hessian predicts no better, and
-  switching on them made fits of the mass chain twice as slow for no fewer
-  iterations.)
+- **Gauss-Newton mode** (the start): (J, g, H_GN) at each point. Where the residual
+  term is small Gauss-Newton converges quadratically, and where it matters it stalls:
+  it converges only linearly, or its model mispredicts so that the trust region
+  keeps its steps short. Either way its iterations stop lowering the cost: each
+  lowers it by less than STALL (1e-3) of itself, rejected steps included. After
+  a run of such iterations that has cost as much as one exact evaluation (the
+  ski-rental rule: rent until the rent paid equals the price, then buy; an exact
+  evaluation costs about (K + 2)/2 Gauss-Newton ones, the ratio of the columns the
+  two sweeps carry, and the run is at least STALL_RUN long), exact mode. A
+  quadratically converging run crosses from 1e-3 to ftol in two or three
+  iterations and never gets there. The cost model is fixed, not timed, so that a fit
+  is the same fit on every machine and every run. (Mispredicted steps far from the
+  optimum, where the cost still falls fast, are no such sign: switching on them made
+  fits of the mass chain twice as slow for no fewer iterations.)
 - **Exact mode**: one second-order sweep gives both ∇²J and H_GN (the latter is a
   term of the former). The next step uses whichever model predicted the last
   step's actual decrease better (the rule of Dennis, Gay and Welsch's NL2SOL), so
@@ -39,78 +39,77 @@ from __future__ import annotations
 
 import numpy as np
 
-GOOD = 0.75  # ρ above it: the model predicted the step well
-SLOW_RUN = 3  # linear-rate steps running before exact mode
-SLOW_RATE = 0.5  # a step lowering the cost by more than this × the previous is linear
+STALL = 1e-3  # an iteration lowering the cost by less than this, relative, stalls
+STALL_RUN = 5  # the shortest run of stalled iterations before exact mode
 GN_RUN = 3  # steps running where H_GN predicted better before Gauss-Newton mode
-NEWTON_STEPS = 5  # what Newton takes from where Gauss-Newton turns linear (typical)
 
 
 class Hybrid:
     """The mode of one start and the model its next step uses (scaled units).
 
-    ``exact`` says which sweep the next point needs; :meth:`take` is given that
-    point's (J, g, H_GN[, ∇²J]) and returns the (J, g, H) for the trust region.
-    ``eta`` is the trust region's acceptance threshold, so that this class knows
-    which trial points became iterates."""
+    ``exact`` says which sweep the next point needs. :meth:`take` is given that
+    point's (J, g, H_GN, ∇²J or None) and returns the (J, g, H) for the trust
+    region; :meth:`observe` is given the trust region's record of the step (its
+    callback entry, scaled units), which says whether the point became the iterate."""
 
-    def __init__(self, K: int, eta: float = 0.1, ftol: float = 1e-12, exact: bool = False):
-        self.eta, self.ftol = eta, ftol
+    def __init__(self, K: int, exact: bool = False):
         self.exact = exact
         self.cost_ratio = (K + 2) / 2  # an exact evaluation in Gauss-Newton ones
-        # the iterate: φ, J, g, the H its step uses, H_GN, ∇²J (None in Gauss-Newton mode)
+        # the iterate and the trial point: φ, J, g, the H its step uses, H_GN, ∇²J
         self.current: tuple | None = None
-        self.slow = self.gn_better = 0
-        self.last_decrease: float | None = None
+        self.pending: tuple | None = None
+        self.stalled = self.gn_better = 0
         self.evaluations = {"gauss-newton": 0, "exact": 0}
         self.switches = 0
         self.checked = False  # the end point was checked for negative curvature
         self.saddles = 0  # ... and had it
 
-    def take(self, phi, J, g, H_gn, H_exact=None):
-        """(J, g, H) for the trust region at ``phi``, and the mode for the next point."""
-        self.evaluations["exact" if H_exact is not None else "gauss-newton"] += 1
+    def take(self, phi, J, g, H_gn, H_exact, exact: bool):
+        """(J, g, H) for the trust region at ``phi``; ``exact``: the sweep run."""
+        self.evaluations["exact" if exact else "gauss-newton"] += 1
+        if self.current is None or not np.isfinite(J):
+            use = H_gn if H_exact is None else H_exact
+            if self.current is None and np.isfinite(J):
+                self.current = (np.array(phi, dtype=float), J, g, use, H_gn, H_exact)
+            self.pending = None
+            return J, g, use
+        phi0, J0, g0, _, gn0, exact0 = self.current
         prefer_gn = H_exact is None
-        if self.current is not None:
-            phi0, J0, g0, H0, gn0, exact0 = self.current
+        if exact0 is not None and H_exact is not None:  # which model predicted better?
             d = np.asarray(phi) - phi0
-            actual = J0 - J if np.isfinite(J) else -np.inf
-            pred = -(g0 @ d + 0.5 * d @ H0 @ d)
-            rho = actual / pred if pred > 0 else -np.inf
-            if exact0 is None:
-                self._gauss_newton_mode(rho, actual)
-            else:  # which model predicted this step better? (NL2SOL)
-                errors = [abs(actual - -(g0 @ d + 0.5 * d @ H @ d)) for H in (gn0, exact0)]
-                prefer_gn = H_exact is None or (np.isfinite(actual) and errors[0] < errors[1])
-                self.gn_better = self.gn_better + 1 if prefer_gn else 0
-                if self.gn_better >= GN_RUN:
-                    self.exact, self.gn_better = False, 0
-                    self.switches += 1
-            if not rho > self.eta:  # rejected: the trust region keeps the iterate
-                return J, g, H0
-        elif not np.isfinite(J):
-            return J, g, H_gn
+            actual = J0 - J
+            errors = [abs(actual + g0 @ d + 0.5 * d @ H @ d) for H in (gn0, exact0)]
+            prefer_gn = errors[0] < errors[1]
+            self.gn_better = self.gn_better + 1 if prefer_gn else 0
         use = H_gn if prefer_gn else H_exact
-        self.current = (np.array(phi, dtype=float), J, g, use, H_gn, H_exact)
+        self.pending = (np.array(phi, dtype=float), J, g, use, H_gn, H_exact)
         return J, g, use
 
-    def _gauss_newton_mode(self, rho: float, actual: float) -> None:
-        """Count linear-rate steps; switch to exact mode on SLOW_RUN of them when the
-        steps Gauss-Newton still needs cost more than Newton's."""
-        if not rho > self.eta:
+    def observe(self, entry: dict) -> None:
+        """The trust region's verdict on the last trial point; the mode for the next."""
+        if entry["iteration"] == 0:
             return
-        last, J = self.last_decrease, self.current[1] - actual if self.current else 0.0
-        slow = last is not None and rho > GOOD and actual > SLOW_RATE * last
-        self.slow = self.slow + 1 if slow else 0
-        self.last_decrease = actual
-        if self.slow < SLOW_RUN:
+        accepted = entry["accepted"] and self.pending is not None
+        J_old = self.current[1] if self.current is not None else np.inf
+        if accepted:
+            self.current = self.pending
+        self.pending = None
+        if self.exact:
+            if self.gn_better >= GN_RUN:  # H_GN keeps predicting better: its sweeps suffice
+                self.exact, self.gn_better = False, 0
+                self.switches += 1
             return
-        rate = min(actual / last, 1 - 1e-9)
-        remaining = np.log(max(self.ftol * J, 1e-300) / actual) / np.log(rate)
-        if remaining > NEWTON_STEPS * self.cost_ratio:
+        decrease = (J_old - self.current[1]) / J_old if accepted and J_old > 0 else 0.0
+        self.stalled = self.stalled + 1 if decrease < STALL else 0
+        if self.stalled >= max(STALL_RUN, self.cost_ratio):
             self.exact = True
             self.switches += 1
-            self.slow = self.gn_better = 0
+            self.stalled = self.gn_better = 0
+
+    def restart_exact(self) -> None:
+        """Go on in exact mode from the end point of a run (a saddle)."""
+        self.exact, self.current, self.pending = True, None, None
+        self.saddles += 1
 
     def report(self) -> dict:
         """What the run used: evaluations of each kind and mode switches."""

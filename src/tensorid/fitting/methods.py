@@ -76,7 +76,7 @@ def fit(
         re-import the calling script: guard a script's top level with
         ``if __name__ == "__main__":``.
     batch : with starts, fit this many starts per task in lock-step, evaluated in one
-        jax.vmap call (see fit_batch; "newton", "gauss-newton"; 1.5x the throughput on
+        jax.vmap call (see fit_batch; auto, newton, gauss-newton; 1.5x the throughput on
         Silverbox). Default: the starts shared evenly over the local workers (at most
         16 per task) for those methods, one start per task otherwise.
     timeout : seconds to wait for the next start to finish on workers; then the best
@@ -114,8 +114,8 @@ def fit(
 def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResult]:
     """Fits from every row of ``thetas`` (B, K) in lock-step: at each iteration the
     points of all unfinished starts are evaluated in one vectorised (jax.vmap) call,
-    which costs far less than B separate calls on a CPU. Methods "newton" and
-    "gauss-newton"; options as for :func:`fit` (x_scale, maxiter, gtol, ftol,
+    which costs far less than B separate calls on a CPU. Methods "auto", "newton"
+    and "gauss-newton"; options as for :func:`fit` (x_scale, maxiter, gtol, ftol,
     xtol, or options=FitOptions(...)). Each result is what
     ``fit(problem, method, theta0=row)`` returns; its ``seconds`` and
     ``compile_seconds`` are those of the whole batch. Ctrl-C raises
@@ -123,7 +123,8 @@ def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResul
     started = time.perf_counter()
     if method not in LOCKSTEP:
         raise ValueError(
-            f"batched starts work with 'newton' and 'gauss-newton', not {method!r}; use batch=1"
+            f"batched starts work with 'auto', 'newton' and 'gauss-newton', not {method!r}; "
+            "use batch=1"
         )
     opts = options.pop("options", None)
     if opts is None:
@@ -227,7 +228,7 @@ def _check_batch(method, batch, starts, executor, workers) -> int:
     _check_count("batch", batch)
     if batch > 1 and method not in LOCKSTEP:
         raise ValueError(
-            f"batch > 1 works with 'newton' and 'gauss-newton', not {method!r}; use batch=1"
+            f"batch > 1 works with 'auto', 'newton' and 'gauss-newton', not {method!r}; use batch=1"
         )
     return int(batch)
 

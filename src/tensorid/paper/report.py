@@ -233,7 +233,8 @@ def _robustness(r: dict) -> list[str]:
         "Accuracy levels: the paper varies the tolerances of MATLAB's adaptive ODE solver "
         "(1e-10, 1e-12, 1e-14). The rk4xN levels are tensorid's fixed-step RK4 with N "
         "substeps per sample; the dopri5-TOL levels are the adaptive Dormand-Prince "
-        "scheme at rtol = atol = TOL, the paper's own levels, where step-size control "
+        "scheme at rtol = atol = TOL (rtol raised to 100 machine epsilons, 2.2e-14, at "
+        "1e-14, as MATLAB's ode45 raises it), the paper's own levels, where step-size control "
         "reacts to every change of θ (finite-difference perturbations included, as in "
         "MATLAB), while tensorid's derivatives stay those of the adaptive discretisation "
         "actually taken. Their measured output error (max |y − y_ref| / max |y_ref| at the "
@@ -254,8 +255,14 @@ def _robustness(r: dict) -> list[str]:
     return out
 
 
-# the paper's Table 1: MATLAB's finite-difference grey-box toolbox at each tolerance
-PAPER_TABLE_1 = {"1e-10": "aborted", "1e-12": "55.6 %", "1e-14": "76.8 %"}
+# the paper's Table 1 (Silverbox only): best validation GOF at each tolerance, by its
+# method and by MATLAB's finite-difference grey-box toolbox, which could start from
+# none of 100 starts at 1e-14 (aborted), from 3 of 100 at 1e-12 and from all at 1e-10
+PAPER_TABLE_1 = {
+    "1e-14": ("96.527 %", "aborted (0/100 started)"),
+    "1e-12": ("96.258 %", "55.627 % (3/100 started)"),
+    "1e-10": ("96.251 %", "76.782 % (100/100 started)"),
+}
 
 
 def _level_key(level: str) -> tuple:
@@ -265,25 +272,28 @@ def _level_key(level: str) -> tuple:
 
 
 def _against_the_paper(rows: list[dict], adaptive: list[str]) -> list[str]:
-    """The adaptive rows beside the paper's Table 1, whatever they show."""
-    header = ["data set", "tolerance", "paper: MATLAB finite differences"]
-    methods = [m for m in dict.fromkeys(x["method"] for x in rows)]
+    """The Silverbox adaptive rows beside the paper's Table 1, whatever they show."""
+    methods = list(dict.fromkeys(x["method"] for x in rows))
+    header = ["tolerance", "paper: its method", "paper: MATLAB grey-box"] + methods
     table = []
-    for dataset in dict.fromkeys(x["dataset"] for x in rows):
-        for lv in adaptive:
-            tol = lv.split("-", 1)[1]
-            cells = [dataset, tol, PAPER_TABLE_1.get(tol, "")]
-            for m in methods:
-                x = next((r for r in rows if (r["dataset"], r["accuracy"], r["method"])
-                          == (dataset, lv, m)), None)  # fmt: skip
-                cells.append(f"{x['converged']}/{x['starts']}" if x else "")
-            table.append(cells)
+    for lv in adaptive:
+        tol = lv.split("-", 1)[1]
+        cells = [tol, *PAPER_TABLE_1.get(tol, ("", ""))]
+        for m in methods:
+            x = next((r for r in rows if (r["dataset"], r["accuracy"], r["method"])
+                      == ("silverbox", lv, m)), None)  # fmt: skip
+            gof = f"{100 * x['best_val_gof']:.3f} %" if x else ""
+            cells.append(f"{gof} ({x['converged']}/{x['starts']})" if x else "")
+        table.append(cells)
     return [
-        "Beside the paper's Table 1 (the share of starts its MATLAB finite-difference "
-        "toolbox brought to the optimum, or that it aborted), the starts that reached the "
-        "best cost here at the same tolerances:",
+        "Beside the paper's Table 1 (Silverbox; best validation GOF at each tolerance): "
+        "here, the best validation GOF of each method, and in brackets the starts that "
+        "reached the best cost. The paper's GOF is on its own validation window "
+        "convention; the rk4 rows above show how the same model scores here (see the "
+        "headline numbers), so compare the columns of one table, not across them. For "
+        "the two-tank problem the paper reports that every tolerance worked (GOF 0.79088).",
         "",
-        md_table(header + methods, table),
+        md_table(header, table),
     ]
 
 

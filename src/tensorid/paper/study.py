@@ -281,6 +281,7 @@ def _worker_problem(dataset: str, level, segments: int | None = None):
     th = prob.theta0
     # compile every path once, so that the timed fits below exclude compilation
     prob.cost_grad_hess(th)
+    prob.cost_grad_hess_gn(th)  # auto's exact mode
     prob.cost_grad_gn(th)
     prob.cost(th)
     prob.residuals(th)
