@@ -67,7 +67,7 @@ def main() -> None:
                 rows.append((label, *_run(prob, thetas, executor=pool, batch=B)))
         for B in (1, max(1, n // W)):
             t0 = time.perf_counter()
-            res = ti.fit(prob, starts=n, workers=W, batch=B)
+            res = ti.fit(prob, "newton", starts=n, workers=W, batch=B)
             cold = time.perf_counter() - t0
             rows.append(
                 (

@@ -83,17 +83,17 @@ def main() -> None:
     multiple = lotka_volterra_problem(segments=10)
     thetas = starts(single, [3] if args.quick else [3, 4, 5])
     sqp(multiple, thetas[0], maxiter=2)  # compile
-    ti.fit(multiple)
+    ti.fit(multiple, "newton")
     rows = {"augmented Lagrangian (ti.fit)": [], "line-search SQP": []}
     for th in thetas:
         t0 = time.perf_counter()
-        r = ti.fit(multiple, theta0=th)
+        r = ti.fit(multiple, "newton", theta0=th)
         rows["augmented Lagrangian (ti.fit)"].append(
             (r.cost, r.shooting["nit"], time.perf_counter() - t0)
         )
         t0 = time.perf_counter()
         theta, nit, _ = sqp(multiple, th)
-        r = ti.fit(single, theta0=theta)  # the same single-shooting polish
+        r = ti.fit(single, "newton", theta0=theta)  # the same single-shooting polish
         rows["line-search SQP"].append((r.cost, nit, time.perf_counter() - t0))
     best = min(c for v in rows.values() for c, _, _ in v)
     print(f"\nLotka-Volterra, S = 10, {len(thetas)} starts within ±50 % (best cost {best:.6g})\n")
