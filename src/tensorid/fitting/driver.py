@@ -61,7 +61,7 @@ def _single(method, tr: Tracker, options: FitOptions, started) -> FitResult:
     try:
         if method in BASELINES:
             phi, nit, status, detail = run_baseline(method, tr, phi0, options, record)
-        elif method == "auto":
+        elif hybrid is not None:  # method "auto"
             r = _auto(tr, hybrid, phi0, options, record)
             phi, nit, status, detail, nhev = r.x, r.nit, r.status, r.detail, r.nhev
         else:

@@ -89,17 +89,17 @@ class Hybrid:
         """The trust region's verdict on the last trial point; the mode for the next."""
         if entry["iteration"] == 0:
             return
-        accepted = entry["accepted"] and self.pending is not None
+        new = self.pending if entry["accepted"] else None
         J_old = self.current[1] if self.current is not None else np.inf
-        if accepted:
-            self.current = self.pending
+        if new is not None:
+            self.current = new
         self.pending = None
         if self.exact:
             if self.gn_better >= GN_RUN:  # H_GN keeps predicting better: its sweeps suffice
                 self.exact, self.gn_better = False, 0
                 self.switches += 1
             return
-        decrease = (J_old - self.current[1]) / J_old if accepted and J_old > 0 else 0.0
+        decrease = (J_old - new[1]) / J_old if new is not None and J_old > 0 else 0.0
         self.stalled = self.stalled + 1 if decrease < STALL else 0
         if self.stalled >= max(STALL_RUN, self.cost_ratio):
             self.exact = True
