@@ -49,7 +49,8 @@ class _StudyProgress:
         self._done += 1
         self._bad += not result["success"]
         status = (
-            f"{result['dataset']} {result['method']} {result['accuracy']} "
+            f"{result['dataset']} {result['method']} "
+            f"{result.get('accuracy') or 'rk4x' + str(result['substeps'])} "
             f"(optimizer-reported failures so far: {self._bad})"
         )
         if self.progress and self._task is not None:
