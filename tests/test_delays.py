@@ -51,6 +51,7 @@ def test_a_fractional_delay_interpolates_the_record():
     np.testing.assert_array_equal(seen[:, 1], u[:, 1])  # the other input is not delayed
 
 
+@pytest.mark.slow  # 9 s of jax.hessian compilation; the shooting test below keeps one check
 def test_derivatives_with_a_delay_equal_autodiff():
     t, u = record(P=120)
     m = first_order({"u": 2.5 * TS, "w": 4 * TS})

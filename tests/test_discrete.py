@@ -53,7 +53,7 @@ def test_the_map_is_applied_once_per_sample_with_the_input_at_its_start():
     np.testing.assert_allclose(data.y[:, 0], ys, rtol=1e-14, atol=1e-15)
 
 
-@pytest.mark.parametrize("segments", [None, pytest.param(4, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("segments", [pytest.param(s, marks=pytest.mark.slow) for s in (None, 4)])
 def test_derivatives_of_a_discrete_model_equal_autodiff(segments):
     data = record(P=80, noise=0.02)
     prob = ti.Problem(

@@ -70,8 +70,8 @@ def _closed_loop_problem(delay: int) -> ti.Problem:
     )  # fmt: skip
 
 
+@pytest.mark.slow  # 6 s; jax.hessian of this model takes 10-15 s to compile (below)
 def test_the_closed_loop_hessian_equals_differences_of_the_exact_gradient():
-    # the default run's check; jax.hessian of this model takes 10-15 s to compile (slow)
     prob = _closed_loop_problem(0)
     th = prob.theta0
     _, g, H = prob.cost_grad_hess(th)

@@ -25,6 +25,7 @@ def _linear_record(noise=0.05, seed=0, n=40):
     return ti.Experiment(t, u, y + noise * np.random.default_rng(seed).standard_normal(t.size))
 
 
+@pytest.mark.slow  # 7 s of jax.hessian compilation
 def test_derivatives_with_priors_equal_autodiff():
     e = silverbox_data(P=48, noise=1e-4)
     priors = {"a": (1.0, 0.05), "d": (2e-4, 1e-5)}

@@ -236,6 +236,7 @@ def test_multistart_with_segments_keeps_the_shooting_report():
     assert all(s["shooting"]["segments"] == [4] for s in res.starts)
 
 
+@pytest.mark.slow  # 8 s
 def test_cli_fit_with_segments_records_them(tmp_path):
     import json
 

@@ -325,6 +325,7 @@ def test_summary_and_plot_api(workdir):
     assert textwrap.dedent(text)
 
 
+@pytest.mark.slow  # 11 s: every scheme option compiles its own sweeps
 def test_integration_options_on_the_command_line(workdir, capsys):
     train = _write_csv(workdir / "train.csv", seed=1)
     out = workdir / "out"
