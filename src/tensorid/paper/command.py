@@ -74,7 +74,7 @@ def register(sub) -> None:
     p.add_argument(
         "--quick",
         action="store_true",
-        help="small version: one accuracy level and few starts (about 40 s)",
+        help="small version: one accuracy level and few starts (about 50 s)",
     )
     p.add_argument(
         "--levels",

@@ -313,7 +313,7 @@ def _robustness_verdict(rows: list[dict]) -> list[str]:
                 f"{worst['converged']}/{worst['starts']} starts in every row "
                 f"(lowest: {worst['dataset']}, {worst['accuracy']})."
             )
-    for m in ("gauss-newton", "fd-lsq", "fd-bfgs", "multiple-shooting"):
+    for m in ("gauss-newton", "fd-lsq", "fd-bfgs", "multiple-shooting", "auto"):
         ms = [x for x in rows if x["method"] == m]
         if ms:
             conv = sum(x["converged"] for x in ms)
