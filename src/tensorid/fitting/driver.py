@@ -147,9 +147,7 @@ def _derivatives(method: str, tr: Tracker, hybrid: Hybrid | None = None):
 
 def _scaled_hessian(tr: Tracker, J, H):
     """H in the tracker's scaled units (None stays None, as does a failed point's)."""
-    if H is None or not np.isfinite(J):
-        return None
-    return H * np.outer(tr.scale, tr.scale) / tr.J_ref
+    return tr.scaled_hessian(H) if np.isfinite(J) else None
 
 
 def _at_saddle(tr: Tracker, hybrid: Hybrid, r, options: FitOptions) -> bool:

@@ -100,7 +100,11 @@ class Tracker:
         if not np.isfinite(J):
             return np.inf, g, H
         s = self.scale
-        return J / self.J_ref, g * s / self.J_ref, H * np.outer(s, s) / self.J_ref
+        return J / self.J_ref, g * s / self.J_ref, self.scaled_hessian(H)
+
+    def scaled_hessian(self, H):
+        """H (natural units) in scaled units; None stays None."""
+        return None if H is None else H * np.outer(self.scale, self.scale) / self.J_ref
 
     def derivs(self, fn):
         """φ -> scaled (J, g, H) from ``fn(θ) -> (J, g, H)`` in natural units."""
