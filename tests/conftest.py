@@ -176,3 +176,97 @@ def robertson_data() -> ti.Experiment:
     )
     y = np.stack([sol.y[0], 1e4 * sol.y[1], sol.y[2]], axis=1)
     return ti.Experiment(t, np.zeros((t.size, 1)), y, name="robertson")
+
+
+def noisy_experiment(model, p, x0, t, u, seed, noise, **kw):
+    sim = ti.simulate(model, p, x0, ti.Experiment(t, u), **kw)
+    rng = np.random.default_rng(seed)
+    return ti.Experiment(t, u, sim.y + noise * rng.standard_normal(sim.y.shape), name=f"e{seed}")
+
+
+def derivative_problems(**kw):
+    """(id, problem, theta) with theta away from the optimum, so that the residual-
+    weighted second-order term of the Hessian matters: explicit schemes, zoh, free
+    and fixed initial states, two experiments, two outputs. ``kw`` goes to every
+    Problem (e.g. hessian="adjoint")."""
+    out = []
+
+    m = silverbox_model()
+    data = silverbox_data(P=300, seed=3, noise=1e-3, x0=(0.02, 0.0))
+    prob = ti.Problem(m, data, p0=SILVERBOX_P, x0=[0.02, 0.0], free_x0=["v"], **kw)
+    out.append(
+        (
+            "silverbox",
+            prob,
+            prob.theta0 * np.array([1, 1.04, 0.97, 1.02, 0.9]) + np.array([0.5, 0, 0, 0, 0]),
+        )
+    )
+
+    m = two_tank_model()
+    t = np.arange(200) * 5.0
+    u = np.repeat(np.random.default_rng(1).uniform(0.3, 2.0, 10), 20)
+    ptrue = {"p1": 0.04, "p2": 0.02, "p3": 0.02, "p4": 0.05}
+    data = noisy_experiment(m, ptrue, [2.0, 1.0], t, u, 2, 0.01, interpolation="zoh")
+    prob = ti.Problem(
+        m, data, p0=ptrue, x0=[2.0, 1.0], interpolation="zoh", bounds={"p1": (0, 1)}, **kw
+    )
+    out.append(("two-tank fixed x0, zoh", prob, prob.theta0 * np.array([1.1, 0.9, 1.05, 0.95])))
+
+    # two outputs with a p-dependent nonlinear output map, two inputs, two
+    # experiments of different lengths, one free and one fixed initial state,
+    # one fixed parameter, weights
+    m = oscillator_model()
+    ptrue = {"k": 2.0, "c": 0.3, "g": 1.0, "q": 0.7}
+    exps = []
+    for seed, P in ((4, 150), (5, 110)):
+        t = np.arange(P) * 0.05
+        u = np.stack(
+            [
+                multisine(P, 0.05, 1.0, seed, range(1, 20))[1],
+                multisine(P, 0.05, 0.5, seed + 10, range(2, 15))[1],
+            ],
+            axis=1,
+        )
+        exps.append(noisy_experiment(m, ptrue, [0.3, -0.2], t, u, seed, 0.05))
+    prob = ti.Problem(
+        m,
+        exps,
+        p0=ptrue,
+        x0=[[0.3, -0.2], [0.1, 0.4]],
+        free_x0=["om"],
+        fixed=["g"],
+        weights={"y2": 2.5},
+        **kw,
+    )
+    theta = prob.theta0 + np.array([0.1, -0.2, 0.3, -0.05, 0.1])
+    out.append(("oscillator multi-output multi-experiment", prob, theta))
+
+    m = reactor_model()
+    ptrue = {"k1": 0.8, "k2": 0.5, "k3": 0.3, "V": 2.0}
+    t = np.arange(120) * 0.1
+    u = np.stack(
+        [
+            1 + multisine(120, 0.1, 0.5, 7, range(1, 10))[1],
+            0.5 + multisine(120, 0.1, 0.3, 8, range(1, 10))[1],
+        ],
+        axis=1,
+    )
+    data = noisy_experiment(m, ptrue, [1.0, 0.5, 0.2], t, u, 9, 0.02, scheme="heun", substeps=3)
+    prob = ti.Problem(
+        m,
+        data,
+        p0=ptrue,
+        x0=[1.0, 0.5, 0.2],
+        free_x0=["A", "B", "C"],
+        scheme="heun",
+        substeps=3,
+        **kw,
+    )
+    out.append(("reactor all x0 free, heun", prob, prob.theta0 * 1.07))
+
+    m = decay_model()
+    t = np.linspace(0, 3, 40)
+    data = noisy_experiment(m, {"k": 1.3}, [1.0], t, np.sin(t), 11, 0.01, scheme="euler")
+    prob = ti.Problem(m, data, p0={"k": 1.0}, x0=[1.0], scheme="euler", substeps=2, **kw)
+    out.append(("decay K=1 N=1 euler", prob, np.array([1.4])))
+    return out

@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401
+from .adjoint import choose_hessian
 from .data import Experiment
 from .discretisation import Discretisation
 from .integrators import RungeKuttaScheme, Scheme
@@ -83,6 +84,12 @@ class Problem:
         default, is single shooting. θ, ``theta0`` and every result stay in the layout
         above; only :func:`tensorid.fit` sees the segments.
     segment_length : instead of segments: samples per segment (about).
+    hessian : how exact Hessians are computed: "tensors" (the paper's transition
+        tensors, forward in time), "adjoint" (second-order adjoints, parallel in time:
+        faster for many states or unknowns; explicit schemes and discrete-time models
+        only) or "auto" (default): the faster of the two by a cost model measured on
+        N, K and the record length (see :func:`tensorid.engine.adjoint.choose`). Both
+        give the same Hessian to rounding. The resolved choice is ``Problem.hessian``.
     """
 
     def __init__(
@@ -105,6 +112,7 @@ class Problem:
         noise: float | None = None,
         segments: int | Sequence[int] | None = None,
         segment_length: int | None = None,
+        hessian: str = "auto",
     ):
         if not isinstance(model, Model):
             raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
@@ -141,6 +149,9 @@ class Problem:
         ]
         counts = resolve_segments(self.experiments, segments, segment_length)
         self.shooting = Shooting(self, counts) if counts else None
+        self.hessian = choose_hessian(
+            hessian, discretisation, model.N, self._sweeps.K, [e.P for e in self.experiments]
+        )
 
     def inputs(self, e: Experiment) -> np.ndarray:
         """The inputs the model sees on experiment e: delayed where the model says so."""
@@ -558,13 +569,19 @@ class Problem:
         return J, g, H
 
     def cost_grad_hess_gn(self, theta) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
-        """(J, ∇J, ∇²J, Gauss-Newton Hessian) from one second-order sweep: the
-        Gauss-Newton part is a term of the exact Hessian, so it comes for free (1-3 %
-        of the sweep), and every exact Hessian of a Problem comes from this one
+        """(J, ∇J, ∇²J, Gauss-Newton Hessian) from one second-order sweep (by
+        ``self.hessian``): the Gauss-Newton part is a term of the exact Hessian, so it
+        comes for free, and every exact Hessian of a Problem comes from this one
         compiled sweep."""
-        return tuple(
-            self._assemble(self._sweeps.second_order_both, self.check_theta(theta), parts="JgPP")
-        )
+        sweep, parts = self._hessian_sweep(batched=False)
+        return tuple(self._assemble(sweep, self.check_theta(theta), parts=parts))
+
+    def _hessian_sweep(self, batched: bool):
+        """The sweep giving (J, ∇J, ∇²J, Gauss-Newton part) and its parts letters."""
+        sw = self._sweeps
+        if self.hessian == "adjoint":
+            return (sw.adjoint_batch if batched else sw.adjoint), "JgHH"
+        return (sw.second_order_both_batch if batched else sw.second_order_both), "JgPP"
 
     def cost_grad_hess_batch(self, thetas, gauss_newton: bool = False, both: bool = False):
         """cost_grad_hess (or cost_grad_gn) at every row of ``thetas`` (B, K) in one
@@ -574,13 +591,11 @@ class Problem:
         thetas = np.asarray(thetas, dtype=float)
         if thetas.ndim != 2 or thetas.shape[1] != self.K:
             raise ValueError(f"thetas must have shape (B, {self.K}), got {thetas.shape}")
-        if both:
-            return tuple(self._assemble(self._sweeps.second_order_both_batch, thetas, parts="JgPP"))
-        if gauss_newton:
-            J, g, H = self._assemble(self._sweeps.first_order_batch, thetas, parts="JgH")
-        else:
-            J, g, H, _ = self._assemble(self._sweeps.second_order_both_batch, thetas, parts="JgPP")
-        return J, g, H
+        if gauss_newton and not both:
+            return tuple(self._assemble(self._sweeps.first_order_batch, thetas, parts="JgH"))
+        sweep, parts = self._hessian_sweep(batched=True)
+        out = tuple(self._assemble(sweep, thetas, parts=parts))
+        return out if both else out[:3]
 
     def cost_grad(self, theta) -> tuple[float, np.ndarray]:
         """(J, ∇J) from first-order sensitivities; J is inf when the simulation blows up."""
@@ -635,5 +650,6 @@ class Problem:
         return (
             f"Problem({self.model.name!r}, experiments={len(self.experiments)}, "
             f"theta={self.theta_names}, scheme={self.scheme.name}, "
-            f"substeps={self.substeps}, interpolation={self.interpolation!r})"
+            f"substeps={self.substeps}, interpolation={self.interpolation!r}, "
+            f"hessian={self.hessian!r})"
         )

@@ -26,12 +26,14 @@ The output side is the same with C in place of F, giving the paper's gradient
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401
+from .adjoint import SecondOrderAdjoint
 from .discretisation import Discretisation, march
 from .model import Model
 
@@ -321,8 +323,21 @@ class Sweeps:
     segments = _Compiled("_segment", batched=True, axes=(0, 0, None, 0, 0, 0, 0))
     segments_gn = _Compiled("_segment_gn", batched=True, axes=(0, 0, None, 0, 0, 0, 0))
 
+    # (J, ∇J, ∇²J, Gauss-Newton part) by second-order adjoints (see adjoint.py)
+    @cached_property
+    def adjoint(self) -> SecondOrderAdjoint:
+        return SecondOrderAdjoint(self)
+
+    @cached_property
+    def adjoint_batch(self) -> SecondOrderAdjoint:
+        return SecondOrderAdjoint(self, batched=True)
+
     def __getstate__(self):
-        return {k: v for k, v in self.__dict__.items() if not isinstance(_entry(k), _Compiled)}
+        return {
+            k: v
+            for k, v in self.__dict__.items()
+            if not isinstance(_entry(k), _Compiled | cached_property)
+        }
 
     def __setstate__(self, state):
         self.__dict__.update(state)

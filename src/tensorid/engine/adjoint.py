@@ -1,0 +1,322 @@
+"""Second-order adjoints: the exact ∇²J from the Lagrangian of the discretised
+problem, for models with many states or unknowns.
+
+With z = (x, p), Z_h = ∂z_h/∂θ = [S_h; P] (S the first-order sensitivities, P the
+free-parameter selection) and x_{h+1} = Φ_h(x_h, p) the step map of sample interval h
+(the scheme's substeps included), the transition tensors' recursion
+∂²x_{h+1}/∂θ² = Φ_zz[Z_h, Z_h] + Φ_x ∂²x_h/∂θ², summed backwards, turns the
+second-order part of the Hessian into one backward sweep of a vector:
+
+    ∇²J = 2 Σ_h D_hᵀ W D_h − 2 Σ_h Z_hᵀ ∇²_z L_h Z_h,        D_h = C_z Z_h
+    L_h(z) = ρ_hᵀ C(z) + λ_{h+1}ᵀ Φ_h(z),                     ρ_h = W r_h
+    λ_h = C_xᵀ ρ_h + Φ_{h,x}ᵀ λ_{h+1},   λ_P = 0
+
+λ is the adjoint of the residual-weighted outputs. Given x and λ at every sample,
+the K Hessian-vector products ∇²L_h Z_h of one interval need nothing from any other
+interval except S_h, which a forward sweep of K directions carries. So the
+expensive part runs vectorised over blocks of intervals (:func:`block_size`) and in parallel
+threads over stretches of the record, where the transition tensors and
+forward-over-reverse automatic differentiation (jax.hessian) are sequential in
+time. Work per interval: K Hessian-vector products of Φ against the tensors'
+K(K+1)/2 second-order directions; memory: x and λ at every sample (the size of
+the simulation) and S for one block per thread, bounded in the record length.
+
+Two compiled phases:
+
+1. ``_backward``: x forward, S forward to the start of each thread's stretch,
+   λ backward (one vector-Jacobian product per interval), and J.
+2. ``_stretch``: per stretch, S forward again block by block, the outputs'
+   derivatives D and the Hessian-vector products; returns (∇J, Gauss-Newton part,
+   second-order part) of the stretch.
+
+Explicit Runge-Kutta schemes and discrete-time maps only: reverse-mode
+differentiation cannot go through the Newton iterations of implicit stages or
+the step-size control of adaptive schemes (see :func:`supports`).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from concurrent.futures import ThreadPoolExecutor
+from functools import cached_property
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import _config  # noqa: F401
+from .discretisation import Discretisation, input_at
+from .integrators import DiscreteMap, ExplicitRungeKutta
+
+# Intervals whose Hessian-vector products are one vectorised call: enough to amortise
+# the per-operation cost of a compiled loop step, few enough that a block's arrays
+# (block x K directions x N states) stay in cache. Measured on the mass chain (2 cores,
+# ms per Hessian, blocks of 1/2/4/8/32 intervals): N = 10, K = 11: 109/95/89/82/80;
+# N = 32, K = 33: 85/82/86/95/~110; N = 64, K = 65: 284/359/325/347.
+BLOCK_ELEMENTS = 3000
+MAX_BLOCK = 32
+
+
+def block_size(K: int, N: int, starts: int = 1) -> int:
+    """Intervals per vectorised block: the power of two that keeps a block near
+    BLOCK_ELEMENTS numbers (starts x block x K x N), between 1 and MAX_BLOCK."""
+    b = BLOCK_ELEMENTS // max(1, starts * K * N)
+    return int(min(MAX_BLOCK, max(1, 2 ** int(np.log2(max(b, 1))))))
+
+
+_POOL: ThreadPoolExecutor | None = None
+
+
+def supports(discretisation: Discretisation) -> bool:
+    """Whether the adjoint Hessian can differentiate this scheme in reverse mode."""
+    return isinstance(discretisation.scheme, ExplicitRungeKutta | DiscreteMap)
+
+
+HESSIANS = ("auto", "tensors", "adjoint")
+
+# The cost model behind hessian="auto", fitted to benchmarks/bench_adjoint.py on a
+# 2-core machine (twelve problems from N = 2, K = 3 to N = 64, K = 65; predictions
+# within about 30 %): per sample interval, the transition tensors cost about
+# TENSOR_SECONDS (L N)^0.96 with L = (K+1)(K+2)/2 directions, and take
+# RATIO (L/K) N^0.54 times as long as the adjoint's K Hessian-vector products (less
+# ADJOINT_CALL seconds of fixed cost per call). One thread instead of two: the
+# adjoint takes SINGLE_THREAD times longer. MARGIN keeps the tensors near the
+# crossover, where the two are within the model's error.
+TENSOR_SECONDS = 0.28e-6
+RATIO = 0.145
+ADJOINT_CALL = 2e-3
+SINGLE_THREAD = 1.3
+MARGIN = 1.3
+
+
+def predicted_seconds(N: int, K: int, samples, n_threads: int | None = None) -> dict:
+    """Predicted seconds of one (J, ∇J, ∇²J) by each path, {"tensors": .., "adjoint": ..},
+    for N states, K unknowns per experiment and ``samples`` (one count per experiment)."""
+    samples = [samples] if isinstance(samples, int | np.integer) else list(samples)
+    lanes = (K + 1) * (K + 2) / 2
+    tensors = sum(samples) * TENSOR_SECONDS * (lanes * N) ** 0.96
+    ratio = RATIO * lanes / K * N**0.54
+    if (threads() if n_threads is None else n_threads) < 2:
+        ratio /= SINGLE_THREAD
+    return {"tensors": tensors, "adjoint": len(samples) * ADJOINT_CALL + tensors / ratio}
+
+
+def choose_hessian(hessian: str, discretisation: Discretisation, N: int, K: int, samples) -> str:
+    """The Hessian path a Problem uses: ``hessian`` checked, and "auto" resolved by
+    the cost model (the adjoint where it is predicted MARGIN times faster and the
+    scheme allows it)."""
+    if hessian not in HESSIANS:
+        raise ValueError(f"hessian must be one of {HESSIANS}, got {hessian!r}")
+    if hessian == "adjoint" and not supports(discretisation):
+        raise ValueError(
+            f"hessian='adjoint' needs an explicit Runge-Kutta scheme or a discrete-time "
+            f"model, not scheme {discretisation.scheme.name!r} (reverse-mode derivatives "
+            "cannot go through its step control or stage solves): use hessian='tensors' "
+            "or 'auto'"
+        )
+    if hessian != "auto":
+        return hessian
+    if not supports(discretisation):
+        return "tensors"
+    t = predicted_seconds(N, K, samples)
+    return "adjoint" if MARGIN * t["adjoint"] < t["tensors"] else "tensors"
+
+
+def threads() -> int:
+    """Threads for the stretches: the cores this process may use ($TENSORID_THREADS
+    caps it; 1 turns the parallel stretches off)."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    cap = os.environ.get("TENSORID_THREADS")
+    return max(1, min(cores, int(cap))) if cap and cap.isdigit() else max(1, cores)
+
+
+def _pool(n: int) -> ThreadPoolExecutor:
+    global _POOL
+    if _POOL is None or _POOL._max_workers < n:
+        _POOL = ThreadPoolExecutor(max_workers=n, thread_name_prefix="tensorid-adjoint")
+    return _POOL
+
+
+class SecondOrderAdjoint:
+    """(J, ∇J, ∇²J, Gauss-Newton part) of one experiment by second-order adjoints,
+    for the θ layout and discretisation of ``sweeps`` (a :class:`Sweeps`); called
+    like its sweeps, ``(theta, x0, p, t, u, y, w)``, with ``batched`` one start per
+    row of theta. Results are full (K, K) matrices."""
+
+    def __init__(self, sweeps, batched: bool = False):
+        if not supports(sweeps.discretisation):
+            raise ValueError(
+                "the adjoint Hessian needs an explicit Runge-Kutta scheme or a discrete "
+                f"map, not {sweeps.discretisation.scheme.name!r}: use hessian='tensors'"
+            )
+        self.sweeps, self.batched = sweeps, batched
+
+    # -- the step map and the padded grid ----------------------------------------------
+    def _phi(self, x, p, dt, ua, ub):
+        """Φ: the state one sample interval on, the scheme's substeps included."""
+        m, d = self.sweeps.model, self.sweeps.discretisation
+
+        def vf(xx, s):
+            return m.f(xx, p, input_at(ua, ub, s, d.interpolation))
+
+        return d.scheme.interval(vf, vf, x, dt, dt / d.substeps, d.substeps)[0]
+
+    @staticmethod
+    def _grid(t, u, y, length: int):
+        """Per interval h = 0..length-1, padded past the record: (dt, u_h, u_{h+1}, y_h,
+        interval h exists, sample h exists). A padded interval holds the state (no
+        step is taken) and a padded sample weighs nothing, so padding changes no sum."""
+        P = t.shape[0]
+        pad = length - P
+        dt = jnp.diff(t) if P > 1 else jnp.ones(0)
+        last_dt = dt[-1] if P > 1 else jnp.ones(())
+        dt = jnp.concatenate([dt, jnp.full((pad + 1,), last_dt)])
+
+        def held(a, n):
+            return jnp.concatenate([a, jnp.broadcast_to(a[-1], (n,) + a.shape[1:])])
+
+        h = jnp.arange(length)
+        return (
+            dt,
+            held(u, pad),
+            held(u[1:], pad + 1) if P > 1 else held(u, pad),
+            held(y, pad),
+            h < P - 1,
+            (h < P).astype(t.dtype),
+        )
+
+    # -- phase 1: x and S forward, λ backward --------------------------------------------
+    def _backward(self, theta, x0, p, t, u, y, w, stretches: int, length: int):
+        sw = self.sweeps
+        x0, p = sw._expand(theta, x0, p)
+        m = sw.model
+        dx0, Psel = sw._seeds()
+        Pt = jnp.asarray(Psel.T)
+        dt, ua, ub, yh, live, seen = self._grid(t, u, y, length)
+
+        def forward(with_S):
+            def step(carry, d):
+                x, S = carry
+                dt_, a, b, lv = d
+                if with_S:
+                    f = lambda x_, p_: self._phi(x_, p_, dt_, a, b)  # noqa: E731
+                    xn, Sn = jax.vmap(
+                        lambda sx, sp: jax.jvp(f, (x, p), (sx, sp)), out_axes=(None, 1)
+                    )(S.T, Pt)
+                    S = jnp.where(lv, Sn, S)
+                else:
+                    xn = self._phi(x, p, dt_, a, b)
+                return (jnp.where(lv, xn, x), S), x
+
+            return step
+
+        # x at every interval, and S where each stretch starts (the last stretch's S
+        # is never needed here: the stretch itself carries it)
+        R = length // stretches
+        carry, starts, pieces = (x0, jnp.asarray(dx0)), [], []
+        for k in range(stretches):
+            starts.append(carry[1])
+            part = tuple(a[k * R : (k + 1) * R] for a in (dt, ua, ub, live))
+            carry, xk = jax.lax.scan(forward(k < stretches - 1), carry, part)
+            pieces.append(xk)
+        xs = jnp.concatenate(pieces)
+
+        def adjoint(lam_next, e):
+            x, yv, s, dt_, a, b, lv = e
+            r = (yv - m.h(x, p)) * s
+            rho = w * r
+            mu = jax.vjp(lambda x_: m.h(x_, p), x)[1](rho)[0]
+            back = jax.vjp(lambda x_: self._phi(x_, p, dt_, a, b), x)[1](lam_next)[0]
+            return mu + jnp.where(lv, back, 0.0), (jnp.where(lv, lam_next, 0.0), jnp.sum(rho * r))
+
+        _, (lams, costs) = jax.lax.scan(
+            adjoint, jnp.zeros(m.N), (xs, yh, seen, dt, ua, ub, live), reverse=True
+        )
+        # phase 2's inputs, one row per stretch: it indexes them itself, so that a call
+        # costs no slicing outside compiled code
+        per = tuple(a.reshape((stretches, R) + a.shape[1:]) for a in (xs, lams))
+        grid = tuple(a.reshape((stretches, R) + a.shape[1:]) for a in (dt, ua, ub, yh, live, seen))
+        return jnp.sum(costs), jnp.stack(starts), per, grid, p
+
+    # -- phase 2: one stretch's gradient and Hessian parts ------------------------------
+    def _stretch(self, block, k, starts, per, grid, p, w):
+        sw = self.sweeps
+        S0, (xs, lams) = starts[k], (a[k] for a in per)
+        t_dt, ua, ub, yh, live, seen = (a[k] for a in grid)
+        m, K = sw.model, sw.K
+        Pt = jnp.asarray(sw._seeds()[1].T)
+
+        def forward(S, d):
+            x, dt_, a, b, lv = d
+            f = lambda x_, p_: self._phi(x_, p_, dt_, a, b)  # noqa: E731
+            Sn = jax.vmap(lambda sx, sp: jax.jvp(f, (x, p), (sx, sp))[1], out_axes=1)(S.T, Pt)
+            return jnp.where(lv, Sn, S), S
+
+        def second(x, S, yv, s, lam, dt_, a, b):
+            """(D_h (K, outputs) masked, ρ_h, Z_hᵀ ∇²L_h Z_h) of one interval."""
+            D = jax.vmap(lambda sx, sp: jax.jvp(m.h, (x, p), (sx, sp))[1])(S.T, Pt) * s
+            rho = w * (yv - m.h(x, p)) * s
+
+            def L(x_, p_):
+                return rho @ m.h(x_, p_) + lam @ self._phi(x_, p_, dt_, a, b)
+
+            _, hvp = jax.linearize(jax.grad(L, argnums=(0, 1)), x, p)
+            Wx, Wp = jax.vmap(hvp)(S.T, Pt)  # (K, N), (K, M): (∇²L Z)ᵀ
+            return D, rho, S.T @ Wx.T + Pt @ Wp.T
+
+        def one_block(carry, d):
+            S, g, Hgn, Hso = carry
+            x, lam, dt_, a, b, yv, lv, s = d
+            S, Ss = jax.lax.scan(forward, S, (x, dt_, a, b, lv))
+            D, rho, Q = jax.vmap(second)(x, Ss, yv, s, lam, dt_, a, b)
+            g = g - 2.0 * jnp.einsum("hks,hs->k", D, rho)
+            Hgn = Hgn + 2.0 * jnp.einsum("hks,s,hls->kl", D, w, D)
+            return (S, g, Hgn, Hso + Q.sum(0)), None
+
+        nb = xs.shape[0] // block
+        data = [
+            a.reshape((nb, block) + a.shape[1:]) for a in (xs, lams, t_dt, ua, ub, yh, live, seen)
+        ]
+        z = jnp.zeros
+        (_, g, Hgn, Hso), _ = jax.lax.scan(one_block, (S0, z(K), z((K, K)), z((K, K))), data)
+        return g, Hgn, Hso
+
+    # -- compiled entry points and the call ------------------------------------------------
+    @cached_property
+    def _phase1(self):
+        def fn(theta, x0, p, t, u, y, w, stretches, length):
+            one = functools.partial(self._backward, stretches=stretches, length=length)
+            if self.batched:  # the grid does not depend on θ: one copy for all starts
+                one = jax.vmap(one, in_axes=(0,) + (None,) * 6, out_axes=(0, 0, 0, None, 0))
+            return one(theta, x0, p, t, u, y, w)
+
+        return jax.jit(fn, static_argnums=(7, 8))
+
+    @cached_property
+    def _phase2(self):
+        def fn(block, k, starts, per, grid, p, w):
+            one = functools.partial(self._stretch, block, k)
+            if self.batched:
+                one = jax.vmap(one, in_axes=(0, 0, None, 0, None))
+            return one(starts, per, grid, p, w)
+
+        return jax.jit(fn, static_argnums=0)
+
+    def __call__(self, theta, x0, p, t, u, y, w):
+        P, K, N = t.shape[0], self.sweeps.K, self.sweeps.model.N
+        B = block_size(K, N, theta.shape[0] if self.batched else 1)
+        n = max(1, min(threads(), -(-P // B)))
+        R = B * -(-P // (B * n))  # a whole number of blocks per stretch
+        length = n * R
+        J, starts, per, grid, p_full = self._phase1(theta, x0, p, t, u, y, w, n, length)
+
+        def part(k):
+            return jax.block_until_ready(self._phase2(B, k, starts, per, grid, p_full, w))
+
+        parts = [part(0)] if n == 1 else list(_pool(n).map(part, range(n)))
+        g, Hgn, Hso = (sum(q[i] for q in parts) for i in range(3))
+        return J, g, Hgn - 2.0 * Hso, Hgn

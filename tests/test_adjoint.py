@@ -1,0 +1,156 @@
+"""The Hessian by second-order adjoints equals the transition tensors' and
+jax.hessian's, for every model kind it supports, however the record is cut into
+blocks and threads; hessian="auto" picks it where the cost model says it is faster."""
+
+from __future__ import annotations
+
+import cloudpickle
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from conftest import decay_model, derivative_problems
+
+import tensorid as ti
+from tensorid.benchmarks import mass_chain_problem, silverbox_problem, two_tank_problem
+from tensorid.engine import adjoint
+
+
+def _close(a, b, tol=1e-9):
+    a, b = np.asarray(a), np.asarray(b)
+    np.testing.assert_allclose(a, b, rtol=tol, atol=tol * max(np.abs(b).max(), 1e-300))
+
+
+def _same_as_tensors(prob_adjoint, prob_tensors, theta):
+    assert (prob_adjoint.hessian, prob_tensors.hessian) == ("adjoint", "tensors")
+    got = prob_adjoint.cost_grad_hess_gn(theta)
+    want = prob_tensors.cost_grad_hess_gn(theta)
+    for a, b in zip(got, want, strict=True):
+        _close(a, b)
+    return got
+
+
+@pytest.mark.slow
+def test_the_chain_hessian_equals_tensors_and_jax_hessian():
+    """N = 4, K = 5, a record of 101 samples: not a whole number of blocks."""
+    prob = mass_chain_problem(2, samples=101, hessian="adjoint")
+    theta = prob.theta0 * np.linspace(0.8, 1.2, prob.K)
+    J, g, H, _ = _same_as_tensors(
+        prob, mass_chain_problem(2, samples=101, hessian="tensors"), theta
+    )
+    th = jnp.asarray(theta)
+    _close(H, jax.jit(jax.hessian(prob.jax_cost))(th))
+    _close(g, jax.grad(prob.jax_cost)(th))
+    # the residual-weighted second-order term is not negligible here
+    assert np.abs(H - prob.cost_grad_gn(theta)[2]).max() > 1e-3 * np.abs(H).max()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "case",
+    zip(
+        derivative_problems(hessian="adjoint"), derivative_problems(hessian="tensors"), strict=True
+    ),
+    ids=lambda c: c[0][0],
+)
+def test_every_explicit_problem_kind_gives_the_tensors_hessian(case):
+    """Free and fixed x0, zoh, two experiments of different lengths, two outputs with
+    a p-dependent output map, weights, heun, euler with K = N = 1."""
+    (_, prob, theta), (_, ref, _) = case
+    _, _, H, _ = _same_as_tensors(prob, ref, theta)
+    _close(H, jax.jit(jax.hessian(prob.jax_cost))(jnp.asarray(theta)))
+
+
+@pytest.mark.slow
+def test_discrete_time_models_and_input_delays():
+    from test_delays import first_order
+    from test_delays import record as delay_record
+    from test_discrete import TRUE, hammerstein
+    from test_discrete import record as discrete_record
+
+    data = discrete_record(P=90, noise=0.02)
+    probs = [ti.Problem(hammerstein(), data, p0=TRUE, x0=[0.1, -0.2], free_x0=["x1"], hessian=h)
+             for h in ("adjoint", "tensors")]  # fmt: skip
+    _same_as_tensors(*probs, probs[0].theta0 * 1.1)
+    t, u = delay_record(P=100)
+    m = first_order({"u": 2.5 * 0.01, "w": 4 * 0.01})
+    y = ti.simulate(m, {"k": 2.0, "g": 1.5}, [0.2], ti.Experiment(t, u)).y
+    probs = [ti.Problem(m, ti.Experiment(t, u, y + 0.05), p0={"k": 2.3, "g": 1.2}, x0=[0.1],
+                        free_x0=["x"], priors={"g": (1.4, 0.2)}, noise=0.05, hessian=h)
+             for h in ("adjoint", "tensors")]  # fmt: skip
+    _same_as_tensors(*probs, probs[0].theta0)
+
+
+@pytest.mark.slow
+def test_threads_and_block_sizes_do_not_change_the_result(monkeypatch):
+    prob = mass_chain_problem(2, samples=77, hessian="adjoint")
+    theta = prob.theta0 * 1.1
+    ref = prob.cost_grad_hess_gn(theta)
+    for threads, elements in (("1", 1), ("3", 10**6), ("2", 50)):
+        monkeypatch.setenv("TENSORID_THREADS", threads)
+        monkeypatch.setattr(adjoint, "BLOCK_ELEMENTS", elements)
+        for a, b in zip(prob.cost_grad_hess_gn(theta), ref, strict=True):
+            _close(a, b, 1e-12)
+
+
+@pytest.mark.slow
+def test_a_batch_of_starts_equals_one_start_at_a_time():
+    prob = mass_chain_problem(2, samples=60, hessian="adjoint")
+    thetas = prob.theta0 * np.array([[1.0], [1.2], [0.7]])
+    J, g, H, Hgn = prob.cost_grad_hess_batch(thetas, both=True)
+    for i, th in enumerate(thetas):
+        for a, b in zip((J[i], g[i], H[i], Hgn[i]), prob.cost_grad_hess_gn(th), strict=True):
+            _close(a, b, 1e-12)
+    _close(prob.cost_grad_hess_batch(thetas)[2], H, 1e-12)
+
+
+def test_a_short_record_and_a_blow_up():
+    """A record of 3 samples (one block, mostly padding), free x0, and a simulation
+    that overflows: J is inf, as from the tensors, and nothing raises."""
+    t = np.array([0.0, 0.1, 0.2])
+    data = ti.Experiment(t, np.sin(t), 1.0 + 0.1 * t)
+    probs = [ti.Problem(decay_model(), data, p0={"k": 0.5}, x0=[0.9], free_x0=["x"], hessian=h)
+             for h in ("adjoint", "tensors")]  # fmt: skip
+    theta = np.array([0.8, 0.6])
+    _, _, H, _ = _same_as_tensors(*probs, theta)
+    _close(H, jax.hessian(probs[0].jax_cost)(jnp.asarray(theta)))
+    J, g, H, _ = probs[0].cost_grad_hess_gn(np.array([0.9, -1e30]))  # x ~ (1e28)^8
+    assert J == np.inf
+
+
+def test_auto_picks_the_tensors_at_paper_sizes_and_the_adjoint_for_large_models():
+    assert silverbox_problem().hessian == "tensors"
+    assert two_tank_problem().hessian == "tensors"
+    assert mass_chain_problem(5, samples=200).hessian == "adjoint"
+    # schemes that reverse mode cannot differentiate keep the tensors
+    assert mass_chain_problem(5, samples=200, scheme="dopri5").hessian == "tensors"
+    assert mass_chain_problem(5, samples=200, scheme="sdirk2").hessian == "tensors"
+    with pytest.raises(ValueError, match="hessian='adjoint' needs an explicit"):
+        mass_chain_problem(2, samples=50, scheme="sdirk2", hessian="adjoint")
+    with pytest.raises(ValueError, match="hessian must be one of"):
+        mass_chain_problem(2, samples=50, hessian="reverse")
+    # the model's prediction grows with K and N, the adjoint's more slowly
+    t = [adjoint.predicted_seconds(n, n + 1, 1000, 2) for n in (2, 8, 32)]
+    ratios = [p["tensors"] / p["adjoint"] for p in t]
+    assert ratios == sorted(ratios) and ratios[0] < 1 < ratios[-1]
+
+
+def test_a_problem_pickles_after_its_adjoint_ran():
+    t = np.linspace(0, 3, 40)
+    data = ti.Experiment(t, np.sin(t), np.cos(t))
+    prob = ti.Problem(decay_model(), data, p0={"k": 1.0}, x0=[1.0], hessian="adjoint")
+    H = prob.cost_grad_hess(prob.theta0)[2]
+    again = cloudpickle.loads(cloudpickle.dumps(prob))  # as to a Dask worker
+    assert again.hessian == "adjoint"
+    _close(again.cost_grad_hess(prob.theta0)[2], H, 1e-12)
+
+
+@pytest.mark.slow
+def test_newton_fits_by_either_hessian_agree():
+    fits = [
+        ti.fit(mass_chain_problem(2, samples=300, p0=None, hessian=h), method="newton")
+        for h in ("adjoint", "tensors")
+    ]
+    assert all(f.success for f in fits)
+    _close(fits[0].theta, fits[1].theta, 1e-8)
+    assert fits[0].nit == fits[1].nit
