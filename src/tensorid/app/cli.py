@@ -113,6 +113,15 @@ def register(sub) -> None:
         "fd-bfgs and fd-lsq: finite-difference baselines",
     )
     f.add_argument(
+        "--hessian",
+        default="auto",
+        choices=["auto", "tensors", "adjoint"],
+        help="how exact Hessians are computed: tensors (the paper's transition tensors), "
+        "adjoint (second-order adjoints, parallel in time: faster for many states or "
+        "unknowns; explicit schemes only) or auto (default): the faster one by a cost "
+        "model of N, K and the record length",
+    )
+    f.add_argument(
         "--validate", nargs="*", default=[], metavar="DATA", help="validation data files"
     )
     f.add_argument(

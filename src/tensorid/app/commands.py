@@ -15,6 +15,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
+from ..engine.adjoint import supports as adjoint_supports
 from ..engine.diagnostics import describe_failure
 from ..engine.discretisation import Discretisation
 from ..engine.metrics import gof
@@ -73,6 +74,13 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
             f"{list(spec.model.params)}"
         )
     disc = discretisation(args)
+    hessian = getattr(args, "hessian", "auto")
+    if hessian == "adjoint" and not adjoint_supports(disc):
+        raise ValueError(
+            f"--hessian adjoint needs an explicit scheme (rk4, rk38, heun, euler) or a "
+            f"discrete-time model, not --scheme {disc.scheme.name}: drop --hessian or "
+            "give --hessian tensors"
+        )
     try:  # the segments are the command line's, not the model file's
         resolve_segments(train, args.segments, args.segment_length)
     except ValueError as e:
@@ -91,6 +99,7 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
             discretisation=disc,
             segments=args.segments,
             segment_length=args.segment_length,
+            hessian=hessian,
         )
     except (ValueError, TypeError) as e:  # the settings come from the model file
         raise type(e)(f"{spec.path}: {e}") from None
