@@ -89,7 +89,7 @@ def chebyshev_model(q: int) -> ti.Model:
     )
 
 
-def chebyshev_problem(K: int, P: int = 1024, start: float = 0.1):
+def chebyshev_problem(K: int, P: int = 1024, start: float = 0.1, **kw):
     q = K - 2
     springs = [4.0] + [0.5 / (i + 2) ** 2 for i in range(q - 1)] if q else []
     truth = np.array([1.0, 0.4, *springs])
@@ -102,7 +102,7 @@ def chebyshev_problem(K: int, P: int = 1024, start: float = 0.1):
     sim = ti.simulate(model, truth, [0.0, 0.0], ti.Experiment(t, u))
     data = ti.Experiment(t, u, sim.y)
     p0 = truth * (1 + start * rng.uniform(-1, 1, truth.size))
-    return ti.Problem(model, data, p0=p0, x0=[0.0, 0.0])
+    return ti.Problem(model, data, p0=p0, x0=[0.0, 0.0], **kw)
 
 
 def _fit_time(prob, method) -> tuple[float, ti.FitResult]:

@@ -75,19 +75,31 @@ def supports(discretisation: Discretisation) -> bool:
 
 HESSIANS = ("auto", "tensors", "adjoint")
 
-# The cost model behind hessian="auto", fitted to benchmarks/bench_adjoint.py on a
-# 2-core machine (twelve problems from N = 2, K = 3 to N = 64, K = 65; predictions
-# within about 30 %): per sample interval, the transition tensors cost about
-# TENSOR_SECONDS (L N)^0.96 with L = (K+1)(K+2)/2 directions, and take
-# RATIO (L/K) N^0.54 times as long as the adjoint's K Hessian-vector products (less
-# ADJOINT_CALL seconds of fixed cost per call). One thread instead of two: the
+# The cost model behind hessian="auto", fitted to benchmarks/bench_adjoint.py and
+# bench_scaling's chain on a 2-core machine (sixteen problems from N = 2, K = 3 to
+# N = 64, K = 65; predictions within about 30 %): per sample interval, the transition
+# tensors cost about TENSOR_SECONDS (L N)^0.96 with L = (K+1)(K+2)/2 directions, and
+# take RATIO (L/K)^1.29 N^0.39 times as long as the adjoint's K Hessian-vector
+# products (plus ADJOINT_CALL seconds of fixed cost per call). With one thread the
 # adjoint takes SINGLE_THREAD times longer. MARGIN keeps the tensors near the
 # crossover, where the two are within the model's error.
 TENSOR_SECONDS = 0.28e-6
-RATIO = 0.145
+RATIO = 0.0965
 ADJOINT_CALL = 2e-3
 SINGLE_THREAD = 1.3
 MARGIN = 1.3
+
+
+# One adjoint Hessian in first-order (Gauss-Newton) sweeps, measured on the mass
+# chains N = 6 to 64 (K = 7 to 65): 2.4-3.1. The tensors' ratio is the columns carried,
+# about (K + 2)/2.
+ADJOINT_OVER_FIRST_ORDER = 3.0
+
+
+def exact_cost_ratio(hessian: str, K: int) -> float:
+    """An exact (J, ∇J, ∇²J) in Gauss-Newton (J, ∇J, H_GN) evaluations, by path: what
+    method="auto" weighs a run of slow Gauss-Newton steps against."""
+    return ADJOINT_OVER_FIRST_ORDER if hessian == "adjoint" else (K + 2) / 2
 
 
 def predicted_seconds(N: int, K: int, samples, n_threads: int | None = None) -> dict:
@@ -96,7 +108,7 @@ def predicted_seconds(N: int, K: int, samples, n_threads: int | None = None) -> 
     samples = [samples] if isinstance(samples, int | np.integer) else list(samples)
     lanes = (K + 1) * (K + 2) / 2
     tensors = sum(samples) * TENSOR_SECONDS * (lanes * N) ** 0.96
-    ratio = RATIO * lanes / K * N**0.54
+    ratio = RATIO * (lanes / K) ** 1.29 * N**0.39
     if (threads() if n_threads is None else n_threads) < 2:
         ratio /= SINGLE_THREAD
     return {"tensors": tensors, "adjoint": len(samples) * ADJOINT_CALL + tensors / ratio}

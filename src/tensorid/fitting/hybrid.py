@@ -16,8 +16,9 @@ by ``Hybrid`` goes in two modes:
   lowers it by less than STALL (1e-3) of itself, rejected steps included. After
   a run of such iterations that has cost as much as one exact evaluation (the
   ski-rental rule: rent until the rent paid equals the price, then buy; an exact
-  evaluation costs about (K + 2)/2 Gauss-Newton ones, the ratio of the columns the
-  two sweeps carry, and the run is at least STALL_RUN long), exact mode. A
+  evaluation costs about (K + 2)/2 Gauss-Newton ones by the transition tensors, the
+  ratio of the columns the two sweeps carry, and about 3 by second-order adjoints;
+  the run is at least STALL_RUN long), exact mode. A
   quadratically converging run crosses from 1e-3 to ftol in two or three
   iterations and never gets there. The cost model is fixed, not timed, so that a fit
   is the same fit on every machine and every run. (Mispredicted steps far from the
@@ -39,6 +40,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..engine.adjoint import exact_cost_ratio
+
 STALL = 1e-3  # an iteration lowering the cost by less than this, relative, stalls
 STALL_RUN = 5  # the shortest run of stalled iterations before exact mode
 GN_RUN = 3  # steps running where H_GN predicted better before Gauss-Newton mode
@@ -52,9 +55,10 @@ class Hybrid:
     region; :meth:`observe` is given the trust region's record of the step (its
     callback entry, scaled units), which says whether the point became the iterate."""
 
-    def __init__(self, K: int, exact: bool = False):
+    def __init__(self, K: int, exact: bool = False, hessian: str = "tensors"):
         self.exact = exact
-        self.cost_ratio = (K + 2) / 2  # an exact evaluation in Gauss-Newton ones
+        # an exact evaluation in Gauss-Newton ones
+        self.cost_ratio = exact_cost_ratio(hessian, K)
         # the iterate and the trial point: φ, J, g, the H its step uses, H_GN, ∇²J
         self.current: tuple | None = None
         self.pending: tuple | None = None
