@@ -4,15 +4,18 @@ adjoints, jax.hessian and CasADi, and what hessian="auto" picks.
     python benchmarks/bench_adjoint.py [--quick] [--repeats 5] [--no-casadi]
 
 One (J, ∇J, ∇²J) of one experiment, times after compilation, each row in its own
-process (the paths of a row side by side in it), on problems from the paper's sizes (Silverbox, two-tank: N = 2, K = 4-5)
-to a chain of 32 masses (N = 64, K = 65):
+process (the paths of a row side by side in it), on problems from the paper's
+sizes (Silverbox, two-tank: N = 2, K = 4-5) to a chain of 32 masses (N = 64,
+K = 65); the cost model of hessian="auto" (engine/adjoint.py) is fitted to them:
 
 - tensors: the paper's forward transition tensors (Problem(hessian="tensors"));
-- adjoint: second-order adjoints (engine/adjoint.py), with every core this process
-  may use and with one thread (TENSORID_THREADS=1);
+- adjoint: second-order adjoints (engine/adjoint.py), with every core this
+  process may use and with one thread (TENSORID_THREADS=1);
 - jax.hessian: forward-over-reverse automatic differentiation of the same simulator;
-- auto: the path Problem(hessian="auto") picks, its time, and its speed-up on the
-  tensors and on jax.hessian; "predicted" is the cost model's tensors/adjoint ratio.
+- auto: the path Problem(hessian="auto") picks, and how many times faster it is
+  than the tensors and than jax.hessian; "predicted" is the cost model's
+  tensors/adjoint ratio; "÷ GN" the adjoint Hessian in first-order (Gauss-Newton)
+  sweeps.
 - diff: largest |H_adjoint − H_tensors| / largest |H_tensors|.
 
 With the optional casadi package (pip install casadi, the [bench] extra), the mass
@@ -24,6 +27,7 @@ RK4 scheme, its exact Hessian interpreted and as generated C code compiled by gc
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import subprocess
 import sys
@@ -41,17 +45,33 @@ import tensorid as ti
 from tensorid import benchmarks
 from tensorid.engine import adjoint
 
+
+def _chain5(N: int, h: str) -> ti.Problem:
+    """bench_scaling's chain of N/2 masses sharing five parameters (K = 5)."""
+    from bench_scaling import chain_model
+
+    model = chain_model(N // 2)
+    t = np.arange(1024) * 0.05
+    u = np.sin(0.7 * t) + 0.5 * np.sin(1.9 * t)
+    p = dict(zip(model.params, [1.0, 2.0, 0.5, 1.0, 0.1], strict=True))
+    y = ti.simulate(model, p, np.zeros(N), ti.Experiment(t, u)).y
+    return ti.Problem(model, ti.Experiment(t, u, 1.01 * y + 0.01), p0=p, x0=np.zeros(N), hessian=h)
+
+
 ROWS = [
     ("Silverbox (paper)", lambda h: benchmarks.silverbox_problem(hessian=h)),
     ("two-tank (paper)", lambda h: benchmarks.two_tank_problem(hessian=h)),
     ("Lotka-Volterra", lambda h: benchmarks.lotka_volterra_problem(hessian=h)),
     ("Chebyshev K = 10", lambda h: chebyshev_problem(10, hessian=h)),
     ("Chebyshev K = 16", lambda h: chebyshev_problem(16, hessian=h)),
+    ("chain, 1 mass", lambda h: benchmarks.mass_chain_problem(1, hessian=h)),
     ("chain, 2 masses", lambda h: benchmarks.mass_chain_problem(2, hessian=h)),
     ("chain, 3 masses", lambda h: benchmarks.mass_chain_problem(3, hessian=h)),
     ("chain, 5 masses", lambda h: benchmarks.mass_chain_problem(5, hessian=h)),
     ("chain, 8 masses", lambda h: benchmarks.mass_chain_problem(8, samples=400, hessian=h)),
     ("chain, 16 masses", lambda h: benchmarks.mass_chain_problem(16, samples=400, hessian=h)),
+    ("chain K = 5, 4 masses", lambda h: _chain5(8, h)),
+    ("chain K = 5, 16 masses", lambda h: _chain5(32, h)),
     ("chain, 32 masses", lambda h: benchmarks.mass_chain_problem(32, samples=400, hessian=h)),
 ]
 
@@ -65,6 +85,19 @@ def _hessian_call(prob: ti.Problem):
     return lambda: sweep(th, x0, p, t, u, y, w)
 
 
+def _one_thread(fn):
+    """fn() with the adjoint on one thread, the caller's TENSORID_THREADS kept."""
+    before = os.environ.get("TENSORID_THREADS")
+    os.environ["TENSORID_THREADS"] = "1"
+    try:
+        return fn(), None
+    finally:
+        if before is None:
+            del os.environ["TENSORID_THREADS"]
+        else:
+            os.environ["TENSORID_THREADS"] = before
+
+
 def row(name: str, make, repeats: int) -> None:
     ten, adj = make("tensors"), make("adjoint")
     auto = make("auto").hessian
@@ -73,9 +106,11 @@ def row(name: str, make, repeats: int) -> None:
     diff = np.abs(H_a - H_t).max() / np.abs(H_t).max()
     t_ten, _ = time_call(_hessian_call(ten), max(1, repeats if ten.K < 40 else 2))
     t_adj, _ = time_call(_hessian_call(adj), repeats)
-    os.environ["TENSORID_THREADS"] = "1"
-    t_one, _ = time_call(_hessian_call(adj), repeats)
-    del os.environ["TENSORID_THREADS"]
+    t_one, _ = _one_thread(lambda: time_call(_hessian_call(adj), repeats)[0])
+    sw, (t, u, y) = adj._sweeps, adj._arrays[0]
+    x0, p, w = jnp.asarray(adj.x0[0]), jnp.asarray(adj.p0), jnp.asarray(adj.weights)
+    th0 = jnp.asarray(theta)
+    t_gn, _ = time_call(lambda: sw.first_order(th0, x0, p, t, u, y, w), repeats)
     hess = jax.jit(jax.hessian(ten.jax_cost))
     th = jnp.asarray(theta)
     t_jax, _ = time_call(lambda: hess(th), repeats)
@@ -86,7 +121,7 @@ def row(name: str, make, repeats: int) -> None:
         f"| {name} | {N} | {K} | {P} | {t_ten * 1e3:.1f} | {t_adj * 1e3:.1f} | "
         f"{t_one * 1e3:.1f} | {t_jax * 1e3:.1f} | {auto} | {t_ten / t_auto:.2f} | "
         f"{t_jax / t_auto:.2f} | {t_ten / t_adj:.2f} ({pred['tensors'] / pred['adjoint']:.2f}) "
-        f"| {diff:.0e} |",
+        f"| {t_adj / t_gn:.1f} | {diff:.0e} |",
         flush=True,
     )
 
@@ -123,8 +158,8 @@ for i in range(sub):
 step = ca.Function("step", [x, p, ua, ub], [xx])
 P = t.size
 th = ca.MX.sym("th", 2 * n + 1)
-X = step.mapaccum("sweep", P - 1)(np.zeros(2 * n), ca.repmat(th, 1, P - 1),
-                                   u[:-1].reshape(1, -1), u[1:].reshape(1, -1))
+U0, U1 = u[:-1].reshape(1, -1), u[1:].reshape(1, -1)
+X = step.mapaccum("sweep", P - 1)(np.zeros(2 * n), ca.repmat(th, 1, P - 1), U0, U1)
 J = ca.sumsqr(y[1:].T - X[:n, :]) + float(np.sum(y[0] ** 2))
 H, g = ca.hessian(J, th)
 F = ca.Function("chain_hess", [th], [J, g, H])
@@ -134,19 +169,21 @@ def timed(fn, reps=5):
     for _ in range(reps):
         t0 = time.perf_counter(); fn(theta); ts.append(time.perf_counter() - t0)
     return float(np.median(ts))
+import json
 Href = prob.cost_grad_hess(theta)[2]
 out = {"interpreted": timed(F)}
 t0 = time.perf_counter()
 F.generate("chain_hess.c", {"with_header": False})
 import subprocess, os
-subprocess.run(["gcc", "-O1", "-fPIC", "-shared", "chain_hess.c", "-o", "chain_hess.so"], check=True)
+cc = ["gcc", "-O1", "-fPIC", "-shared", "chain_hess.c", "-o", "chain_hess.so"]
+subprocess.run(cc, check=True)
 build = time.perf_counter() - t0
 G = ca.external("chain_hess", os.path.abspath("chain_hess.so"))
 out["codegen"] = timed(G)
 Hc = np.asarray(G(theta)[2])
 out["diff"] = float(np.abs(Hc - Href).max() / np.abs(Href).max())
 out["build"] = build
-print(out)
+print(json.dumps(out))
 """
 
 
@@ -167,7 +204,7 @@ def casadi_rows(repeats: int) -> None:
         if done.returncode:
             print(f"\nCasADi run failed:\n{done.stderr[-2000:]}")
             return
-        r = eval(done.stdout.strip().splitlines()[-1])  # a dict literal we printed
+        r = json.loads(done.stdout.strip().splitlines()[-1])
     prob = benchmarks.mass_chain_problem(5)
     t_auto, _ = time_call(_hessian_call(prob), repeats)
     print("\n## CasADi on the chain of 5 masses (N = 10, K = 11, P = 2,000)\n")
@@ -196,10 +233,10 @@ def main() -> None:
           f"threads)\n")  # fmt: skip
     print(
         "| problem | N | K | P | tensors ms | adjoint ms | adjoint, 1 thread ms | "
-        "jax.hessian ms | auto picks | auto / tensors | auto / jax.hessian | "
-        "tensors / adjoint (predicted) | diff |"
+        "jax.hessian ms | auto picks | tensors / auto | jax.hessian / auto | "
+        "tensors / adjoint (predicted) | adjoint ÷ GN | diff |"
     )
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|")
     t0 = time.perf_counter()
     for i in range(len(ROWS) - 1 if args.quick else len(ROWS)):
         cmd = [sys.executable, __file__, "--row", str(i), "--repeats", str(args.repeats)]

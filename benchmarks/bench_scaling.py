@@ -102,6 +102,7 @@ def chebyshev_problem(K: int, P: int = 1024, start: float = 0.1, **kw):
     sim = ti.simulate(model, truth, [0.0, 0.0], ti.Experiment(t, u))
     data = ti.Experiment(t, u, sim.y)
     p0 = truth * (1 + start * rng.uniform(-1, 1, truth.size))
+    kw.setdefault("hessian", "tensors")  # the K table measures the transition tensors
     return ti.Problem(model, data, p0=p0, x0=[0.0, 0.0], **kw)
 
 

@@ -81,13 +81,43 @@ def test_discrete_time_models_and_input_delays():
     _same_as_tensors(*probs, probs[0].theta0)
 
 
+def test_several_stretches_and_blocks_of_one_interval(monkeypatch):
+    """Three threads over a 41-sample record, one interval per block: the stretch
+    starts, the padding and the threads give the tensors' Hessian."""
+    monkeypatch.setattr(adjoint, "threads", lambda: 3)
+    monkeypatch.setattr(adjoint, "BLOCK_ELEMENTS", 1)
+    t = np.linspace(0, 2, 41)
+    data = ti.Experiment(t, np.sin(3 * t), np.exp(-t) + 0.05 * np.cos(5 * t))
+    probs = [ti.Problem(decay_model(), data, p0={"k": 0.7}, x0=[0.9], free_x0=["x"], hessian=h)
+             for h in ("adjoint", "tensors")]  # fmt: skip
+    _same_as_tensors(*probs, np.array([1.1, 0.6]))
+
+
+def test_a_step_past_the_record_that_is_not_finite_changes_nothing():
+    """A draining tank, x' = -k sqrt(x): the record ends at x = 0.01, where one more
+    step would go negative. The adjoint never takes that step into a sum."""
+
+    def rhs(x, p, u):
+        return -p[0] * jnp.sqrt(x) + 0.0 * u[0]
+
+    model = ti.Model(rhs=rhs, output=lambda x, p: x, states=["x"], params=["k"],
+                     inputs=["u"], outputs=["y"], name="tank")  # fmt: skip
+    t = np.array([0.0, 0.6, 1.2, 1.8])
+    y = ti.simulate(model, {"k": 1.0}, [1.0], ti.Experiment(t, np.zeros(4))).y + 0.01
+    data = ti.Experiment(t, np.zeros(4), y)
+    probs = [ti.Problem(model, data, p0={"k": 1.0}, x0=[1.0], hessian=h)
+             for h in ("adjoint", "tensors")]  # fmt: skip
+    J, _, H, _ = _same_as_tensors(*probs, np.array([1.0]))
+    assert np.isfinite(J) and np.isfinite(H).all()
+
+
 @pytest.mark.slow
 def test_threads_and_block_sizes_do_not_change_the_result(monkeypatch):
     prob = mass_chain_problem(2, samples=77, hessian="adjoint")
     theta = prob.theta0 * 1.1
     ref = prob.cost_grad_hess_gn(theta)
-    for threads, elements in (("1", 1), ("3", 10**6), ("2", 50)):
-        monkeypatch.setenv("TENSORID_THREADS", threads)
+    for threads, elements in ((1, 1), (3, 10**6), (2, 50)):
+        monkeypatch.setattr(adjoint, "threads", lambda n=threads: n)
         monkeypatch.setattr(adjoint, "BLOCK_ELEMENTS", elements)
         for a, b in zip(prob.cost_grad_hess_gn(theta), ref, strict=True):
             _close(a, b, 1e-12)

@@ -12,7 +12,7 @@ from scipy.integrate import solve_ivp
 
 import tensorid as ti
 
-PROBLEMS = derivative_problems()
+PROBLEMS = derivative_problems(hessian="tensors")  # this module checks the tensors
 IDS = [name for name, _, _ in PROBLEMS]
 
 

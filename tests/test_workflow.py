@@ -87,7 +87,7 @@ def test_fit_command_end_to_end(workdir, capsys):
     )
     assert rc == 0
     d = json.loads((out / "fit.json").read_text())
-    assert d["hessian"] == "tensors"  # N = 2, K = 5: the cost model keeps the tensors
+    assert d["hessian_path"] == "tensors"  # N = 2, K = 5: the cost model keeps the tensors
     for key in (
         "params",
         "stderr",
@@ -338,7 +338,7 @@ def test_integration_options_on_the_command_line(workdir, capsys):
     assert cli.main(args + ["--scheme", "dopri5", "--rtol", "1e-9"]) == 0
     assert json.loads((out / "fit.json").read_text())["integration"]["rtol"] == 1e-9
     assert cli.main(args + ["--hessian", "adjoint"]) == 0
-    assert json.loads((out / "fit.json").read_text())["hessian"] == "adjoint"
+    assert json.loads((out / "fit.json").read_text())["hessian_path"] == "adjoint"
     capsys.readouterr()
     assert cli.main(args + ["--scheme", "dopri5", "--hessian", "adjoint"]) == 2
     assert "--hessian adjoint needs an explicit scheme" in capsys.readouterr().err

@@ -18,6 +18,7 @@ from rich.table import Table
 from ..engine.adjoint import supports as adjoint_supports
 from ..engine.diagnostics import describe_failure
 from ..engine.discretisation import Discretisation
+from ..engine.integrators import SCHEMES
 from ..engine.metrics import gof
 from ..engine.problem import Problem
 from ..engine.shooting import resolve_segments
@@ -76,8 +77,9 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
     disc = discretisation(args)
     hessian = getattr(args, "hessian", "auto")
     if hessian == "adjoint" and not adjoint_supports(disc):
+        explicit = [n for n in SCHEMES if adjoint_supports(Discretisation.of(n))]
         raise ValueError(
-            f"--hessian adjoint needs an explicit scheme (rk4, rk38, heun, euler) or a "
+            f"--hessian adjoint needs an explicit scheme ({', '.join(explicit)}) or a "
             f"discrete-time model, not --scheme {disc.scheme.name}: drop --hessian or "
             "give --hessian tensors"
         )

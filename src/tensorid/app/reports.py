@@ -113,7 +113,7 @@ def fit_json(
         "hessian_vector_products": res.nhev,
         "method": res.method,
         "integration": res.problem.discretisation.as_dict(),
-        "hessian": res.problem.hessian,
+        "hessian_path": res.problem.hessian,
         "weights": dict(zip(res.problem.model.outputs, res.problem.weights.tolist(), strict=True)),
         "priors": {names[i]: list(ms) for i, ms in res.problem.priors.items()},
         "prior_noise_variance": res.problem.noise_variance if res.problem.priors else None,

@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import functools
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from functools import cached_property
 
@@ -65,7 +66,11 @@ def block_size(K: int, N: int, starts: int = 1) -> int:
     return int(min(MAX_BLOCK, max(1, 2 ** int(np.log2(max(b, 1))))))
 
 
+# at most this many stretches: each is its own scan in the compiled first phase, and
+# the threads were measured on 2 cores only
+MAX_STRETCHES = 8
 _POOL: ThreadPoolExecutor | None = None
+_POOL_LOCK = threading.Lock()
 
 
 def supports(discretisation: Discretisation) -> bool:
@@ -75,31 +80,19 @@ def supports(discretisation: Discretisation) -> bool:
 
 HESSIANS = ("auto", "tensors", "adjoint")
 
-# The cost model behind hessian="auto", fitted to benchmarks/bench_adjoint.py and
-# bench_scaling's chain on a 2-core machine (sixteen problems from N = 2, K = 3 to
-# N = 64, K = 65; predictions within about 30 %): per sample interval, the transition
-# tensors cost about TENSOR_SECONDS (L N)^0.96 with L = (K+1)(K+2)/2 directions, and
-# take RATIO (L/K)^1.29 N^0.39 times as long as the adjoint's K Hessian-vector
-# products (plus ADJOINT_CALL seconds of fixed cost per call). With one thread the
-# adjoint takes SINGLE_THREAD times longer. MARGIN keeps the tensors near the
-# crossover, where the two are within the model's error.
+# The cost model behind hessian="auto", fitted to the rows of benchmarks/bench_adjoint.py
+# on a 2-core machine (fourteen problems from N = 2, K = 3 to N = 64, K = 65, and
+# K = 5 up to N = 32; predictions within about 30 %): per sample interval, the
+# transition tensors cost about TENSOR_SECONDS (L N)^0.96 with L = (K+1)(K+2)/2
+# directions, and take RATIO (L/K)^1.29 N^0.39 times as long as the adjoint's K
+# Hessian-vector products (plus ADJOINT_CALL seconds of fixed cost per call). With
+# one thread the adjoint takes SINGLE_THREAD times longer. MARGIN keeps the tensors
+# near the crossover, where the two are within the model's error.
 TENSOR_SECONDS = 0.28e-6
 RATIO = 0.0965
 ADJOINT_CALL = 2e-3
 SINGLE_THREAD = 1.3
 MARGIN = 1.3
-
-
-# One adjoint Hessian in first-order (Gauss-Newton) sweeps, measured on the mass
-# chains N = 6 to 64 (K = 7 to 65): 2.4-3.1. The tensors' ratio is the columns carried,
-# about (K + 2)/2.
-ADJOINT_OVER_FIRST_ORDER = 3.0
-
-
-def exact_cost_ratio(hessian: str, K: int) -> float:
-    """An exact (J, ∇J, ∇²J) in Gauss-Newton (J, ∇J, H_GN) evaluations, by path: what
-    method="auto" weighs a run of slow Gauss-Newton steps against."""
-    return ADJOINT_OVER_FIRST_ORDER if hessian == "adjoint" else (K + 2) / 2
 
 
 def predicted_seconds(N: int, K: int, samples, n_threads: int | None = None) -> dict:
@@ -136,21 +129,44 @@ def choose_hessian(hessian: str, discretisation: Discretisation, N: int, K: int,
 
 
 def threads() -> int:
-    """Threads for the stretches: the cores this process may use ($TENSORID_THREADS
-    caps it; 1 turns the parallel stretches off)."""
+    """Threads for the stretches: the cores this process may use, at most
+    MAX_STRETCHES ($TENSORID_THREADS caps it; 1 turns the parallel stretches off, as
+    in the workers of a multi-start pool, which have a core each)."""
     try:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
         cores = os.cpu_count() or 1
     cap = os.environ.get("TENSORID_THREADS")
-    return max(1, min(cores, int(cap))) if cap and cap.isdigit() else max(1, cores)
+    n = min(cores, int(cap)) if cap and cap.isdigit() else cores
+    return max(1, min(n, MAX_STRETCHES))
 
 
 def _pool(n: int) -> ThreadPoolExecutor:
     global _POOL
-    if _POOL is None or _POOL._max_workers < n:
-        _POOL = ThreadPoolExecutor(max_workers=n, thread_name_prefix="tensorid-adjoint")
-    return _POOL
+    with _POOL_LOCK:
+        if _POOL is None or _POOL._max_workers < n:
+            _POOL = ThreadPoolExecutor(max_workers=n, thread_name_prefix="tensorid-adjoint")
+        return _POOL
+
+
+def _forget_pool() -> None:  # a forked child inherits the pool but not its threads
+    global _POOL
+    _POOL = None
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pool)
+
+
+def _symmetric(a):
+    """(a + aᵀ)/2: the adjoint's sums are symmetric only to rounding, the tensors'
+    packed Hessian exactly."""
+    return (a + jnp.swapaxes(a, -1, -2)) / 2
+
+
+def _kept(mask, a):
+    """a where mask, else 0 (also where a is not finite)."""
+    return jnp.where(mask, a, 0.0)
 
 
 class SecondOrderAdjoint:
@@ -166,6 +182,7 @@ class SecondOrderAdjoint:
                 f"map, not {sweeps.discretisation.scheme.name!r}: use hessian='tensors'"
             )
         self.sweeps, self.batched = sweeps, batched
+        self._compiled: set = set()
 
     # -- the step map and the padded grid ----------------------------------------------
     def _phi(self, x, p, dt, ua, ub):
@@ -239,11 +256,12 @@ class SecondOrderAdjoint:
 
         def adjoint(lam_next, e):
             x, yv, s, dt_, a, b, lv = e
-            r = (yv - m.h(x, p)) * s
+            seen = s > 0
+            r = _kept(seen, yv - m.h(x, p))
             rho = w * r
-            mu = jax.vjp(lambda x_: m.h(x_, p), x)[1](rho)[0]
+            mu = _kept(seen, jax.vjp(lambda x_: m.h(x_, p), x)[1](rho)[0])
             back = jax.vjp(lambda x_: self._phi(x_, p, dt_, a, b), x)[1](lam_next)[0]
-            return mu + jnp.where(lv, back, 0.0), (jnp.where(lv, lam_next, 0.0), jnp.sum(rho * r))
+            return mu + _kept(lv, back), (_kept(lv, lam_next), jnp.sum(rho * r))
 
         _, (lams, costs) = jax.lax.scan(
             adjoint, jnp.zeros(m.N), (xs, yh, seen, dt, ua, ub, live), reverse=True
@@ -268,23 +286,28 @@ class SecondOrderAdjoint:
             Sn = jax.vmap(lambda sx, sp: jax.jvp(f, (x, p), (sx, sp))[1], out_axes=1)(S.T, Pt)
             return jnp.where(lv, Sn, S), S
 
-        def second(x, S, yv, s, lam, dt_, a, b):
-            """(D_h (K, outputs) masked, ρ_h, Z_hᵀ ∇²L_h Z_h) of one interval."""
-            D = jax.vmap(lambda sx, sp: jax.jvp(m.h, (x, p), (sx, sp))[1])(S.T, Pt) * s
-            rho = w * (yv - m.h(x, p)) * s
-
-            def L(x_, p_):
-                return rho @ m.h(x_, p_) + lam @ self._phi(x_, p_, dt_, a, b)
-
+        def quadratic(L, x, S):
+            """Z_hᵀ ∇²L Z_h by K Hessian-vector products."""
             _, hvp = jax.linearize(jax.grad(L, argnums=(0, 1)), x, p)
             Wx, Wp = jax.vmap(hvp)(S.T, Pt)  # (K, N), (K, M): (∇²L Z)ᵀ
-            return D, rho, S.T @ Wx.T + Pt @ Wp.T
+            return S.T @ Wx.T + Pt @ Wp.T
+
+        def second(x, S, yv, s, lam, dt_, a, b, lv):
+            """(D_h (K, outputs), ρ_h, Z_hᵀ ∇²L_h Z_h) of one interval. Each part is
+            dropped (not multiplied by 0) past the record: a step the record never
+            takes may not be finite there, and 0·inf is NaN."""
+            seen = s > 0
+            D = _kept(seen, jax.vmap(lambda sx, sp: jax.jvp(m.h, (x, p), (sx, sp))[1])(S.T, Pt))
+            rho = w * _kept(seen, yv - m.h(x, p))
+            out = quadratic(lambda x_, p_: rho @ m.h(x_, p_), x, S)
+            dyn = quadratic(lambda x_, p_: lam @ self._phi(x_, p_, dt_, a, b), x, S)
+            return D, rho, _kept(seen, out) + _kept(lv, dyn)
 
         def one_block(carry, d):
             S, g, Hgn, Hso = carry
             x, lam, dt_, a, b, yv, lv, s = d
             S, Ss = jax.lax.scan(forward, S, (x, dt_, a, b, lv))
-            D, rho, Q = jax.vmap(second)(x, Ss, yv, s, lam, dt_, a, b)
+            D, rho, Q = jax.vmap(second)(x, Ss, yv, s, lam, dt_, a, b, lv)
             g = g - 2.0 * jnp.einsum("hks,hs->k", D, rho)
             Hgn = Hgn + 2.0 * jnp.einsum("hks,s,hls->kl", D, w, D)
             return (S, g, Hgn, Hso + Q.sum(0)), None
@@ -326,9 +349,16 @@ class SecondOrderAdjoint:
         length = n * R
         J, starts, per, grid, p_full = self._phase1(theta, x0, p, t, u, y, w, n, length)
 
-        def part(k):
-            return jax.block_until_ready(self._phase2(B, k, starts, per, grid, p_full, w))
+        phase2 = self._phase2
 
-        parts = [part(0)] if n == 1 else list(_pool(n).map(part, range(n)))
-        g, Hgn, Hso = (sum(q[i] for q in parts) for i in range(3))
-        return J, g, Hgn - 2.0 * Hso, Hgn
+        def part(k):
+            return jax.block_until_ready(phase2(B, k, starts, per, grid, p_full, w))
+
+        # a first call compiles on this thread (where compile_clock sees it), once
+        key = (B, n, length, theta.shape, u.shape, y.shape)
+        first = [] if key in self._compiled else [part(0)]
+        self._compiled.add(key)
+        rest = range(len(first), n)
+        more = list(_pool(n).map(part, rest)) if len(rest) > 1 else [part(k) for k in rest]
+        g, Hgn, Hso = (sum(q[i] for q in first + more) for i in range(3))
+        return J, g, _symmetric(Hgn - 2.0 * Hso), _symmetric(Hgn)

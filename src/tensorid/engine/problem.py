@@ -88,7 +88,7 @@ class Problem:
         tensors, forward in time), "adjoint" (second-order adjoints, parallel in time:
         faster for many states or unknowns; explicit schemes and discrete-time models
         only) or "auto" (default): the faster of the two by a cost model measured on
-        N, K and the record length (see :func:`tensorid.engine.adjoint.choose`). Both
+        N, K and the record length (:func:`tensorid.engine.adjoint.choose_hessian`). Both
         give the same Hessian to rounding. The resolved choice is ``Problem.hessian``.
     """
 
@@ -557,9 +557,10 @@ class Problem:
         return self._assemble(self._sweeps.residuals, self.check_theta(theta), parts="r")[0]
 
     def cost_grad_hess(self, theta) -> tuple[float, np.ndarray, np.ndarray]:
-        """(J, ∇J, ∇²J) at θ, exact for the discretised model, from the transition
-        matrices and tensors integrated alongside the states. J is inf (and g, H are
-        not meaningful) when the simulation blows up."""
+        """(J, ∇J, ∇²J) at θ, exact for the discretised model: from the transition
+        matrices and tensors integrated alongside the states, or by second-order
+        adjoints (``self.hessian``). J is inf (and g, H are not meaningful) when the
+        simulation blows up."""
         return self.cost_grad_hess_gn(theta)[:3]
 
     def cost_grad_gn(self, theta) -> tuple[float, np.ndarray, np.ndarray]:

@@ -53,7 +53,7 @@ def _single(method, tr: Tracker, options: FitOptions, started) -> FitResult:
     record = tr.recorder(history, options.callback)
     phi0, (lo, hi) = tr.phi(theta0), tr.box()
     nhev, detail = 0, ""
-    hybrid = Hybrid(problem.K, hessian=problem.hessian) if method == "auto" else None
+    hybrid = Hybrid(problem.K) if method == "auto" else None
     # what each path may raise: SciPy's baselines give up in their own ways; the
     # eigen-solver of an exact subproblem may not converge on a Hessian at the edge
     # of overflow. Anything else is a bug and is not hidden.
@@ -185,7 +185,7 @@ def _lockstep(problem, method, trackers: dict, options, started, results) -> lis
     runs, pending = {}, {}
     for i, tr in trackers.items():
         history: list[dict] = []
-        hybrid = Hybrid(problem.K, hessian=problem.hessian) if method == "auto" else None
+        hybrid = Hybrid(problem.K) if method == "auto" else None
         record = tr.recorder(history, None)
         callback = record if hybrid is None else _observed(record, hybrid)
         steps = _steps(tr, tr.phi(tr.theta0), options, callback)

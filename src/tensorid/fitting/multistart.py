@@ -79,6 +79,8 @@ def _worker_init(cache: str | None) -> None:
     # Ctrl-C in a terminal reaches the whole process group: the parent alone
     # decides (it stops the workers and keeps what finished)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # one core per worker: the adjoint Hessian's threads would only contend
+    os.environ.setdefault("TENSORID_THREADS", "1")
     if cache:
         from .._config import enable_compilation_cache
 
