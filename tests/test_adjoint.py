@@ -134,6 +134,7 @@ def test_a_batch_of_starts_equals_one_start_at_a_time():
     _close(prob.cost_grad_hess_batch(thetas)[2], H, 1e-12)
 
 
+@pytest.mark.slow  # jax.hessian reference compile; the default run compares with the tensors
 def test_a_short_record_and_a_blow_up():
     """A record of 3 samples (one block, mostly padding), free x0, and a simulation
     that overflows: J is inf, as from the tensors, and nothing raises."""

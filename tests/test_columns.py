@@ -45,6 +45,7 @@ def _model_file(tmp_path):
     return path
 
 
+@pytest.mark.slow  # compile-bound; keeps the default run under five minutes
 def test_one_file_two_records_and_the_init_window_protocol(tmp_path):
     model, data, t, _, (u_val, y_val) = _records(tmp_path)
     out = tmp_path / "fit"

@@ -79,6 +79,7 @@ def test_a_delayed_model_is_recovered_from_noise_free_data_and_the_delay_matters
     assert without.cost > 1e6 * max(res.cost, 1e-30)
 
 
+@pytest.mark.slow  # compile-bound; keeps the default run under five minutes
 def test_multiple_shooting_sees_the_delay_across_segment_starts():
     t, u = record(P=300)
     m = first_order({"u": 7 * TS})

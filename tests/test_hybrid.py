@@ -73,6 +73,7 @@ def test_auto_goes_on_past_a_saddle_where_gauss_newton_stops():
     assert nfev == sorted(nfev) and len(set(nfev)) == len(nfev)
 
 
+@pytest.mark.slow  # compile-bound; keeps the default run under five minutes
 def test_auto_in_lockstep_equals_auto_one_start_at_a_time():
     prob = lotka_volterra_problem()
     slow = [1.188, 0.889, 0.635, 1.221, 1.025, 0.81]  # Gauss-Newton turns linear

@@ -20,6 +20,7 @@ def record():
     return ti.Experiment(e.t, e.u, y, name="rec")
 
 
+@pytest.mark.slow  # compile-bound; keeps the default run under five minutes
 def test_data_sensitivity_equals_a_refit_with_one_sample_moved(record):
     model = silverbox_model()
     res = ti.fit(ti.Problem(model, record, p0=SILVERBOX_P), **TIGHT)

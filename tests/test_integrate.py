@@ -46,6 +46,7 @@ def _assert_exact(prob, theta, tol=1e-9):
     return J, g, H
 
 
+@pytest.mark.slow  # compile-bound; keeps the default run under five minutes
 def test_implicit_schemes_converge_at_their_order():
     m = decay_model()
     t = np.linspace(0.0, 3.0, 31)
@@ -71,7 +72,8 @@ def test_explicit_scheme_blows_up_on_robertson_where_implicit_ones_are_accurate(
 
 @pytest.mark.parametrize(
     "scheme",
-    [pytest.param(s, marks=pytest.mark.slow) for s in ("sdirk3", "sdirk2")] + ["implicit-euler"],
+    # compile-bound: all in the slow run, to keep the default run under five minutes
+    [pytest.param(s, marks=pytest.mark.slow) for s in ("sdirk3", "sdirk2", "implicit-euler")],
 )
 def test_implicit_derivatives_are_exact_on_robertson(robertson, scheme):
     m, data = robertson
@@ -97,6 +99,7 @@ def test_implicit_hessian_matches_central_differences_of_gradient(robertson):
     np.testing.assert_allclose(H * s, H_fd * s, rtol=1e-6, atol=1e-6 * np.abs(H * s).max())
 
 
+@pytest.mark.slow  # compile-bound; keeps the default run under five minutes
 def test_newton_identifies_robertson_rate_constants(robertson):
     m, data = robertson
     start = {"k1": 0.05, "k2": 2e7, "k3": 1.3e4}
@@ -128,7 +131,9 @@ def test_adaptive_error_follows_the_tolerance(scheme):
     assert errs[1] < 1e-6 and errs[1] < errs[0] / 30, errs
 
 
-@pytest.mark.parametrize("scheme", [pytest.param("dopri5", marks=pytest.mark.slow), "bosh3"])
+@pytest.mark.parametrize(  # compile-bound: in the slow run
+    "scheme", [pytest.param(s, marks=pytest.mark.slow) for s in ("dopri5", "bosh3")]
+)
 def test_adaptive_derivatives_are_exact_for_the_steps_taken(scheme):
     m = oscillator_model()
     t = np.linspace(0, 6, 60)

@@ -135,6 +135,7 @@ def test_bad_profile_arguments():
         res.profile(method="grid")
 
 
+@pytest.mark.slow  # compile-bound; keeps the default run under five minutes
 def test_the_command_line_writes_profile_intervals(tmp_path, capsys):
     from pathlib import Path
 

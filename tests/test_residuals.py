@@ -33,6 +33,7 @@ def _record(seed: int) -> ti.Experiment:
     return ti.Experiment(T, u, y + 0.01 * rng.standard_normal(y.shape))
 
 
+@pytest.mark.slow  # compile-bound; keeps the default run under five minutes
 def test_a_correct_model_is_white_and_a_missing_dynamic_is_not():
     seeds = range(20)
     white = missing = 0

@@ -65,9 +65,9 @@ def _check_lagrangian(sh, z, rtol=1e-9, forward=False):
     np.testing.assert_array_equal(gn.c, L.c)
 
 
-# the autodiff reference compiles every segment unrolled (8-40 s a model): one model in
-# the default run, all of them in the slow one
-QUICK = ("decay K=1 N=1 euler",)
+# the autodiff reference compiles every segment unrolled (8-40 s a model): all of them
+# in the slow run (the default run keeps under five minutes)
+QUICK: tuple[str, ...] = ()
 CASES = [p if p[0] in QUICK else pytest.param(*p, marks=pytest.mark.slow) for p in PROBLEMS]
 
 
@@ -94,6 +94,7 @@ def test_lagrangian_is_exact_with_adaptive_and_implicit_schemes(scheme):
     _check_lagrangian(sh, sh.start(prob.theta0 * 1.1), forward=True)
 
 
+@pytest.mark.slow  # compile-bound; keeps the default run under five minutes
 def test_noise_free_record_is_recovered_exactly_from_a_far_start():
     data = lv_data(P=201, T=40.0)
     prob = ti.Problem(
@@ -116,6 +117,7 @@ def test_noise_free_record_is_recovered_exactly_from_a_far_start():
         assert res.theta.shape == (prob.K,) and res.cost == pytest.approx(prob.cost(res.theta))
 
 
+@pytest.mark.slow  # compile-bound; keeps the default run under five minutes
 def test_without_polish_the_segments_solution_is_one_continuous_trajectory():
     data = lv_data(P=201, T=30.0, noise=0.05)
     prob = ti.Problem(
@@ -136,6 +138,7 @@ def test_without_polish_the_segments_solution_is_one_continuous_trajectory():
     np.testing.assert_allclose(res.theta, polished.theta, rtol=1e-5)
 
 
+@pytest.mark.slow  # compile-bound; keeps the default run under five minutes
 def test_an_active_bound_at_the_solution_converges():
     data = lv_data(P=201, T=30.0, noise=0.02)
     prob = ti.Problem(
@@ -156,6 +159,7 @@ def test_an_active_bound_at_the_solution_converges():
     assert res.cost == pytest.approx(single.cost, rel=1e-9)
 
 
+@pytest.mark.slow  # compile-bound; keeps the default run under five minutes
 def test_segments_per_experiment_and_by_length():
     data = [lv_data(P=121, T=20.0, noise=0.02, seed=s) for s in (1, 2)]
     prob = ti.Problem(lotka_volterra(), data, p0=LV_TRUE, x0=[2.0, 1.0], segments=[3, 1])
@@ -304,6 +308,7 @@ def test_the_block_arrow_subproblem_solver_matches_the_dense_one(shift, radius):
         assert solver.fallbacks == 0
 
 
+@pytest.mark.slow  # compile-bound; keeps the default run under five minutes
 def test_many_segments_use_the_block_arrow_solver_and_agree_with_the_dense_one(monkeypatch):
     from tensorid.benchmarks import lotka_volterra_problem
     from tensorid.fitting import shooting

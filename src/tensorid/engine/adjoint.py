@@ -82,7 +82,8 @@ HESSIANS = ("auto", "tensors", "adjoint")
 
 # The cost model behind hessian="auto", fitted to the rows of benchmarks/bench_adjoint.py
 # on a 2-core machine (fourteen problems from N = 2, K = 3 to N = 64, K = 65, and
-# K = 5 up to N = 32; predictions within about 30 %): per sample interval, the
+# K = 5 up to N = 32; within 30 % on the runs it was fitted to, 56 % on a later run,
+# about the run-to-run spread of the times): per sample interval, the
 # transition tensors cost about TENSOR_SECONDS (L N)^0.96 with L = (K+1)(K+2)/2
 # directions, and take RATIO (L/K)^1.29 N^0.39 times as long as the adjoint's K
 # Hessian-vector products (plus ADJOINT_CALL seconds of fixed cost per call). With

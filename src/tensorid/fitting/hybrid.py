@@ -20,11 +20,13 @@ by ``Hybrid`` goes in two modes:
   ratio of the columns the two sweeps carry, and the run is at least STALL_RUN long),
   exact mode. Second-order adjoints make an exact evaluation cost only about 3
   Gauss-Newton ones, but pricing it so made auto 1.24x and 1.67x slower than
-  Gauss-Newton on the chains of 5 and 32 masses (8 and 6 exact evaluations for no
-  fewer iterations), so the price stays (K + 2)/2 whichever path computes it. A
-  quadratically converging run crosses from 1e-3 to ftol in two or three
-  iterations and never gets there. The cost model is fixed, not timed, so that a fit
-  is the same fit on every machine and every run. (Mispredicted steps far from the
+  Gauss-Newton on the chains of 5 and 32 masses in one bench_methods run (8 and 6
+  exact evaluations for no fewer iterations), so the price stays (K + 2)/2 whichever
+  path computes it. A quadratically converging run crosses from 1e-3 to ftol in two
+  or three iterations and never gets there. The cost model is fixed, not timed, so
+  that a fit is the same fit on every machine and every run (to rounding: the Hessian
+  path, which engine/adjoint.py also picks by the cores, moves the last digits only).
+  (Mispredicted steps far from the
   optimum, where the cost still falls fast, are no such sign: switching on them made
   fits of the mass chain twice as slow for no fewer iterations.)
 - **Exact mode**: one second-order sweep gives both ∇²J and H_GN (the latter is a
