@@ -14,12 +14,13 @@ second-order part of the Hessian into one backward sweep of a vector:
 λ is the adjoint of the residual-weighted outputs. Given x and λ at every sample,
 the K Hessian-vector products ∇²L_h Z_h of one interval need nothing from any other
 interval except S_h, which a forward sweep of K directions carries. So the
-expensive part runs vectorised over blocks of intervals (:func:`block_size`) and in parallel
-threads over stretches of the record, where the transition tensors and
+expensive part runs vectorised over blocks of intervals (:func:`block_size`) and in
+parallel threads over stretches of the record, where the transition tensors and
 forward-over-reverse automatic differentiation (jax.hessian) are sequential in
 time. Work per interval: K Hessian-vector products of Φ against the tensors'
-K(K+1)/2 second-order directions; memory: x and λ at every sample (the size of
-the simulation) and S for one block per thread, bounded in the record length.
+K(K+1)/2 second-order directions. Memory: x and λ at every sample (the size of the
+simulation itself) and S (N x K) for one block per thread, so the sensitivities'
+share does not grow with the record, as reverse-mode AD's stored tangents do.
 
 Two compiled phases:
 
