@@ -48,9 +48,7 @@ def test_the_chain_hessian_equals_tensors_and_jax_hessian():
 @pytest.mark.slow
 @pytest.mark.parametrize(
     "case",
-    zip(
-        derivative_problems(hessian="adjoint"), derivative_problems(hessian="tensors"), strict=True
-    ),
+    list(zip(derivative_problems(hessian="adjoint"), derivative_problems(hessian="tensors"))),
     ids=lambda c: c[0][0],
 )
 def test_every_explicit_problem_kind_gives_the_tensors_hessian(case):
