@@ -45,12 +45,13 @@ def test_the_chain_hessian_equals_tensors_and_jax_hessian():
     assert np.abs(H - prob.cost_grad_gn(theta)[2]).max() > 1e-3 * np.abs(H).max()
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize(
-    "case",
-    list(zip(derivative_problems(hessian="adjoint"), derivative_problems(hessian="tensors"))),
-    ids=lambda c: c[0][0],
+PAIRS = list(
+    zip(derivative_problems(hessian="adjoint"), derivative_problems(hessian="tensors"), strict=True)
 )
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", PAIRS, ids=lambda c: c[0][0])
 def test_every_explicit_problem_kind_gives_the_tensors_hessian(case):
     """Free and fixed x0, zoh, two experiments of different lengths, two outputs with
     a p-dependent output map, weights, heun, euler with K = N = 1."""
