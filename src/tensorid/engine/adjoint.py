@@ -196,6 +196,18 @@ class SecondOrderAdjoint:
 
         return d.scheme.interval(vf, vf, x, dt, dt / d.substeps, d.substeps)[0]
 
+    def _tangent_step(self, x, S, p, Pt, dt, ua, ub):
+        """(Φ(x), Φ_z Z) with Z = [S; Pt ᵀ]: one interval of the state and its K
+        forward directions, as both phases carry S."""
+
+        def f(x_, p_):
+            return self._phi(x_, p_, dt, ua, ub)
+
+        def one(sx, sp):
+            return jax.jvp(f, (x, p), (sx, sp))
+
+        return jax.vmap(one, out_axes=(None, 1))(S.T, Pt)
+
     @staticmethod
     def _grid(t, u, y, length: int):
         """Per interval h = 0..length-1, padded past the record: (dt, u_h, u_{h+1}, y_h,
@@ -234,10 +246,7 @@ class SecondOrderAdjoint:
                 x, S = carry
                 dt_, a, b, lv = d
                 if with_S:
-                    f = lambda x_, p_: self._phi(x_, p_, dt_, a, b)  # noqa: E731
-                    xn, Sn = jax.vmap(
-                        lambda sx, sp: jax.jvp(f, (x, p), (sx, sp)), out_axes=(None, 1)
-                    )(S.T, Pt)
+                    xn, Sn = self._tangent_step(x, S, p, Pt, dt_, a, b)
                     S = jnp.where(lv, Sn, S)
                 else:
                     xn = self._phi(x, p, dt_, a, b)
@@ -284,8 +293,7 @@ class SecondOrderAdjoint:
 
         def forward(S, d):
             x, dt_, a, b, lv = d
-            f = lambda x_, p_: self._phi(x_, p_, dt_, a, b)  # noqa: E731
-            Sn = jax.vmap(lambda sx, sp: jax.jvp(f, (x, p), (sx, sp))[1], out_axes=1)(S.T, Pt)
+            Sn = self._tangent_step(x, S, p, Pt, dt_, a, b)[1]
             return jnp.where(lv, Sn, S), S
 
         def quadratic(L, x, S):
