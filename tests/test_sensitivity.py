@@ -65,7 +65,7 @@ def _jax_residuals(prob, theta):
     import jax.numpy as jnp
 
     parts = []
-    w = jnp.asarray(prob.weights)
+    w = jnp.asarray(prob.loss_weights)
     for e, (t, u, y) in enumerate(prob._arrays):
         parts.append(
             prob._sweeps._residuals(

@@ -7,11 +7,13 @@ free-parameter selection) and x_{h+1} = Φ_h(x_h, p) the step map of sample inte
 ∂²x_{h+1}/∂θ² = Φ_zz[Z_h, Z_h] + Φ_x ∂²x_h/∂θ², summed backwards, turns the
 second-order part of the Hessian into one backward sweep of a vector:
 
-    ∇²J = 2 Σ_h D_hᵀ W D_h − 2 Σ_h Z_hᵀ ∇²_z L_h Z_h,        D_h = C_z Z_h
-    L_h(z) = ρ_hᵀ C(z) + λ_{h+1}ᵀ Φ_h(z),                     ρ_h = W r_h
-    λ_h = C_xᵀ ρ_h + Φ_{h,x}ᵀ λ_{h+1},   λ_P = 0
+    ∇²J = Σ_h D_hᵀ ℓ_ŷŷ D_h + Σ_h Z_hᵀ ∇²_z L_h Z_h,           D_h = C_z Z_h
+    L_h(z) = ℓ_ŷ,hᵀ C(z) + λ_{h+1}ᵀ Φ_h(z)
+    λ_h = C_xᵀ ℓ_ŷ,h + Φ_{h,x}ᵀ λ_{h+1},   λ_P = 0
 
-λ is the adjoint of the residual-weighted outputs. Given x and λ at every sample,
+with ℓ_ŷ and ℓ_ŷŷ the per-sample loss's derivatives (losses.py; for the squared loss
+ℓ_ŷ = −2 W r_h and ℓ_ŷŷ = 2 W). λ is the adjoint of the loss's output gradients.
+Given x and λ at every sample,
 the K Hessian-vector products ∇²L_h Z_h of one interval need nothing from any other
 interval except S_h, which a forward sweep of K directions carries. So the
 expensive part runs vectorised over blocks of intervals (:func:`block_size`) and in
@@ -268,11 +270,11 @@ class SecondOrderAdjoint:
         def adjoint(lam_next, e):
             x, yv, s, dt_, a, b, lv = e
             seen = s > 0
-            r = _kept(seen, yv - m.h(x, p))
-            rho = w * r
-            mu = _kept(seen, jax.vjp(lambda x_: m.h(x_, p), x)[1](rho)[0])
+            ell, l1, _, _ = sw.loss.terms(yv, m.h(x, p), w)
+            l1 = _kept(seen, l1)
+            mu = _kept(seen, jax.vjp(lambda x_: m.h(x_, p), x)[1](l1)[0])
             back = jax.vjp(lambda x_: self._phi(x_, p, dt_, a, b), x)[1](lam_next)[0]
-            return mu + _kept(lv, back), (_kept(lv, lam_next), jnp.sum(rho * r))
+            return mu + _kept(lv, back), (_kept(lv, lam_next), _kept(seen, ell))
 
         _, (lams, costs) = jax.lax.scan(
             adjoint, jnp.zeros(m.N), (xs, yh, seen, dt, ua, ub, live), reverse=True
@@ -303,32 +305,35 @@ class SecondOrderAdjoint:
             return S.T @ Wx.T + Pt @ Wp.T
 
         def second(x, S, yv, s, lam, dt_, a, b, lv):
-            """(D_h (K, outputs), ρ_h, Z_hᵀ ∇²L_h Z_h) of one interval. Each part is
-            dropped (not multiplied by 0) past the record: a step the record never
-            takes may not be finite there, and 0·inf is NaN."""
+            """(D_h (K, outputs), ℓ_ŷ, ℓ_ŷŷ, Gauss-Newton weights, Z_hᵀ ∇²L_h Z_h) of one
+            interval. Each part is dropped (not multiplied by 0) past the record: a
+            step the record never takes may not be finite there, and 0·inf is NaN."""
             seen = s > 0
             D = _kept(seen, jax.vmap(lambda sx, sp: jax.jvp(m.h, (x, p), (sx, sp))[1])(S.T, Pt))
-            rho = w * _kept(seen, yv - m.h(x, p))
-            out = quadratic(lambda x_, p_: rho @ m.h(x_, p_), x, S)
+            _, l1, l2, gamma = (_kept(seen, q) for q in sw.loss.terms(yv, m.h(x, p), w))
+            out = quadratic(lambda x_, p_: l1 @ m.h(x_, p_), x, S)
             dyn = quadratic(lambda x_, p_: lam @ self._phi(x_, p_, dt_, a, b), x, S)
-            return D, rho, _kept(seen, out) + _kept(lv, dyn)
+            return D, l1, l2, gamma, _kept(seen, out) + _kept(lv, dyn)
 
         def one_block(carry, d):
-            S, g, Hgn, Hso = carry
+            S, g, Hcurv, Hgn, Hso = carry
             x, lam, dt_, a, b, yv, lv, s = d
             S, Ss = jax.lax.scan(forward, S, (x, dt_, a, b, lv))
-            D, rho, Q = jax.vmap(second)(x, Ss, yv, s, lam, dt_, a, b, lv)
-            g = g - 2.0 * jnp.einsum("hks,hs->k", D, rho)
-            Hgn = Hgn + 2.0 * jnp.einsum("hks,s,hls->kl", D, w, D)
-            return (S, g, Hgn, Hso + Q.sum(0)), None
+            D, l1, l2, gamma, Q = jax.vmap(second)(x, Ss, yv, s, lam, dt_, a, b, lv)
+            g = g + jnp.einsum("hks,hs->k", D, l1)
+            Hcurv = Hcurv + jnp.einsum("hks,hs,hls->kl", D, l2, D)
+            if not sw.loss.squared:  # else the Gauss-Newton part is the same term
+                Hgn = Hgn + jnp.einsum("hks,hs,hls->kl", D, gamma, D)
+            return (S, g, Hcurv, Hgn, Hso + Q.sum(0)), None
 
         nb = xs.shape[0] // block
         data = [
             a.reshape((nb, block) + a.shape[1:]) for a in (xs, lams, t_dt, ua, ub, yh, live, seen)
         ]
         z = jnp.zeros
-        (_, g, Hgn, Hso), _ = jax.lax.scan(one_block, (S0, z(K), z((K, K)), z((K, K))), data)
-        return g, Hgn, Hso
+        zero = (S0, z(K), z((K, K)), z((K, K)), z((K, K)))
+        (_, g, Hcurv, Hgn, Hso), _ = jax.lax.scan(one_block, zero, data)
+        return g, Hcurv, (Hcurv if sw.loss.squared else Hgn), Hso
 
     # -- compiled entry points and the call ------------------------------------------------
     @cached_property
@@ -370,5 +375,5 @@ class SecondOrderAdjoint:
         self._compiled.add(key)
         rest = range(len(first), n)
         more = list(_pool(n).map(part, rest)) if len(rest) > 1 else [part(k) for k in rest]
-        g, Hgn, Hso = (sum(q[i] for q in first + more) for i in range(3))
-        return J, g, _symmetric(Hgn - 2.0 * Hso), _symmetric(Hgn)
+        g, Hcurv, Hgn, Hso = (sum(q[i] for q in first + more) for i in range(4))
+        return J, g, _symmetric(Hcurv + Hso), _symmetric(Hgn)

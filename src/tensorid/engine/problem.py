@@ -7,6 +7,7 @@ units. Every check of the user's input happens here, before anything compiles.
 
 from __future__ import annotations
 
+import copy
 import warnings
 from collections.abc import Mapping, Sequence
 
@@ -19,6 +20,7 @@ from .adjoint import choose_hessian
 from .data import Experiment
 from .discretisation import Discretisation
 from .integrators import RungeKuttaScheme, Scheme
+from .losses import Loss, make_loss
 from .model import Model
 from .shooting import Shooting, resolve_segments
 from .simulate import Simulation, run_simulation
@@ -84,6 +86,16 @@ class Problem:
         default, is single shooting. θ, ``theta0`` and every result stay in the layout
         above; only :func:`tensorid.fit` sees the segments.
     segment_length : instead of segments: samples per segment (about).
+    loss : what a sample's misfit costs: "squared" (default; weighted least squares,
+        J = Σ w r²), or a robust loss that lets gross outliers pull less, "huber"
+        (linear beyond the scale), "cauchy" or "student-t" (logarithmic beyond it); or
+        a :class:`tensorid.engine.losses.Loss`. Each equals the squared loss for
+        residuals well inside its scale (see :mod:`tensorid.engine.losses`).
+    loss_scale : a robust loss's scale in the outputs' units: a number for every
+        output or {output: value}. Default: estimated from the data, 1.345 (Huber),
+        2.385 (Cauchy) or 1 (Student-t) times each output's noise level from its
+        second differences (a median, so outliers do not inflate it); the value used
+        is ``Problem.loss_scale``.
     hessian : how exact Hessians are computed: "tensors" (the paper's transition
         tensors, forward in time), "adjoint" (second-order adjoints, parallel in time:
         faster for many states or unknowns; explicit schemes and discrete-time models
@@ -113,6 +125,8 @@ class Problem:
         segments: int | Sequence[int] | None = None,
         segment_length: int | None = None,
         hessian: str = "auto",
+        loss: str | Loss = "squared",
+        loss_scale: float | Mapping[str, float] | None = None,
     ):
         if not isinstance(model, Model):
             raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
@@ -133,6 +147,13 @@ class Problem:
         ).for_model(model)
         self.discretisation = discretisation
         self.weights = self._check_weights(weights)
+        self.loss, scale = make_loss(
+            loss, loss_scale, list(model.outputs), self.weights, [e.y for e in self.experiments]
+        )
+        # what every sweep's per-sample loss is evaluated with, [w; c] (see losses.py)
+        self.loss_weights = np.stack([self.weights, scale])
+        # an estimated scale is checked against the residuals after a fit (fitting/robust.py)
+        self.loss_scale_estimated = not self.loss.squared and loss_scale is None
         self.lower, self.upper = self._check_bounds(bounds or {})
         self.priors, self.noise_variance = self._check_priors(priors, noise)
         if self.K == 0:
@@ -142,6 +163,7 @@ class Problem:
             tuple(model.states.index(n) for n in self.free_x0),
             tuple(model.params.index(n) for n in self.free_params),
             discretisation,
+            self.loss,
         )
         self._arrays = [
             (jnp.asarray(e.t), jnp.asarray(self.inputs(e)), jnp.asarray(e.y))
@@ -176,6 +198,31 @@ class Problem:
     def interpolation(self) -> str:
         """Input interpolation between samples (of ``discretisation``)."""
         return self.discretisation.interpolation
+
+    @property
+    def loss_scale(self) -> dict[str, float] | None:
+        """A robust loss's scale per output, in the outputs' units (None: squared loss)."""
+        if self.loss.squared:
+            return None
+        w = np.where(self.weights > 0, self.weights, 1.0)
+        c = self.loss_weights[1] / np.sqrt(w)
+        return dict(zip(self.model.outputs, c.tolist(), strict=True))
+
+    def with_loss(self, loss: str | Loss, scale: Mapping[str, float] | None = None) -> Problem:
+        """This problem with another loss, or another scale {output: value} (outputs'
+        units) for a robust one: a copy that shares the data and settings (and the
+        compiled sweeps, where the loss is the same)."""
+        new = copy.copy(self)
+        measured = [e.y for e in self.experiments]
+        new.loss, c = make_loss(loss, scale, list(self.model.outputs), self.weights, measured)
+        new.loss_weights = np.stack([self.weights, c])
+        new.loss_scale_estimated = not new.loss.squared and scale is None
+        sw = self._sweeps
+        new._sweeps = shared_sweeps(
+            self.model, sw.free_states, sw.free_params, self.discretisation, new.loss
+        )
+        new.shooting = Shooting(new, self.shooting.counts) if self.shooting else None
+        return new
 
     @property
     def rounding_floor(self) -> float:
@@ -505,7 +552,7 @@ class Problem:
         lead, K = theta.shape[:-1], self.K
         shapes = {"J": (), "g": (K,), "H": (K, K), "P": (K, K)}
         out: list = [[] if c == "r" else np.zeros(lead + shapes[c]) for c in parts]
-        w = jnp.asarray(self.weights)
+        w = jnp.asarray(self.loss_weights)
         for e, (t, u, y) in enumerate(self._arrays):
             idx = self._slices(e)
             local = [jnp.asarray(a[..., idx]) for a in (theta, *more)]
@@ -542,7 +589,7 @@ class Problem:
 
     def jax_cost(self, theta):
         """J(θ) as a traceable JAX function (for jax.grad / jax.hessian checks)."""
-        w = jnp.asarray(self.weights)
+        w = jnp.asarray(self.loss_weights)
         J = 0.0
         for e, (t, u, y) in enumerate(self._arrays):
             J = J + self._sweeps._cost(
@@ -553,7 +600,9 @@ class Problem:
         return J
 
     def residuals(self, theta) -> np.ndarray:
-        """sqrt(w)·(y_obs - y_sim) for every sample, output and experiment, flattened."""
+        """sqrt(w)·(y_obs - y_sim) for every sample, output and experiment, flattened
+        (for a robust loss, the signed square roots of each term of J: the sum of
+        their squares is J without the priors)."""
         return self._assemble(self._sweeps.residuals, self.check_theta(theta), parts="r")[0]
 
     def cost_grad_hess(self, theta) -> tuple[float, np.ndarray, np.ndarray]:
@@ -621,10 +670,11 @@ class Problem:
         out = []
         for e, (t, u, y) in enumerate(self._arrays):
             idx = self._slices(e)
-            x0, p, w = jnp.asarray(self.x0[e]), jnp.asarray(self.p0), jnp.ones(self.model.S)
+            x0, p = jnp.asarray(self.x0[e]), jnp.asarray(self.p0)
 
-            def outputs(local, x0=x0, p=p, t=t, u=u, y=y, w=w):
-                return y.reshape(-1) - self._sweeps._residuals(local, x0, p, t, u, y, w)
+            def outputs(local, x0=x0, p=p, t=t, u=u):
+                x0_, p_ = self._sweeps._expand(local, x0, p)
+                return self._sweeps._simulate(x0_, p_, t, u)[1].reshape(-1)
 
             dy = np.asarray(jax.jacfwd(outputs)(jnp.asarray(theta[idx])))
             full = np.zeros((dy.shape[0], self.K))

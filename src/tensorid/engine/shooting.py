@@ -137,6 +137,7 @@ class Shooting:
             tuple(range(m.N)),
             problem._sweeps.free_params,
             problem.discretisation,
+            problem.loss,
         )
         self.groups = self._groups()
         self.defect_rows = [(e, i) for e, n in enumerate(counts) for i in range(n - 1)]
@@ -185,9 +186,9 @@ class Shooting:
     def _segment_data(self, e: int, i: int):
         ex, k = self.problem.experiments[e], self.bounds[e]
         sl = slice(k[i], k[i + 1] + 1)
-        W = np.tile(self.problem.weights, (k[i + 1] - k[i] + 1, 1))
+        W = np.tile(self.problem.loss_weights, (k[i + 1] - k[i] + 1, 1, 1))
         if i < len(k) - 2:
-            W[-1] = 0.0  # the shared sample belongs to the next segment
+            W[-1, 0] = 0.0  # the shared sample belongs to the next segment: weight 0
         return ex.t[sl], self._inputs(e)[sl], ex.y[sl], W
 
     # -- evaluation ------------------------------------------------------------------------
@@ -305,7 +306,7 @@ class Shooting:
         """(J, c) at z as traceable JAX functions (plain simulations, no sensitivities)."""
         pr = self.problem
         J, cs = 0.0, []
-        w = jnp.asarray(pr.weights)
+        w = jnp.asarray(pr.loss_weights)
         for e, k in enumerate(self.bounds):
             ex = pr.experiments[e]
             u = self._inputs(e)
@@ -323,9 +324,9 @@ class Shooting:
                     s = z[self.state_slice(e, i)]
                 sl = slice(k[i], k[i + 1] + 1)
                 xs, ys, _, _ = self.state_sweeps._simulate(s, p, ex.t[sl], u[sl])
-                r = jnp.asarray(ex.y[sl]) - ys
                 last = i == len(k) - 2
-                J = J + jnp.sum(w * (r if last else r[:-1]) ** 2)
+                n = sl.stop - sl.start - (0 if last else 1)  # the shared sample is the next's
+                J = J + pr.loss.value(jnp.asarray(ex.y[sl])[:n], ys[:n], w)
                 if not last:
                     cs.append(xs[-1] - z[self.state_slice(e, i + 1)])
         theta = z[self.theta_index]

@@ -16,11 +16,13 @@ d2x is symmetric in (j, k), so only the K(K+1)/2 pairs j <= k are carried. F_zz 
 never formed: F_zz[a, b] + F_z c is one nested forward-mode derivative
 (a jvp of a jvp), so the cost per pair is a small multiple of one F evaluation.
 The output side is the same with C in place of F, giving the paper's gradient
-(18a-b) and Hessian (19-22), h the sample and g the output as in the paper:
+(18a-b) and Hessian (19-22), h the sample, for any per-sample loss ℓ(ŷ_h) of the
+prediction ŷ_h = C(x_h, p) (see losses.py; the paper's is ℓ = Σ_g w_g r_g²,
+r = y_obs − ŷ, with ℓ_ŷ = −2 w r and ℓ_ŷŷ = 2 w):
 
-    J  = Σ_h Σ_g w_g r_g²,                 r = y_obs - C(x, p)
-    ∇J = -2 Σ w r C_z Z
-    ∇²J = 2 Σ w (C_z Z)ᵀ(C_z Z) - 2 Σ w r (C_zz[Z, Z] + C_x d2x)
+    J  = Σ_h ℓ(ŷ_h)
+    ∇J = Σ (C_z Z)ᵀ ℓ_ŷ
+    ∇²J = Σ (C_z Z)ᵀ ℓ_ŷŷ (C_z Z) + Σ ℓ_ŷ · (C_zz[Z, Z] + C_x d2x)
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ import numpy as np
 from .. import _config  # noqa: F401
 from .adjoint import SecondOrderAdjoint
 from .discretisation import Discretisation, march
+from .losses import SQUARED, Loss
 from .model import Model
 
 
@@ -90,13 +93,16 @@ class Sweeps:
     ``free_states`` and ``free_params`` are indices into the model's states and
     params; θ for one experiment is ``concat(x0[free_states], p[free_params])``.
     Every sweep but ``simulate`` takes ``(theta, x0, p, t, u, y, w)`` where x0 and p
-    hold the values of the entries that θ does not set.
+    hold the values of the entries that θ does not set, and w = [weights; scales]
+    (2, S) the numbers ``loss`` turns each sample's prediction into its share of J
+    with (see losses.py).
     """
 
     model: Model
     free_states: tuple[int, ...]
     free_params: tuple[int, ...]
     discretisation: Discretisation
+    loss: Loss = SQUARED
 
     @property
     def K(self) -> int:
@@ -169,8 +175,7 @@ class Sweeps:
             return m.f(x, p, uu)
 
         def observe(J, x, y_h):
-            r = y_h - m.h(x, p)
-            return J + jnp.sum(w * r * r), None
+            return J + self.loss.value(y_h, m.h(x, p), w), None
 
         J, _, _ = self._march(field, observe, x0, jnp.zeros(()), t, u, y, p)
         return J
@@ -178,7 +183,7 @@ class Sweeps:
     def _residuals(self, theta, x0, p, t, u, y, w):
         x0, p = self._expand(theta, x0, p)
         _, ys, _, _ = self._simulate(x0, p, t, u)
-        return (jnp.sqrt(w) * (y - ys)).reshape(-1)
+        return self.loss.residual(y, ys, w).reshape(-1)
 
     # -- first order: (J, ∇J) and the Gauss-Newton Hessian -----------------------------
     def _first_order(self, theta, x0, p, t, u, y, w, gauss_newton=True, end=False):
@@ -201,12 +206,11 @@ class Sweeps:
             J, g, H = acc
             x, dx = state
             y_h, w = _weighted(obs_h, w_all)
-            r = y_h - m.h(x, p)
+            ell, l1, _, gamma = self.loss.terms(y_h, m.h(x, p), w)
             D = columns(m.h, x, dx)  # (K, outputs) = (C_z Z)ᵀ
-            wr = w * r
             if gauss_newton:
-                H = H + 2.0 * (D * w) @ D.T
-            return (J + jnp.sum(wr * r), g - 2.0 * D @ wr, H), None
+                H = H + (D * gamma) @ D.T
+            return (J + ell, g + D @ l1, H), None
 
         acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros((K, K)) if gauss_newton else None)
         w_all = w
@@ -274,11 +278,16 @@ class Sweeps:
             A, B, Cc = directions(dx, d2x_v)
             Ca, e2 = pairs(m.h, x, A, B, Cc)
             D = Ca[:K]  # (K, outputs) = (C_z Z)ᵀ
-            r = y_h - m.h(x, p)
-            wr = w * r
-            gn = 2.0 * (D[jj] * D[kk]) @ w if v is None else 2.0 * D @ (w * (v @ D))
-            out = (J + jnp.sum(wr * r), g - 2.0 * D @ wr, H + gn - 2.0 * e2 @ wr)
-            return (out + (acc[3] + gn,) if both else out), None
+            ell, l1, l2, gamma = self.loss.terms(y_h, m.h(x, p), w)
+
+            def quadratic(c):  # Σ_s c_s D_s D_sᵀ, packed (or times v)
+                return (D[jj] * D[kk]) @ c if v is None else D @ (c * (v @ D))
+
+            curv = quadratic(l2)
+            out = (J + ell, g + D @ l1, H + curv + e2 @ l1)
+            if both:  # the Gauss-Newton part: the same term with the loss's own weights
+                out = out + (acc[3] + (curv if self.loss.squared else quadratic(gamma)),)
+            return out, None
 
         state0 = (x0, jnp.asarray(dx0), jnp.zeros((N, ncols)))
         acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros(ncols))
@@ -294,7 +303,7 @@ class Sweeps:
     def _hessp(self, theta, v, x0, p, t, u, y, w):
         return self._second_order(theta, x0, p, t, u, y, w, v=v)
 
-    # -- one shooting segment: per-sample weights W (P, S), and the end state ------------
+    # -- one shooting segment: per-sample loss weights W (P, 2, S), and the end state -----
     def _segment(self, theta, x0, p, t, u, y, W):
         """(J, ∇J, packed ∇²J, (x, dx, d2x) at the last sample) over one segment."""
         return self._second_order(theta, x0, p, t, u, (y, W), None, end=True)
@@ -344,8 +353,9 @@ class Sweeps:
 
 
 def _weighted(obs_h, w):
-    """(y_h, w_h): a segment sweep passes per-sample weights with the data, obs = (y, W),
-    which zero the sample a segment shares with the next; otherwise w is per output."""
+    """(y_h, w_h): a segment sweep passes per-sample loss weights with the data,
+    obs = (y, W), which zero the sample a segment shares with the next; otherwise w
+    (2, S) holds for every sample."""
     return obs_h if isinstance(obs_h, tuple) else (obs_h, w)
 
 
@@ -358,12 +368,13 @@ def shared_sweeps(
     free_states: tuple[int, ...],
     free_params: tuple[int, ...],
     discretisation: Discretisation,
+    loss: Loss = SQUARED,
 ) -> Sweeps:
     """The Sweeps for this structure, compiled once per process and data shape: every
-    Problem (and simulation) with the same model, θ layout and discretisation shares
-    them, and jit recompiles only for new data shapes. The cache lives on the model,
-    so it goes when the model goes (and is not pickled with it)."""
-    key = (tuple(free_states), tuple(free_params), discretisation)
+    Problem (and simulation) with the same model, θ layout, discretisation and loss
+    shares them, and jit recompiles only for new data shapes. The cache lives on the
+    model, so it goes when the model goes (and is not pickled with it)."""
+    key = (tuple(free_states), tuple(free_params), discretisation, loss)
     try:
         return model.compiled_sweeps.setdefault(key, Sweeps(model, *key))
     except TypeError:  # an unhashable user scheme: not shared

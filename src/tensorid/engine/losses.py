@@ -1,0 +1,198 @@
+"""What the data say about a prediction: the per-sample loss, the one place where a
+measured sample y and its prediction ŷ = C(x, p) meet.
+
+Every path that turns predictions into a cost consumes a :class:`Loss` through one
+call, :meth:`Loss.terms`, which gives, for one sample (outputs s = 1..S, weights w):
+
+    ℓ(ŷ)               the sample's share of J
+    ℓ_ŷ   = ∂ℓ/∂ŷ      (S,)    the gradient:   ∇J  = Σ_h D_hᵀ ℓ_ŷ
+    ℓ_ŷŷ  = ∂²ℓ/∂ŷ²    (S,)    its curvature:  ∇²J = Σ_h D_hᵀ ℓ_ŷŷ D_h + Σ_h ℓ_ŷ · ŷ''_h
+    γ                   (S,)    the Gauss-Newton weights: Σ_h D_hᵀ γ D_h
+
+with D_h = ∂ŷ_h/∂θ and ŷ''_h = ∂²ŷ_h/∂θ² (the transition tensors' output side, or the
+adjoint's Lagrangian). The losses are separable across outputs, so ℓ_ŷŷ and γ are
+diagonals. The forward tensors, the second-order adjoint, the segments of multiple
+shooting, the residuals and the statistics all go through here, so adding a loss is
+one class in this file.
+
+Each loss acts on the weighted residual e = √w (y − ŷ) of every output, scaled by
+that output's scale c (in the weighted residual's units):
+
+    ℓ = Σ_s c_s² ρ(e_s / c_s)
+
+with ρ(z) ≈ z² near 0, so that every loss is the squared loss for small residuals
+and J keeps the units of Σ w r². The squared loss is ρ(z) = z² (c drops out);
+
+    huber       ρ = z²            for |z| ≤ 1,   2|z| − 1 beyond   (linear tails)
+    cauchy      ρ = log(1 + z²)                                    (log tails)
+    student-t   ρ = ν log(1 + z²/ν)    (ν = 4: the t distribution's −2 log density
+                                        up to a constant factor)
+
+Their Gauss-Newton weights are the iteratively-reweighted-least-squares weights
+γ = w ρ'(z)/z, positive where the exact curvature w ρ''(z) of Cauchy and Student-t
+turns negative (past |z| = 1 and √ν): a Gauss-Newton step is then a reweighted
+least-squares step, as in IRLS.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import jax.numpy as jnp
+import numpy as np
+
+LOSSES = ("squared", "huber", "cauchy", "student-t")
+
+# the scale c as a multiple of the noise's standard deviation σ when c is estimated:
+# Huber's 1.345 and Cauchy's 2.385 give 95 % efficiency under Gaussian noise (the
+# usual tuning constants); the t distribution's own scale is σ
+TUNING = {"huber": 1.345, "cauchy": 2.385, "student-t": 1.0}
+STUDENT_NU = 4.0
+
+
+@dataclass(frozen=True)
+class Loss:
+    """A per-sample loss ℓ = Σ_s c_s² ρ(√w_s r_s / c_s) (see the module docstring).
+
+    Hashable, and part of the compiled sweeps' key; the numbers it is evaluated with,
+    the weights w and scales c (in units of the weighted residual √w r, ignored by
+    the squared loss), come at run time as one array ``lw`` = [w; c] (2, S), so that
+    a new scale compiles nothing.
+
+    Arguments:
+        name: one of :data:`LOSSES`.
+        nu: Student-t's degrees of freedom.
+    """
+
+    name: str = "squared"
+    nu: float = STUDENT_NU
+
+    @property
+    def squared(self) -> bool:
+        """Whether this is weighted least squares (the Gauss-Newton part is then the
+        exact Hessian's first term, and the statistics' Gaussian formulas hold)."""
+        return self.name == "squared"
+
+    # -- ρ and its derivatives, on z = e / c -------------------------------------------
+    def rho(self, z):
+        if self.name == "huber":
+            a = jnp.abs(z)
+            return jnp.where(a <= 1.0, z * z, 2.0 * a - 1.0)
+        if self.name == "cauchy":
+            return jnp.log1p(z * z)
+        if self.name == "student-t":
+            return self.nu * jnp.log1p(z * z / self.nu)
+        return z * z
+
+    def _dpsi(self, z):
+        """(ρ'(z), ρ''(z), ρ'(z)/z), each in closed form (no 0/0 at z = 0)."""
+        if self.name == "huber":
+            inside = jnp.abs(z) <= 1.0
+            d1 = jnp.where(inside, 2.0 * z, 2.0 * jnp.sign(z))
+            return d1, jnp.where(inside, 2.0, 0.0), jnp.where(inside, 2.0, 2.0 / jnp.abs(z))
+        if self.name in ("cauchy", "student-t"):
+            nu = 1.0 if self.name == "cauchy" else self.nu
+            q = 1.0 + z * z / nu
+            return 2.0 * z / q, 2.0 * (1.0 - z * z / nu) / (q * q), 2.0 / q
+        return 2.0 * z, 2.0 + 0.0 * z, 2.0 + 0.0 * z
+
+    # -- what the sweeps call --------------------------------------------------------------
+    def terms(self, y, yhat, lw):
+        """(ℓ, ℓ_ŷ (S,), ℓ_ŷŷ (S,), γ (S,)) of one sample: y, ŷ per output, lw = [w; c]
+        (w may be 0: that output, or a sample a shooting segment shares, does not
+        count)."""
+        w, r = lw[0], y - yhat
+        if self.squared:  # J = Σ w r², written as it always was (bit-identical results)
+            wr = w * r
+            return jnp.sum(wr * r), -2.0 * wr, 2.0 * w, 2.0 * w
+        c, sw = lw[1], jnp.sqrt(w)
+        z = sw * r / c
+        d1, d2, irls = self._dpsi(z)
+        # ℓ_ŷ = −√w c ρ'(z), ℓ_ŷŷ = w ρ''(z), γ = w ρ'(z)/z
+        return jnp.sum(c * c * self.rho(z)), -sw * c * d1, w * d2, w * irls
+
+    def value(self, y, yhat, lw):
+        """ℓ alone (a plain simulation's cost; y and ŷ may hold several samples)."""
+        w, r = lw[0], y - yhat
+        if self.squared:
+            return jnp.sum(w * r * r)
+        c = lw[1]
+        return jnp.sum(c * c * self.rho(jnp.sqrt(w) * r / c))
+
+    def residual(self, y, yhat, lw):
+        """The signed square root of each output's share of ℓ, so that the sum of their
+        squares is J: √w (y − ŷ) for the squared loss (what least-squares solvers and
+        residual statistics see)."""
+        e = jnp.sqrt(lw[0]) * (y - yhat)
+        if self.squared:
+            return e
+        c = lw[1]
+        return jnp.sign(e) * c * jnp.sqrt(self.rho(e / c))
+
+
+SQUARED = Loss()
+
+
+def robust_noise(y: np.ndarray) -> np.ndarray:
+    """(S,) the noise standard deviation of each measured output from its second
+    differences, robustly: for white noise on a signal that is smooth at the sampling
+    rate, y[k+1] − 2y[k] + y[k−1] has standard deviation √6 σ, and the median
+    absolute deviation (× 1.4826, consistent for Gaussian noise) ignores the few
+    differences a gross outlier touches, where a variance would not."""
+    d2 = np.diff(np.asarray(y, dtype=float), n=2, axis=0)
+    if d2.shape[0] == 0:
+        return np.zeros(np.shape(y)[1])
+    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
+    return 1.4826 * mad / np.sqrt(6.0)
+
+
+def make_loss(
+    loss, scale, outputs: list[str], weights: np.ndarray, measured: list
+) -> tuple[Loss, np.ndarray]:
+    """The Problem's Loss and its scale per output in the weighted residual's units
+    (ones for the squared loss), from the arguments: ``loss`` a name or a Loss;
+    ``scale`` None (estimated: TUNING × the outputs' robust noise level,
+    :func:`robust_noise`), a number (every output) or {output: value}, in the
+    outputs' own units."""
+    if isinstance(loss, Loss):
+        name = loss.name
+    elif isinstance(loss, str) and loss in LOSSES:
+        name, loss = loss, Loss(loss)
+    else:
+        raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
+    S = len(outputs)
+    if name == "squared":
+        if scale is not None:
+            raise ValueError("loss_scale is for a robust loss; the squared loss has none")
+        return loss, np.ones(S)
+    if scale is None:
+        y = np.concatenate([np.asarray(m, dtype=float) for m in measured])
+        sigma = robust_noise(y)
+        if not (sigma > 0).all():
+            flat = [o for o, s in zip(outputs, sigma, strict=True) if not s > 0]
+            raise ValueError(
+                f"loss={name!r}: the measured outputs {flat} show no noise to set the loss "
+                "scale from (their second differences vanish); give loss_scale= (in the "
+                "outputs' units)"
+            )
+        c = TUNING[name] * sigma
+    elif isinstance(scale, Mapping):
+        unknown = [k for k in scale if k not in outputs]
+        if unknown:
+            raise ValueError(f"loss_scale names unknown outputs {unknown}; outputs: {outputs}")
+        missing = [o for o in outputs if o not in scale]
+        if missing:
+            raise ValueError(f"loss_scale gives no scale for outputs {missing}")
+        c = np.array([float(scale[o]) for o in outputs])
+    else:
+        try:
+            c = np.full(S, float(scale))
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"loss_scale must be a number or {{output: value}}, got {scale!r}"
+            ) from None
+    if not (np.isfinite(c).all() and (c > 0).all()):
+        raise ValueError(f"loss_scale must be finite and > 0 for every output, got {c.tolist()}")
+    # in the weighted residual's units; an output of weight 0 never counts
+    return loss, np.where(weights > 0, np.sqrt(np.where(weights > 0, weights, 1.0)) * c, 1.0)
