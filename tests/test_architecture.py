@@ -128,6 +128,8 @@ def test_functions_are_at_most_80_lines(module):
     assert not long, f"{module}: " + ", ".join(long)
 
 
-def test_fitting_modules_are_at_most_350_lines():
+def test_fitting_modules_are_at_most_450_lines():
+    # the seams issue's bar for every module (the engine's problem.py, integrators.py and
+    # the app's larger modules are still over it: splitting them is that work)
     sizes = {m: len(p.read_text().splitlines()) for m, p in MODULES.items() if ".fitting" in m}
-    assert max(sizes.values()) <= 350, sizes
+    assert max(sizes.values()) <= 450, sizes

@@ -122,6 +122,23 @@ def register(sub) -> None:
         "model of N, K and the record length",
     )
     f.add_argument(
+        "--loss",
+        default=None,
+        # tensorid.engine.losses.LOSSES, spelled out so that --help need not import JAX
+        choices=["squared", "huber", "cauchy", "student-t"],
+        help="what a sample's misfit costs: squared (default: least squares) or a robust "
+        "loss that lets outliers and glitches pull less: huber (linear beyond the scale), "
+        "cauchy or student-t (logarithmic beyond it); overrides the model file's loss",
+    )
+    f.add_argument(
+        "--loss-scale",
+        type=float,
+        default=None,
+        metavar="SCALE",
+        help="a robust loss's scale in the outputs' units (default: from the data, a "
+        "multiple of each output's noise level; fit.json records it)",
+    )
+    f.add_argument(
         "--validate", nargs="*", default=[], metavar="DATA", help="validation data files"
     )
     f.add_argument(

@@ -102,9 +102,20 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
             segments=args.segments,
             segment_length=args.segment_length,
             hessian=hessian,
+            **_loss(spec, args),
         )
     except (ValueError, TypeError) as e:  # the settings come from the model file
         raise type(e)(f"{spec.path}: {e}") from None
+
+
+def _loss(spec: ModelSpec, args) -> dict:
+    """loss and loss_scale: the command line's over the model file's."""
+    loss = getattr(args, "loss", None) or spec.loss or "squared"
+    scale = getattr(args, "loss_scale", None)
+    scale = spec.loss_scale if scale is None else scale
+    if loss == "squared" and scale is not None:
+        raise ValueError("--loss-scale (or loss_scale) is for a robust --loss; drop it or give one")
+    return {"loss": loss, "loss_scale": scale}
 
 
 def _connect(address: str, timeout: float):

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from ..engine.equations import model_from_equations
+from ..engine.losses import LOSSES
 from ..engine.model import Model
 from .datafiles import load_data
 
@@ -51,6 +52,8 @@ class ModelSpec:
     path: Path | None = None
     weights: dict | list | tuple | np.ndarray | str | None = None
     priors: dict = field(default_factory=dict)
+    loss: str | None = None
+    loss_scale: float | dict | None = None
 
     def x0_array(self) -> np.ndarray:
         """x0 of the model file as an array (N,), states it does not name at 0."""
@@ -206,4 +209,10 @@ def _spec(ns: dict, path: Path) -> ModelSpec:
     ):
         raise ValueError(f"weights must be 'auto' or a dict {{output: weight}}, got {weights!r}")
     out.weights = weights
+    loss, scale = ns.get("loss"), ns.get("loss_scale")
+    if loss is not None and loss not in LOSSES:
+        raise ValueError(f"loss must be one of {list(LOSSES)}, got {loss!r}")
+    if scale is not None and not isinstance(scale, int | float | dict):
+        raise TypeError(f"loss_scale must be a number or a dict {{output: scale}}, got {scale!r}")
+    out.loss, out.loss_scale = loss, scale
     return out

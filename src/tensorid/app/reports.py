@@ -114,6 +114,8 @@ def fit_json(
         "method": res.method,
         "integration": res.problem.discretisation.as_dict(),
         "hessian_path": res.problem.hessian,
+        "loss": res.problem.loss.name,
+        "loss_scale": res.problem.loss_scale,
         "weights": dict(zip(res.problem.model.outputs, res.problem.weights.tolist(), strict=True)),
         "priors": {names[i]: list(ms) for i, ms in res.problem.priors.items()},
         "prior_noise_variance": res.problem.noise_variance if res.problem.priors else None,

@@ -23,6 +23,7 @@ from .driver import failed, fit_many
 from .multistart import SAMPLINGS, StartsStopped, draw_starts, run_starts
 from .options import FitOptions
 from .results import FitInterrupted, FitResult
+from .robust import fit_robust
 from .shooting import fit_shooting
 
 METHODS = ("auto", "newton", "newton-cg", "gauss-newton", *BASELINES)
@@ -102,13 +103,28 @@ def fit(
             lo, hi = problem.lower, problem.upper
             thetas = draw_starts(theta0, lo, hi, n, spread=spread, sampling=sampling, seed=seed)
             where = (executor, workers, int(batch or 1), timeout)
-            res = _many_starts(problem, method, thetas, options, where, started)
         else:
-            res = _fits(problem, method, theta0[None, :], options, started)[0]
+            thetas, where = theta0[None, :], None
+        res = _starts(problem, method, thetas, options, where, started)
     res.compile_seconds = clock[0]
     if res.status is Status.INTERRUPTED:
         raise FitInterrupted(res)
     return res
+
+
+def _starts(problem, method, thetas, options, where, started) -> FitResult:
+    """One start (``where`` None) or many on workers, the best refined; a robust loss
+    in stages, from the least-squares estimate (robust.py)."""
+    if not problem.loss.squared:
+        first = _starts(problem.with_loss("squared"), method, thetas, options, where, started)
+        return fit_robust(
+            problem,
+            first,
+            lambda p, th: _fits(p, method, th[None, :], options, time.perf_counter())[0],
+        )
+    if where is None:
+        return _fits(problem, method, thetas, options, started)[0]
+    return _many_starts(problem, method, thetas, options, where, started)
 
 
 def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResult]:

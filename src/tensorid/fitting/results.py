@@ -178,16 +178,20 @@ class FitResult:
 
     def uncertainty(self, kind: str = "hessian") -> Uncertainty:
         """Standard errors, 95 % intervals, correlations (see tensorid.fitting.uncertainty);
-        ``kind`` "hessian" uses the exact Hessian, "gauss-newton" its first-order form."""
-        if kind not in ("hessian", "gauss-newton"):
-            raise ValueError("kind must be 'hessian' or 'gauss-newton'")
+        ``kind`` "hessian" uses the exact Hessian, "gauss-newton" its first-order form,
+        "robust" the sandwich H⁻¹ B H⁻¹ with the scores' Newey-West covariance B
+        (honest when the residuals are coloured; see tensorid.fitting.sandwich). With
+        a robust loss every kind is a sandwich (the 2σ² H⁻¹ form assumes the squared
+        loss), with independent samples for "hessian" and "gauss-newton"."""
+        if kind not in ("hessian", "gauss-newton", "robust"):
+            raise ValueError("kind must be 'hessian', 'gauss-newton' or 'robust'")
         if not self.has_uncertainty:
             raise ValueError(
                 f"no error bars for a fit that ended as {self.status}: its derivatives "
                 "were not computed; fit again from result.theta to get them"
             )
         # keyed on what it depends on, so a result changed by hand is not served stale
-        key = (kind, self.cost, self.theta.tobytes(), id(self.hess))
+        key = (kind, self.cost, self.theta.tobytes(), self.hess.tobytes())
         if key not in self._uncertainty:
             self._uncertainty[key] = self._compute_uncertainty(kind)
         return self._uncertainty[key]
@@ -198,17 +202,25 @@ class FitResult:
         def gauss_newton():
             return problem.cost_grad_gn(theta)[2]
 
-        H = self.hess if kind == "hessian" else gauss_newton()
-        return uncertainty(
+        meat, lags = None, None
+        if kind == "robust" or not problem.loss.squared:
+            from .sandwich import score_covariance
+
+            meat, lags = score_covariance(problem, theta, "auto" if kind == "robust" else 0)
+        H = gauss_newton() if kind == "gauss-newton" else self.hess
+        u = uncertainty(
             problem,
             theta,
             self.cost,
             H,
-            kind,
+            "hessian" if kind == "robust" else kind,
             gauss_newton=gauss_newton,
             grad=self.jac,
             scale=self.scale,
+            meat=meat,
         )
+        u.kind, u.lags = kind, lags
+        return u
 
     @property
     def covariance(self) -> np.ndarray:
@@ -240,7 +252,7 @@ class FitResult:
         """Observed (exact Hessian) against expected (Gauss-Newton) information: the
         standard errors from each side by side, their condition numbers and the least
         determined direction (see :class:`tensorid.fitting.uncertainty.Information`)."""
-        key = ("information", self.cost, self.theta.tobytes(), id(self.hess))
+        key = ("information", self.cost, self.theta.tobytes(), self.hess.tobytes())
         if key not in self._uncertainty:
             H_gn = self.problem.cost_grad_gn(self.theta)[2]
             observed, expected = self.uncertainty(), self.uncertainty("gauss-newton")

@@ -51,6 +51,7 @@ class Uncertainty:
     forms: list[str] = field(default_factory=list)
     at_bound: dict[str, str] = field(default_factory=dict)
     cut: dict[str, str] = field(default_factory=dict)
+    lags: int | None = None  # a sandwich's Newey-West lags (0: independent samples)
 
     def as_dicts(self) -> dict:
         """stderr, ci95, correlation, the form of each interval and the unknowns at a
@@ -106,17 +107,18 @@ def negative_directions(
     return _directions(H, names, lambda r: r < -threshold)
 
 
-def _variances(H: np.ndarray, sigma2: float, names: list[str], unbounded) -> tuple:
+def _variances(H: np.ndarray, sigma2: float, names: list[str], unbounded, meat=None) -> tuple:
     """(covariance, variances) from the positive part of H in Jacobi-scaled units: the
     eigen-directions with relative eigenvalue above FLAT. The unknowns in
     ``unbounded`` directions get infinite variance. Work in scaled units: on the raw
     Hessian, rounding makes the smallest eigenvalue's sign meaningless and a relative
-    cutoff would discard exactly the poorly determined directions."""
+    cutoff would discard exactly the poorly determined directions. With ``meat`` B
+    (the scores' covariance, see sandwich.py) the covariance is H⁻¹ B H⁻¹."""
     sc = jacobi_scale(H)
     lam, V = np.linalg.eigh(0.5 * (H + H.T) * np.outer(sc, sc))
     keep = lam > FLAT * max(np.abs(lam).max(), np.finfo(float).tiny)
-    inv = (V[:, keep] / lam[keep]) @ V[:, keep].T
-    cov = 2.0 * sigma2 * inv * np.outer(sc, sc)
+    inv = (V[:, keep] / lam[keep]) @ V[:, keep].T * np.outer(sc, sc)
+    cov = 2.0 * sigma2 * inv if meat is None else inv @ meat @ inv
     var = np.diag(cov).copy()
     for _, involved in unbounded:  # the positive part leaves these out: not zero, unbounded
         for name in involved:
@@ -225,11 +227,13 @@ def uncertainty(
     gauss_newton=None,
     grad=None,
     scale=None,
+    meat=None,
 ) -> Uncertainty:
     """Uncertainty of θ at an optimum with cost J, gradient ``grad`` and Hessian H
     (exact or Gauss-Newton, as ``kind`` says). ``gauss_newton``: the Gauss-Newton
     Hessian (or a function returning it) to fall back on where H is indefinite, and
-    for the unknowns that a bound holds."""
+    for the unknowns that a bound holds. ``meat``: the scores' covariance for the
+    sandwich form H⁻¹ B H⁻¹ (sandwich.py) in place of 2σ² H⁻¹."""
     names = problem.theta_names
     K = theta.size
     n = sum(e.P for e in problem.experiments) * int((problem.weights > 0).sum())
@@ -244,12 +248,12 @@ def uncertainty(
             f"{rel:.1e}) along a direction that moves {', '.join(involved)} together; "
             "fix one of them, add data that excites them differently, or reparametrise"
         )
-    cov, var = _variances(H_used, sigma2, names, flat + unbounded)
+    cov, var = _variances(H_used, sigma2, names, flat + unbounded, meat)
     forms = [form] * K
     if held.any() and form == "hessian" and gauss_newton is not None:
         # the exact Hessian along a held unknown describes the cost beyond the bound
         H_gn = gauss_newton() if callable(gauss_newton) else gauss_newton
-        var[held] = _variances(H_gn, sigma2, names, flat_directions(H_gn, names))[1][held]
+        var[held] = _variances(H_gn, sigma2, names, flat_directions(H_gn, names), meat)[1][held]
         forms = ["gauss-newton" if h else form for h in held]
     se = np.sqrt(var)
     q = stats.t.ppf(0.975, dof)

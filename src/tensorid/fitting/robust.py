@@ -1,0 +1,85 @@
+"""Fitting with a robust loss: from the least-squares estimate, with a scale that the
+fit's own residuals check.
+
+A robust loss treats residuals beyond its scale c as outliers (see engine/losses.py),
+and its cost is not convex there: far from the optimum, where most residuals are
+beyond c, Cauchy's and Student-t's gradients fade and a trust-region method can
+crawl into a wrong basin. So, as robust regression usually is (IRLS starts from
+ordinary least squares), a robust fit runs in stages:
+
+1. the same problem with the squared loss, from the given start(s) (least squares
+   converges from far away, and gross outliers only pull it off by a little);
+2. where the scale was estimated, it is set from that fit's residuals:
+   c = TUNING × σ̂, σ̂ = 1.4826 · median |r − median r| per output (the median
+   absolute deviation ignores the outliers; the data-only estimate from second
+   differences overstates the noise wherever the signal is not smooth at the
+   sampling rate, and a c too large makes Huber least squares);
+3. the robust fit from the least-squares estimate;
+4. while the scale was estimated and the robust fit's residuals imply one that
+   differs by more than RESCALE, the fit is repeated with it (at most ROUNDS times),
+   as MATLAB's robustfit and statsmodels' RLM re-estimate the scale.
+
+A scale the user gave is never changed. The result's notes say what was done.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..engine.losses import TUNING
+from ..engine.status import Status
+
+RESCALE = 1.5  # a factor: closer than this, the scale is left as it is
+ROUNDS = 3
+
+
+def residual_noise(res) -> np.ndarray:
+    """(S,) each output's noise level from the fit's residuals, by the median absolute
+    deviation (robust to the outliers a robust loss is for)."""
+    r = np.concatenate(
+        [e.y - s.y for e, s in zip(res.problem.experiments, res.simulate(), strict=True)]
+    )
+    return 1.4826 * np.median(np.abs(r - np.median(r, axis=0)), axis=0)
+
+
+def _implied(problem, res) -> dict | None:
+    """The scale the residuals of ``res`` imply, where it differs from the one
+    ``problem`` uses by more than RESCALE (else None)."""
+    implied = TUNING[problem.loss.name] * residual_noise(res)
+    used = np.array(list(problem.loss_scale.values()))
+    if not (implied > 0).all() or np.all(np.abs(np.log(implied / used)) < np.log(RESCALE)):
+        return None
+    return dict(zip(problem.model.outputs, implied.tolist(), strict=True))
+
+
+def fit_robust(problem, first, refit):
+    """Stages 2-4 of the module docstring. ``first``: stage 1's result (the squared
+    loss); ``refit(problem, theta)`` fits a problem from one start."""
+    if first.status is Status.INTERRUPTED or not np.isfinite(first.cost):
+        return first
+    estimated, seconds = problem.loss_scale_estimated, first.seconds
+    if estimated:
+        implied = TUNING[problem.loss.name] * residual_noise(first)
+        if (implied > 0).all():
+            problem = problem.with_loss(
+                problem.loss, dict(zip(problem.model.outputs, implied.tolist(), strict=True))
+            )
+    notes = [
+        f"the {problem.loss.name} fit started from the least-squares estimate (cost "
+        f"{first.cost:.6g}, {first.nit} iterations, {first.status})"
+    ]
+    res = refit(problem, first.theta)
+    for _ in range(ROUNDS if estimated else 0):
+        scale = _implied(res.problem, res) if res.success else None
+        if scale is None:
+            break
+        seconds += res.seconds
+        res = refit(res.problem.with_loss(problem.loss, scale), res.theta)
+    if estimated:
+        scale = ", ".join(f"{k} {v:.3g}" for k, v in res.problem.loss_scale.items())
+        notes.append(f"its scale, {scale}, came from the residuals; give loss_scale= to fix it")
+    res.problem.loss_scale_estimated = estimated
+    res.notes[:0] = first.notes + notes
+    res.seconds += seconds
+    res.nfev += first.nfev
+    return res

@@ -1,0 +1,79 @@
+"""The sandwich covariance: error bars that do not assume white Gaussian residuals.
+
+At an optimum θ̂ of J = Σ_h ℓ_h + priors, θ̂ − θ ≈ −H⁻¹ ∇J, and ∇J's data part is the
+sum of the per-sample scores s_h = D_hᵀ ℓ_ŷ,h (D_h = ∂ŷ_h/∂θ, ℓ_ŷ the loss's output
+gradient, see engine/losses.py). So
+
+    cov(θ̂) = H⁻¹ B H⁻¹,      B = var(Σ_h s_h)
+
+with H the exact Hessian. For the squared loss and white noise of variance σ²,
+B = 2σ² H_GN and this is the textbook 2σ² H⁻¹. Two estimates of B:
+
+* independent samples (``lags=0``): B = Σ_h s_h s_hᵀ. What a robust loss's error bars
+  need (its J is not a sum of Gaussian log-likelihoods, so σ² J-scaling does not
+  apply): Huber's M-estimator covariance, in the exact-Hessian form.
+* coloured residuals (``lags="auto"``): Newey-West's HAC estimate
+  B = Γ₀ + Σ_{l=1}^{L} (1 − l/(L+1)) (Γ_l + Γ_lᵀ),  Γ_l = Σ_h s_h s_{h−l}ᵀ,
+  per experiment, with the bandwidth L from Andrews' (1991) AR(1) plug-in rule for
+  the Bartlett kernel, L = 1.1447 (α n)^{1/3}, α fitted to the scores (each
+  component normalised to unit variance, so that units do not weigh). Residuals that
+  are correlated over many samples (a model error, a disturbance) widen the bars
+  where the white formula would make them narrower the longer the record.
+
+Both are multiplied by n / (n − K) (n samples, K unknowns), the usual small-sample
+correction.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def scores(problem, theta) -> list[np.ndarray]:
+    """(P, K) per experiment: each sample's share s_h = D_hᵀ ℓ_ŷ,h of ∇J (the priors
+    aside), exact for the discretised model."""
+    theta = problem.check_theta(theta)
+    loss, w = problem.loss, jnp.asarray(problem.loss_weights)
+    terms = jax.vmap(lambda y, yh: loss.terms(y, yh, w)[1])
+    out = []
+    sens, sims = problem.output_sensitivities(theta), problem.simulate(theta)
+    for D, e, sim in zip(sens, problem.experiments, sims, strict=True):
+        l1 = np.asarray(terms(jnp.asarray(e.y), jnp.asarray(sim.y)))  # (P, S)
+        out.append(np.einsum("hsk,hs->hk", D, l1))
+    return out
+
+
+def bandwidth(parts: list[np.ndarray]) -> int:
+    """Andrews' AR(1) plug-in bandwidth for the Bartlett kernel, from the scores of
+    every experiment together; at most the shortest experiment's length − 1."""
+    n = sum(s.shape[0] for s in parts)
+    sd = np.sqrt(np.mean(np.concatenate(parts) ** 2, axis=0))
+    keep = sd > 0
+    if not keep.any() or min(s.shape[0] for s in parts) < 3:
+        return 0
+    lag = sum((s[1:, keep] * s[:-1, keep]).sum(0) for s in parts)
+    var = sum((s[:-1, keep] ** 2).sum(0) for s in parts)
+    rho = np.clip(lag / var, -0.99, 0.99)
+    sig2 = 1 - rho**2  # the AR(1) innovation variance of a unit-variance component
+    num = float(np.sum(4 * rho**2 * sig2**2 / ((1 - rho) ** 6 * (1 + rho) ** 2)))
+    den = float(np.sum(sig2**2 / (1 - rho) ** 4))
+    L = int(1.1447 * (num / den * n) ** (1 / 3)) if den > 0 else 0
+    return min(L, min(s.shape[0] for s in parts) - 1)
+
+
+def score_covariance(problem, theta, lags="auto") -> tuple[np.ndarray, int]:
+    """(B (K, K), L): the scores' covariance, independent samples for ``lags`` 0,
+    Newey-West with L lags for an integer, Andrews' bandwidth for "auto"."""
+    parts = scores(problem, theta)
+    L = bandwidth(parts) if lags == "auto" else int(lags)
+    K = problem.K
+    B = np.zeros((K, K))
+    for s in parts:
+        B += s.T @ s
+        for lag in range(1, min(L, s.shape[0] - 1) + 1):
+            G = s[lag:].T @ s[:-lag]
+            B += (1.0 - lag / (L + 1.0)) * (G + G.T)
+    n = sum(s.shape[0] for s in parts) * int((problem.weights > 0).sum())
+    return B * n / max(n - K, 1), L
