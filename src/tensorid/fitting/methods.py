@@ -22,6 +22,7 @@ from .baselines import BASELINES
 from .driver import failed, fit_many
 from .multistart import SAMPLINGS, StartsStopped, draw_starts, run_starts
 from .options import FitOptions
+from .priors import weigh_priors, weighed
 from .results import FitInterrupted, FitResult
 from .shooting import fit_shooting
 
@@ -104,7 +105,7 @@ def fit(
             where = (executor, workers, int(batch or 1), timeout)
             res = _many_starts(problem, method, thetas, options, where, started)
         else:
-            res = _fits(problem, method, theta0[None, :], options, started)[0]
+            res = weighed(_fits)(problem, method, theta0[None, :], options, started)[0]
     res.compile_seconds = clock[0]
     if res.status is Status.INTERRUPTED:
         raise FitInterrupted(res)
@@ -137,7 +138,7 @@ def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResul
     thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
     thetas = np.stack([_check_start(problem, th, "a start") for th in thetas])
     with compile_clock() as clock:
-        results = _fits(problem, method, thetas, opts, started)
+        results = weighed(_fits)(problem, method, thetas, opts, started)
     for r in results:
         r.compile_seconds = clock[0]
     if any(r.status is Status.INTERRUPTED for r in results):
@@ -248,7 +249,8 @@ def _many_starts(problem, method, thetas, options: FitOptions, where: tuple, sta
         runs = run_starts(problem, fit_task(method, options), thetas, *where)
     except StartsStopped as stop:
         return _stopped(problem, method, thetas[0], stop, started)
-    return _best_of(problem, method, thetas[0], runs, options, started)
+    res = _best_of(problem, method, thetas[0], runs, options, started)
+    return weigh_priors(res, _fits, method, options, started)
 
 
 def _fit_chunk(problem, thetas, *, method: str, options: FitOptions) -> list[dict]:
