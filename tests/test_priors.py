@@ -108,15 +108,8 @@ def test_observed_and_expected_information_side_by_side():
 
 
 # -- the noise level that weighs the priors, and what the priors moved ---------------------
-def _oscillator_rhs(x, p, u):
-    m, d, a, b = p
-    return jnp.stack([x[1], (u[0] - d * x[1] - a * x[0] - b * x[0] ** 3) / m])
-
-
-OSCILLATOR = ti.Model(
-    rhs=_oscillator_rhs, output=lambda x, p: x[:1], states=["y", "v"],
-    params=["m", "d", "a", "b"], inputs=["u"], outputs=["y"], name="oscillator",
-)  # fmt: skip
+# the README's oscillator is the Silverbox's structure (m ÿ + d ẏ + a y + b y³ = u)
+OSCILLATOR = silverbox_model(name="oscillator")
 
 
 def _readme_oscillator(priors=None, noise=None):
