@@ -98,8 +98,8 @@ class NoiseCheck:
         )
         if self.source == "given" and self.first > self.residual:
             return head + (
-                f", so the priors weigh about {ratio} too much (the residuals say a "
-                f"standard deviation of {self.residual**0.5:.3g}); check {FIX}"
+                f", so the priors weigh at least {ratio} too much; check {FIX}, or leave it "
+                "out to have it estimated from the residuals"
             )
         if self.source == "given":
             return head + (
