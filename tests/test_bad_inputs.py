@@ -175,6 +175,10 @@ MAKERS: dict[str, Callable[[Path], None]] = {
     "bounds_outside.py": _written(FIRST + 'bounds = {"a": (2, 5)}\n'),
     "bounds_open.py": _written(FIRST + 'bounds = {"a": (0, None)}\n'),
     "fixed_tuple.py": _written(FIRST + 'fixed = ("b",)\n'),
+    "noise_negative.py": _written(FIRST + 'priors = {"a": (1.0, 0.5)}\nnoise = -0.1\n'),
+    "noise_text.py": _written(FIRST + 'priors = {"a": (1.0, 0.5)}\nnoise = "0.1"\n'),
+    "noise_alone.py": _written(FIRST + "noise = 0.1\n"),
+    "noise_given.py": _written(FIRST + 'priors = {"a": (1.0, 0.5)}\nnoise = 0.01\n'),
     "endless.py": _written("while True:\n    pass\n"),
     "model_bad_rhs.py": _written(
         "import tensorid as ti\nimport jax.numpy as jnp\n"

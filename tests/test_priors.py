@@ -105,3 +105,117 @@ def test_observed_and_expected_information_side_by_side():
     text = info.describe()
     assert "condition number" in text and "least determined direction" in text
     assert set(info.as_dict()) >= {"stderr_observed", "stderr_expected", "weakest_direction"}
+
+
+# -- the noise level that weighs the priors, and what the priors moved ---------------------
+# the README's oscillator is the Silverbox's structure (m ÿ + d ẏ + a y + b y³ = u)
+OSCILLATOR = silverbox_model(name="oscillator")
+
+
+def _readme_oscillator(priors=None, noise=None):
+    """The README's own example (1,000 samples at 1 kHz, noise sd 1e-4): 40-80 samples
+    per period of its inputs, too coarse for the second-difference noise estimate."""
+    model = OSCILLATOR
+    return ti.Problem(
+        model, _oscillator_record(1e-3, 0), p0={"m": 1.2e-4, "d": 1.8e-3, "a": 0.9, "b": 3.0},
+        x0=[0.0, 0.0], free_x0=["v"], bounds={"m": (1e-6, 1e-2)}, priors=priors, noise=noise,
+    )  # fmt: skip
+
+
+def _oscillator_record(dt: float, seed: int) -> ti.Experiment:
+    """1,000 samples (one compilation for every record) every ``dt`` s, noise sd 1e-4."""
+    t = np.arange(1000) * dt
+    u = 0.5 * np.sin(2 * np.pi * 12 * t) + 0.3 * np.sin(2 * np.pi * 23 * t)
+    truth = {"m": 1e-4, "d": 2e-3, "a": 1.0, "b": 4.0}
+    y = ti.simulate(OSCILLATOR, truth, [0.0, 0.0], ti.Experiment(t, u)).y
+    return ti.Experiment(t, u, y + 1e-4 * np.random.default_rng(seed).standard_normal(y.shape))
+
+
+def test_the_readme_example_with_a_prior_gets_the_answer_of_the_true_noise():
+    prior = {"b": (3.5, 0.01)}
+    prob = _readme_oscillator(prior)
+    assert prob.noise_variance == pytest.approx(1.77e-5, rel=0.01)  # 1,770x the truth
+    res = ti.fit(prob)
+    given = ti.fit(_readme_oscillator(prior, noise=1e-4))
+    alone = ti.fit(_readme_oscillator())
+    se_b = alone.uncertainty().stderr[-1]  # b's standard error from the data alone
+    assert abs(res.params["b"] - given.params["b"]) < 2 * se_b  # was 0.11 = 880 se_b
+    check = res.noise_check
+    assert check.source == "second differences" and check.agree and 1 <= check.refits <= 6
+    assert res.problem.noise_variance == pytest.approx(1e-8, rel=0.15)
+    assert prob.noise_variance == pytest.approx(1.77e-5, rel=0.01)  # the caller's, untouched
+    line = next(w for w in res.warnings if w.startswith("priors:"))
+    assert "1.77e-05" in line and f"{check.residual:.3g}" in line and "noise=" in line
+    assert "empirical Bayes" in line and "lag-1 correlation 0.98" in line
+    # the data-only answer that the report compares with is the prior-free fit
+    (move,) = res.prior_moves()
+    assert move["data_only"] == pytest.approx(alone.params["b"], abs=0.01 * se_b)
+    assert move["data_stderr"] == pytest.approx(se_b, rel=0.01) and not move["moved"]
+    # a noise level given is the user's word: kept, and the check agrees with it
+    assert given.noise_check.source == "given" and given.noise_check.refits == 0
+    assert not any(w.startswith("priors:") for w in given.warnings)
+
+
+@pytest.mark.parametrize("dt", [1e-3, 1e-4], ids=["coarse-1kHz", "fine-10kHz"])
+def test_the_rule_keeps_map_estimates_within_their_intervals_of_the_true_noise(dt, monkeypatch):
+    """Seeded records sampled coarsely (the noise estimate 1,770x too large) and finely
+    (right to 10 %): with the rule, every MAP estimate lies well inside its stated
+    95 % interval of the noise=-given answer; without it, the coarse ones do not."""
+    from tensorid.fitting import priors
+
+    kw = dict(p0={"m": 1.2e-4, "d": 1.8e-3, "a": 0.9, "b": 3.0}, x0=[0.0, 0.0],
+              free_x0=["v"], bounds={"m": (1e-6, 1e-2)}, priors={"b": (3.5, 0.01)})  # fmt: skip
+    for seed in (1, 2):
+        e = _oscillator_record(dt, seed)
+        given = ti.fit(ti.Problem(OSCILLATOR, e, noise=1e-4, **kw))
+        res = ti.fit(ti.Problem(OSCILLATOR, e, **kw))
+        ci = res.uncertainty().ci95
+        off = np.abs(res.theta - given.theta) / (0.5 * (ci[:, 1] - ci[:, 0]))
+        assert res.success and off.max() < 0.25, (seed, off)
+        assert res.noise_check.refits == (4 if dt == 1e-3 else 0)
+        if dt == 1e-3:  # the check fails without the rule: it can
+            monkeypatch.setattr(priors, "MAX_REFITS", 0)
+            old = ti.fit(ti.Problem(OSCILLATOR, e, **kw))
+            monkeypatch.undo()
+            ci = old.uncertainty().ci95
+            assert (np.abs(old.theta - given.theta) > 0.5 * (ci[:, 1] - ci[:, 0])).any()
+            assert any("1.77e-05" in w and "not re-estimated" in w for w in old.warnings)
+
+
+def test_a_given_noise_that_the_residuals_contradict_is_a_warning():
+    e = _linear_record()  # noise sd 0.05
+    res = ti.fit(ti.Problem(LINEAR, e, p0={"a": 1.0, "b": 0.0}, priors={"a": (2, 1)}, noise=0.5))
+    assert res.problem.noise_variance == 0.25 and res.noise_check.refits == 0
+    line = next(w for w in res.warnings if w.startswith("priors:"))
+    assert "given as noise=, 0.25," in line and f"{res.noise_check.residual:.3g}" in line
+    assert "too much" in line and "check noise=" in line
+    right = ti.fit(ti.Problem(LINEAR, e, p0={"a": 1.0, "b": 0.0}, priors={"a": (2, 1)}, noise=0.05))
+    assert right.noise_check.agree and not any(w.startswith("priors:") for w in right.warnings)
+
+
+def test_a_prior_that_moves_an_estimate_says_so_in_summary_fit_json_and_report(tmp_path):
+    from tensorid.app.reports import fit_json, fit_report
+    from tensorid.fitting.validation import training_scores
+
+    e = _linear_record()
+    alone = ti.fit(ti.Problem(LINEAR, e, p0={"a": 1.0, "b": 0.0}))
+    prob = ti.Problem(LINEAR, e, p0={"a": 1.0, "b": 0.0}, priors={"a": (1.5, 0.01)}, noise=0.05)
+    res = ti.fit(prob)
+    moves = {m["unknown"]: m for m in res.prior_moves()}
+    a = moves["a"]
+    assert a["prior"] and a["moved"] and a["estimate"] == res.params["a"]
+    assert a["data_only"] == pytest.approx(alone.params["a"], rel=1e-8)  # linear: exact
+    assert a["data_stderr"] == pytest.approx(alone.uncertainty().stderr[0], rel=1e-6)
+    n = abs(res.params["a"] - alone.params["a"]) / a["data_stderr"]
+    assert a["standard_errors"] == pytest.approx(n, rel=1e-6) and n > 10
+    assert moves["b"]["moved"] and not moves["b"]["prior"]  # correlated with a
+    line = f"the prior on a moved it from {alone.params['a']:.6g} to {res.params['a']:.6g}"
+    assert any(w.startswith(line) and f"{n:,.0f} standard errors" in w for w in res.warnings)
+    assert line in res.summary().replace("\n", " ")
+    data = fit_json(res, [])
+    assert data["prior_moves"][0]["unknown"] == "a" and data["prior_moves"][0]["moved"]
+    assert data["prior_noise_check"]["source"] == "given" and any(
+        line in w for w in data["warnings"]
+    )
+    report = fit_report(res, data, training_scores(res), [])
+    assert "## Priors" in report and line in report and "| a | 1.5 ± 0.01 |" in report

@@ -98,6 +98,7 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
             bounds=spec.bounds,
             weights=spec.weights,
             priors=spec.priors or None,
+            noise=spec.noise,
             discretisation=disc,
             segments=args.segments,
             segment_length=args.segment_length,

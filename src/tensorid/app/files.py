@@ -5,9 +5,10 @@ equations, ``rhs = {state: "expr"}`` with optional ``output``, ``inputs``, ``par
 ``input_delays`` (dict input -> seconds) and ``discrete`` (True: rhs gives x[k+1]);
 and it may define ``p0`` (dict), ``x0``
 (dict state -> value), ``free_x0`` (list), ``fixed`` (list), ``bounds`` (dict name ->
-(lo, hi)), ``weights`` ("auto" or dict output -> weight) and ``priors`` (dict name ->
-(mean, sd)). A file that has not finished running after TENSORID_MODEL_TIMEOUT
-seconds (default 60) is stopped with a clear message.
+(lo, hi)), ``weights`` ("auto" or dict output -> weight), ``priors`` (dict name ->
+(mean, sd)) and ``noise`` (the noise standard deviation that weighs the priors; without
+it, it is estimated and checked by the fit). A file that has not finished running
+after TENSORID_MODEL_TIMEOUT seconds (default 60) is stopped with a clear message.
 
 Data files are CSV (a time column ``t``, or a sampling time given as ``ts``, plus
 columns named after the model's inputs and outputs), MATLAB .mat or NumPy .npz
@@ -54,6 +55,7 @@ class ModelSpec:
     priors: dict = field(default_factory=dict)
     loss: str | None = None
     loss_scale: float | dict | None = None
+    noise: float | None = None
 
     def x0_array(self) -> np.ndarray:
         """x0 of the model file as an array (N,), states it does not name at 0."""
@@ -215,4 +217,5 @@ def _spec(ns: dict, path: Path) -> ModelSpec:
     if scale is not None and not isinstance(scale, int | float | dict):
         raise TypeError(f"loss_scale must be a number or a dict {{output: scale}}, got {scale!r}")
     out.loss, out.loss_scale = loss, scale
+    out.noise = ns.get("noise")  # Problem checks it, naming this file
     return out

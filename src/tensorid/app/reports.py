@@ -15,6 +15,7 @@ from ..fitting.summary import (
     interval,
     interval_note,
     metric_rows,
+    plural,
     significant,
     stderr_text,
 )
@@ -119,6 +120,8 @@ def fit_json(
         "weights": dict(zip(res.problem.model.outputs, res.problem.weights.tolist(), strict=True)),
         "priors": {names[i]: list(ms) for i, ms in res.problem.priors.items()},
         "prior_noise_variance": res.problem.noise_variance if res.problem.priors else None,
+        "prior_noise_check": res.noise_check.as_dict() if res.noise_check else None,
+        "prior_moves": res.prior_moves(),
         "seconds": res.seconds,
         "compile_seconds": res.compile_seconds,
         "segments": res.problem.segments,
@@ -173,6 +176,57 @@ def _profile_lines(profiles: dict | None, data: dict) -> list[str]:
     ]
 
 
+def _prior_lines(res) -> list[str]:
+    """report.md's priors: each with where the data alone put its unknown and how far
+    the prior moved it, and the noise level that weighed them."""
+    moves = res.prior_moves()
+    if not moves:
+        return []
+    priors = {res.problem.theta_names[i]: ms for i, ms in res.problem.priors.items()}
+    rows = []
+    for m in moves:
+        se, n = m["data_stderr"], m["standard_errors"]
+        mean, sd = priors.get(m["unknown"], (math.nan, math.nan))
+        rows.append(
+            [
+                m["unknown"],
+                f"{mean:.6g} ± {sd:.2g}" if m["prior"] else "–",
+                significant(m["estimate"], se),
+                "–" if m["data_only"] is None else significant(m["data_only"], se),
+                stderr_text(se),
+                "–" if n is None else f"{n:.2f}" + (" (moved)" if m["moved"] else ""),
+            ]
+        )
+    header = [
+        "unknown",
+        "prior",
+        "estimate",
+        "data alone",
+        "its std. error",
+        "moved by (std. errors)",
+    ]
+    nc = res.noise_check
+    nc, weighed = res.noise_check, f"σ² = {res.problem.noise_variance:.3g}"
+    if nc is not None and nc.source == "given":
+        weighed += f" (given as noise=; residual variance at the fit {nc.residual:.3g})"
+    elif nc is not None:
+        weighed += (
+            f" (from the outputs' second differences, {nc.first:.3g}, re-estimated from the "
+            f"residuals in {plural(nc.refits, 'refit')}; residual variance at the fit "
+            f"{nc.residual:.3g})"
+        )
+    return [
+        "## Priors",
+        "",
+        f"The priors are weighed by the noise variance {weighed}. 'Data alone' is where "
+        "the data without the priors put each unknown, with its standard error from the "
+        "data alone.",
+        "",
+        md_table(header, rows),
+        "",
+    ]
+
+
 def fit_report(
     res,
     data: dict,
@@ -200,6 +254,7 @@ def fit_report(
     ]
     if data["warnings"]:
         lines += ["## Warnings", ""] + [f"- {w}" for w in data["warnings"]] + [""]
+    lines += _prior_lines(res)
     if "information" in data:
         lines += ["## Observed and expected information", "", data["information"]["text"] + ".", ""]
     header, metric_table = metric_rows(scores)

@@ -73,7 +73,9 @@ class Problem:
         differences, ``noise_variance``), so that J/σ² is −2 log posterior; the exact
         Hessian includes the prior's curvature.
     noise : standard deviation of a unit-weight residual (weighted measurement noise),
-        for priors.
+        for priors. Without it, :func:`tensorid.fit` checks the estimate against the
+        residual variance at the fit and, where they disagree, re-estimates it from the
+        residuals and refits (``noise_estimated`` is then True).
     weights : dict {output: weight} or array (S,); J = Σ_h Σ_g w_g r_g². "auto":
         1 / (variance of each measured output, all experiments together), so that
         outputs on very different scales (volts and micrometres) count alike. Without
@@ -156,6 +158,8 @@ class Problem:
         self.loss_scale_estimated = not self.loss.squared and loss_scale is None
         self.lower, self.upper = self._check_bounds(bounds or {})
         self.priors, self.noise_variance = self._check_priors(priors, noise)
+        # an estimate, not the user's word: a fit may re-estimate it (fitting/priors.py)
+        self.noise_estimated = bool(self.priors) and noise is None
         if self.K == 0:
             raise ValueError("nothing to estimate: every parameter is fixed and free_x0 is empty")
         self._sweeps = shared_sweeps(

@@ -22,6 +22,7 @@ from .baselines import BASELINES
 from .driver import failed, fit_many
 from .multistart import SAMPLINGS, StartsStopped, draw_starts, run_starts
 from .options import FitOptions
+from .priors import weigh_priors, weighed
 from .results import FitInterrupted, FitResult
 from .robust import fit_robust
 from .shooting import fit_shooting
@@ -120,10 +121,10 @@ def _starts(problem, method, thetas, options, where, started) -> FitResult:
         return fit_robust(
             problem,
             first,
-            lambda p, th: _fits(p, method, th[None, :], options, time.perf_counter())[0],
+            lambda p, th: weighed(_fits)(p, method, th[None, :], options, time.perf_counter())[0],
         )
     if where is None:
-        return _fits(problem, method, thetas, options, started)[0]
+        return weighed(_fits)(problem, method, thetas, options, started)[0]
     return _many_starts(problem, method, thetas, options, where, started)
 
 
@@ -153,7 +154,7 @@ def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResul
     thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
     thetas = np.stack([_check_start(problem, th, "a start") for th in thetas])
     with compile_clock() as clock:
-        results = _fits(problem, method, thetas, opts, started)
+        results = weighed(_fits)(problem, method, thetas, opts, started)
     for r in results:
         r.compile_seconds = clock[0]
     if any(r.status is Status.INTERRUPTED for r in results):
@@ -264,7 +265,8 @@ def _many_starts(problem, method, thetas, options: FitOptions, where: tuple, sta
         runs = run_starts(problem, fit_task(method, options), thetas, *where)
     except StartsStopped as stop:
         return _stopped(problem, method, thetas[0], stop, started)
-    return _best_of(problem, method, thetas[0], runs, options, started)
+    res = _best_of(problem, method, thetas[0], runs, options, started)
+    return weigh_priors(res, _fits, method, options, started)
 
 
 def _fit_chunk(problem, thetas, *, method: str, options: FitOptions) -> list[dict]:

@@ -15,6 +15,7 @@ import numpy as np
 from ..engine.metrics import gof
 from ..engine.problem import Problem
 from ..engine.status import Status
+from .priors import NoiseCheck, move_lines, prior_moves
 from .uncertainty import Information, Uncertainty, information, uncertainty
 
 
@@ -46,6 +47,9 @@ class FitResult:
         already: Problems with the same model, θ layout and discretisation share them).
     history : one dict per iteration: iteration, cost, grad_norm, radius, ...
     notes : what happened on the way, e.g. trial points where the simulation blew up.
+    noise_check : with priors, the noise variance that weighed them against the
+        residual variance at the optimum, and the refits that re-estimated it (see
+        :mod:`tensorid.fitting.priors`); ``problem`` is then the Problem as last fitted.
     shooting : for a multiple-shooting problem, its stage: segments (per experiment),
         nit, outer (augmented-Lagrangian iterations), nfev, cost (of the segments,
         defects aside), max_defect (largest continuity defect relative to the state
@@ -78,6 +82,7 @@ class FitResult:
     derivatives: bool = True  # jac and hess hold the exact derivatives at theta
     shooting: dict | None = None  # multiple shooting: segments, defects, its own counts
     hybrid: dict | None = None  # method "auto": evaluations of each kind, mode switches
+    noise_check: NoiseCheck | None = None  # priors: their noise variance against the residuals
     # the summary, the warnings, fit.json and report.md all read the same uncertainty
     _uncertainty: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
@@ -231,11 +236,22 @@ class FitResult:
     def warnings(self) -> list[str]:
         """Plain-language warnings: no convergence (with why, e.g. where the simulation
         blew up), unknowns the data cannot separate, an optimum that is not a strict
-        minimum."""
+        minimum, a noise level for the priors that the residuals contradict, a prior
+        that moved an estimate by more than two standard errors of the data alone."""
         out = [] if self.success else [f"the fit did not converge: {self.message}", *self.notes]
         if self.has_uncertainty:
             out += self.uncertainty().warnings
-        return out
+        noise = self.noise_check.message() if self.noise_check is not None else None
+        out += [noise] if noise else []
+        return out + move_lines(self.prior_moves())
+
+    def prior_moves(self) -> list[dict]:
+        """How far the priors moved the estimates, in standard errors of the data alone
+        (see :func:`tensorid.fitting.priors.prior_moves`); empty without priors."""
+        key = ("prior moves", self.cost, self.theta.tobytes(), id(self.hess))
+        if key not in self._uncertainty:
+            self._uncertainty[key] = prior_moves(self)
+        return self._uncertainty[key]
 
     def validate(self, data, init_window: int | None = None) -> list:
         """Score the fitted model on new records (an Experiment or a list of them), as

@@ -1,0 +1,337 @@
+"""Priors that weigh what they should.
+
+A prior adds σ² Σ((θᵢ − mean)/sd)² to J, σ² the noise variance of a unit-weight
+residual: ``noise=``² when given, else estimated from the outputs' second differences,
+which holds only where the noise, not the signal, dominates them. A wrong σ² weighs
+every prior by the same wrong factor (1,770× on the README's oscillator at 1 kHz).
+
+After a MAP fit, :func:`weigh_priors` compares that σ² with the residual variance at
+the optimum. Where σ² was estimated and the two differ by more than ``TOLERANCE``,
+σ² becomes the residual variance and the fit is repeated from its optimum (empirical
+Bayes), until they agree (at most ``MAX_REFITS`` refits; each takes a few iterations).
+A σ² the user gave is kept, and a disagreement beyond both that factor and the
+residual variance's chance scatter is a warning that names both. Then
+:func:`prior_moves` says how far each prior moved its estimate in standard errors of
+the data alone, so that a strong or wrong prior is never silent. The measurements
+behind the rule are in docs/statistics.md.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+from ..engine.status import Status
+from .summary import significant
+from .uncertainty import FLAT, _directions, _variances, negative_directions
+
+TOLERANCE = 1.5  # the factor by which σ² and the residual variance may differ
+MAX_REFITS = 10  # from the README example's 1,770×, 4 refits reach the tolerance
+STEPS = 5  # Gauss-Newton steps towards the data-only estimate
+FIX = "noise= (a standard deviation; `noise = ...` in a model file)"
+MOVED = 2.0  # a prior that moves an estimate by more data-only standard errors is named
+
+
+@dataclass
+class NoiseCheck:
+    """The noise variance that weighed the priors against the residuals of the fit.
+
+    source : "given" (``noise=``) or "second differences" (estimated from the data).
+    first : the σ² of the first fit; ``used`` the σ² of the result (they differ after
+        refits); residual : the residual variance at the result's optimum.
+    refits : fits repeated with σ² re-estimated from the residuals (empirical Bayes).
+    agree : whether ``used`` and ``residual`` agree within TOLERANCE (for a given σ²:
+        or within the residual variance's chance scatter, 99 %).
+    outputs : per output, the second-difference variance, the residual variance and
+        the second differences' lag-1 correlation (white noise gives −2/3; near +1
+        the signal dominates them and the estimate is too large).
+    """
+
+    source: str
+    first: float
+    used: float
+    residual: float
+    refits: int
+    agree: bool
+    outputs: dict[str, dict[str, float]] = field(default_factory=dict)
+
+    def as_dict(self) -> dict:
+        return {
+            "source": self.source,
+            "first_variance": self.first,
+            "used_variance": self.used,
+            "residual_variance": self.residual,
+            "refits": self.refits,
+            "agree": self.agree,
+            "tolerance": TOLERANCE,
+            "outputs": self.outputs,
+        }
+
+    def _smooth(self) -> str:
+        """Why the second differences misled, where their correlation shows it."""
+        worst = max(self.outputs.items(), key=lambda kv: kv[1]["second_difference_lag1"])
+        rho = worst[1]["second_difference_lag1"]
+        if self.source != "second differences" or not rho > 0:
+            return ""
+        return (
+            f" (the second differences of {worst[0]} have lag-1 correlation {rho:.2f} where "
+            "white noise gives -0.67: the signal, not the noise, dominates them)"
+        )
+
+    def message(self) -> str | None:
+        """A line for the warnings where σ² and the residuals disagreed, else None."""
+        if self.refits == 0 and self.agree:
+            return None
+        if not self.residual > 0:
+            return (
+                "priors: the fit matches the data exactly, so no noise level can be read "
+                f"from its residuals to weigh the priors; give {FIX}"
+            )
+        how = "given as noise=" if self.source == "given" else "from the second differences"
+        ratio = _times(self.first / self.residual)
+        head = (
+            f"priors: the noise variance {how}, {self.first:.3g}, is {ratio} the residual "
+            f"variance at the fit, {self.residual:.3g}" + self._smooth()
+        )
+        if self.source == "given" and self.first > self.residual:
+            return head + (
+                f", so the priors weigh at least {ratio} too much; check {FIX}, or leave it "
+                "out to have it estimated from the residuals"
+            )
+        if self.source == "given":
+            return head + (
+                ": the model does not fit the data to that noise level, or noise= is too "
+                f"small (then the priors weigh too little); check {FIX}"
+            )
+        redone = f"re-estimated from the residuals and refitted {_count(self.refits)}"
+        if self.agree:
+            return head + (
+                f"; {redone} (empirical Bayes), the priors are weighed by {self.used:.3g}; "
+                f"give {FIX} to weigh them by a known noise level"
+            )
+        if self.refits == 0:
+            return head + f"; it was not re-estimated: give {FIX}"
+        return head + f"; {redone}, it did not settle (last {self.used:.3g}): give {FIX}"
+
+
+def _times(ratio: float) -> str:
+    """1846.2 -> '1,846×', 0.25 -> '0.25×'."""
+    return f"{ratio:,.0f}×" if ratio >= 10 else f"{ratio:.2g}×"
+
+
+def _count(n: int) -> str:
+    return "once" if n == 1 else f"{n} times"
+
+
+def weighed(fits):
+    """``fits`` (problem, method, thetas, options, started -> results) with every
+    result then passed through :func:`weigh_priors`, its refits made by ``fits``."""
+
+    def run(problem, method, thetas, options, started):
+        done = fits(problem, method, thetas, options, started)
+        return [weigh_priors(r, fits, method, options, started) for r in done]
+
+    return run
+
+
+def weigh_priors(res, fits, method, options, started):
+    """``res`` after the check of its priors' noise variance, refitted where it was
+    estimated and disagrees with the residuals: by ``fits(problem, method, thetas,
+    options, started)``, from the optimum, on a copy of the problem with σ² changed.
+    The result's ``problem`` is that copy; the caller's Problem is left as it was."""
+    problem = res.problem
+    if not problem.priors or not res.success or not res.has_uncertainty:
+        return res
+    first, done, refits = problem.noise_variance, res, 0
+    residual = done.uncertainty().sigma2
+    floor = problem.rounding_floor / max(done.uncertainty().dof, 1)
+    while (
+        problem.noise_estimated
+        and not _agree(done.problem.noise_variance, residual)
+        and refits < MAX_REFITS
+        and residual > 0
+    ):
+        again = fits(
+            _with_noise(done.problem, max(residual, floor)),
+            method,
+            done.theta[None, :],
+            options,
+            started,
+        )[0]
+        refits += 1
+        if again.status is Status.INTERRUPTED:  # Ctrl-C: fit() raises with this point
+            return _chained(done, again)
+        if not again.success or not again.has_uncertainty:
+            break  # keep the last fit that converged, and say the check did not settle
+        done = _chained(done, again)
+        residual = done.uncertainty().sigma2
+    used = done.problem.noise_variance
+    if problem.noise_estimated:
+        source, agree = "second differences", _agree(used, residual)
+    else:  # the user's word: only a clear disagreement is worth a warning
+        dof = done.uncertainty().dof
+        source, agree = "given", _agree(used, residual) or _chance(used, residual, dof)
+    done.noise_check = NoiseCheck(source, first, used, residual, refits, agree, _per_output(done))
+    return done
+
+
+def _agree(a: float, b: float) -> bool:
+    return bool(b > 0 and a > 0 and max(a / b, b / a) <= TOLERANCE)
+
+
+def _chance(variance: float, residual: float, dof: int) -> bool:
+    """Whether noise of ``variance`` leaves a residual variance like ``residual`` one
+    time in a hundred or more (χ² with ``dof`` degrees of freedom): a short record's
+    residual variance scatters by √(2/dof), 23 % at 40 samples."""
+    lo, hi = stats.chi2.ppf([0.005, 0.995], dof) / dof
+    return bool(lo <= residual / variance <= hi)
+
+
+def _with_noise(problem, variance: float):
+    """A shallow copy of ``problem`` whose priors are weighed by ``variance`` (its
+    compiled sweeps shared; a multiple-shooting layout pointed at the copy)."""
+    out = copy.copy(problem)
+    out.noise_variance = float(variance)
+    if problem.shooting is not None:
+        out.shooting = copy.copy(problem.shooting)
+        out.shooting.problem = out
+    return out
+
+
+def _chained(before, after):
+    """``after`` (a refit from ``before``'s optimum) counting both runs: iterations,
+    evaluations, history (the refit's iterations numbered on) and the starts."""
+    offset = before.history[-1]["iteration"] if before.history else before.nit
+    more = [dict(h, iteration=h["iteration"] + offset) for h in after.history if h["iteration"]]
+    after.history = before.history + more
+    after.nit += before.nit
+    after.nfev += before.nfev
+    after.nit_total = (after.nit_total or 0) + (before.nit_total or 0)
+    after.nfev_best = (after.nfev_best or 0) + (before.nfev_best or 0)
+    after.starts = before.starts
+    after.shooting = after.shooting or before.shooting
+    if before.hybrid and after.hybrid:
+        after.hybrid = {k: before.hybrid[k] + after.hybrid[k] for k in after.hybrid}
+    after.notes = before.notes + after.notes
+    return after
+
+
+def _per_output(res) -> dict[str, dict[str, float]]:
+    """Per output, all experiments together: the weighted second-difference variance
+    (/6, as the estimate), the weighted residual variance and the second differences'
+    lag-1 correlation."""
+    problem, out = res.problem, {}
+    sims = res.simulate()
+    for s, name in enumerate(problem.model.outputs):
+        w = float(problem.weights[s])
+        d2 = [np.diff(e.measured[:, s], n=2) for e in problem.experiments]
+        r = [
+            e.measured[:, s] - sim.y[:, s] for e, sim in zip(problem.experiments, sims, strict=True)
+        ]
+        ss = sum(float(d @ d) for d in d2)
+        lag = sum(float(d[1:] @ d[:-1]) for d in d2)
+        out[name] = {
+            "second_difference_variance": w * ss / 6.0 / max(sum(d.size for d in d2), 1),
+            "residual_variance": w * sum(float(x @ x) for x in r) / max(sum(x.size for x in r), 1),
+            "second_difference_lag1": lag / ss if ss > 0 else float("nan"),
+        }
+    return out
+
+
+def prior_moves(res) -> list[dict]:
+    """How far the priors moved the estimates: for every unknown with a prior, and
+    every other that moved by more than MOVED data-only standard errors, a dict with
+    unknown, estimate, data_only (where the data alone put it, see :func:`data_only`;
+    None where they do not determine it), data_stderr (its standard error from the
+    data alone), standard_errors (|estimate − data_only| / data_stderr), prior (bool)
+    and moved (more than MOVED)."""
+    problem = res.problem
+    if not problem.priors or not res.has_uncertainty:
+        return []
+    alone, se = data_only(res)
+    out = []
+    for k, name in enumerate(problem.theta_names):
+        known = bool(np.isfinite(se[k]) and se[k] > 0)
+        n = abs(res.theta[k] - alone[k]) / se[k] if known else 0.0
+        if k in problem.priors or n > MOVED:
+            out.append(
+                {
+                    "unknown": name,
+                    "estimate": float(res.theta[k]),
+                    "data_only": float(alone[k]) if known else None,
+                    "data_stderr": float(se[k]),
+                    "standard_errors": float(n) if known else None,
+                    "prior": k in problem.priors,
+                    "moved": bool(n > MOVED),
+                }
+            )
+    return out
+
+
+def data_only(res) -> tuple[np.ndarray, np.ndarray]:
+    """(θ, standard errors) the data alone would give: Gauss-Newton steps on the
+    data's part of J from the MAP estimate (the first with the exact Hessian where it
+    is positive definite), each kept only if it lowers that cost, at most STEPS; the
+    standard errors from the data's Hessian and residual variance there, infinite
+    along directions the data alone leave open."""
+    problem, names, dof = res.problem, res.problem.theta_names, res.uncertainty().dof
+    theta = res.theta
+    J, g, H = _data_part(problem, theta, res.cost, res.jac, res.hess)
+    if negative_directions(H, names):  # far from the data's optimum: its convex form
+        H = _data_part(problem, theta, *problem.cost_grad_gn(theta))[2]
+    for _ in range(STEPS):
+        inv, var = _pseudo_inverse(H, names)
+        step = -inv @ g
+        if not (np.abs(step) > 1e-3 * np.sqrt(2 * J / dof * var)).any():
+            break
+        trial = np.clip(theta + step, problem.lower, problem.upper)
+        J1, g1, H1 = _data_part(problem, trial, *problem.cost_grad_gn(trial))
+        if not J1 < J:
+            break
+        theta, J, g, H = trial, J1, g1, H1
+    return theta, np.sqrt(2 * J / dof * _pseudo_inverse(H, names)[1])
+
+
+def _data_part(problem, theta, J, g, H):
+    """J, ∇J and ∇²J of the data alone: the priors' terms taken out."""
+    g = np.array(g, dtype=float)
+    for i, (mean, sd) in problem.priors.items():
+        g[i] -= 2 * problem.noise_variance * (theta[i] - mean) / sd**2
+    return J - problem.prior_cost(theta), g, H - np.diag(problem.prior_curvature)
+
+
+def _pseudo_inverse(H, names) -> tuple[np.ndarray, np.ndarray]:
+    """(H's pseudo-inverse over its positive part, its diagonal with inf for the
+    unknowns in directions H leaves flat or curves down along)."""
+    weak = _directions(H, names, lambda r: r <= FLAT)
+    return _variances(H, 0.5, names, weak)  # 2·0.5·H⁻¹: the pseudo-inverse itself
+
+
+def move_lines(moves: list[dict]) -> list[str]:
+    """'the prior on b moved it from 4.000 to 3.889, 880 standard errors of the data
+    alone' for every prior that moved its unknown by more than MOVED of them, and one
+    line for the other unknowns the priors moved that far, largest move first."""
+    out, others = [], []
+    for m in sorted(moves, key=lambda m: -(m["standard_errors"] or 0.0)):
+        if not m["moved"]:
+            continue
+        se, count = m["data_stderr"], _standard_errors(m["standard_errors"])
+        if not m["prior"]:
+            others.append(f"{m['unknown']} ({count})")
+            continue
+        out.append(
+            f"the prior on {m['unknown']} moved it from {significant(m['data_only'], se)} "
+            f"to {significant(m['estimate'], se)}, {count} standard errors of the data "
+            f"alone ({se:.2g}); check the prior's mean and sd, and the noise level that "
+            "weighs it"
+        )
+    if others:
+        out.append(f"the priors also moved {', '.join(others)} standard errors of the data alone")
+    return out
+
+
+def _standard_errors(n: float) -> str:
+    return f"{n:.1f}" if n < 10 else f"{n:,.0f}"
