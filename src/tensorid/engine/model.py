@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
+from ..functions import ArgumentError
 
 Array = jax.Array
 
@@ -268,6 +269,8 @@ def _trace(what: str, fn: Callable, args: tuple, sig: str):
         jax.errors.TracerIntegerConversionError,
     ) as e:
         raise TypeError(f"{what} cannot be traced by JAX: {type(e).__name__}. {_TRACE_HELP}") from e
+    except ArgumentError as e:  # a smooth function's argument: the message says the fix
+        raise ValueError(f"{what}: {e}") from e
     except Exception as e:  # the user's own code failed; show what it was called with
         raise TypeError(
             f"{what} failed when called with {sig}: {type(e).__name__}: {e}. {_TRACE_HELP}"
