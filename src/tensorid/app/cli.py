@@ -236,10 +236,11 @@ def register(sub) -> None:
     f.add_argument(
         "--residual-lags",
         type=_count,
-        default=25,
+        default=None,
         metavar="M",
         help="lags of the residual tests (whiteness, independence from the inputs; "
-        "default 25, as MATLAB's resid)",
+        "default 25, as MATLAB's resid, or a quarter of the samples if fewer; at most a "
+        "quarter of the samples)",
     )
     f.add_argument(
         "--data-sensitivity",

@@ -33,6 +33,7 @@ from ..fitting.figures import (
     save_png,
 )
 from ..fitting.methods import fit
+from ..fitting.residuals import lag_limit
 from ..fitting.results import FitInterrupted
 from ..fitting.summary import summary_table
 from ..fitting.validation import Score, estimate_x0, training_scores
@@ -212,8 +213,9 @@ def _write_results(res, out: Path, scores: list[Score], old: set[Path], extras=N
     written = [write_json(out / "fit.json", data)]
     figures, failures = [], []
     more = _profile_figures(res, profiles)
-    if residual is not None:
-        more.append(("residual_tests", residual.figure()))
+    residual_figure = residual.figure() if residual is not None else None
+    if residual_figure is not None:  # None: no test was made (too many lags)
+        more.append(("residual_tests", residual_figure))
     if influence is not None:
         more.append(("data_sensitivity", influence.figure()))
     for stem, fig in fit_figures(res, None, scores, named=True) + more:
@@ -246,14 +248,7 @@ def run_fit(args) -> int:
         if args.validate
         else []
     )
-    if args.init_window is not None and not val:
-        raise ValueError("--init-window applies to validation records: give --validate FILE")
-    for e in val if args.init_window is not None else []:
-        if not args.init_window < e.P - 1:
-            raise ValueError(
-                f"--init-window {args.init_window} leaves too few samples of the validation "
-                f"record {e.name!r} ({e.P}) to score; give a smaller window"
-            )
+    _check_options(args, train, val)
     problem = _problem(spec, train, args)
     out = Path(args.out)
     with _workers(args) as (executor, timeout), claimed(out):
@@ -280,6 +275,24 @@ def run_fit(args) -> int:
     if res.status is Status.WORKERS_LOST:
         print(f"tensorid: error: {res.message}", file=sys.stderr)
     return 0 if res.success else 1
+
+
+def _check_options(args, train, val) -> None:
+    """The options that depend on the records, checked before any work."""
+    if args.init_window is not None and not val:
+        raise ValueError("--init-window applies to validation records: give --validate FILE")
+    for e in val if args.init_window is not None else []:
+        if not args.init_window < e.P - 1:
+            raise ValueError(
+                f"--init-window {args.init_window} leaves too few samples of the validation "
+                f"record {e.name!r} ({e.P}) to score; give a smaller window"
+            )
+    samples = sum(e.P for e in train)
+    if args.residual_lags is not None and args.residual_lags > lag_limit(samples):
+        raise ValueError(
+            f"--residual-lags {args.residual_lags}: the training records have {samples} "
+            f"samples; the residual tests take at most N/4 = {lag_limit(samples)} lags"
+        )
 
 
 def _after_fit(res, val, args) -> tuple[list, dict, list[str], bool]:
@@ -309,12 +322,18 @@ def _after_fit(res, val, args) -> tuple[list, dict, list[str], bool]:
     return scores, extras, missing, False
 
 
+DEFAULT_LAGS = 25  # MATLAB resid's
+
+
 def _residual_tests(res, args):
     """Whiteness and independence of the residuals, one line each (a fit with a
     finite cost only)."""
     if not np.isfinite(res.cost):
         return None
-    tests = res.residual_tests(args.residual_lags)
+    samples = sum(e.P for e in res.problem.experiments)
+    # the default shrinks on a short record; below 4 samples the tests say not available
+    lags = args.residual_lags or max(min(DEFAULT_LAGS, lag_limit(samples)), 1)
+    tests = res.residual_tests(lags)
     for line in tests.lines():
         print(f"residuals: {line}")
     return tests

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..fitting.figures import new_figure, save_png
 from ..fitting.summary import (
+    criteria_text,
     headline,
     interval,
     interval_note,
@@ -141,7 +142,9 @@ def fit_json(
         d["information"] = res.information().as_dict()
     d.update(_profile_json(profiles))
     if np.isfinite(res.cost):
-        d.update({k: v for k, v in res.criteria().items() if k in ("aic", "aicc", "bic")})
+        c = res.criteria()
+        d.update({k: v for k, v in c.items() if k in ("aic", "aicc", "bic")})
+        d["criteria_not_available"] = c["not_available"]
     if residual is not None:
         d["residual_tests"] = residual.as_dict()
     if influence is not None:
@@ -219,8 +222,8 @@ def fit_report(
             "",
         ]
         lines += [f"- {line}" for line in residual.lines()]
-    if data.get("aic") is not None:
-        lines += ["", f"AIC {data['aic']:.6g}, AICc {data['aicc']:.6g}, BIC {data['bic']:.6g}."]
+    if "aic" in data:
+        lines += ["", criteria_text(data) + "."]
     lines += _profile_lines(profiles, data)
     lines += ["", "## Figures", ""] + [f"![{f.stem}]({f.name})" for f in figures]
     return "\n".join(lines) + "\n"
