@@ -331,7 +331,8 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     except OSError as e:  # a write failed after the work: say which file and why
         if os.environ.get("TENSORID_TRACEBACK"):
             raise
-        print(f"tensorid: error: {e.filename or ''}: {e.strerror or e}", file=sys.stderr)
+        where = f"{e.filename}: {e.strerror or e}" if e.filename else str(e)
+        print(f"tensorid: error: {where}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:  # Ctrl-C: one line, not forty of traceback
         if os.environ.get("TENSORID_TRACEBACK"):

@@ -44,9 +44,10 @@ from .output import (
     previous_outputs,
     replace_outputs,
     write_atomic,
+    write_kept,
     write_text,
 )
-from .reports import fit_json, fit_report, write_json
+from .reports import fit_json, fit_report, json_text
 
 
 def _progress_table(rows: list[dict]) -> Table:
@@ -200,18 +201,32 @@ def _gof_lines(scores: list[Score]) -> list[str]:
     return out
 
 
-def _write_results(res, out: Path, scores: list[Score], old: set[Path], extras=None):
+def _keep(out: Path, data: dict, kept: dict) -> list[str]:
+    """fit.json into ``out`` or, where that fails, into a fallback file; its path goes
+    to kept["fit.json"]. Where nothing can be written the JSON goes to the console.
+    Returns the failures, one line each, naming the file and where the result went."""
+    text = json_text(data)
+    try:
+        where, why = write_kept(out / "fit.json", text)
+    except OSError as e:
+        print(text)  # the last place left: the console
+        return [f"{e}; fit.json is printed above"]
+    kept["fit.json"] = where
+    return [f"{why}; the results are in {where}"] if why else []
+
+
+def _write_results(res, out: Path, scores: list[Score], old: set[Path], extras, kept: dict):
     """fit.json first (the estimates are what matters), then the figures and
     report.md, each atomically; what an earlier run wrote and this one did not is
-    removed. Returns (figures written, failures as one line each). A failing figure
-    or report does not lose fit.json."""
-    out.mkdir(parents=True, exist_ok=True)
-    extras = extras or {}
+    removed. Returns (figures written, failures as one line each). A failing figure,
+    report or folder does not lose fit.json (see _keep)."""
     profiles, influence = extras.get("profiles"), extras.get("influence")
     residual = extras.get("residual")
     data = fit_json(res, scores, profiles, influence, residual)
-    written = [write_json(out / "fit.json", data)]
-    figures, failures = [], []
+    failures = _keep(out, data, kept)
+    if kept.get("fit.json") != out / "fit.json":
+        return [], failures  # the folder cannot be written: the rest would fail as well
+    written, figures = [kept["fit.json"]], []
     more = _profile_figures(res, profiles)
     residual_figure = residual.figure() if residual is not None else None
     if residual_figure is not None:  # None: no test was made (too many lags)
@@ -229,10 +244,7 @@ def _write_results(res, out: Path, scores: list[Score], old: set[Path], extras=N
         written.append(write_text(out / "report.md", report))
     except OSError as e:
         failures.append(f"could not write {out / 'report.md'}: {e.strerror or e}")
-    try:
-        replace_outputs(out, old, written + figures)
-    except OSError as e:
-        failures.append(f"could not remove the earlier results in {out}: {e.strerror or e}")
+    _replace_quietly(out, old, written + figures, failures)
     return figures, failures
 
 
@@ -256,25 +268,88 @@ def run_fit(args) -> int:
         try:
             res = _run(problem, args, console, executor, timeout)
         except FitInterrupted as stop:
-            return _save_interrupted(stop.result, out, old)
-        # what follows the fit may be stopped or fail; the fit itself is kept
-        scores, extras, missing, stopped = _after_fit(res, val, args)
-        everything = training_scores(res) + scores
-        # the estimates reach the terminal before any file is written
-        print(summary_table(res, everything))
-        for line in _gof_lines(everything):
-            print(line)
-        figures, failures = _write_results(res, out, scores, old, extras)
+            with _no_interrupt():  # a second Ctrl-C while saving would lose it
+                return _save_interrupted(stop.result, out, old)
+        kept: dict = {}  # where the complete fit.json went, once it is written
+        try:
+            return _report(res, val, args, out, old, kept)
+        except KeyboardInterrupt:  # Ctrl-C after the fit: the estimates are kept
+            with _no_interrupt():
+                return _save_after_interrupt(res, out, old, kept)
+
+
+def _report(res, val, args, out: Path, old: set[Path], kept: dict) -> int:
+    """Everything after a fit: validation, statistics, the console, the files."""
+    # what follows the fit may be stopped or fail; the fit itself is kept
+    scores, extras, missing, stopped = _after_fit(res, val, args)
+    everything = training_scores(res) + scores
+    # the estimates reach the terminal before any file is written
+    print(summary_table(res, everything))
+    for line in _gof_lines(everything):
+        print(line)
+    figures, failures = _write_results(res, out, scores, old, extras, kept)
     failures = missing + failures
     if failures or stopped:
         for f in failures:
             print(f"tensorid: error: {f}", file=sys.stderr)
-        print(f"tensorid: {out / 'fit.json'} was written", file=sys.stderr)
+        if kept.get("fit.json"):
+            print(f"tensorid: {kept['fit.json']} was written", file=sys.stderr)
         return 130 if stopped else 1
     print(f"wrote {out}/fit.json, report.md and {len(figures)} figures")
     if res.status is Status.WORKERS_LOST:
         print(f"tensorid: error: {res.message}", file=sys.stderr)
     return 0 if res.success else 1
+
+
+def _save_after_interrupt(res, out: Path, old: set[Path], kept: dict) -> int:
+    """Ctrl-C while the statistics, the console or the files of a finished fit were
+    being made: a complete fit.json already written stays; otherwise the estimates
+    go to fit.json without the statistics (no further computation). Exit status 130."""
+    if kept.get("fit.json"):
+        print(f"tensorid: interrupted; {kept['fit.json']} was written", file=sys.stderr)
+        return 130
+    why = "interrupted after the fit, before its statistics were written: run it again for them"
+    for name, value in res.params.items():  # the estimates on the console first
+        print(f"{name} = {value!r}")
+    where = _save_now(out, old, lambda: fit_json(res, [], missing=why))
+    print(f"tensorid: interrupted after the fit; the estimates are in {where}", file=sys.stderr)
+    return 130
+
+
+def _save_now(out: Path, old: set[Path], data) -> Path | str:
+    """fit.json from ``data()`` at once (under _no_interrupt), the failures printed.
+    Returns where it went ("the console" where nowhere else)."""
+    kept: dict = {}
+    failures = _keep(out, data(), kept)
+    if kept.get("fit.json") == out / "fit.json":
+        _replace_quietly(out, old, [kept["fit.json"]], failures)
+    for f in failures:
+        print(f"tensorid: error: {f}", file=sys.stderr)
+    return kept.get("fit.json", "the console")
+
+
+@contextmanager
+def _no_interrupt() -> Iterator[None]:
+    """SIGINT ignored inside (main thread only: elsewhere signals are not ours)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, before)
+
+
+def _replace_quietly(out: Path, old: set[Path], written: list[Path], failures: list):
+    """replace_outputs, a failure appended to ``failures`` instead of raised."""
+    try:
+        replace_outputs(out, old, written)
+    except OSError as e:
+        failures.append(f"could not remove the earlier results in {out}: {e.strerror or e}")
 
 
 def _check_options(args, train, val) -> None:
@@ -387,10 +462,11 @@ def _save_interrupted(res, out: Path, old: set[Path]) -> int:
         )
         return 130
     print(summary_table(res, []))
-    written = [write_json(out / "fit.json", fit_json(res, []))]
-    replace_outputs(out, old, written)
-    saved = f"the best point so far (cost {res.cost:.6g}) is in {written[0]}"
-    print(f"tensorid: interrupted; {saved}", file=sys.stderr)
+    where = _save_now(out, old, lambda: fit_json(res, []))
+    print(
+        f"tensorid: interrupted; the best point so far (cost {res.cost:.6g}) is in {where}",
+        file=sys.stderr,
+    )
     return 130
 
 

@@ -50,9 +50,14 @@ def _jsonable(obj):
     return obj
 
 
+def json_text(data) -> str:
+    """JSON (inf and NaN as null)."""
+    return json.dumps(_jsonable(data), indent=2) + "\n"
+
+
 def write_json(path: Path, data) -> Path:
     """JSON (inf and NaN as null), written atomically."""
-    return write_text(path, json.dumps(_jsonable(data), indent=2) + "\n")
+    return write_text(path, json_text(data))
 
 
 def bar_plot(
@@ -91,12 +96,19 @@ def _profile_json(profiles: dict | None) -> dict:
 
 
 def fit_json(
-    res, validation: list[Score], profiles: dict | None = None, influence=None, residual=None
+    res,
+    validation: list[Score],
+    profiles: dict | None = None,
+    influence=None,
+    residual=None,
+    missing: str | None = None,
 ) -> dict:
-    """Everything fit.json holds (a contract: keys are added, never renamed)."""
-    u = res.uncertainty() if res.has_uncertainty else None
+    """Everything fit.json holds (a contract: keys are added, never renamed). With
+    ``missing`` (why: an interrupt after the fit), only what needs no further
+    computation: no error bars, metrics or criteria, and ``statistics_missing`` says why."""
+    u = res.uncertainty() if res.has_uncertainty and not missing else None
     names = res.problem.theta_names
-    train = training_scores(res)
+    train = [] if missing else training_scores(res)
     d = {
         "params": res.params,
         "free": names,
@@ -123,7 +135,7 @@ def fit_json(
         "segments": res.problem.segments,
         "shooting": res.shooting,
         "hybrid": res.hybrid,
-        "warnings": res.warnings,
+        "warnings": res.convergence_warnings if missing else res.warnings,
         "residual_variance": u.sigma2 if u else None,
         "correlation_names": names,
         "history": res.history,
@@ -141,7 +153,9 @@ def fit_json(
         d["stderr_gauss_newton"] = dict(zip(names, gn, strict=True))
         d["information"] = res.information().as_dict()
     d.update(_profile_json(profiles))
-    if np.isfinite(res.cost):
+    if missing:
+        d["statistics_missing"] = missing
+    elif np.isfinite(res.cost):
         c = res.criteria()
         d.update({k: v for k, v in c.items() if k in ("aic", "aicc", "bic")})
         d["criteria_not_available"] = c["not_available"]

@@ -220,10 +220,15 @@ class FitResult:
         """Plain-language warnings: no convergence (with why, e.g. where the simulation
         blew up), unknowns the data cannot separate, an optimum that is not a strict
         minimum."""
-        out = [] if self.success else [f"the fit did not converge: {self.message}", *self.notes]
+        out = self.convergence_warnings
         if self.has_uncertainty:
             out += self.uncertainty().warnings
         return out
+
+    @property
+    def convergence_warnings(self) -> list[str]:
+        """The warnings that need no statistics: how the fit ended, if not converged."""
+        return [] if self.success else [f"the fit did not converge: {self.message}", *self.notes]
 
     def validate(self, data, init_window: int | None = None) -> list:
         """Score the fitted model on new records (an Experiment or a list of them), as
