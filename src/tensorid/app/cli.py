@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import warnings
 
 
 def _fit(args) -> int:
@@ -314,6 +315,12 @@ def integration_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _one_line(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning as the tool's own line: the message, not the file and code that raised
+    it (a numerical corner that reaches here is named by its message)."""
+    print(f"tensorid: warning: {message}", file=sys.stderr if file is None else file)
+
+
 def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     """Parse ``argv`` and run the chosen command. Our errors say what is wrong and how
     to fix it; a traceback only hides that (set TENSORID_TRACEBACK=1 to see it)."""
@@ -322,7 +329,9 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
 
     enable_compilation_cache()
     try:
-        return args.func(args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _one_line  # never Python's two lines with a source path
+            return args.func(args)
     except (ValueError, TypeError, FileNotFoundError) as e:
         if os.environ.get("TENSORID_TRACEBACK"):
             raise

@@ -301,7 +301,8 @@ class Information:
         """The comparison in one or two sentences."""
         parts = [f"{n} {c:+.2f}" for n, c in self.weakest.items()]
         moves = "alone" if len(parts) == 1 else "together"
-        ratio = self.stderr_observed / self.stderr_expected
+        with np.errstate(divide="ignore", invalid="ignore"):  # inf/inf: a flat direction
+            ratio = self.stderr_observed / self.stderr_expected
         finite = ratio[np.isfinite(ratio)]
         spread = (
             f"observed/expected standard errors {finite.min():.2f} to {finite.max():.2f}"
@@ -334,8 +335,7 @@ def _condition(H: np.ndarray) -> float:
 def information(
     observed: Uncertainty, expected: Uncertainty, H: np.ndarray, H_gn: np.ndarray
 ) -> Information:
-    """Compare the uncertainty from the exact Hessian H with the one from its
-    Gauss-Newton form H_gn."""
+    """Compare the uncertainty from the exact Hessian H with its Gauss-Newton form H_gn's."""
     s = jacobi_scale(H)
     _, V = np.linalg.eigh(0.5 * (H + H.T) * np.outer(s, s))
     v = V[:, 0] / V[np.abs(V[:, 0]).argmax(), 0]
