@@ -65,12 +65,17 @@ def _level(text: str) -> float:
 
 def _mapping(text: str) -> dict[str, str]:
     """NAME=COLUMN,NAME=COLUMN"""
-    out = {}
+    out: dict[str, str] = {}
     for item in text.split(","):
         name, eq, column = item.partition("=")
         if not eq or not name.strip() or not column.strip():
             raise argparse.ArgumentTypeError(
                 f"expected NAME=COLUMN pairs separated by commas (u=uEst,y=yEst), got {text!r}"
+            )
+        if name.strip() in out:  # the last would win silently
+            raise argparse.ArgumentTypeError(
+                f"{name.strip()!r} is mapped twice ({name.strip()}={out[name.strip()]} and "
+                f"{name.strip()}={column.strip()}); give each name once"
             )
         out[name.strip()] = column.strip()
     return out

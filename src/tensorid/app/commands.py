@@ -254,14 +254,14 @@ def run_fit(args) -> int:
     spec = load_model(args.model)
     m = spec.model
     train = load_data(args.data, m, ts=args.ts, samples=args.samples, columns=args.columns)
-    val_columns = args.validate_columns or args.columns
-    val = (
-        load_data(args.validate, m, ts=args.ts, samples=args.validate_samples, columns=val_columns)
-        if args.validate
-        else []
-    )
+    val = _validation_data(args, m)
     _check_options(args, train, val)
     problem = _problem(spec, train, args)
+    unknown = [n for n in args.profile or [] if n not in problem.theta_names]
+    if unknown:
+        raise ValueError(
+            f"--profile: unknown names {unknown}; the unknowns are {problem.theta_names}"
+        )
     out = Path(args.out)
     with _workers(args) as (executor, timeout), claimed(out):
         old = previous_outputs(out)
@@ -352,10 +352,45 @@ def _replace_quietly(out: Path, old: set[Path], written: list[Path], failures: l
         failures.append(f"could not remove the earlier results in {out}: {e.strerror or e}")
 
 
+def _validation_data(args, model) -> list:
+    """The --validate records, read with --validate-columns (default: --columns)."""
+    if not args.validate:
+        return []
+    columns = args.validate_columns or args.columns
+    try:
+        return load_data(
+            args.validate, model, ts=args.ts, samples=args.validate_samples, columns=columns
+        )
+    except ValueError as e:
+        if "column" not in str(e) or args.validate_columns:
+            raise
+        hint = "--columns applies to them too" if args.columns else "they are read by name"
+        raise ValueError(
+            f"{e} ({hint}: name their columns with --validate-columns NAME=COLUMN,...)"
+        ) from None
+
+
 def _check_options(args, train, val) -> None:
     """The options that depend on the records, checked before any work."""
     if args.init_window is not None and not val:
         raise ValueError("--init-window applies to validation records: give --validate FILE")
+    if args.init_window is not None and args.init_window < 2:
+        raise ValueError(
+            f"--init-window {args.init_window}: the initial states are estimated on at least "
+            "2 samples; give 2 or more"
+        )
+    if args.validate_columns and not val:
+        raise ValueError("--validate-columns applies to validation files: give --validate FILE")
+    if args.no_polish and args.segments is None and args.segment_length is None:
+        raise ValueError(
+            "--no-polish applies to multiple shooting (the polish follows the segments): "
+            "give --segments or --segment-length, or drop --no-polish"
+        )
+    if getattr(args, "hessian", "auto") != "auto" and args.method.startswith("fd-"):
+        raise ValueError(
+            f"--hessian {args.hessian}: --method {args.method} is a finite-difference "
+            "baseline and computes no exact Hessian; drop --hessian or choose another method"
+        )
     for e in val if args.init_window is not None else []:
         if not args.init_window < e.P - 1:
             raise ValueError(

@@ -223,6 +223,12 @@ class Model:
         t = np.asarray(t, dtype=float)
         out = u.copy()
         for name, tau in self.input_delays.items():
+            if t.size > 1 and tau >= t[-1] - t[0]:  # the model would see one constant input
+                raise ValueError(
+                    f"input_delays[{name!r}] = {tau:g} s is not shorter than the record "
+                    f"({t[-1] - t[0]:g} s): the model would see only the input's first "
+                    "sample; give a shorter delay or a longer record"
+                )
             j = self.inputs.index(name)
             if interpolation == "zoh":  # the last sample at or before t − τ
                 k = np.searchsorted(t, t - tau * (1 - 1e-12), side="right") - 1
