@@ -227,8 +227,18 @@ class FitResult:
 
     @property
     def convergence_warnings(self) -> list[str]:
-        """The warnings that need no statistics: how the fit ended, if not converged."""
-        return [] if self.success else [f"the fit did not converge: {self.message}", *self.notes]
+        """The warnings that need no statistics: how the fit ended, if not converged, and
+        a multiple-shooting stage that left defects before a polish that converged."""
+        out = [] if self.success else [f"the fit did not converge: {self.message}", *self.notes]
+        sh = self.shooting or {}
+        if self.success and sh.get("status") == str(Status.DEFECTS_REMAIN):
+            out.append(
+                f"the multiple-shooting stage ended with a continuity defect of "
+                f"{sh['max_defect']:.1e} (tolerance {sh['defect_tol']:.0e}), so the single-"
+                "shooting polish started from a discontinuous trajectory; it converged, but "
+                "compare with a fit of fewer segments or more iterations"
+            )
+        return out
 
     def validate(self, data, init_window: int | None = None) -> list:
         """Score the fitted model on new records (an Experiment or a list of them), as
