@@ -316,12 +316,15 @@ def test_ctrl_c_after_fit_json_was_written_keeps_it_whole(tmp_path, capsys, monk
     def pressed(*a, **k):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("tensorid.app.commands.fit_figures", pressed)
     out = tmp_path / "o"
+    assert cli.main(FIT + ["--out", str(out)]) == 0 and list(out.glob("*.png"))
+    monkeypatch.setattr("tensorid.app.commands.fit_figures", pressed)
     assert cli.main(FIT + ["--out", str(out)]) == 130
     assert f"tensorid: interrupted; {out / 'fit.json'} was written" in capsys.readouterr().err
     data = json.loads((out / "fit.json").read_text())
     assert "statistics_missing" not in data and all(np.isfinite(list(data["stderr"].values())))
+    # the earlier run's figures and report are gone: no mix of two runs
+    assert not list(out.glob("*.png")) and not (out / "report.md").exists()
 
 
 def _failing_writes(monkeypatch, under: list[Path]):

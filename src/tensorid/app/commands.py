@@ -306,6 +306,7 @@ def _save_after_interrupt(res, out: Path, old: set[Path], kept: dict) -> int:
     being made: a complete fit.json already written stays; otherwise the estimates
     go to fit.json without the statistics (no further computation). Exit status 130."""
     if kept.get("fit.json"):
+        _tidy(out, old, kept, [])
         print(f"tensorid: interrupted; {kept['fit.json']} was written", file=sys.stderr)
         return 130
     why = "interrupted after the fit, before its statistics were written: run it again for them"
@@ -320,12 +321,17 @@ def _save_now(out: Path, old: set[Path], data) -> Path | str:
     """fit.json from ``data()`` at once (under _no_interrupt), the failures printed.
     Returns where it went ("the console" where nowhere else)."""
     kept: dict = {}
-    failures = _keep(out, data(), kept)
+    _tidy(out, old, kept, _keep(out, data(), kept))
+    return kept.get("fit.json", "the console")
+
+
+def _tidy(out: Path, old: set[Path], kept: dict, failures: list[str]) -> None:
+    """After an interrupt: with fit.json in ``out``, the earlier run's files removed
+    (no mix of two runs); the failures printed."""
     if kept.get("fit.json") == out / "fit.json":
         _replace_quietly(out, old, [kept["fit.json"]], failures)
     for f in failures:
         print(f"tensorid: error: {f}", file=sys.stderr)
-    return kept.get("fit.json", "the console")
 
 
 @contextmanager
