@@ -312,6 +312,7 @@ def test_sigint_at_the_first_statistic_keeps_fit_json(more, tmp_path, capsys, mo
     assert not (out / ".tensorid.lock").exists()
 
 
+@pytest.mark.slow  # two fits; the fast tests above cover the interrupt before fit.json
 def test_ctrl_c_after_fit_json_was_written_keeps_it_whole(tmp_path, capsys, monkeypatch):
     def pressed(*a, **k):
         raise KeyboardInterrupt
