@@ -65,6 +65,10 @@ def _csv(sep: str = ",", header=("t", "u", "y"), n: int = 200, fmt="{:.10g}") ->
     return "\n".join(rows) + "\n"
 
 
+def _cells(line: str) -> list[str]:
+    return line.split(",")
+
+
 def _npz(path: Path, **arrays) -> None:
     np.savez(path, **arrays)
 
@@ -187,9 +191,28 @@ MAKERS: dict[str, Callable[[Path], None]] = {
         "p0 = {'a': 1.0}\n"
     ),
     "notes.txt": _written("not a model\n"),
+    "delay_long.py": _written(FIRST + 'input_delays = {"u": 50.0}\n'),
+    "delay_ok.py": _written(FIRST + 'input_delays = {"u": 0.2}\n'),
+    "delay_negative.py": _written(FIRST + 'input_delays = {"u": -0.5}\n'),
+    "priors_unknown.py": _written(FIRST + 'priors = {"c": (1.0, 0.1)}\n'),
+    "priors_sd.py": _written(FIRST + 'priors = {"a": (1.0, -0.1)}\n'),
+    "discrete.py": _written(_edit(FIRST, '"-a*x + b*u"', '"a*x + b*u"') + "discrete = True\n"),
+    "smooth_eps.py": _written(
+        "import jax.numpy as jnp\nimport tensorid as ti\n"
+        "model = ti.Model(rhs=lambda x, p, u: jnp.stack([-p[0] * x[0] + p[1] * u[0]\n"
+        "    - ti.coulomb_friction(x[0], 0.1, -1e-3)]), states=['x'], params=['a', 'b'],\n"
+        "    inputs=['u'], output=lambda x, p: x, outputs=['y'])\n"
+        "p0 = {'a': 1.0, 'b': 1.0}\n"
+    ),
     # data files
     "first.csv": _written(_csv()),
     "first_val.csv": _written(_csv(n=150)),
+    "uonly.csv": _written("".join(ln.rsplit(",", 1)[0] + "\n" for ln in _csv().splitlines())),
+    "yonly.csv": _written("".join(f"{c[0]},{c[2]}\n" for c in map(_cells, _csv().splitlines()))),
+    "yshort.csv": _written(
+        "".join(f"{c[0]},{c[2]}\n" for c in map(_cells, _csv().splitlines()[:151]))
+    ),
+    "renamed.csv": _written(_csv(header=("t", "uEst", "yEst"))),
     "no_time.csv": _written(_csv(header=("time", "u", "y"))),
     "bom.csv": _written(("\ufeff" + _csv()).encode("utf-8")),
     "utf16.csv": _written(_csv().encode("utf-16")),

@@ -277,6 +277,121 @@ def test_ctrl_c_during_profiles_keeps_the_fit(tmp_path, capsys, monkeypatch):
     assert data["success"] and "ci95_profile" not in data
 
 
+def _sigint_at_the_first_statistic(monkeypatch) -> list:
+    """A real SIGINT to this process when the first error bar is computed (the first
+    statistic after the fit converged)."""
+    from tensorid.fitting.results import FitResult
+
+    real, sent = FitResult.uncertainty, []
+
+    def first(self, *a, **k):
+        if not sent:
+            sent.append(True)
+            os.kill(os.getpid(), signal.SIGINT)
+        return real(self, *a, **k)
+
+    monkeypatch.setattr(FitResult, "uncertainty", first)
+    return sent
+
+
+@pytest.mark.parametrize(
+    "more", [[], ["--starts", "2", "--workers", "1"]], ids=["single", "multistart"]
+)
+def test_sigint_at_the_first_statistic_keeps_fit_json(more, tmp_path, capsys, monkeypatch):
+    out = tmp_path / "o"
+    sent = _sigint_at_the_first_statistic(monkeypatch)
+    assert cli.main(FIT + ["--out", str(out), *more]) == 130
+    assert sent
+    printed = capsys.readouterr()
+    assert "tensorid: interrupted after the fit; the estimates are in" in printed.err
+    assert "m = " in printed.out and "Traceback" not in printed.err
+    data = json.loads((out / "fit.json").read_text())
+    assert data["success"] and data["estimates"] and data["status"] != "interrupted"
+    assert data["statistics_missing"].startswith("interrupted after the fit")
+    assert "stderr" not in data and len(data["starts"]) == (2 if more else 0)
+    assert not (out / ".tensorid.lock").exists()
+
+
+@pytest.mark.slow  # two fits; the fast tests above cover the interrupt before fit.json
+def test_ctrl_c_after_fit_json_was_written_keeps_it_whole(tmp_path, capsys, monkeypatch):
+    def pressed(*a, **k):
+        raise KeyboardInterrupt
+
+    out = tmp_path / "o"
+    assert cli.main(FIT + ["--out", str(out)]) == 0 and list(out.glob("*.png"))
+    monkeypatch.setattr("tensorid.app.commands.fit_figures", pressed)
+    assert cli.main(FIT + ["--out", str(out)]) == 130
+    assert f"tensorid: interrupted; {out / 'fit.json'} was written" in capsys.readouterr().err
+    data = json.loads((out / "fit.json").read_text())
+    assert "statistics_missing" not in data and all(np.isfinite(list(data["stderr"].values())))
+    # the earlier run's figures and report are gone: no mix of two runs
+    assert not list(out.glob("*.png")) and not (out / "report.md").exists()
+
+
+def _failing_writes(monkeypatch, under: list[Path]):
+    """Every file write under one of ``under`` fails as on a full disk (tests run as
+    root, whom a read-only folder does not stop)."""
+    import errno
+
+    import tensorid.app.output as output
+
+    real = output.os.replace
+
+    def replace(src, dst, *a, **k):
+        if any(Path(dst).is_relative_to(u) for u in under):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(src, dst, *a, **k)
+
+    monkeypatch.setattr(output.os, "replace", replace)
+
+
+def test_a_failing_destination_saves_fit_json_to_a_fallback_file(tmp_path, capsys, monkeypatch):
+    out, here = tmp_path / "o", tmp_path / "here"
+    here.mkdir()
+    monkeypatch.chdir(here)
+    _failing_writes(monkeypatch, [out])
+    assert cli.main(FIT + ["--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    [kept] = list(here.glob("tensorid-fit-*.json"))
+    line = f"could not write {out / 'fit.json'}: No space left on device; the results are in"
+    assert line in err and str(kept) in err and f"{kept} was written" in err
+    assert json.loads(kept.read_text())["success"]
+    assert not (out / "fit.json").exists() and not (out / ".tensorid.lock").exists()
+
+
+def test_nowhere_to_write_prints_fit_json(tmp_path, capsys, monkeypatch):
+    import tempfile
+
+    out = tmp_path / "o"
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("HOME", str(tmp_path))
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    _failing_writes(monkeypatch, [tmp_path])
+    assert cli.main(FIT + ["--out", str(out)]) == 1
+    printed = capsys.readouterr()
+    assert "nor tensorid-fit-" in printed.err and "fit.json is printed above" in printed.err
+    start = printed.out.index('{\n  "params"')
+    assert json.loads(printed.out[start : printed.out.index("\n}\n", start) + 2])["success"]
+
+
+def test_the_lock_is_released_when_its_file_cannot_be_removed(tmp_path, monkeypatch):
+    from tensorid.app.output import LOCK, claimed
+
+    real = Path.unlink
+
+    def read_only(self, *a, **k):
+        if self.name == LOCK:
+            raise PermissionError(13, "Permission denied", str(self))
+        return real(self, *a, **k)
+
+    with monkeypatch.context() as m:
+        m.setattr(Path, "unlink", read_only)
+        with claimed(tmp_path / "o"):
+            pass
+    with claimed(tmp_path / "o"):  # not held: the flock went with the descriptor
+        pass
+
+
 def _children(pid: int) -> set[int]:
     """The worker processes of ``pid`` (multiprocessing's resource tracker aside)."""
     kids: set[int] = set()

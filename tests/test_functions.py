@@ -83,3 +83,61 @@ def test_smooth_functions_stay_within_their_stated_error(name, smooth, hard, bou
 def test_smooth_functions_have_finite_second_derivatives_at_their_corners(f):
     for x in (0.0, 0.01, -0.02, 0.015, -0.015, 1e-12):
         assert np.isfinite(float(jax.grad(jax.grad(f))(x)))
+
+
+# -- arguments: a number that is wrong raises one line naming the function and argument ----
+@pytest.mark.parametrize(
+    "call, words",
+    [
+        (lambda: fn.smooth_sign(0.1, -1e-3), "smooth_sign: eps = -0.001 must be > 0"),
+        (lambda: fn.smooth_abs(0.1, 0.0), "smooth_abs: eps = 0.0 must be > 0"),
+        (lambda: fn.smooth_max(0.1, 0.2, np.nan), "smooth_max: eps = nan must be finite"),
+        (lambda: fn.smooth_min(0.1, 0.2, np.inf), "smooth_min: eps = inf must be finite"),
+        (lambda: fn.safe_sqrt(0.1, np.array([1e-6, -1.0])), "safe_sqrt: eps = -1.0"),
+        (lambda: fn.saturation(0.0, 1.0, -1.0), "saturation: lo = 1.0 > hi = -1.0"),
+        (lambda: fn.saturation(0.0, -np.inf, 1.0), "saturation: lo = -inf must be finite"),
+        (lambda: fn.dead_zone(0.0, -0.5), "dead_zone: width = -0.5 must be >= 0"),
+        (lambda: fn.coulomb_friction(0.1, -3.0), "coulomb_friction: Fc = -3.0 must be >= 0"),
+        (lambda: fn.coulomb_friction(0.1, 3.0, -1e-3), "coulomb_friction: eps"),
+        (lambda: fn.stribeck_friction(0.1, 1.0, 2.0, 0.0), "stribeck_friction: vs = 0.0"),
+        (lambda: fn.stribeck_friction(0.1, 1.0, -2.0, 1.0), "stribeck_friction: Fs = -2.0"),
+        (lambda: fn.stribeck_friction(0.1, 1.0, 2.0, 1.0, delta=0.0), "delta = 0.0"),
+    ],
+)
+def test_a_wrong_number_raises_one_line_naming_function_and_argument(call, words):
+    with pytest.raises(ValueError, match="^[^\n]*$") as err:
+        call()
+    assert words in str(err.value)
+
+
+def test_a_wrong_number_is_caught_at_trace_time_inside_jit():
+    with pytest.raises(ValueError, match="smooth_sign: eps"):
+        jax.jit(lambda x: fn.smooth_sign(x, -1e-3))(0.2)
+
+
+@pytest.mark.parametrize(
+    "f",
+    [
+        lambda e: fn.smooth_sign(0.0, e),
+        lambda e: fn.smooth_abs(0.0, e),
+        lambda e: fn.saturation(0.5, -0.5, 0.5, e),
+        lambda e: fn.safe_sqrt(0.0, e),
+        lambda e: fn.stribeck_friction(0.3, 1.0, 2.0, e),  # a traced Stribeck velocity
+        lambda e: fn.stribeck_friction(0.0, 1.0, 2.0, e, delta=1.5),
+    ],
+)
+def test_a_traced_scale_at_zero_keeps_value_and_derivatives_finite(f):
+    # eps (or vs) as a model parameter cannot be checked; at 0 nothing may turn NaN
+    for g in (f, jax.grad(f), jax.grad(jax.grad(f))):
+        assert np.isfinite(float(jax.jit(g)(0.0)))
+
+
+def test_a_traced_negative_eps_acts_by_its_magnitude_and_does_not_flip_the_sign():
+    push = jax.jit(lambda e: fn.coulomb_friction(0.3, 2.0, e))(-0.1)
+    assert float(push) == pytest.approx(float(fn.coulomb_friction(0.3, 2.0, 0.1)))
+
+
+def test_a_traced_delta_takes_the_general_path():
+    args = (0.02, 1.0, 2.0, 0.01, 0.0, 1e-4)
+    traced = jax.jit(lambda d: fn.stribeck_friction(*args, d))(2.0)
+    assert float(traced) == pytest.approx(float(fn.stribeck_friction(*args)), rel=1e-3)

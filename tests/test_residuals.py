@@ -67,6 +67,12 @@ def test_the_statistics_are_those_of_the_textbook():
     assert c["bic"] == pytest.approx(n * (np.log(2 * np.pi * J / n) + 1) + K * np.log(n))
     with pytest.raises(ValueError, match="max_lag"):
         res.residual_tests(max_lag=0)
+    # more lags than a quarter of the samples: no verdict, a reason instead
+    assert res.residual_tests(max_lag=150).not_available is None
+    many = res.residual_tests(max_lag=10000)
+    assert many.passed is None and not many.whiteness and many.figure() is None
+    assert many.lines() == [f"tests {many.not_available}"]
+    assert "10000 lags on 600 samples" in many.not_available and "150 or fewer" in many.lines()[0]
 
 
 def test_the_command_line_reports_the_tests(tmp_path, capsys):
@@ -98,3 +104,53 @@ def test_an_input_constant_on_every_record_is_not_tested():
     assert [c.what for c in tests.independence] == ["y against input u"]
     assert tests.constant_inputs == ["pulses"] and tests.as_dict()["constant_inputs"] == ["pulses"]
     assert "input pulses: not tested" in tests.lines()[-1]
+
+
+def _short(P: int) -> ti.FitResult:
+    e = _record(5)
+    return ti.fit(ti.Problem(FIRST, ti.Experiment(T[:P], e.u[:P], e.y[:P]), p0={"a": 1, "b": 1}))
+
+
+def test_a_record_too_short_for_its_statistics_says_not_available(tmp_path):
+    res = _short(2)  # 2 samples for 2 unknowns: no residual variance
+    u = res.uncertainty()
+    assert (
+        u.not_available == "not available: 2 samples for 2 unknowns (error bars: at least 3 needed)"
+    )
+    assert np.isnan(u.stderr).all() and np.isnan(u.ci95).all() and np.isnan(u.sigma2)
+    assert f"error bars {u.not_available}" in res.warnings
+    c = res.criteria()
+    assert np.isnan([c["aic"], c["aicc"], c["bic"]]).all()
+    assert c["not_available"].startswith("not available: 2 samples for 2 unknowns")
+    text = res.summary()
+    assert "AIC, AICc, BIC not available: 2 samples" in text and "nan" not in text
+    with pytest.raises(ValueError, match="profiles need the residual variance.*not available"):
+        res.profile("a")
+    three = _short(3).criteria()  # AIC and BIC, but AICc divides by n - K - 1 = 0
+    assert np.isfinite([three["aic"], three["bic"]]).all() and np.isnan(three["aicc"])
+    assert "(AICc: at least 4 needed)" in three["not_available"]
+
+
+def test_the_command_line_writes_null_and_the_reason(tmp_path, capsys):
+    e = _record(5)
+    rows = "".join(f"{t},{u},{y}\n" for t, u, y in zip(T, e.u[:, 0], e.y[:, 0], strict=True))
+    (tmp_path / "d.csv").write_text("t,u,y\n" + rows)
+    (tmp_path / "m.py").write_text(
+        'rhs = {"x": "-a*x + b*u"}\noutput = {"y": "x"}\ninputs = ["u"]\nparams = ["a", "b"]\n'
+        'p0 = {"a": 1.0, "b": 1.0}\n'
+    )
+    out = tmp_path / "fit"
+    args = ["fit", str(tmp_path / "m.py"), str(tmp_path / "d.csv"), "--out", str(out)]
+    assert cli.main(args + ["--no-progress", "--samples", "0:2"]) == 0
+    data = json.loads((out / "fit.json").read_text())
+    assert data["stderr"] == {"a": None, "b": None} and data["residual_variance"] is None
+    assert data["stderr_not_available"].startswith("not available: 2 samples for 2 unknowns")
+    assert data["aic"] is None and "2 samples" in data["criteria_not_available"]
+    assert data["residual_tests"]["not_available"].startswith("not available: 1 lags on 2")
+    report = (out / "report.md").read_text()
+    assert "AIC, AICc, BIC not available" in report and "nan" not in report
+    assert "residuals: tests not available" in capsys.readouterr().out
+    assert not (out / "residual_tests.png").exists()
+    # asked for more lags than the record supports: refused before any work
+    assert cli.main(args + ["--no-progress", "--residual-lags", "151"]) == 2
+    assert "--residual-lags 151: the training records have 600 samples" in capsys.readouterr().err

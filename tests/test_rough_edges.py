@@ -255,3 +255,22 @@ def test_files_are_written_with_the_usual_permissions(tmp_path):
         os.umask(umask)
     assert stat.S_IMODE(path.stat().st_mode) == 0o644
     assert path.read_text() == "x" and not list(tmp_path.glob("*.part"))
+
+
+def test_a_warning_during_a_command_is_one_line_of_the_tool(monkeypatch, capsys, tmp_path):
+    import warnings
+
+    import tensorid.app.commands as commands
+
+    def corner(*a, **k):
+        warnings.warn("overflow encountered in matmul", RuntimeWarning, stacklevel=1)
+        raise ValueError("stop here")
+
+    monkeypatch.setattr(commands, "_problem", corner)
+    args = ["fit", str(EXAMPLE / "model.py"), str(EXAMPLE / "train.csv"), "--no-progress"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        assert cli.main(args + ["--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == "tensorid: warning: overflow encountered in matmul", err
+    assert not any(".py:" in line or "warnings.warn" in line for line in err)

@@ -386,3 +386,34 @@ def test_cli_segment_mistakes_name_the_flag(tmp_path, capsys):
     )
     err = capsys.readouterr().err
     assert "--segments" in err and "at most 50" in err and "lv.py" not in err
+
+
+@pytest.mark.slow  # five seconds of compilation for one corner
+@pytest.mark.filterwarnings("error::RuntimeWarning")
+def test_a_tiny_state_scale_gives_no_raw_runtime_warning():
+    # outputs of 1e-200: trial defects overflow in scaled units; such points are
+    # rejected like a blow-up, and no numpy RuntimeWarning reaches the user
+    t = np.arange(20) * 0.1
+    m = ti.Model(
+        rhs=lambda x, p, u: p[0] * x**3 + p[1] * u[0], states=["x"], params=["a", "b"],
+        inputs=["u"], output=lambda x, p: x, outputs=["y"],
+    )  # fmt: skip
+    e = ti.Experiment(t, np.sin(3 * t), 1e-200 * np.sin(t))
+    res = ti.fit(ti.Problem(m, e, p0={"a": 1.0, "b": 1.0}, free_x0=["x"], segments=3))
+    assert np.isfinite(res.cost) and res.summary()
+
+
+@pytest.mark.slow  # five seconds of compilation for one message
+def test_a_polish_after_defects_remained_is_warned_about():
+    # the shooting stage cannot meet a tolerance of 1e-300; the polish converges, and
+    # the result says that it started from a discontinuous trajectory
+    t = np.arange(20) * 0.1
+    m = ti.Model(
+        rhs=lambda x, p, u: -p[0] * x + p[1] * u[0], states=["x"], params=["a", "b"],
+        inputs=["u"], output=lambda x, p: x, outputs=["y"],
+    )  # fmt: skip
+    e = ti.Experiment(t, np.sin(2 * t), np.sin(t))
+    prob = ti.Problem(m, e, p0={"a": 1.0, "b": 1.0}, segments=2)
+    res = ti.fit(prob, options=ti.FitOptions(defect_tol=1e-300))
+    assert res.success and res.shooting["status"] == "defects_remain"
+    assert any("multiple-shooting stage ended with a continuity defect" in w for w in res.warnings)

@@ -114,3 +114,14 @@ def test_a_minimum_on_a_bound_is_not_called_a_saddle():
     assert not any("indefinite" in w for w in u_.warnings), u_.warnings
     assert u_.forms[u_.names.index("k")] == "hessian"
     assert np.isfinite(u_.stderr).all() and (u_.stderr > 0).all()
+
+
+@pytest.mark.filterwarnings("error::RuntimeWarning")
+def test_a_flat_direction_gives_no_raw_runtime_warning():
+    # an unknown on a flat direction has infinite standard errors on both sides: the
+    # observed/expected ratio inf/inf is left out, not warned about by numpy
+    from tensorid.fitting.uncertainty import Information
+
+    inf = np.inf
+    info = Information(["a", "b"], np.array([inf, 0.2]), np.array([inf, 0.1]), inf, 10.0, {})
+    assert "observed/expected standard errors 2.00 to 2.00" in info.describe()

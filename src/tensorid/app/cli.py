@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import warnings
 
 
 def _fit(args) -> int:
@@ -64,12 +65,17 @@ def _level(text: str) -> float:
 
 def _mapping(text: str) -> dict[str, str]:
     """NAME=COLUMN,NAME=COLUMN"""
-    out = {}
+    out: dict[str, str] = {}
     for item in text.split(","):
         name, eq, column = item.partition("=")
         if not eq or not name.strip() or not column.strip():
             raise argparse.ArgumentTypeError(
                 f"expected NAME=COLUMN pairs separated by commas (u=uEst,y=yEst), got {text!r}"
+            )
+        if name.strip() in out:  # the last would win silently
+            raise argparse.ArgumentTypeError(
+                f"{name.strip()!r} is mapped twice ({name.strip()}={out[name.strip()]} and "
+                f"{name.strip()}={column.strip()}); give each name once"
             )
         out[name.strip()] = column.strip()
     return out
@@ -253,10 +259,11 @@ def register(sub) -> None:
     f.add_argument(
         "--residual-lags",
         type=_count,
-        default=25,
+        default=None,
         metavar="M",
         help="lags of the residual tests (whiteness, independence from the inputs; "
-        "default 25, as MATLAB's resid)",
+        "default 25, as MATLAB's resid, or a quarter of the samples if fewer; at most a "
+        "quarter of the samples)",
     )
     f.add_argument(
         "--data-sensitivity",
@@ -330,6 +337,12 @@ def integration_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _one_line(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning as the tool's own line: the message, not the file and code that raised
+    it (a numerical corner that reaches here is named by its message)."""
+    print(f"tensorid: warning: {message}", file=sys.stderr if file is None else file)
+
+
 def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     """Parse ``argv`` and run the chosen command. Our errors say what is wrong and how
     to fix it; a traceback only hides that (set TENSORID_TRACEBACK=1 to see it)."""
@@ -338,7 +351,9 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
 
     enable_compilation_cache()
     try:
-        return args.func(args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _one_line  # never Python's two lines with a source path
+            return args.func(args)
     except (ValueError, TypeError, FileNotFoundError) as e:
         if os.environ.get("TENSORID_TRACEBACK"):
             raise
@@ -347,7 +362,8 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     except OSError as e:  # a write failed after the work: say which file and why
         if os.environ.get("TENSORID_TRACEBACK"):
             raise
-        print(f"tensorid: error: {e.filename or ''}: {e.strerror or e}", file=sys.stderr)
+        where = f"{e.filename}: {e.strerror or e}" if e.filename else str(e)
+        print(f"tensorid: error: {where}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:  # Ctrl-C: one line, not forty of traceback
         if os.environ.get("TENSORID_TRACEBACK"):

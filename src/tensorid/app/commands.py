@@ -33,6 +33,7 @@ from ..fitting.figures import (
     save_png,
 )
 from ..fitting.methods import fit
+from ..fitting.residuals import lag_limit
 from ..fitting.results import FitInterrupted
 from ..fitting.summary import summary_table
 from ..fitting.validation import Score, estimate_x0, training_scores
@@ -43,9 +44,10 @@ from .output import (
     previous_outputs,
     replace_outputs,
     write_atomic,
+    write_kept,
     write_text,
 )
-from .reports import fit_json, fit_report, write_json
+from .reports import fit_json, fit_report, json_text
 
 
 def _progress_table(rows: list[dict]) -> Table:
@@ -211,21 +213,36 @@ def _gof_lines(scores: list[Score]) -> list[str]:
     return out
 
 
-def _write_results(res, out: Path, scores: list[Score], old: set[Path], extras=None):
+def _keep(out: Path, data: dict, kept: dict) -> list[str]:
+    """fit.json into ``out`` or, where that fails, into a fallback file; its path goes
+    to kept["fit.json"]. Where nothing can be written the JSON goes to the console.
+    Returns the failures, one line each, naming the file and where the result went."""
+    text = json_text(data)
+    try:
+        where, why = write_kept(out / "fit.json", text)
+    except OSError as e:
+        print(text)  # the last place left: the console
+        return [f"{e}; fit.json is printed above"]
+    kept["fit.json"] = where
+    return [f"{why}; the results are in {where}"] if why else []
+
+
+def _write_results(res, out: Path, scores: list[Score], old: set[Path], extras, kept: dict):
     """fit.json first (the estimates are what matters), then the figures and
     report.md, each atomically; what an earlier run wrote and this one did not is
-    removed. Returns (figures written, failures as one line each). A failing figure
-    or report does not lose fit.json."""
-    out.mkdir(parents=True, exist_ok=True)
-    extras = extras or {}
+    removed. Returns (figures written, failures as one line each). A failing figure,
+    report or folder does not lose fit.json (see _keep)."""
     profiles, influence = extras.get("profiles"), extras.get("influence")
     residual = extras.get("residual")
     data = fit_json(res, scores, profiles, influence, residual)
-    written = [write_json(out / "fit.json", data)]
-    figures, failures = [], []
+    failures = _keep(out, data, kept)
+    if kept.get("fit.json") != out / "fit.json":
+        return [], failures  # the folder cannot be written: the rest would fail as well
+    written, figures = [kept["fit.json"]], []
     more = _profile_figures(res, profiles)
-    if residual is not None:
-        more.append(("residual_tests", residual.figure()))
+    residual_figure = residual.figure() if residual is not None else None
+    if residual_figure is not None:  # None: no test was made (too many lags)
+        more.append(("residual_tests", residual_figure))
     if influence is not None:
         more.append(("data_sensitivity", influence.figure()))
     for stem, fig in fit_figures(res, None, scores, named=True) + more:
@@ -239,10 +256,7 @@ def _write_results(res, out: Path, scores: list[Score], old: set[Path], extras=N
         written.append(write_text(out / "report.md", report))
     except OSError as e:
         failures.append(f"could not write {out / 'report.md'}: {e.strerror or e}")
-    try:
-        replace_outputs(out, old, written + figures)
-    except OSError as e:
-        failures.append(f"could not remove the earlier results in {out}: {e.strerror or e}")
+    _replace_quietly(out, old, written + figures, failures)
     return figures, failures
 
 
@@ -252,46 +266,161 @@ def run_fit(args) -> int:
     spec = load_model(args.model)
     m = spec.model
     train = load_data(args.data, m, ts=args.ts, samples=args.samples, columns=args.columns)
-    val_columns = args.validate_columns or args.columns
-    val = (
-        load_data(args.validate, m, ts=args.ts, samples=args.validate_samples, columns=val_columns)
-        if args.validate
-        else []
-    )
-    if args.init_window is not None and not val:
-        raise ValueError("--init-window applies to validation records: give --validate FILE")
-    for e in val if args.init_window is not None else []:
-        if not args.init_window < e.P - 1:
-            raise ValueError(
-                f"--init-window {args.init_window} leaves too few samples of the validation "
-                f"record {e.name!r} ({e.P}) to score; give a smaller window"
-            )
+    val = _validation_data(args, m)
+    _check_options(args, train, val)
     problem = _problem(spec, train, args)
+    unknown = [n for n in args.profile or [] if n not in problem.theta_names]
+    if unknown:
+        raise ValueError(
+            f"--profile: unknown names {unknown}; the unknowns are {problem.theta_names}"
+        )
     out = Path(args.out)
     with _workers(args) as (executor, timeout), claimed(out):
         old = previous_outputs(out)
         try:
             res = _run(problem, args, console, executor, timeout)
         except FitInterrupted as stop:
-            return _save_interrupted(stop.result, out, old)
-        # what follows the fit may be stopped or fail; the fit itself is kept
-        scores, extras, missing, stopped = _after_fit(res, val, args)
-        everything = training_scores(res) + scores
-        # the estimates reach the terminal before any file is written
-        print(summary_table(res, everything))
-        for line in _gof_lines(everything):
-            print(line)
-        figures, failures = _write_results(res, out, scores, old, extras)
+            with _no_interrupt():  # a second Ctrl-C while saving would lose it
+                return _save_interrupted(stop.result, out, old)
+        kept: dict = {}  # where the complete fit.json went, once it is written
+        try:
+            return _report(res, val, args, out, old, kept)
+        except KeyboardInterrupt:  # Ctrl-C after the fit: the estimates are kept
+            with _no_interrupt():
+                return _save_after_interrupt(res, out, old, kept)
+
+
+def _report(res, val, args, out: Path, old: set[Path], kept: dict) -> int:
+    """Everything after a fit: validation, statistics, the console, the files."""
+    # what follows the fit may be stopped or fail; the fit itself is kept
+    scores, extras, missing, stopped = _after_fit(res, val, args)
+    everything = training_scores(res) + scores
+    # the estimates reach the terminal before any file is written
+    print(summary_table(res, everything))
+    for line in _gof_lines(everything):
+        print(line)
+    figures, failures = _write_results(res, out, scores, old, extras, kept)
     failures = missing + failures
     if failures or stopped:
         for f in failures:
             print(f"tensorid: error: {f}", file=sys.stderr)
-        print(f"tensorid: {out / 'fit.json'} was written", file=sys.stderr)
+        if kept.get("fit.json"):
+            print(f"tensorid: {kept['fit.json']} was written", file=sys.stderr)
         return 130 if stopped else 1
     print(f"wrote {out}/fit.json, report.md and {len(figures)} figures")
     if res.status is Status.WORKERS_LOST:
         print(f"tensorid: error: {res.message}", file=sys.stderr)
     return 0 if res.success else 1
+
+
+def _save_after_interrupt(res, out: Path, old: set[Path], kept: dict) -> int:
+    """Ctrl-C while the statistics, the console or the files of a finished fit were
+    being made: a complete fit.json already written stays; otherwise the estimates
+    go to fit.json without the statistics (no further computation). Exit status 130."""
+    if kept.get("fit.json"):
+        _tidy(out, old, kept, [])
+        print(f"tensorid: interrupted; {kept['fit.json']} was written", file=sys.stderr)
+        return 130
+    why = "interrupted after the fit, before its statistics were written: run it again for them"
+    for name, value in res.params.items():  # the estimates on the console first
+        print(f"{name} = {value!r}")
+    where = _save_now(out, old, lambda: fit_json(res, [], missing=why))
+    print(f"tensorid: interrupted after the fit; the estimates are in {where}", file=sys.stderr)
+    return 130
+
+
+def _save_now(out: Path, old: set[Path], data) -> Path | str:
+    """fit.json from ``data()`` at once (under _no_interrupt), the failures printed.
+    Returns where it went ("the console" where nowhere else)."""
+    kept: dict = {}
+    _tidy(out, old, kept, _keep(out, data(), kept))
+    return kept.get("fit.json", "the console")
+
+
+def _tidy(out: Path, old: set[Path], kept: dict, failures: list[str]) -> None:
+    """After an interrupt: with fit.json in ``out``, the earlier run's files removed
+    (no mix of two runs); the failures printed."""
+    if kept.get("fit.json") == out / "fit.json":
+        _replace_quietly(out, old, [kept["fit.json"]], failures)
+    for f in failures:
+        print(f"tensorid: error: {f}", file=sys.stderr)
+
+
+@contextmanager
+def _no_interrupt() -> Iterator[None]:
+    """SIGINT ignored inside (main thread only: elsewhere signals are not ours)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, before)
+
+
+def _replace_quietly(out: Path, old: set[Path], written: list[Path], failures: list):
+    """replace_outputs, a failure appended to ``failures`` instead of raised."""
+    try:
+        replace_outputs(out, old, written)
+    except OSError as e:
+        failures.append(f"could not remove the earlier results in {out}: {e.strerror or e}")
+
+
+def _validation_data(args, model) -> list:
+    """The --validate records, read with --validate-columns (default: --columns)."""
+    if not args.validate:
+        return []
+    columns = args.validate_columns or args.columns
+    try:
+        return load_data(
+            args.validate, model, ts=args.ts, samples=args.validate_samples, columns=columns
+        )
+    except ValueError as e:
+        if "column" not in str(e) or args.validate_columns:
+            raise
+        hint = "--columns applies to them too" if args.columns else "they are read by name"
+        raise ValueError(
+            f"{e} ({hint}: name their columns with --validate-columns NAME=COLUMN,...)"
+        ) from None
+
+
+def _check_options(args, train, val) -> None:
+    """The options that depend on the records, checked before any work."""
+    if args.init_window is not None and not val:
+        raise ValueError("--init-window applies to validation records: give --validate FILE")
+    if args.init_window is not None and args.init_window < 2:
+        raise ValueError(
+            f"--init-window {args.init_window}: the initial states are estimated on at least "
+            "2 samples; give 2 or more"
+        )
+    if args.validate_columns and not val:
+        raise ValueError("--validate-columns applies to validation files: give --validate FILE")
+    if args.no_polish and args.segments is None and args.segment_length is None:
+        raise ValueError(
+            "--no-polish applies to multiple shooting (the polish follows the segments): "
+            "give --segments or --segment-length, or drop --no-polish"
+        )
+    if getattr(args, "hessian", "auto") != "auto" and args.method.startswith("fd-"):
+        raise ValueError(
+            f"--hessian {args.hessian}: --method {args.method} is a finite-difference "
+            "baseline and computes no exact Hessian; drop --hessian or choose another method"
+        )
+    for e in val if args.init_window is not None else []:
+        if not args.init_window < e.P - 1:
+            raise ValueError(
+                f"--init-window {args.init_window} leaves too few samples of the validation "
+                f"record {e.name!r} ({e.P}) to score; give a smaller window"
+            )
+    samples = sum(e.P for e in train)
+    if args.residual_lags is not None and args.residual_lags > lag_limit(samples):
+        raise ValueError(
+            f"--residual-lags {args.residual_lags}: the training records have {samples} "
+            f"samples; the residual tests take at most N/4 = {lag_limit(samples)} lags"
+        )
 
 
 def _after_fit(res, val, args) -> tuple[list, dict, list[str], bool]:
@@ -321,12 +450,18 @@ def _after_fit(res, val, args) -> tuple[list, dict, list[str], bool]:
     return scores, extras, missing, False
 
 
+DEFAULT_LAGS = 25  # MATLAB resid's
+
+
 def _residual_tests(res, args):
     """Whiteness and independence of the residuals, one line each (a fit with a
     finite cost only)."""
     if not np.isfinite(res.cost):
         return None
-    tests = res.residual_tests(args.residual_lags)
+    samples = sum(e.P for e in res.problem.experiments)
+    # the default shrinks on a short record; below 4 samples the tests say not available
+    lags = args.residual_lags or max(min(DEFAULT_LAGS, lag_limit(samples)), 1)
+    tests = res.residual_tests(lags)
     for line in tests.lines():
         print(f"residuals: {line}")
     return tests
@@ -380,10 +515,11 @@ def _save_interrupted(res, out: Path, old: set[Path]) -> int:
         )
         return 130
     print(summary_table(res, []))
-    written = [write_json(out / "fit.json", fit_json(res, []))]
-    replace_outputs(out, old, written)
-    saved = f"the best point so far (cost {res.cost:.6g}) is in {written[0]}"
-    print(f"tensorid: interrupted; {saved}", file=sys.stderr)
+    where = _save_now(out, old, lambda: fit_json(res, []))
+    print(
+        f"tensorid: interrupted; the best point so far (cost {res.cost:.6g}) is in {where}",
+        file=sys.stderr,
+    )
     return 130
 
 

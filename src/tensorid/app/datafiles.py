@@ -400,6 +400,12 @@ def _joined(paths: list[Path], parts: list[_Columns]) -> _Columns:
     values: dict = {}
     for p, cols in zip(paths, parts, strict=True):
         for name, v in cols.values.items():
+            if name == "t" and name in values and np.size(v) != np.size(values[name]):
+                raise ValueError(
+                    f"the joined files {[str(q) for q in paths]} have different lengths "
+                    f"({np.size(values[name])} and {np.size(v)} samples in {p}); join records of "
+                    "the same length"
+                )
             if name in values and not (
                 name == "t"
                 and isinstance(v, np.ndarray)
@@ -462,6 +468,10 @@ def _needed(cols: _Columns, model: Model, require_outputs: bool) -> list[str]:
 def _one_or_joined(spec, columns, model, ts, samples, require_outputs) -> Experiment:
     """An Experiment from one file, or from "a.mat+b.mat" joined side by side."""
     paths = [Path(q) for q in str(spec).split("+")] if not Path(spec).exists() else [Path(spec)]
+    if any(not q for q in str(spec).split("+")) and len(paths) > 1:
+        raise ValueError(
+            f"data file {spec}: a file name is missing around '+'; join files as u.csv+y.csv"
+        )
     parts = [_read(q) for q in paths]
     cols = parts[0] if len(parts) == 1 else _joined(paths, parts)
     label = paths[0] if len(paths) == 1 else "+".join(str(q) for q in paths)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -40,23 +41,48 @@ def write_atomic(path: Path, write: Callable[[Path], object]) -> Path:
     """``write(tmp)`` to a temporary file beside ``path``, then rename it into place;
     the temporary file is removed if the write fails."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
-    os.close(fd)
+    tmp = None
     try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+        os.close(fd)
         write(Path(tmp))
         # mkstemp makes the file private (0600); give it the mode a plain write would
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+    except BaseException as e:
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
+        if isinstance(e, OSError) and e.filename != str(path):
+            # a full disk reports no file name, a failing mkstemp its temporary one:
+            # the error names the file the user asked for
+            raise OSError(e.errno, e.strerror or str(e), str(path)) from e
         raise
     return path
 
 
 def write_text(path: Path, text: str) -> Path:
     return write_atomic(path, lambda tmp: tmp.write_text(text))
+
+
+def write_kept(path: Path, text: str) -> tuple[Path, str | None]:
+    """``text`` to ``path``, or, where that fails, to a fallback file (in the current
+    folder, else the temporary folder, else the home folder) so that a failing
+    destination does not lose a result. Returns (where it went, why not at ``path``:
+    one line naming the file, or None). Raises OSError if no place could be written."""
+    path = Path(path)
+    try:
+        return write_text(path, text), None
+    except OSError as e:
+        why = f"could not write {path}: {e.strerror or e}"
+    name = f"tensorid-{path.stem}-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}{path.suffix}"
+    for folder in (Path.cwd(), Path(tempfile.gettempdir()), Path.home()):
+        try:
+            return write_text(folder / name, text), why
+        except OSError:
+            continue
+    raise OSError(f"{why}, nor {name} in the current, temporary or home folder")
 
 
 LOCK = ".tensorid.lock"
@@ -81,7 +107,13 @@ def claimed(folder, what: str = "--out") -> Iterator[Path]:
         yield folder
         return
     for _ in range(20):
-        fd = os.open(lock, os.O_CREAT | os.O_RDWR, 0o644)
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_RDWR, 0o644)
+        except OSError as e:
+            raise ValueError(
+                f"{what} {folder}: cannot create its lock file {lock} ({e.strerror or e}); "
+                "choose a folder you can write to"
+            ) from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -104,8 +136,12 @@ def claimed(folder, what: str = "--out") -> Iterator[Path]:
     try:
         yield folder
     finally:
-        lock.unlink(missing_ok=True)  # while still held: no other run holds this file
-        os.close(fd)
+        try:  # while still held: no other run holds this file
+            lock.unlink(missing_ok=True)
+        except OSError:
+            pass  # a folder turned read-only keeps the file, but closing releases the lock
+        finally:
+            os.close(fd)
 
 
 def _written_by_tensorid(path: Path) -> bool:

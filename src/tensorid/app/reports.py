@@ -11,6 +11,7 @@ import numpy as np
 
 from ..fitting.figures import new_figure, save_png
 from ..fitting.summary import (
+    criteria_text,
     headline,
     interval,
     interval_note,
@@ -50,9 +51,14 @@ def _jsonable(obj):
     return obj
 
 
+def json_text(data) -> str:
+    """JSON (inf and NaN as null)."""
+    return json.dumps(_jsonable(data), indent=2) + "\n"
+
+
 def write_json(path: Path, data) -> Path:
     """JSON (inf and NaN as null), written atomically."""
-    return write_text(path, json.dumps(_jsonable(data), indent=2) + "\n")
+    return write_text(path, json_text(data))
 
 
 def bar_plot(
@@ -91,12 +97,19 @@ def _profile_json(profiles: dict | None) -> dict:
 
 
 def fit_json(
-    res, validation: list[Score], profiles: dict | None = None, influence=None, residual=None
+    res,
+    validation: list[Score],
+    profiles: dict | None = None,
+    influence=None,
+    residual=None,
+    missing: str | None = None,
 ) -> dict:
-    """Everything fit.json holds (a contract: keys are added, never renamed)."""
-    u = res.uncertainty() if res.has_uncertainty else None
+    """Everything fit.json holds (a contract: keys are added, never renamed). With
+    ``missing`` (why: an interrupt after the fit), only what needs no further
+    computation: no error bars, metrics or criteria, and ``statistics_missing`` says why."""
+    u = res.uncertainty() if res.has_uncertainty and not missing else None
     names = res.problem.theta_names
-    train = training_scores(res)
+    train = [] if missing else training_scores(res)
     d = {
         "params": res.params,
         "free": names,
@@ -127,7 +140,7 @@ def fit_json(
         "segments": res.problem.segments,
         "shooting": res.shooting,
         "hybrid": res.hybrid,
-        "warnings": res.warnings,
+        "warnings": res.convergence_warnings if missing else res.warnings,
         "residual_variance": u.sigma2 if u else None,
         "correlation_names": names,
         "history": res.history,
@@ -145,8 +158,12 @@ def fit_json(
         d["stderr_gauss_newton"] = dict(zip(names, gn, strict=True))
         d["information"] = res.information().as_dict()
     d.update(_profile_json(profiles))
-    if np.isfinite(res.cost):
-        d.update({k: v for k, v in res.criteria().items() if k in ("aic", "aicc", "bic")})
+    if missing:
+        d["statistics_missing"] = missing
+    elif np.isfinite(res.cost):
+        c = res.criteria()
+        d.update({k: v for k, v in c.items() if k in ("aic", "aicc", "bic")})
+        d["criteria_not_available"] = c["not_available"]
     if residual is not None:
         d["residual_tests"] = residual.as_dict()
     if influence is not None:
@@ -276,8 +293,8 @@ def fit_report(
             "",
         ]
         lines += [f"- {line}" for line in residual.lines()]
-    if data.get("aic") is not None:
-        lines += ["", f"AIC {data['aic']:.6g}, AICc {data['aicc']:.6g}, BIC {data['bic']:.6g}."]
+    if "aic" in data:
+        lines += ["", criteria_text(data) + "."]
     lines += _profile_lines(profiles, data)
     lines += ["", "## Figures", ""] + [f"![{f.stem}]({f.name})" for f in figures]
     return "\n".join(lines) + "\n"

@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
+from ..functions import ArgumentError
 
 Array = jax.Array
 
@@ -222,6 +223,12 @@ class Model:
         t = np.asarray(t, dtype=float)
         out = u.copy()
         for name, tau in self.input_delays.items():
+            if t.size > 1 and tau >= t[-1] - t[0]:  # the model would see one constant input
+                raise ValueError(
+                    f"input_delays[{name!r}] = {tau:g} s is not shorter than the record "
+                    f"({t[-1] - t[0]:g} s): the model would see only the input's first "
+                    "sample; give a shorter delay or a longer record"
+                )
             j = self.inputs.index(name)
             if interpolation == "zoh":  # the last sample at or before t − τ
                 k = np.searchsorted(t, t - tau * (1 - 1e-12), side="right") - 1
@@ -268,6 +275,8 @@ def _trace(what: str, fn: Callable, args: tuple, sig: str):
         jax.errors.TracerIntegerConversionError,
     ) as e:
         raise TypeError(f"{what} cannot be traced by JAX: {type(e).__name__}. {_TRACE_HELP}") from e
+    except ArgumentError as e:  # a smooth function's argument: the message says the fix
+        raise ValueError(f"{what}: {e}") from e
     except Exception as e:  # the user's own code failed; show what it was called with
         raise TypeError(
             f"{what} failed when called with {sig}: {type(e).__name__}: {e}. {_TRACE_HELP}"

@@ -21,6 +21,7 @@ spending a day on the rig.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -154,6 +155,9 @@ def design_input(
     if criterion not in CRITERIA:
         raise ValueError(f"criterion must be one of {CRITERIA}, got {criterion!r}")
     a0 = np.atleast_1d(np.asarray(a0, dtype=float))
+    lo, hi = _box(a0, bounds)
+    if names is not None and criterion == "D":
+        raise ValueError("names picks the unknowns of criterion='max-variance'; 'D' weighs all")
     sigma = np.broadcast_to(np.asarray(noise, dtype=float), (model.S,)).copy()
     if not (np.isfinite(sigma).all() and (sigma > 0).all()):
         raise ValueError(f"noise must be standard deviations > 0, got {noise!r}")
@@ -162,7 +166,7 @@ def design_input(
     problem = _planned(model, params, np.asarray(t, dtype=float), sigma, setting)
     base = problem(family(a0))
     theta = base.theta0
-    pick = np.array([base.theta_names.index(n) for n in (names or base.theta_names)])
+    pick = _pick(names, base.theta_names)
 
     def objective(a):
         try:
@@ -170,10 +174,9 @@ def design_input(
         except ValueError:  # the simulation failed for this input
             return np.inf
 
-    lo, hi = (
-        (np.array(b, dtype=float) for b in zip(*bounds, strict=True)) if bounds else (None, None)
-    )
     best = _optimise(objective, a0, lo, hi, starts, seed)
+    if not np.isfinite(objective(best)):
+        _warn_unidentifiable()
     before, after = problem(family(a0)), problem(family(best))
     return InputDesign(
         names=base.theta_names,
@@ -190,6 +193,48 @@ def design_input(
         problem=problem,
         noise=sigma,
     )
+
+
+def _pick(names, theta_names: list[str]) -> np.ndarray:
+    """The indices of ``names`` (default: every unknown) among the unknowns."""
+    unknown = [n for n in names or [] if n not in theta_names]
+    if unknown:
+        raise ValueError(f"names: unknown {unknown}; the unknowns are {theta_names}")
+    return np.array([theta_names.index(n) for n in (names or theta_names)])
+
+
+def _warn_unidentifiable() -> None:
+    warnings.warn(
+        "design_input: no input tried identifies every unknown at these parameters (the "
+        "Fisher information stays singular), so the input is returned unchanged and its "
+        "predicted standard errors are not meaningful; fix or reparametrise the unknowns "
+        "that cannot be told apart, or widen the family",
+        RuntimeWarning,
+        stacklevel=3,
+    )
+
+
+def _box(a0: np.ndarray, bounds) -> tuple:
+    """(lo, hi) of the design variables, or (None, None); a0 within them."""
+    if not np.isfinite(a0).all():
+        raise ValueError(f"a0 must be finite, got {a0.tolist()}")
+    if bounds is None:
+        return None, None
+    try:
+        box = np.asarray(bounds, dtype=float)
+    except (TypeError, ValueError):
+        box = np.zeros(0)
+    if box.shape != (a0.size, 2):
+        raise ValueError(
+            f"bounds must be one (lo, hi) per design variable ({a0.size}), got {bounds!r}"
+        )
+    lo, hi = box[:, 0], box[:, 1]
+    for i in range(a0.size):
+        if np.isnan(box[i]).any() or lo[i] > hi[i]:
+            raise ValueError(f"bounds[{i}] = {box[i].tolist()} must be (lo, hi) with lo <= hi")
+        if not lo[i] <= a0[i] <= hi[i]:
+            raise ValueError(f"a0[{i}] = {a0[i]:g} is outside bounds[{i}] = {box[i].tolist()}")
+    return lo, hi
 
 
 def _planned(model, params, t, sigma, setting: dict):

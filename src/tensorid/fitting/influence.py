@@ -47,13 +47,18 @@ class DataSensitivity:
     def scaled(self, name: str) -> list[np.ndarray]:
         """|dθ̂_name/dy|·σ_s per experiment, (P, S): σ_s = σ/√w_s is output s's noise
         level (σ that of a unit-weight residual)."""
-        i = self.names.index(name)
+        i = self._index(name)
         level = self.sigma / np.sqrt(np.where(self.weights > 0, self.weights, np.inf))
         return [np.abs(v[:, :, i]) * level[None, :] for v in self.values]
 
+    def _index(self, name: str) -> int:
+        if name not in self.names:
+            raise ValueError(f"unknown name {name!r}; the unknowns are {self.names}")
+        return self.names.index(name)
+
     def pull(self, name: str) -> list[np.ndarray]:
         """dθ̂_name/dy·(y − ŷ) per experiment, (P, S)."""
-        i = self.names.index(name)
+        i = self._index(name)
         return [v[:, :, i] * r for v, r in zip(self.values, self.residuals, strict=True)]
 
     def most_influential(
@@ -76,6 +81,8 @@ class DataSensitivity:
         from .figures import new_figure
 
         names = list(self.names if names is None else names)
+        for name in names:
+            self._index(name)  # an unknown name: one line before any drawing
         fig = new_figure(figsize=(9, 1.8 + 1.6 * len(names)))
         axes = np.atleast_1d(fig.subplots(len(names), 1, sharex=True, squeeze=False)[:, 0])
         for ax, name in zip(axes, names, strict=True):

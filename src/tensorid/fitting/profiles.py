@@ -278,6 +278,8 @@ def profile(
     if unknown:
         raise ValueError(f"profile: unknown names {unknown}; the unknowns are {all_names}")
     u = res.uncertainty()
+    if u.not_available:
+        raise ValueError(f"profiles need the residual variance, and it is {u.not_available}")
     n_data = u.dof + problem.K
     dJ = u.sigma2 * stats.f.ppf(level, 1, max(n_data - problem.K, 1))
     out = {}

@@ -9,7 +9,10 @@ Independence: the normalised cross-correlation of the residuals with each input 
 model missing a dynamic leaves the past input in the residual. Q = N Σ r_eu(τ)² is χ²
 with M + 1 degrees of freedom. The figure shows r with the ±z/√N band of the level,
 as MATLAB draws it; the pass/fail comes from Q, which for 25 lags holds its level
-(a band test on every lag would fail a correct model one time in five).
+(a band test on every lag would fail a correct model one time in five). Q is χ² only
+for M well below N: with more than N/4 lags (``lag_limit``) the tests are not made
+and ``not_available`` says so (a Q summed over lags with almost no products under a
+threshold that grows with M "passes" any model).
 
 Information criteria, with Gaussian residuals of unknown variance: for n residuals
 and K unknowns, −2 log L = n (log(2π J/n) + 1), AIC = −2 log L + 2K,
@@ -59,13 +62,19 @@ class ResidualTests:
     independence: list[Correlation]
     # inputs constant on every record: no correlation to test, so no verdict
     constant_inputs: list[str] = field(default_factory=list)
+    not_available: str | None = None  # why no test was made (too many lags), or None
 
     @property
-    def passed(self) -> bool:
+    def passed(self) -> bool | None:
+        """Whether every test passed; None where none could be made."""
+        if self.not_available:
+            return None
         return all(c.passed for c in self.whiteness + self.independence)
 
     def lines(self) -> list[str]:
         """One line per test, in words."""
+        if self.not_available:
+            return [f"tests {self.not_available}"]
         return [c.line() for c in self.whiteness + self.independence] + [
             f"input {name}: not tested (constant on every record, so nothing to correlate)"
             for name in self.constant_inputs
@@ -90,12 +99,16 @@ class ResidualTests:
             "whiteness": [one(c) for c in self.whiteness],
             "independence": [one(c) for c in self.independence],
             "constant_inputs": self.constant_inputs,
+            "not_available": self.not_available,
         }
 
     def figure(self):
-        """Autocorrelation and cross-correlation panels with the ±z/√N band."""
+        """Autocorrelation and cross-correlation panels with the ±z/√N band; None where
+        no test was made."""
         from .figures import new_figure
 
+        if self.not_available:
+            return None
         tests = self.whiteness + self.independence
         fig = new_figure(figsize=(9, 1.2 + 2.0 * len(tests)))
         axes = fig.subplots(len(tests), 1, squeeze=False)[:, 0]
@@ -143,9 +156,20 @@ def residual_tests(res, max_lag: int = 25, level: float = 0.99) -> ResidualTests
         raise ValueError(f"level must be between 0 and 1, got {level!r}")
     problem = res.problem
     model = problem.model
-    sims = res.simulate()
     exps = problem.experiments
     N = sum(e.P for e in exps)
+    if max_lag > lag_limit(N):
+        fix = (
+            f"give max_lag (--residual-lags) {lag_limit(N)} or fewer"
+            if lag_limit(N)
+            else "they need at least 4 samples"
+        )
+        why = (
+            f"not available: {max_lag} lags on {N} samples (the test statistic is χ² only "
+            f"for lags well below N; at most N/4); {fix}"
+        )
+        return ResidualTests(level, max_lag, N, np.nan, [], [], [], why)
+    sims = res.simulate()
     white, indep = [], []
     constant = [
         name for i, name in enumerate(model.inputs) if all(np.ptp(e.u[:, i]) == 0 for e in exps)
@@ -171,20 +195,45 @@ def residual_tests(res, max_lag: int = 25, level: float = 0.99) -> ResidualTests
     return ResidualTests(level, max_lag, N, bound, white, indep, constant)
 
 
-def information_criteria(res) -> dict[str, float]:
-    """AIC, AICc and BIC of a fit (see the module's docstring), with n and K."""
+def lag_limit(samples: int) -> int:
+    """The most lags the residual tests take on ``samples`` samples: N/4 (Q is χ² only
+    for M well below N)."""
+    return samples // 4
+
+
+def residual_count(problem) -> int:
+    """n: the weighted residuals, samples times the outputs that carry weight."""
+    return sum(e.P for e in problem.experiments) * int((problem.weights > 0).sum())
+
+
+def too_few(n: int, K: int, need: int = 1, what: str = "error bars") -> str | None:
+    """Why a statistic cannot be given with n residuals for K unknowns (it needs
+    n >= K + need), or None when it can."""
+    if n >= K + need:
+        return None
+    return f"not available: {n} samples for {K} unknowns ({what}: at least {K + need} needed)"
+
+
+def information_criteria(res) -> dict:
+    """AIC, AICc and BIC of a fit (see the module's docstring), with n and K. A criterion
+    the record cannot support is NaN, and ``not_available`` says why (None when all are
+    given): AIC and BIC need n > K residuals and a positive cost, AICc n > K + 1."""
     problem = res.problem
-    n = sum(e.P for e in problem.experiments) * int((problem.weights > 0).sum())
+    n = residual_count(problem)
     K = problem.K
     J = res.cost - problem.prior_cost(res.theta)
-    if not (np.isfinite(J) and J > 0 and n > K + 1):
-        return {"aic": np.nan, "aicc": np.nan, "bic": np.nan, "n": n, "K": K}
+    out = {"aic": np.nan, "aicc": np.nan, "bic": np.nan, "n": n, "K": K, "not_available": None}
+    if not (np.isfinite(J) and J > 0):
+        out["not_available"] = f"not available: the residual cost is {J:.3g}, not positive"
+        return out
+    short = too_few(n, K, 1, "information criteria")
+    if short:
+        out["not_available"] = short
+        return out
     m2logL = n * (np.log(2 * np.pi * J / n) + 1)
     aic = m2logL + 2 * K
-    return {
-        "aic": float(aic),
-        "aicc": float(aic + 2 * K * (K + 1) / (n - K - 1)),
-        "bic": float(m2logL + K * np.log(n)),
-        "n": n,
-        "K": K,
-    }
+    out.update(aic=float(aic), bic=float(m2logL + K * np.log(n)))
+    out["not_available"] = too_few(n, K, 2, "AICc")  # its correction divides by n - K - 1
+    if out["not_available"] is None:
+        out["aicc"] = float(aic + 2 * K * (K + 1) / (n - K - 1))
+    return out

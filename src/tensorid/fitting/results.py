@@ -238,7 +238,7 @@ class FitResult:
         blew up), unknowns the data cannot separate, an optimum that is not a strict
         minimum, a noise level for the priors that the residuals contradict, a prior
         that moved an estimate by more than two standard errors of the data alone."""
-        out = [] if self.success else [f"the fit did not converge: {self.message}", *self.notes]
+        out = self.convergence_warnings
         if self.has_uncertainty:
             out += self.uncertainty().warnings
         noise = self.noise_check.message() if self.noise_check is not None else None
@@ -248,10 +248,25 @@ class FitResult:
     def prior_moves(self) -> list[dict]:
         """How far the priors moved the estimates, in standard errors of the data alone
         (see :func:`tensorid.fitting.priors.prior_moves`); empty without priors."""
-        key = ("prior moves", self.cost, self.theta.tobytes(), id(self.hess))
+        key = ("prior moves", self.cost, self.theta.tobytes(), self.hess.tobytes())
         if key not in self._uncertainty:
             self._uncertainty[key] = prior_moves(self)
         return self._uncertainty[key]
+
+    @property
+    def convergence_warnings(self) -> list[str]:
+        """The warnings that need no statistics: how the fit ended, if not converged, and
+        a multiple-shooting stage that left defects before a polish that converged."""
+        out = [] if self.success else [f"the fit did not converge: {self.message}", *self.notes]
+        sh = self.shooting or {}
+        if self.success and sh.get("status") == str(Status.DEFECTS_REMAIN):
+            out.append(
+                f"the multiple-shooting stage ended with a continuity defect of "
+                f"{sh['max_defect']:.1e} (tolerance {sh['defect_tol']:.0e}), so the single-"
+                "shooting polish started from a discontinuous trajectory; it converged, but "
+                "compare with a fit of fewer segments or more iterations"
+            )
+        return out
 
     def validate(self, data, init_window: int | None = None) -> list:
         """Score the fitted model on new records (an Experiment or a list of them), as

@@ -152,16 +152,22 @@ class _Run:
             z = np.clip(phi * s, self.lo * s, self.hi * s)
             L = sh.evaluate(z, exact=self.exact)
             self.nfev += 1
+            rejected = np.inf, np.zeros_like(phi), np.eye(phi.size)
             if not L.finite:
-                return np.inf, np.zeros_like(phi), np.eye(phi.size)
-            c = L.c / self.cscale
-            A = L.A / self.cscale[:, None] * s
-            w = lam + mu * c
-            val = L.J / self.J_ref + w @ c - 0.5 * mu * c @ c
-            grad = L.g * s / self.J_ref + A.T @ w
-            H = L.H * np.outer(s, s) / self.J_ref + mu * A.T @ A
-            if self.exact and w.size:
-                H += sh.curvature(L, w / self.cscale) * np.outer(s, s)
+                return rejected
+            # defects far beyond a tiny state scale overflow in scaled units: such a
+            # trial point is rejected as a blow-up is, not a raw RuntimeWarning
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                c = L.c / self.cscale
+                A = L.A / self.cscale[:, None] * s
+                w = lam + mu * c
+                val = L.J / self.J_ref + w @ c - 0.5 * mu * c @ c
+                grad = L.g * s / self.J_ref + A.T @ w
+                H = L.H * np.outer(s, s) / self.J_ref + mu * A.T @ A
+                if self.exact and w.size:
+                    H += sh.curvature(L, w / self.cscale) * np.outer(s, s)
+            if not (np.isfinite(val) and np.isfinite(grad).all() and np.isfinite(H).all()):
+                return rejected
             self.costs_seen[float(val)] = L.J  # the history reports J beside L_A
             return val, grad, H
 
@@ -191,7 +197,8 @@ class _Run:
             phi, self.nit = r.x, self.nit + r.nit
             z = np.clip(phi * self.scale, self.lo * self.scale, self.hi * self.scale)
             L = sh.evaluate(z, exact=False)
-            c = L.c / self.cscale
+            with np.errstate(over="ignore"):  # an overflow is an infinite defect
+                c = L.c / self.cscale
             self.best, self.J = z, L.J
             self.defect = float(np.abs(c).max()) if c.size else 0.0
             if self.defect <= self.ctol and r.status.success:

@@ -27,6 +27,8 @@ def significant(value: float, stderr: float | None = None, digits: int = 6) -> s
 
 def interval(lo: float, hi: float, digits: int = 6) -> str:
     """[lo, hi] with enough significant digits that the two ends differ when printed."""
+    if math.isnan(lo) or math.isnan(hi):
+        return "–"  # no interval (error bars not available)
     if not (math.isfinite(lo) and math.isfinite(hi)):
         return f"[{lo:.{digits}g}, {hi:.{digits}g}]"
     d = digits
@@ -78,6 +80,22 @@ def metric_rows(scores) -> tuple[list[str], list[list[str]]]:
                 [s.label, o, f"{s.gof[o]:.4f}", f"{s.rmse[o]:.4g}", f"{s.nrmse[o]:.4g}", scored]
             )
     return header, rows
+
+
+_CRITERIA = (("AIC", "aic"), ("AICc", "aicc"), ("BIC", "bic"))
+
+
+def criteria_text(c: dict) -> str:
+    """AIC, AICc and BIC in one line, a number only where the record supports it, else
+    why not (``c``: information_criteria's dict, or fit.json's keys)."""
+    given = {label: c.get(key) for label, key in _CRITERIA}
+    ok = {k: v for k, v in given.items() if v is not None and math.isfinite(v)}
+    text = ", ".join(f"{label} {v:.6g}" for label, v in ok.items())
+    missing = [label for label in given if label not in ok]
+    if missing:
+        why = c.get("not_available") or c.get("criteria_not_available") or "not available"
+        text += ("; " if text else "") + f"{', '.join(missing)} {why}"
+    return text
 
 
 def headline(res) -> str:
@@ -144,8 +162,8 @@ def summary_table(res, scores=None) -> str:
         console.print("information: " + res.information().describe(), soft_wrap=True)
         c = res.criteria()
         console.print(
-            f"AIC {c['aic']:.6g}, AICc {c['aicc']:.6g}, BIC {c['bic']:.6g} "
-            f"(n = {c['n']}, K = {c['K']}; lower is better, for models of the same data)",
+            criteria_text(c) + f" (n = {c['n']}, K = {c['K']}; lower is better, for models "
+            "of the same data)",
             soft_wrap=True,
         )
     for w in res.warnings:

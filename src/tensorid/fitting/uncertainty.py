@@ -15,6 +15,7 @@ Two cases where the textbook formula would lie, and what is done instead:
   records the form it came from.
 * An estimate on a bound: a symmetric Wald interval across the bound is not
   meaningful. It is flagged, and intervals are cut at the bounds.
+* n <= K: σ² cannot be estimated. No error bars (NaN, null in fit.json); ``not_available`` says why.
 """
 
 from __future__ import annotations
@@ -23,6 +24,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import stats
+
+from .residuals import residual_count, too_few
 
 # relative eigenvalue below which a direction counts as not identifiable; the
 # Hessian is exact to ~1e-12 relative, so this is far above its rounding
@@ -36,6 +39,7 @@ class Uncertainty:
     ``forms`` names, per unknown, the Hessian its interval comes from ("hessian" or
     "gauss-newton"); ``at_bound`` maps an unknown that sits on a bound to "lower" or
     "upper"; ``cut`` maps an unknown whose interval was cut at a bound to the side.
+    ``not_available``: why there are no error bars ("not available: 3 samples ..."), or None.
     """
 
     names: list[str]
@@ -51,6 +55,7 @@ class Uncertainty:
     forms: list[str] = field(default_factory=list)
     at_bound: dict[str, str] = field(default_factory=dict)
     cut: dict[str, str] = field(default_factory=dict)
+    not_available: str | None = None
     lags: int | None = None  # a sandwich's Newey-West lags (0: independent samples)
 
     def as_dicts(self) -> dict:
@@ -65,6 +70,7 @@ class Uncertainty:
             "interval_form": dict(zip(self.names, self.forms, strict=True)),
             "at_bound": dict(self.at_bound),
             "interval_cut_at_bound": dict(self.cut),
+            "stderr_not_available": self.not_available,
         }
 
 
@@ -108,12 +114,11 @@ def negative_directions(
 
 
 def _variances(H: np.ndarray, sigma2: float, names: list[str], unbounded, meat=None) -> tuple:
-    """(covariance, variances) from the positive part of H in Jacobi-scaled units: the
-    eigen-directions with relative eigenvalue above FLAT. The unknowns in
-    ``unbounded`` directions get infinite variance. Work in scaled units: on the raw
-    Hessian, rounding makes the smallest eigenvalue's sign meaningless and a relative
-    cutoff would discard exactly the poorly determined directions. With ``meat`` B
-    (the scores' covariance, see sandwich.py) the covariance is H⁻¹ B H⁻¹."""
+    """(covariance, variances) from the positive part of H in Jacobi-scaled units (relative
+    eigenvalue above FLAT); the unknowns in ``unbounded`` directions get infinite variance.
+    Scaled units, because on the raw Hessian rounding makes the smallest eigenvalue's sign
+    meaningless and a relative cutoff would discard the poorly determined directions.
+    With ``meat`` B (the scores' covariance, sandwich.py) the covariance is H⁻¹ B H⁻¹."""
     sc = jacobi_scale(H)
     lam, V = np.linalg.eigh(0.5 * (H + H.T) * np.outer(sc, sc))
     keep = lam > FLAT * max(np.abs(lam).max(), np.finfo(float).tiny)
@@ -236,9 +241,10 @@ def uncertainty(
     sandwich form H⁻¹ B H⁻¹ (sandwich.py) in place of 2σ² H⁻¹."""
     names = problem.theta_names
     K = theta.size
-    n = sum(e.P for e in problem.experiments) * int((problem.weights > 0).sum())
+    n = residual_count(problem)
     dof = max(n - K, 1)
-    sigma2 = (J - problem.prior_cost(theta)) / dof  # the data's residuals only
+    missing = too_few(n, K)  # then no σ², and no number derived from it
+    sigma2 = np.nan if missing else (J - problem.prior_cost(theta)) / dof  # data's share
     on, held = on_bounds(problem, theta, grad, scale)
     H_used, form, unbounded, warnings = _indefinite(H, names, held, kind, gauss_newton)
     flat = flat_directions(H_used, names)
@@ -255,7 +261,7 @@ def uncertainty(
         H_gn = gauss_newton() if callable(gauss_newton) else gauss_newton
         var[held] = _variances(H_gn, sigma2, names, flat_directions(H_gn, names), meat)[1][held]
         forms = ["gauss-newton" if h else form for h in held]
-    se = np.sqrt(var)
+    se = np.full(K, np.nan) if missing else np.sqrt(var)
     q = stats.t.ppf(0.975, dof)
     ci = np.stack([theta - q * se, theta + q * se], axis=1)
     cut = _cut(problem, ci)
@@ -264,8 +270,9 @@ def uncertainty(
     corr = np.where(np.isfinite(corr), corr, np.nan)
     np.fill_diagonal(corr, 1.0)
     warnings += _bound_warning(problem, on, held) + _prior_warning(problem, H_used, names)
+    warnings += [f"error bars {missing}"] if missing else []
     return Uncertainty(
-        names, theta, cov, se, ci, corr, float(sigma2), dof, kind, warnings, forms, on, cut
+        names, theta, cov, se, ci, corr, float(sigma2), dof, kind, warnings, forms, on, cut, missing
     )
 
 
@@ -298,7 +305,8 @@ class Information:
         """The comparison in one or two sentences."""
         parts = [f"{n} {c:+.2f}" for n, c in self.weakest.items()]
         moves = "alone" if len(parts) == 1 else "together"
-        ratio = self.stderr_observed / self.stderr_expected
+        with np.errstate(divide="ignore", invalid="ignore"):  # inf/inf: a flat direction
+            ratio = self.stderr_observed / self.stderr_expected
         finite = ratio[np.isfinite(ratio)]
         spread = (
             f"observed/expected standard errors {finite.min():.2f} to {finite.max():.2f}"
@@ -331,8 +339,7 @@ def _condition(H: np.ndarray) -> float:
 def information(
     observed: Uncertainty, expected: Uncertainty, H: np.ndarray, H_gn: np.ndarray
 ) -> Information:
-    """Compare the uncertainty from the exact Hessian H with the one from its
-    Gauss-Newton form H_gn."""
+    """Compare the uncertainty from the exact Hessian H with its Gauss-Newton form H_gn's."""
     s = jacobi_scale(H)
     _, V = np.linalg.eigh(0.5 * (H + H.T) * np.outer(s, s))
     v = V[:, 0] / V[np.abs(V[:, 0]).argmax(), 0]
