@@ -20,6 +20,7 @@ from ..fitting.summary import (
 )
 from ..fitting.validation import Score, training_scores
 from .output import write_text
+from .provenance import markdown as provenance_lines
 
 
 def md_table(header: list[str], rows: list[list]) -> str:
@@ -99,6 +100,7 @@ def fit_json(
     d = {
         "params": res.params,
         "free": names,
+        "free_x0": list(res.problem.free_x0),
         "estimates": dict(zip(names, res.theta.tolist(), strict=True)),
         "x0": np.asarray(res.x0).tolist(),
         "cost": res.cost,
@@ -188,8 +190,10 @@ def fit_report(
         ci_text = interval(*ci) if ci else "–"
         note = interval_note(u, n) if u else ""
         rows.append([n, significant(data["estimates"][n], se), stderr_text(se), ci_text, note])
+    prov = data.get("provenance")
+    title = f"`{prov['model']['path']}`" if prov else res.problem.model.name
     lines = [
-        f"# Fit of {res.problem.model.name}",
+        f"# Fit of {title}",
         "",
         headline(res) + f"; {res.seconds:.2f} s.",
         "",
@@ -223,4 +227,7 @@ def fit_report(
         lines += ["", f"AIC {data['aic']:.6g}, AICc {data['aicc']:.6g}, BIC {data['bic']:.6g}."]
     lines += _profile_lines(profiles, data)
     lines += ["", "## Figures", ""] + [f"![{f.stem}]({f.name})" for f in figures]
+    if data.get("overrides"):
+        lines += ["", "Overridden on the command line: " + json.dumps(data["overrides"]) + "."]
+    lines += [""] + provenance_lines(prov) if prov else []
     return "\n".join(lines) + "\n"

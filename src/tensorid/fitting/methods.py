@@ -35,7 +35,7 @@ def fit(
     *,
     theta0=None,
     starts: int | None = None,
-    spread: float = 0.2,
+    spread: float | None = None,
     sampling: str = "lhs",
     seed: int = 0,
     executor=None,
@@ -67,9 +67,9 @@ def fit(
                       MATLAB's grey-box toolbox does
     theta0 : start (K,), natural units; default ``problem.theta0``.
     x_scale, maxiter, gtol, ftol, xtol, callback : see :class:`FitOptions` (or options=).
-    starts : with N > 1, fit from theta0 and N - 1 further starts (within the bounds
-        where both are finite, else within ±spread of theta0; Latin hypercube or
-        uniform ``sampling``, seeded), in parallel through ``executor`` (any
+    starts : with N > 1, fit from theta0 and N - 1 further starts (inside the bounds,
+        within ``spread`` of theta0 or across the box: see ``draw_starts``; Latin
+        hypercube or uniform ``sampling``, seeded), in parallel through ``executor`` (any
         concurrent.futures.Executor, e.g. a Dask ``client.get_executor()``) or a local
         process pool of ``workers``; the best is refined and returned, with every start
         ranked in ``result.starts``. The local pool spawns fresh processes, which
@@ -208,7 +208,9 @@ def _check_count(name: str, n) -> None:
 
 
 def _check_multistart(spread, sampling, workers, timeout) -> None:
-    if not (isinstance(spread, int | float) and np.isfinite(spread) and spread >= 0):
+    if spread is not None and not (
+        isinstance(spread, int | float) and np.isfinite(spread) and spread >= 0
+    ):
         raise ValueError(f"spread must be a finite number >= 0, got {spread!r}")
     if sampling not in SAMPLINGS:
         raise ValueError(f"sampling must be one of {SAMPLINGS}, got {sampling!r}")

@@ -33,13 +33,18 @@ def draw_starts(
     upper: np.ndarray,
     n: int,
     *,
-    spread: float = 0.2,
+    spread: float | None = None,
     sampling: str = "lhs",
     seed: int = 0,
 ) -> np.ndarray:
-    """n starts (the first is theta0 itself). Entries with finite bounds on both sides
-    are drawn within the bounds; the others within ±spread of theta0 (relative), kept
-    inside any one-sided bound. ``sampling``: "lhs" (Latin hypercube) or "uniform"."""
+    """n starts (the first is theta0 itself), every entry inside its bounds.
+
+    With ``spread``: within ±spread (relative) of theta0; for a positive entry whose
+    bounds span a decade or more (upper ≥ 10 lower > 0), within a factor 1 + spread
+    of theta0, log-uniformly. Without (None, the default): entries with both bounds
+    finite across the whole box (log-uniformly where it spans a decade or more), the
+    others within ±0.2 of theta0. ``sampling``: "lhs" (Latin hypercube, in the
+    uniform or logarithmic coordinate) or "uniform"."""
     if sampling not in SAMPLINGS:
         raise ValueError(f"sampling must be one of {SAMPLINGS}, got {sampling!r}")
     if n < 1:
@@ -53,11 +58,26 @@ def draw_starts(
         ) / max(m, 1)
     else:
         unit = rng.uniform(size=(m, K))
+    lo, hi, logs = _ranges(theta0, lower, upper, spread)
+    safe = np.where(logs, lo, 1.0), np.where(logs, hi, 1.0)
+    llo, lhi = np.log(safe[0]), np.log(safe[1])
+    pts = np.where(logs, np.exp(llo + unit * (lhi - llo)), lo + unit * (hi - lo))
+    return np.vstack([theta0[None, :], np.clip(pts, lower, upper)])
+
+
+def _ranges(theta0, lower, upper, spread) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(lo, hi, logs): where each entry's starts are drawn (the box, or ±spread of
+    theta0 within the bounds) and which are drawn log-uniformly (factor 1 + spread):
+    those whose bounds span decades, where a uniform draw would land nearly every
+    start in the top decade."""
     boxed = np.isfinite(lower) & np.isfinite(upper)
-    lo = np.where(boxed, lower, theta0 - spread * np.abs(theta0))
-    hi = np.where(boxed, upper, theta0 + spread * np.abs(theta0))
-    pts = np.clip(lo + unit * (hi - lo), lower, upper)
-    return np.vstack([theta0[None, :], pts])
+    logs = np.isfinite(upper) & (lower > 0) & (upper >= 10 * lower)
+    s = 0.2 if spread is None else float(spread)
+    lo = np.where(logs, theta0 / (1 + s), theta0 - s * np.abs(theta0))
+    hi = np.where(logs, theta0 * (1 + s), theta0 + s * np.abs(theta0))
+    if spread is None:
+        lo, hi = np.where(boxed, lower, lo), np.where(boxed, upper, hi)
+    return np.maximum(lo, lower), np.minimum(hi, upper), logs
 
 
 def process_pool(workers: int) -> ProcessPoolExecutor:
