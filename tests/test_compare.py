@@ -242,3 +242,25 @@ def test_starts_honour_spread_inside_bounds_and_go_log_uniform_over_decades():
     assert np.median(near[:, 0]) == pytest.approx(1e-5, rel=0.05)  # log-uniform: centred in log
     assert near[:, 1].min() >= 0.5 and near[:, 1].max() <= 1.5  # ±50 % inside [0, 10]
     assert near[:, 2].min() >= 2.5 and near[:, 2].max() <= 7.5
+
+
+def test_starts_tied_at_the_best_cost_go_to_the_fewest_iterations_and_failures_are_told():
+    from tensorid.fitting.multistart import ranked_starts
+    from tensorid.fitting.summary import starts_outcome
+
+    def run(i, cost, nit, status="ftol", success=True):
+        return {"start": i, "cost": cost, "nit": nit, "status": status, "success": success}
+
+    runs = [
+        run(0, 1.0 + 1e-12, 203),
+        run(1, 1.0, 40),
+        run(2, np.inf, 0, "nonfinite_start", False),
+        run(3, 1.0 + 5e-13, 12),
+        run(4, 2.0, 30, "maxiter", False),
+        run(5, np.inf, 0, "nonfinite_start", False),
+    ]
+    ranked = ranked_starts(runs)
+    assert [r["start"] for r in ranked] == [3, 1, 0, 4, 2, 5]
+    assert starts_outcome(ranked) == (
+        ", 3 at the best cost (to 1e-09 relative), 3 failed: 2 nonfinite start, 1 maxiter"
+    )

@@ -289,6 +289,6 @@ def _print_scores(score: Score) -> None:
     scored = f"{n} samples" + (f" after the first {score.start}" if score.start else "")
     for o, v in score.metrics().items():
         print(
-            f"{o}: RMSE {v['rmse']:.6g}, NRMSE {v['nrmse']:.6g}, R² {v['r2']:.6f}, "
+            f"{o}: RMSE {v['rmse']:.6g}, NRMSE {v['nrmse']:.6g}, R² {v['r2']:.9g}, "
             f"fit {v['fit_percent']:.4f} %, GOF {v['gof']:.6f} ({scored})"
         )

@@ -20,7 +20,7 @@ from ..engine.problem import Problem
 from ..engine.status import Status
 from .baselines import BASELINES
 from .driver import failed, fit_many
-from .multistart import SAMPLINGS, StartsStopped, draw_starts, run_starts
+from .multistart import SAMPLINGS, StartsStopped, draw_starts, ranked_starts, run_starts
 from .options import FitOptions
 from .results import FitInterrupted, FitResult
 from .shooting import fit_shooting
@@ -281,7 +281,7 @@ def _best_of(problem, method, theta0, runs: list[dict], options: FitOptions, sta
     totals of all of them (nit_total, nfev)."""
     for i, r in enumerate(runs):
         r["start"] = i
-    ranked = sorted(runs, key=lambda r: (not np.isfinite(r["cost"]), r["cost"]))
+    ranked = ranked_starts(runs)
     best = ranked[0]
     histories = {r["start"]: r.pop("history") for r in runs}
     nit_all, nfev_all = sum(r["nit"] for r in runs), sum(r["nfev"] for r in runs)
@@ -322,7 +322,7 @@ def _refined(problem, method, best: dict, options: FitOptions, started) -> FitRe
 def _stopped(problem, method, theta0, stop: StartsStopped, started) -> FitResult:
     """The result when the starts could not all finish: the best of those that did,
     not refined (the user is waiting, or the workers are gone)."""
-    runs = sorted(stop.runs, key=lambda r: (not np.isfinite(r["cost"]), r["cost"]))
+    runs = ranked_starts(stop.runs)
     which = ", ".join(str(i) for i in sorted(r["start"] for r in runs))
     finished = f"{len(runs)} of {stop.total} starts finished" + (f": {which}" if runs else "")
     best = runs[0] if runs and np.isfinite(runs[0]["cost"]) else None

@@ -25,6 +25,23 @@ import numpy as np
 from ..engine.status import Status
 
 SAMPLINGS = ("lhs", "uniform")
+SAME_COST = 1e-9  # relative: starts whose costs agree this closely reached one minimum
+
+
+def ranked_starts(runs: list[dict]) -> list[dict]:
+    """The starts best first: by cost, those that failed to a finite cost last; the
+    starts at the best cost (within SAME_COST) by fewest iterations, so a tie goes
+    to the start that got there fastest."""
+    ranked = sorted(runs, key=lambda r: (not np.isfinite(r["cost"]), r["cost"]))
+    if not ranked or not np.isfinite(ranked[0]["cost"]):
+        return ranked
+    top = [r for r in ranked if at_best(r["cost"], ranked[0]["cost"])]
+    return sorted(top, key=lambda r: r["nit"]) + ranked[len(top) :]
+
+
+def at_best(cost: float, best: float) -> bool:
+    """Whether ``cost`` is the best cost to within SAME_COST (relative)."""
+    return bool(np.isfinite(cost) and cost <= best + SAME_COST * abs(best))
 
 
 def draw_starts(
