@@ -56,7 +56,9 @@ def test_simulate_a_discrete_model_equals_the_library(tmp_path, capsys):
     p = {k: v * 1.01 for k, v in TRUE.items()}
     ref = ti.simulate(model, p, [0.05, 0.01], ti.Experiment(t, u))
     np.testing.assert_allclose(table[:, 3], ref.y[:, 0], rtol=1e-14, atol=1e-15)
-    gof = float(capsys.readouterr().out.splitlines()[0].split()[-1])
+    out = capsys.readouterr().out.splitlines()
+    assert out[1] == "initial state x1=0.05, x2=0.01 (x1, x2 from --x0)"  # not the file's too
+    gof = float(out[0].split()[-1])
     assert gof == pytest.approx(ti.gof(y, ref.y[:, 0]), abs=1e-4)  # printed to 4 digits
     assert gof > 0.5  # not the ODE's -1e8 of old
 
