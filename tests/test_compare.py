@@ -6,6 +6,7 @@ came from (provenance)."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import warnings
 from pathlib import Path
@@ -100,6 +101,15 @@ def test_compare_equals_validate_on_a_discrete_model(tmp_path, capsys):
             fit[metric]["validation"]["val"]["y"], rel=1e-9, abs=1e-15
         )
     assert c["integration"]["scheme"] == "discrete" and c["scored_samples"] == 70
+    assert fit["overrides"] == {"fix": {"c": 1.5}} and "c" not in fit["estimates"]
+    for d, command in ((fit, "tensorid fit "), (c, "tensorid compare ")):
+        prov = d["provenance"]
+        assert prov["command"].startswith(command) and prov["model"]["path"] == model
+        assert prov["model"]["sha256"] == hashlib.sha256(Path(model).read_bytes()).hexdigest()
+        assert set(prov["versions"]) == {"tensorid", "jax", "numpy", "python"}
+    assert [Path(d["path"]).name for d in fit["provenance"]["data"]] == ["rec.csv", "val.csv"]
+    report = (tmp_path / "f" / "report.md").read_text()
+    assert report.splitlines()[0] == f"# Fit of `{model}`" and "## Provenance" in report
 
 
 @pytest.mark.slow
