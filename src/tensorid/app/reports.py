@@ -67,7 +67,8 @@ def bar_plot(
     ax.set_xticks(x, groups, fontsize=8)
     ax.set_ylabel(ylabel)
     ax.set_title(title, fontsize=10)
-    ax.legend(fontsize=8)
+    # beside the axes, not over them: inside, it covered the bars of the first groups
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     ax.grid(alpha=0.3, axis="y")
     fig.tight_layout()
     return save_png(fig, path)
