@@ -153,3 +153,24 @@ def test_the_command_line_writes_profile_intervals(tmp_path, capsys):
         out / "report.md"
     ).read_text()
     assert "95% profile interval" in capsys.readouterr().out
+
+
+def test_the_profile_figure_crosses_the_threshold_where_the_interval_ends():
+    # three traced points; the ends found between them lie where straight lines
+    # between the points would not cross the threshold
+    from types import SimpleNamespace
+
+    from tensorid.fitting.figures import profile_figure
+
+    prof = SimpleNamespace(
+        values=np.array([-1.0, 0.0, 1.0]), costs=np.array([8.0, 0.0, 8.0]), threshold=4.0,
+        interval=(-0.8, 0.7), ends={"lower": "crossed", "upper": "crossed"},
+        estimate=0.0, level=0.95, name="k", describe=lambda: "k",
+    )  # fmt: skip
+    fig = profile_figure(prof, sigma2=1.0, stderr=float("nan"))
+    curve = fig.axes[0].lines[0].get_xydata()
+    for end in prof.interval:
+        assert [end, 4.0] in curve.tolist()
+    prof.ends["upper"] = "bound"  # stopped at a bound below the threshold: not a crossing
+    curve = profile_figure(prof, 1.0, float("nan")).axes[0].lines[0].get_xydata()
+    assert [0.7, 4.0] not in curve.tolist() and [-0.8, 4.0] in curve.tolist()

@@ -61,6 +61,15 @@ def test_the_statistics_are_those_of_the_textbook():
     np.testing.assert_allclose(tests.whiteness[0].values, r, rtol=1e-10)
     assert tests.whiteness[0].statistic == pytest.approx(600 * np.sum(r[1:] ** 2))
     assert tests.bound == pytest.approx(1.959964 / np.sqrt(600), rel=1e-6)
+    # the negative lags: the residual against later inputs (feedback), shown, not tested
+    u = e.u[:, 0] - e.u[:, 0].mean()
+    back = np.array([err[: err.size - k] @ u[k:] for k in range(1, 11)])
+    back /= np.sqrt((err @ err) * (u @ u))
+    indep = tests.independence[0]
+    np.testing.assert_allclose(indep.feedback, back, rtol=1e-10, atol=1e-15)
+    saved = tests.as_dict()["independence"][0]
+    assert saved["correlation_negative_lags"] == indep.feedback.tolist()
+    assert "at negative lags (feedback)" in indep.line()
     c = res.criteria()
     J, n, K = res.cost, 600, 3
     assert c["aic"] == pytest.approx(n * (np.log(2 * np.pi * J / n) + 1) + 2 * K)
@@ -73,6 +82,16 @@ def test_the_statistics_are_those_of_the_textbook():
     assert many.passed is None and not many.whiteness and many.figure() is None
     assert many.lines() == [f"tests {many.not_available}"]
     assert "10000 lags on 600 samples" in many.not_available and "150 or fewer" in many.lines()[0]
+
+
+def test_feedback_shows_at_negative_lags_only():
+    from tensorid.fitting.residuals import _correlation
+
+    rng = np.random.default_rng(0)
+    e = rng.standard_normal(2000)
+    u = np.roll(e, 2) + 0.1 * rng.standard_normal(2000)  # u[k] = e[k-2]: a loop closed
+    ahead, back = _correlation([e], [u], 5), _correlation([u], [e], 5)
+    assert np.abs(ahead).max() < 0.1 and back[2] > 0.9  # at lag -2, not at +2
 
 
 def test_the_command_line_reports_the_tests(tmp_path, capsys):

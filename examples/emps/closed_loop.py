@@ -10,7 +10,8 @@
 # The loop's one-sample delay is the hold: vir computed at k from q[k] first moves
 # q[k+1]. make_model(delay=1) applies it one sample later instead (a computation delay);
 # the records fit that worse (examples/emps/run.py measures both).
-# Python only (the estimation file has no pulses): see examples/emps/run.py.
+# The estimation record has no pulses: hold them at zero with --columns ...,pulses=0
+# (the command lines are in docs/emps.md); examples/emps/run.py does it all in Python.
 import jax.numpy as jnp
 
 import tensorid as ti

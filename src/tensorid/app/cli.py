@@ -7,6 +7,8 @@ import argparse
 import os
 import sys
 import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 
 def _fit(args) -> int:
@@ -16,9 +18,15 @@ def _fit(args) -> int:
 
 
 def _simulate(args) -> int:
-    from .commands import run_simulate
+    from .simulate import run_simulate
 
     return run_simulate(args)
+
+
+def _compare(args) -> int:
+    from .simulate import run_compare
+
+    return run_compare(args)
 
 
 class Parser(argparse.ArgumentParser):
@@ -64,7 +72,7 @@ def _level(text: str) -> float:
 
 
 def _mapping(text: str) -> dict[str, str]:
-    """NAME=COLUMN,NAME=COLUMN"""
+    """NAME=COLUMN,NAME=COLUMN (a number for COLUMN: a constant signal)"""
     out: dict[str, str] = {}
     for item in text.split(","):
         name, eq, column = item.partition("=")
@@ -89,6 +97,40 @@ def _samples(text: str) -> tuple[int, int]:
         raise argparse.ArgumentTypeError(
             f"expected START:STOP sample indices, got {text!r}"
         ) from None
+
+
+def _value(text: str) -> tuple[str, float]:
+    """NAME=VALUE"""
+    name, eq, value = text.partition("=")
+    try:
+        number = float(value)
+    except ValueError:
+        number = float("nan")
+    if not eq or not name.strip() or not abs(number) < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE with a finite number, got {text!r}")
+    return name.strip(), number
+
+
+def _range(text: str) -> tuple[str, tuple[float, float]]:
+    """NAME=LO:HI (either end may be empty or inf: no bound on that side)"""
+    name, eq, rest = text.partition("=")
+    lo, colon, hi = rest.partition(":")
+    try:
+        ends = tuple(float(v) if v.strip() else float("inf") * s for v, s in ((lo, -1), (hi, 1)))
+    except ValueError:
+        ends = ()
+    if not eq or not colon or not name.strip() or len(ends) != 2:
+        raise argparse.ArgumentTypeError(f"expected NAME=LO:HI (e.g. M=50:150), got {text!r}")
+    return name.strip(), (ends[0], ends[1])
+
+
+_COLUMNS_HELP = (
+    "the data files' column (variable) for each model input/output, e.g. u=uEst,y=yEst; "
+    "t=... for the time column; a number holds an input the record lacks constant "
+    "(pulses=0). Given once it applies to every file; repeated, one map per data file "
+    "in their order (records read from one file with different maps are named "
+    "FILE:MAP in the results)"
+)
 
 
 def register(sub) -> None:
@@ -147,9 +189,7 @@ def register(sub) -> None:
     f.add_argument(
         "--validate", nargs="*", default=[], metavar="DATA", help="validation data files"
     )
-    f.add_argument(
-        "--ts", type=float, default=None, help="sampling time, for data files without a 't' column"
-    )
+    f.add_argument("--ts", type=float, default=None, help=_TS_HELP)
     f.add_argument(
         "--samples",
         type=_samples,
@@ -167,17 +207,18 @@ def register(sub) -> None:
     f.add_argument(
         "--columns",
         type=_mapping,
+        action="append",
         default=None,
         metavar="NAME=COLUMN,...",
-        help="the training files' column (variable) for each model input/output, e.g. "
-        "u=uEst,y=yEst; t=... for the time column",
+        help="the training files' columns: " + _COLUMNS_HELP,
     )
     f.add_argument(
         "--validate-columns",
         type=_mapping,
+        action="append",
         default=None,
         metavar="NAME=COLUMN,...",
-        help="as --columns, for the validation files (default: --columns)",
+        help="as --columns, for the validation files (default: --columns, when it is given once)",
     )
     f.add_argument(
         "--init-window",
@@ -210,12 +251,41 @@ def register(sub) -> None:
         help="with segments: report the multiple-shooting solution without the final "
         "single-shooting polish",
     )
+    f.add_argument(
+        "--fix",
+        type=_value,
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="hold parameter NAME at VALUE (overrides the model file's p0 and fixed; "
+        "repeat for more)",
+    )
+    f.add_argument(
+        "--free",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="estimate parameter NAME although the model file fixes it, or initial "
+        "state NAME although the model file does not free it (repeat for more)",
+    )
+    f.add_argument(
+        "--bounds",
+        type=_range,
+        action="append",
+        default=[],
+        metavar="NAME=LO:HI",
+        help="bounds of parameter NAME, replacing the model file's (an empty end: no "
+        "bound there, e.g. c=0:)",
+    )
     f.add_argument("--starts", type=_count, default=1, help="number of starts (multi-start)")
     f.add_argument(
         "--spread",
         type=_non_negative,
-        default=0.2,
-        help="relative spread of the starts around p0 where no bounds are given",
+        default=None,
+        help="starts drawn within ±SPREAD (relative) of p0, inside the bounds; for a "
+        "positive parameter whose bounds span a decade or more, within a factor 1+SPREAD "
+        "of p0, log-uniformly. Default: across the whole box where both bounds are given "
+        "(log-uniformly where they span a decade or more), else ±0.2",
     )
     f.add_argument("--seed", type=int, default=0, help="seed of the starts")
     f.add_argument("--workers", type=_count, default=None, help="local worker processes")
@@ -281,8 +351,10 @@ def register(sub) -> None:
         description="Simulate MODEL.py on the inputs of DATA with the given "
         "parameters; write simulation.csv (time, inputs, measured and simulated "
         "outputs, states) and, when DATA has outputs, GOF and figures to --out. "
-        "Initial states that the model file frees are estimated on DATA with the "
-        "parameters held, unless --x0 gives them; the one used is printed.",
+        "Initial states that the fit.json (else the model file) frees are estimated "
+        "on DATA (its first N samples with --init-window) with the parameters held, "
+        "unless --x0 gives them; the one used is printed. Integration settings left "
+        "out are the fit.json's.",
     )
     s.add_argument("model", help="model file (Python)")
     s.add_argument("data", help="data file (.csv, .mat, .npz) with the inputs (outputs optional)")
@@ -296,17 +368,7 @@ def register(sub) -> None:
     s.add_argument(
         "--x0", nargs="*", default=[], metavar="STATE=VALUE", help="initial state values"
     )
-    s.add_argument(
-        "--columns",
-        type=_mapping,
-        default=None,
-        metavar="NAME=COLUMN,...",
-        help="DATA's column (variable) for each model input/output, e.g. u=uVal,y=yVal",
-    )
-    s.add_argument(
-        "--ts", type=float, default=None, help="sampling time, for data without a 't' column"
-    )
-    integration_options(s)
+    record_options(s)
     s.add_argument(
         "--out",
         default="simulation-results",
@@ -314,26 +376,92 @@ def register(sub) -> None:
         "states and simulated outputs there",
     )
     s.set_defaults(func=_simulate)
+    register_compare(sub)
 
 
-def integration_options(p: argparse.ArgumentParser) -> None:
+_TS_HELP = (
+    "sampling time TS: the samples are taken at k·TS, whatever time column the files "
+    "have (for files without one, or whose time stamps are too uneven for a "
+    "discrete-time model); without it, time comes from the column 't', else a "
+    "column or variable 'Ts'"
+)
+
+
+def record_options(p: argparse.ArgumentParser) -> None:
+    """How simulate and compare read their one record and integrate the model."""
+    p.add_argument(
+        "--columns",
+        type=_mapping,
+        default=None,
+        metavar="NAME=COLUMN,...",
+        help="DATA's column (variable) for each model input/output, e.g. u=uVal,y=yVal; "
+        "a number holds an input the record lacks constant (pulses=0)",
+    )
+    p.add_argument("--ts", type=float, default=None, help=_TS_HELP)
+    p.add_argument(
+        "--init-window",
+        type=_count,
+        default=None,
+        metavar="N",
+        help="as fit's: the initial states the fit (or model file) frees are estimated "
+        "on the first N samples only, with the parameters held, and the record is "
+        "scored after them (default: estimated on the whole record, all scored)",
+    )
+    integration_options(p, inherit=True)
+
+
+def register_compare(sub) -> None:
+    c = sub.add_parser(
+        "compare",
+        help="score a saved fit on a record, as the benchmarks do (MATLAB's compare)",
+        description="Simulate MODEL.py with the parameters of a fit.json on DATA: the "
+        "initial states the fit estimated are estimated again on the first N samples "
+        "(--init-window), the parameters held, and every output is scored after them "
+        "(RMSE, NRMSE, R², fit percent, GOF). Writes compare.json and a figure per "
+        "output to --out; the same numbers as fit --validate DATA --init-window N.",
+    )
+    c.add_argument("model", help="model file (Python)")
+    c.add_argument("data", help="data file (.csv, .mat, .npz) with inputs and outputs")
+    c.add_argument("--params", required=True, metavar="FIT.json", help="the fit.json of a fit")
+    record_options(c)
+    c.add_argument(
+        "--horizon",
+        default=None,
+        metavar="K",
+        help="k-step-ahead prediction: not available yet (it needs the EKF predictor); "
+        "without it the record is simulated (an infinite horizon)",
+    )
+    c.add_argument("--out", default="compare-results", help="output folder")
+    c.set_defaults(func=_compare)
+
+
+def integration_options(p: argparse.ArgumentParser, inherit: bool = False) -> None:
+    """--scheme, --substeps, --rtol, --atol, --interpolation. With ``inherit`` their
+    defaults are those of the fit.json given with --params (then rk4, 4, linear)."""
     from ..engine.integrators import SCHEMES
 
+    default = " (default: the fit.json's, else %s)" if inherit else " (default %s)"
     p.add_argument(
         "--scheme",
-        default="rk4",
+        default=None if inherit else "rk4",
         choices=list(SCHEMES),
-        help="integrator: explicit rk4 (default), rk38, heun, euler; implicit sdirk3, "
-        "sdirk2, implicit-euler for stiff models; adaptive dopri5, bosh3 (with --rtol/--atol)",
+        help="integrator: explicit rk4, rk38, heun, euler; implicit sdirk3, "
+        "sdirk2, implicit-euler for stiff models; adaptive dopri5, bosh3 (with "
+        "--rtol/--atol)" + default % "rk4",
     )
-    p.add_argument("--substeps", type=int, default=4, help="steps per sample interval")
+    p.add_argument(
+        "--substeps",
+        type=int,
+        default=None if inherit else 4,
+        help="steps per sample interval" + default % 4,
+    )
     p.add_argument("--rtol", type=float, default=None, help="adaptive schemes: relative tolerance")
     p.add_argument("--atol", type=float, default=None, help="adaptive schemes: absolute tolerance")
     p.add_argument(
         "--interpolation",
-        default="linear",
+        default=None if inherit else "linear",
         choices=["linear", "zoh"],
-        help="the input between samples: linear (default) or zero-order hold",
+        help="the input between samples: linear or zero-order hold" + default % "linear",
     )
 
 
@@ -343,16 +471,35 @@ def _one_line(message, category, filename, lineno, file=None, line=None) -> None
     print(f"tensorid: warning: {message}", file=sys.stderr if file is None else file)
 
 
+@contextmanager
+def _notes() -> Iterator[None]:
+    """Warnings as the tool's own lines, never Python's two lines with a source path:
+    what the data files' reader did to a record (DataNote) as a note, anything else as
+    a warning."""
+    from .datafiles import DataNote
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, DataNote):
+            print(f"tensorid: note: {message}", file=sys.stderr)
+        else:
+            _one_line(message, category, filename, lineno, file, line)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", DataNote)
+        warnings.showwarning = show
+        yield
+
+
 def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     """Parse ``argv`` and run the chosen command. Our errors say what is wrong and how
     to fix it; a traceback only hides that (set TENSORID_TRACEBACK=1 to see it)."""
     args = parser.parse_args(argv)
+    args.argv = sys.argv[1:] if argv is None else list(argv)  # for the results' provenance
     from .._config import enable_compilation_cache
 
     enable_compilation_cache()
     try:
-        with warnings.catch_warnings():
-            warnings.showwarning = _one_line  # never Python's two lines with a source path
+        with _notes():
             return args.func(args)
     except (ValueError, TypeError, FileNotFoundError) as e:
         if os.environ.get("TENSORID_TRACEBACK"):

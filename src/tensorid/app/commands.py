@@ -3,7 +3,6 @@ report.md and figures, with live progress."""
 
 from __future__ import annotations
 
-import json
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -16,17 +15,12 @@ from rich.live import Live
 from rich.table import Table
 
 from ..engine.adjoint import supports as adjoint_supports
-from ..engine.diagnostics import describe_failure
 from ..engine.discretisation import Discretisation
 from ..engine.integrators import SCHEMES
-from ..engine.metrics import gof
 from ..engine.problem import Problem
 from ..engine.shooting import resolve_segments
-from ..engine.simulate import run_simulation
 from ..engine.status import Status
-from ..engine.sweeps import shared_sweeps
 from ..fitting.figures import (
-    compare_figure,
     file_name,
     fit_figures,
     profile_figure,
@@ -36,7 +30,7 @@ from ..fitting.methods import fit
 from ..fitting.residuals import lag_limit
 from ..fitting.results import FitInterrupted
 from ..fitting.summary import summary_table
-from ..fitting.validation import Score, estimate_x0, training_scores
+from ..fitting.validation import Score, check_init_window, training_scores
 from .files import ModelSpec, load_data, load_model
 from .output import (
     check_destination,
@@ -47,7 +41,10 @@ from .output import (
     write_kept,
     write_text,
 )
+from .overrides import overridden
+from .provenance import data_entries, provenance
 from .reports import fit_json, fit_report, json_text
+from .simulate import effective_columns
 
 
 def _progress_table(rows: list[dict]) -> Table:
@@ -235,6 +232,7 @@ def _write_results(res, out: Path, scores: list[Score], old: set[Path], extras, 
     profiles, influence = extras.get("profiles"), extras.get("influence")
     residual = extras.get("residual")
     data = fit_json(res, scores, profiles, influence, residual)
+    data.update({k: extras[k] for k in ("provenance", "overrides") if k in extras})
     failures = _keep(out, data, kept)
     if kept.get("fit.json") != out / "fit.json":
         return [], failures  # the folder cannot be written: the rest would fail as well
@@ -265,9 +263,19 @@ def run_fit(args) -> int:
     check_destination(args.out)
     spec = load_model(args.model)
     m = spec.model
-    train = load_data(args.data, m, ts=args.ts, samples=args.samples, columns=args.columns)
-    val = _validation_data(args, m)
+    train_maps = _maps(args.columns, args.data, "--columns")
+    train = load_data(args.data, m, ts=args.ts, samples=args.samples, columns=train_maps)
+    val_maps = _maps(
+        args.validate_columns or _one(args.columns), args.validate, "--validate-columns"
+    )
+    val = _validation_data(args, m, val_maps)
     _check_options(args, train, val)
+    args.provenance = provenance(
+        args.model,
+        _data_entries(m, args.data, train_maps) + _data_entries(m, args.validate, val_maps),
+        getattr(args, "argv", None),
+    )
+    spec, args.overrides = overridden(spec, dict(args.fix), args.free, dict(args.bounds))
     problem = _problem(spec, train, args)
     unknown = [n for n in args.profile or [] if n not in problem.theta_names]
     if unknown:
@@ -299,6 +307,7 @@ def _report(res, val, args, out: Path, old: set[Path], kept: dict) -> int:
     print(summary_table(res, everything))
     for line in _gof_lines(everything):
         print(line)
+    extras.update(provenance=args.provenance, overrides=args.overrides)
     figures, failures = _write_results(res, out, scores, old, extras, kept)
     failures = missing + failures
     if failures or stopped:
@@ -370,11 +379,11 @@ def _replace_quietly(out: Path, old: set[Path], written: list[Path], failures: l
         failures.append(f"could not remove the earlier results in {out}: {e.strerror or e}")
 
 
-def _validation_data(args, model) -> list:
-    """The --validate records, read with --validate-columns (default: --columns)."""
+def _validation_data(args, model, columns) -> list:
+    """The --validate records, read with their column maps (--validate-columns,
+    default: --columns where it is one map for all files)."""
     if not args.validate:
         return []
-    columns = args.validate_columns or args.columns
     try:
         return load_data(
             args.validate, model, ts=args.ts, samples=args.validate_samples, columns=columns
@@ -410,17 +419,41 @@ def _check_options(args, train, val) -> None:
             "baseline and computes no exact Hessian; drop --hessian or choose another method"
         )
     for e in val if args.init_window is not None else []:
-        if not args.init_window < e.P - 1:
-            raise ValueError(
-                f"--init-window {args.init_window} leaves too few samples of the validation "
-                f"record {e.name!r} ({e.P}) to score; give a smaller window"
-            )
+        try:
+            check_init_window(args.init_window, e)
+        except ValueError as err:
+            raise ValueError(f"--init-window: {err}") from None
     samples = sum(e.P for e in train)
     if args.residual_lags is not None and args.residual_lags > lag_limit(samples):
         raise ValueError(
             f"--residual-lags {args.residual_lags}: the training records have {samples} "
             f"samples; the residual tests take at most N/4 = {lag_limit(samples)} lags"
         )
+
+
+def _maps(given: list | None, files: list, option: str):
+    """The column maps of the command line for ``files``: one for all (a dict), one
+    per file (a list), or none."""
+    if not given:
+        return None
+    if len(given) == 1:
+        return given[0]
+    if len(given) != len(files):
+        raise ValueError(
+            f"{option} is given {len(given)} times for {len(files)} data files: give it "
+            "once for all files, or once per file in their order"
+        )
+    return list(given)
+
+
+def _one(maps: list | None):
+    """--columns as the validation files' default: only when it is one map for all."""
+    return maps if maps and len(maps) == 1 else None
+
+
+def _data_entries(m, files: list, maps) -> list[dict]:
+    per_file = maps if isinstance(maps, list) else [maps] * len(files)
+    return data_entries(files, [effective_columns(m, c) for c in per_file])
 
 
 def _after_fit(res, val, args) -> tuple[list, dict, list[str], bool]:
@@ -521,142 +554,3 @@ def _save_interrupted(res, out: Path, old: set[Path]) -> int:
         file=sys.stderr,
     )
     return 130
-
-
-def _assignments(items: list[str], what: str) -> dict[str, float]:
-    out = {}
-    for it in items:
-        if "=" not in it:
-            raise ValueError(f"{what} must be NAME=VALUE, got {it!r}")
-        k, v = it.split("=", 1)
-        try:
-            out[k.strip()] = float(v)
-        except ValueError:
-            raise ValueError(f"{what}: {k.strip()}={v!r} is not a number") from None
-    return out
-
-
-def _fitted(path: Path, spec: ModelSpec) -> dict:
-    """A fit.json's parameters and initial state, checked against the model."""
-    if not path.is_file():
-        raise FileNotFoundError(f"--params {path} does not exist")
-    try:
-        fitted = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise ValueError(f"--params {path} is not valid JSON ({e}); give a fit.json") from None
-    if not isinstance(fitted, dict) or not isinstance(fitted.get("params"), dict):
-        raise ValueError(f"--params {path} holds no params: give a fit.json written by tensorid")
-    bad = [k for k, v in fitted["params"].items() if not isinstance(v, int | float)]
-    if bad:
-        raise ValueError(f"--params {path}: params {bad} are not numbers")
-    if "x0" in fitted:
-        try:
-            x0 = np.atleast_2d(np.asarray(fitted["x0"], dtype=float))
-        except (TypeError, ValueError):
-            x0 = np.zeros((1, 0))
-        if x0.shape[1] != spec.model.N:
-            raise ValueError(
-                f"--params {path}: its x0 has {x0.shape[1]} values, the model has "
-                f"{spec.model.N} states {list(spec.model.states)}"
-            )
-    return fitted
-
-
-def _simulation_start(spec: ModelSpec, args, e, params, disc, fitted) -> tuple[dict, str]:
-    """The initial state to simulate ``e`` from, and where it came from: --x0 where
-    given; else estimated on the record (parameters held) for the states the model
-    file frees, when the record has outputs; else the fit.json's or the model
-    file's x0."""
-    m = spec.model
-    x0 = dict(zip(m.states, spec.x0_array(), strict=True))
-    source = "the model file's x0"
-    if fitted is not None and "x0" in fitted:
-        x0 = dict(zip(m.states, np.atleast_2d(fitted["x0"])[0], strict=True))
-        source = f"the x0 of {args.params[0]} (its training record's)"
-    given = _assignments(args.x0, "--x0")
-    free = [n for n in spec.free_x0 if n not in given]
-    x0.update(given)
-    if free and e.y is not None:
-        start = [x0[n] for n in m.states]
-        x0 = dict(zip(m.states, estimate_x0(m, params, start, free, e, disc), strict=True))
-        source = f"{', '.join(free)} estimated on this record with the parameters held"
-    if given:
-        source += f"; {', '.join(given)} from --x0"
-    return x0, source
-
-
-def _simulation_table(m, e, sim, table_only: bool) -> tuple[list[str], np.ndarray]:
-    """(header, rows): as one table (.csv --out) the states and simulated outputs;
-    in a folder also the inputs and the measured outputs."""
-    states = [f"state_{n}" for n in m.states]
-    sims = [f"{o}_sim" for o in m.outputs]
-    if table_only:
-        return ["t", *states, *sims], np.column_stack([e.t, sim.x, sim.y])
-    measured = list(m.outputs) if e.y is not None else []
-    parts = [e.t[:, None], e.u] + ([e.y] if e.y is not None else []) + [sim.y, sim.x]
-    return ["t", *m.inputs, *measured, *sims, *states], np.column_stack(parts)
-
-
-def run_simulate(args) -> int:
-    out = Path(args.out)
-    table_only = out.suffix.lower() == ".csv"
-    check_destination(out.parent if table_only else out)
-    spec = load_model(args.model)
-    m = spec.model
-    params = dict(spec.p0 or {})
-    fitted = None
-    if len(args.params) == 1 and args.params[0].endswith(".json"):
-        fitted = _fitted(Path(args.params[0]), spec)
-        params.update(fitted["params"])
-    else:
-        params.update(_assignments(args.params, "--params"))
-    unknown = sorted(set(params) - set(m.params))
-    if unknown:
-        raise ValueError(
-            f"--params names {unknown}, which the model does not have; its parameters are "
-            f"{list(m.params)}"
-        )
-    e = load_data([args.data], m, ts=args.ts, require_outputs=False, columns=args.columns)[0]
-    disc = discretisation(args)
-    x0, source = _simulation_start(spec, args, e, params, disc, fitted)
-    sim = run_simulation(
-        shared_sweeps(m, (), (), disc), e, m.states_array(x0), m.params_array(params)
-    )
-    header, table = _simulation_table(m, e, sim, table_only)
-    target = out if table_only else out / "simulation.csv"
-    target.parent.mkdir(parents=True, exist_ok=True)
-    write_atomic(target, partial(_savetxt, table, header))
-    written = [target]
-    if not table_only and e.y is not None and sim.status is Status.OK:
-        score = Score("validation", e, sim, m.states_array(x0))
-        written += fit_figures_for_simulation(score, out)
-    if e.y is not None:
-        for j, o in enumerate(m.outputs):
-            print(f"GOF {o}: {gof(e.y[:, j], sim.y[:, j]):.4f}")
-    print("initial state " + ", ".join(f"{k}={v:.6g}" for k, v in x0.items()) + f" ({source})")
-    print("wrote " + ", ".join(map(str, written)))
-    if sim.status is not Status.OK:
-        why = describe_failure(sim, disc.scheme, f"{args.data}")
-        print(f"tensorid: error: the simulation is not finite: {why}", file=sys.stderr)
-        return 1
-    return 0
-
-
-def _savetxt(table: np.ndarray, header: list[str], path: Path) -> None:
-    # 17 significant digits: every double read back exactly, without %.18e's noise
-    np.savetxt(path, table, fmt="%.17g", delimiter=",", header=",".join(header), comments="")
-
-
-def fit_figures_for_simulation(score: Score, out: Path) -> list[Path]:
-    e, s = score.experiment, score.simulation
-    written = []
-    for j, name in enumerate(s.model.outputs):
-        fig = compare_figure(
-            e.t,
-            e.measured[:, j],
-            s.y[:, j],
-            ylabel=name,
-            title=f"simulation on {e.name or 'data'}, output {name}: GOF {score.gof[name]:.4f}",
-        )
-        written.append(write_atomic(out / f"simulation_{name}.png", partial(save_png, fig)))
-    return written

@@ -18,7 +18,7 @@ import codecs
 import csv
 import zipfile
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +36,10 @@ class _Columns:
     what: str  # "column", "variable" or "array": what the file calls a signal
     lines: list[int] | None = None  # the file line of each sample (text files)
     note: str = ""  # said when columns are missing (how the header was split)
+    constants: dict[str, float] = field(default_factory=dict)  # "pulses=0" in a map
+
+    def has(self, name: str) -> bool:
+        return name in self.values or name in self.constants
 
 
 def _reason(e: BaseException) -> str:
@@ -167,6 +171,7 @@ def _columns_csv(path: Path) -> _Columns:
 
 # -- MATLAB ----------------------------------------------------------------------------
 _HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+_TS = ("Ts", "ts", "TS")  # a sampling time: one number, kept although not a signal
 
 
 def _is_hdf5(path: Path) -> bool:
@@ -197,7 +202,7 @@ def _columns_mat(path: Path) -> _Columns:
     values: dict[str, np.ndarray | str] = {}
     for k, v in d.items():
         a = np.asarray(v.toarray() if scipy.sparse.issparse(v) else v)
-        if not k.startswith("__") and a.size > 1:
+        if not k.startswith("__") and (a.size > 1 or k in _TS):
             values[k] = a.ravel()
     return _Columns(values, "variable")
 
@@ -248,7 +253,8 @@ def _columns_mat73(path: Path) -> _Columns:
             "in MATLAB with save(file, ..., '-v7')"
         ) from None
     return _Columns(
-        {k: v for k, v in values.items() if isinstance(v, str) or v.size > 1}, "variable"
+        {k: v for k, v in values.items() if isinstance(v, str) or v.size > 1 or k in _TS},
+        "variable",
     )
 
 
@@ -371,18 +377,41 @@ def _read(p: Path) -> _Columns:
     return _READERS[suffix](p)
 
 
+def _constant(source) -> float | None:
+    """The number a column map gives instead of a column name ("pulses=0": an input
+    the record lacks, held at 0), or None."""
+    if isinstance(source, bool):
+        return None
+    if isinstance(source, int | float):
+        return float(source)
+    try:
+        return float(str(source))
+    except ValueError:
+        return None
+
+
 def _mapped(p, cols: _Columns, columns: dict | None, model: Model, strict=True) -> _Columns:
     """The file's signals under the model's names: ``columns`` maps a model input,
-    output or "t" to the file's column (variable, array) name."""
+    output or "t" to the file's column (variable, array) name, or an input or output
+    to a number: a constant signal the record lacks (the file's own column of that
+    name, should it have one, wins)."""
     if not columns:
         return cols
     known = ["t", *model.inputs, *model.outputs]
     values = dict(cols.values)
+    constants = dict(cols.constants)
     for name, source in columns.items():
         if name not in known:
             raise ValueError(
                 f"columns: {name!r} is not one of the model's inputs, outputs or 't' {known}"
             )
+        value = None if str(source) in cols.values else _constant(source)
+        if value is not None and name != "t":
+            if not np.isfinite(value):
+                raise ValueError(f"columns: {name}={source} is not a finite number")
+            constants[name] = value
+            values.pop(name, None)
+            continue
         if source not in cols.values:
             if not strict:  # one of several files: another may hold it
                 continue
@@ -391,7 +420,7 @@ def _mapped(p, cols: _Columns, columns: dict | None, model: Model, strict=True) 
                 f"it has {sorted(cols.values)}"
             )
         values[name] = cols.values[source]
-    return _Columns(values, cols.what, cols.lines, cols.note)
+    return _Columns(values, cols.what, cols.lines, cols.note, constants)
 
 
 def _joined(paths: list[Path], parts: list[_Columns]) -> _Columns:
@@ -407,7 +436,7 @@ def _joined(paths: list[Path], parts: list[_Columns]) -> _Columns:
                     "the same length"
                 )
             if name in values and not (
-                name == "t"
+                name in ("t", *_TS)
                 and isinstance(v, np.ndarray)
                 and np.array_equal(np.ravel(v), np.ravel(values[name]))
             ):
@@ -420,32 +449,102 @@ def _joined(paths: list[Path], parts: list[_Columns]) -> _Columns:
     return _Columns(values, parts[0].what, lines, "")
 
 
+JITTER = 1e-3  # of a sample time: time stamps this close to a uniform grid lie on it
+
+
+class DataNote(UserWarning):
+    """Something done to a record while reading it that its user should know of (time
+    stamps snapped to a uniform grid); the command line prints it as one line."""
+
+
+def _sampling_time(p, cols: _Columns) -> float | None:
+    """The file's own sampling time: a column or variable ``Ts`` or ``ts`` (one value,
+    or the same value on every row), or None."""
+    name = next((n for n in _TS if n in cols.values), None)
+    if name is None:
+        return None
+    v = _real(p, cols.what, name, cols.values[name])
+    v = v[np.isfinite(v)]
+    if v.size == 0 or not (v > 0).all() or np.ptp(v) > 1e-12 * v[0]:
+        raise ValueError(
+            f"{p}: {cols.what} {name!r} should hold the sampling time (one positive "
+            "value); fix it, or give the sampling time with --ts"
+        )
+    return float(v[0])
+
+
+def _on_grid(p, t: np.ndarray) -> np.ndarray:
+    """``t``, or the uniform grid fitted to it (least squares) when no sample is further
+    than JITTER sample times from it (clock jitter), with a DataNote saying by how much."""
+    if t.size < 3:
+        return t
+    k = np.arange(t.size)
+    Ts, t0 = np.polynomial.polynomial.polyfit(k, t, 1)[::-1]
+    grid = t0 + k * Ts
+    off = float(np.abs(t - grid).max())
+    if not 1e-9 * Ts < off <= JITTER * Ts:  # uniform to rounding, or truly uneven
+        return t
+    import warnings
+
+    warnings.warn(
+        f"{p}: the time stamps lie within {off:.2g} s ({off / Ts:.1e} sample times, "
+        f"tolerance {JITTER:g}) of a uniform grid of {Ts:.8g} s; snapped to it",
+        DataNote,
+        stacklevel=2,
+    )
+    return grid
+
+
+def _time(p, cols: _Columns, ts, P: int, data: dict) -> np.ndarray:
+    """The sample times: from --ts (ts=), else the column ``t``, else the file's own
+    sampling time (``Ts``); one line naming the ways out when there is none."""
+    if ts is None and "t" in data:
+        return _on_grid(p, data["t"])
+    ts = _sampling_time(p, cols) if ts is None else ts
+    if ts is None:
+        raise ValueError(
+            f"{p} has no time column 't' and no sampling time 'Ts'; add one or give the "
+            "sampling time (--ts on the command line, ts= in Python)"
+        )
+    return np.arange(P) * float(ts)
+
+
+def _lacking(p, cols: _Columns, model: Model, need: list[str], ts) -> None:
+    """One line when the file lacks a signal the model needs; an input may be held
+    at a constant instead (NAME=0 in the column map)."""
+    missing = [n for n in need if not cols.has(n)]
+    if not missing:
+        return
+    inputs = [n for n in missing if n in model.inputs]
+    hint = (
+        f"; an input the record lacks can be held constant: --columns "
+        f"{','.join(f'{n}=0' for n in inputs)} (columns={{{inputs[0]!r}: 0}} in Python)"
+        if inputs
+        else ""
+    )
+    raise ValueError(
+        f"{p} lacks columns {missing}; expected {(['t'] if ts is None else []) + need} "
+        f"(the model's inputs {list(model.inputs)} and outputs {list(model.outputs)}), "
+        f"found {sorted(cols.values)}{cols.note}{hint}"
+    )
+
+
 def _experiment(p, cols: _Columns, model: Model, ts, samples, require_outputs: bool):
     """The Experiment of one file (or of files joined, ``p`` naming them all)."""
     need = list(model.inputs) + list(model.outputs)
-    has_outputs = all(n in cols.values for n in model.outputs)
+    has_outputs = all(cols.has(n) for n in model.outputs)
     if not require_outputs and not has_outputs:
         need = list(model.inputs)
-    missing = [n for n in need if n not in cols.values]
-    if missing:
-        raise ValueError(
-            f"{p} lacks columns {missing}; expected "
-            f"{(['t'] if ts is None else []) + need} (the model's inputs "
-            f"{list(model.inputs)} and outputs {list(model.outputs)}), found "
-            f"{sorted(cols.values)}{cols.note}"
-        )
-    if "t" not in cols.values and ts is None:
-        raise ValueError(
-            f"{p} has no time column 't'; add one or give the sampling "
-            "time (--ts on the command line, ts= in Python)"
-        )
+    _lacking(p, cols, model, need, ts)
     use_t = "t" in cols.values and ts is None
-    data = _signals(p, cols, (["t"] if use_t else []) + need)
-    if not data:  # an autonomous model simulated without outputs: any signal sets P
-        arrays = [v for v in cols.values.values() if isinstance(v, np.ndarray)]
+    read = [n for n in need if n not in cols.constants]
+    data = _signals(p, cols, (["t"] if use_t else []) + read)
+    if not data:  # no signal read (autonomous, or held constant): any array sets P
+        arrays = [v for v in cols.values.values() if isinstance(v, np.ndarray) and v.size > 1]
         data = {"": arrays[0]} if arrays else {"": np.zeros(0)}
     P = next(iter(data.values())).size
-    t = data["t"] if use_t else np.arange(P) * float(ts)
+    data.update({n: np.full(P, c) for n, c in cols.constants.items()})
+    t = _time(p, cols, ts, P, data)
     u = np.stack([data[n] for n in model.inputs], axis=1) if model.U else np.zeros((P, 0))
     y = np.stack([data[n] for n in model.outputs], axis=1) if has_outputs else None
     try:
@@ -462,7 +561,7 @@ def _stem(p) -> str:
 def _needed(cols: _Columns, model: Model, require_outputs: bool) -> list[str]:
     """The model's signals this file lacks."""
     need = list(model.inputs) + ([] if not require_outputs else list(model.outputs))
-    return [n for n in need if n not in cols.values]
+    return [n for n in need if not cols.has(n)]
 
 
 def _one_or_joined(spec, columns, model, ts, samples, require_outputs) -> Experiment:
@@ -485,28 +584,68 @@ def load_data(
     ts: float | None = None,
     samples: tuple[int, int] | None = None,
     require_outputs: bool = True,
-    columns: dict[str, str] | None = None,
+    columns: dict | list[dict | None] | None = None,
 ) -> list[Experiment]:
     """One Experiment per file, with the model's input and output columns; time from
-    a column ``t`` or from the sampling time ``ts``. ``samples`` = (start, stop)
-    keeps that slice of every file. Without ``require_outputs`` a file may lack the
-    output columns (for simulation).
+    a column ``t`` (time stamps within 0.1 % of a sample time of a uniform grid are
+    snapped to it, with a :class:`DataNote`), from the sampling time ``ts``, or from
+    the file's own ``Ts`` column or variable. ``samples`` = (start, stop) keeps that
+    slice of every file. Without ``require_outputs`` a file may lack the output
+    columns (for simulation).
 
     ``columns`` maps model names to the file's names, e.g. ``{"u": "uEst", "y":
-    "yEst"}`` (CSV headers, .mat variables, .npz keys; "t" for the time column), so a
-    file holding training and validation records side by side is read twice with
-    two mappings. Inputs and outputs in separate files are joined side by side: give
-    ``"u.mat+y.mat"``, or a list of files that each lack what the others hold."""
+    "yEst"}`` (CSV headers, .mat variables, .npz keys; "t" for the time column), or
+    an input or output to a number, held constant (``{"pulses": 0}``: an input the
+    record lacks). A list of maps gives each file its own, in the order of
+    ``paths``; so one file holding several records (u1/y1, u2/y2) is read once per
+    record, each named ``file:map``. Inputs and outputs in separate files are joined
+    side by side: give ``"u.mat+y.mat"``, or (with one map for all) a list of files
+    that each lack what the others hold."""
     if isinstance(paths, str | Path):
         paths = [paths]
     if ts is not None and not ts > 0:
         raise ValueError(f"the sampling time must be positive, got {ts}")
-    if columns is not None and not isinstance(columns, dict):
-        raise TypeError(f"columns must be a dict {{model name: file column}}, got {columns!r}")
     paths = list(paths)
-    if len(paths) > 1 and _complementary(paths, columns, model, require_outputs):
-        paths = ["+".join(str(p) for p in paths)]
-    return [_one_or_joined(p, columns, model, ts, samples, require_outputs) for p in paths]
+    maps = _maps(columns, len(paths))
+    if len(paths) > 1 and not isinstance(columns, list):
+        if _complementary(paths, columns, model, require_outputs):
+            paths, maps = ["+".join(str(p) for p in paths)], [columns]
+    exps = [
+        _one_or_joined(p, c, model, ts, samples, require_outputs)
+        for p, c in zip(paths, maps, strict=True)
+    ]
+    return _told_apart(exps, maps)
+
+
+def _maps(columns, n: int) -> list:
+    """One column map per file."""
+    if columns is None or isinstance(columns, dict):
+        return [columns] * n
+    if not isinstance(columns, list) or not all(c is None or isinstance(c, dict) for c in columns):
+        raise TypeError(
+            f"columns must be a dict {{model name: file column}} or a list of them, one "
+            f"per file; got {columns!r}"
+        )
+    if len(columns) not in (1, n):
+        raise ValueError(
+            f"{len(columns)} column maps for {n} data files: give one map for all files, "
+            "or one per file in their order"
+        )
+    return columns * n if len(columns) == 1 else columns
+
+
+def map_text(columns: dict | None) -> str:
+    """A column map as the command line writes it: "u=u1,y=z1"."""
+    return ",".join(f"{k}={v}" for k, v in (columns or {}).items())
+
+
+def _told_apart(exps: list[Experiment], maps: list) -> list[Experiment]:
+    """Records read from one file with different maps are named ``file:map``."""
+    names = [e.name for e in exps]
+    return [
+        replace(e, name=f"{e.name}:{map_text(c)}") if names.count(e.name) > 1 and c else e
+        for e, c in zip(exps, maps, strict=True)
+    ]
 
 
 def _complementary(paths, columns, model, require_outputs) -> bool:

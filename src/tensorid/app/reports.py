@@ -22,6 +22,7 @@ from ..fitting.summary import (
 )
 from ..fitting.validation import Score, training_scores
 from .output import write_text
+from .provenance import markdown as provenance_lines
 
 
 def md_table(header: list[str], rows: list[list]) -> str:
@@ -73,7 +74,8 @@ def bar_plot(
     ax.set_xticks(x, groups, fontsize=8)
     ax.set_ylabel(ylabel)
     ax.set_title(title, fontsize=10)
-    ax.legend(fontsize=8)
+    # beside the axes, not over them: inside, it covered the bars of the first groups
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     ax.grid(alpha=0.3, axis="y")
     fig.tight_layout()
     return save_png(fig, path)
@@ -113,6 +115,7 @@ def fit_json(
     d = {
         "params": res.params,
         "free": names,
+        "free_x0": list(res.problem.free_x0),
         "estimates": dict(zip(names, res.theta.tolist(), strict=True)),
         "x0": np.asarray(res.x0).tolist(),
         "cost": res.cost,
@@ -261,8 +264,10 @@ def fit_report(
         ci_text = interval(*ci) if ci else "–"
         note = interval_note(u, n) if u else ""
         rows.append([n, significant(data["estimates"][n], se), stderr_text(se), ci_text, note])
+    prov = data.get("provenance")
+    title = f"`{prov['model']['path']}`" if prov else res.problem.model.name
     lines = [
-        f"# Fit of {res.problem.model.name}",
+        f"# Fit of {title}",
         "",
         headline(res) + f"; {res.seconds:.2f} s.",
         "",
@@ -297,4 +302,7 @@ def fit_report(
         lines += ["", criteria_text(data) + "."]
     lines += _profile_lines(profiles, data)
     lines += ["", "## Figures", ""] + [f"![{f.stem}]({f.name})" for f in figures]
+    if data.get("overrides"):
+        lines += ["", "Overridden on the command line: " + json.dumps(data["overrides"]) + "."]
+    lines += [""] + provenance_lines(prov) if prov else []
     return "\n".join(lines) + "\n"

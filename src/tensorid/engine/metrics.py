@@ -43,3 +43,9 @@ def rmse(y_obs, y_sim):
     """Root-mean-square error, in the units of y."""
     a, b, scalar = _pair(y_obs, y_sim)
     return _out(np.sqrt(np.mean((a - b) ** 2, axis=0)), scalar)
+
+
+def r2(y_obs, y_sim):
+    """Coefficient of determination 1 - ||y_obs - y_sim||² / ||y_obs - mean(y_obs)||²
+    (the nonlinear benchmarks' R²; 1 is perfect, 0 no better than the mean)."""
+    return 1.0 - np.square(nrmse(y_obs, y_sim))

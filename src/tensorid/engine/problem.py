@@ -266,7 +266,9 @@ class Problem:
                 if np.abs(dt - dt.mean()).max() > 1e-6 * abs(dt.mean()):
                     raise ValueError(
                         f"{where}: a discrete-time model steps once per sample, but the "
-                        "sample times are not uniform; resample the record to one rate"
+                        "sample times are not uniform; resample the record to one rate, "
+                        "or take the samples as uniform with the sampling time (--ts on "
+                        "the command line, ts= in load_data)"
                     )
             if e.y.shape[1] != m.S:
                 raise ValueError(

@@ -81,7 +81,15 @@ def profile_figure(prof, sigma2: float, stderr: float):
     fig = new_figure(figsize=(6, 4))
     ax = fig.subplots()
     rise = (prof.costs - prof.costs.min()) / sigma2
-    ax.plot(prof.values, rise, "o-", ms=3, label="profile")
+    # the curve runs through the interval's ends (found by root-finding between the
+    # traced points), so it crosses the threshold where the interval ends
+    sides = zip(prof.interval, ("lower", "upper"), strict=True)
+    crossings = [e for e, k in sides if prof.ends.get(k) == "crossed"]
+    x = np.concatenate([prof.values, crossings])
+    y = np.concatenate([rise, np.full(len(crossings), prof.threshold / sigma2)])
+    order = np.argsort(x, kind="stable")
+    ax.plot(x[order], y[order], "-", color="C0", label="profile")
+    ax.plot(prof.values, rise, "o", ms=3, color="C0")
     if np.isfinite(stderr) and stderr > 0:
         c = np.linspace(prof.values.min(), prof.values.max(), 200)
         ax.plot(c, ((c - prof.estimate) / stderr) ** 2, "--", lw=1, label="Wald (quadratic)")

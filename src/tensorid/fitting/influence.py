@@ -96,7 +96,7 @@ class DataSensitivity:
             "change of each estimate when one sample moves by one noise level", fontsize=9
         )
         axes[0].legend(fontsize=7)
-        axes[-1].set_xlabel("t")
+        axes[-1].set_xlabel("t [s]")
         fig.tight_layout()
         return fig
 

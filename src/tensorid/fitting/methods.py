@@ -20,7 +20,7 @@ from ..engine.problem import Problem
 from ..engine.status import Status
 from .baselines import BASELINES
 from .driver import failed, fit_many
-from .multistart import SAMPLINGS, StartsStopped, draw_starts, run_starts
+from .multistart import SAMPLINGS, StartsStopped, draw_starts, ranked_starts, run_starts
 from .options import FitOptions
 from .priors import weigh_priors, weighed
 from .results import FitInterrupted, FitResult
@@ -37,7 +37,7 @@ def fit(
     *,
     theta0=None,
     starts: int | None = None,
-    spread: float = 0.2,
+    spread: float | None = None,
     sampling: str = "lhs",
     seed: int = 0,
     executor=None,
@@ -69,9 +69,9 @@ def fit(
                       MATLAB's grey-box toolbox does
     theta0 : start (K,), natural units; default ``problem.theta0``.
     x_scale, maxiter, gtol, ftol, xtol, callback : see :class:`FitOptions` (or options=).
-    starts : with N > 1, fit from theta0 and N - 1 further starts (within the bounds
-        where both are finite, else within ±spread of theta0; Latin hypercube or
-        uniform ``sampling``, seeded), in parallel through ``executor`` (any
+    starts : with N > 1, fit from theta0 and N - 1 further starts (inside the bounds,
+        within ``spread`` of theta0 or across the box: see ``draw_starts``; Latin
+        hypercube or uniform ``sampling``, seeded), in parallel through ``executor`` (any
         concurrent.futures.Executor, e.g. a Dask ``client.get_executor()``) or a local
         process pool of ``workers``; the best is refined and returned, with every start
         ranked in ``result.starts``. The local pool spawns fresh processes, which
@@ -225,7 +225,9 @@ def _check_count(name: str, n) -> None:
 
 
 def _check_multistart(spread, sampling, workers, timeout) -> None:
-    if not (isinstance(spread, int | float) and np.isfinite(spread) and spread >= 0):
+    if spread is not None and not (
+        isinstance(spread, int | float) and np.isfinite(spread) and spread >= 0
+    ):
         raise ValueError(f"spread must be a finite number >= 0, got {spread!r}")
     if sampling not in SAMPLINGS:
         raise ValueError(f"sampling must be one of {SAMPLINGS}, got {sampling!r}")
@@ -297,7 +299,7 @@ def _best_of(problem, method, theta0, runs: list[dict], options: FitOptions, sta
     totals of all of them (nit_total, nfev)."""
     for i, r in enumerate(runs):
         r["start"] = i
-    ranked = sorted(runs, key=lambda r: (not np.isfinite(r["cost"]), r["cost"]))
+    ranked = ranked_starts(runs)
     best = ranked[0]
     histories = {r["start"]: r.pop("history") for r in runs}
     nit_all, nfev_all = sum(r["nit"] for r in runs), sum(r["nfev"] for r in runs)
@@ -338,7 +340,7 @@ def _refined(problem, method, best: dict, options: FitOptions, started) -> FitRe
 def _stopped(problem, method, theta0, stop: StartsStopped, started) -> FitResult:
     """The result when the starts could not all finish: the best of those that did,
     not refined (the user is waiting, or the workers are gone)."""
-    runs = sorted(stop.runs, key=lambda r: (not np.isfinite(r["cost"]), r["cost"]))
+    runs = ranked_starts(stop.runs)
     which = ", ".join(str(i) for i in sorted(r["start"] for r in runs))
     finished = f"{len(runs)} of {stop.total} starts finished" + (f": {which}" if runs else "")
     best = runs[0] if runs and np.isfinite(runs[0]["cost"]) else None

@@ -25,6 +25,23 @@ import numpy as np
 from ..engine.status import Status
 
 SAMPLINGS = ("lhs", "uniform")
+SAME_COST = 1e-9  # relative: starts whose costs agree this closely reached one minimum
+
+
+def ranked_starts(runs: list[dict]) -> list[dict]:
+    """The starts best first: by cost, those that failed to a finite cost last; the
+    starts at the best cost (within SAME_COST) by fewest iterations, so a tie goes
+    to the start that got there fastest."""
+    ranked = sorted(runs, key=lambda r: (not np.isfinite(r["cost"]), r["cost"]))
+    if not ranked or not np.isfinite(ranked[0]["cost"]):
+        return ranked
+    top = [r for r in ranked if at_best(r["cost"], ranked[0]["cost"])]
+    return sorted(top, key=lambda r: r["nit"]) + ranked[len(top) :]
+
+
+def at_best(cost: float, best: float) -> bool:
+    """Whether ``cost`` is the best cost to within SAME_COST (relative)."""
+    return bool(np.isfinite(cost) and cost <= best + SAME_COST * abs(best))
 
 
 def draw_starts(
@@ -33,13 +50,18 @@ def draw_starts(
     upper: np.ndarray,
     n: int,
     *,
-    spread: float = 0.2,
+    spread: float | None = None,
     sampling: str = "lhs",
     seed: int = 0,
 ) -> np.ndarray:
-    """n starts (the first is theta0 itself). Entries with finite bounds on both sides
-    are drawn within the bounds; the others within ±spread of theta0 (relative), kept
-    inside any one-sided bound. ``sampling``: "lhs" (Latin hypercube) or "uniform"."""
+    """n starts (the first is theta0 itself), every entry inside its bounds.
+
+    With ``spread``: within ±spread (relative) of theta0; for a positive entry whose
+    bounds span a decade or more (upper ≥ 10 lower > 0), within a factor 1 + spread
+    of theta0, log-uniformly. Without (None, the default): entries with both bounds
+    finite across the whole box (log-uniformly where it spans a decade or more), the
+    others within ±0.2 of theta0. ``sampling``: "lhs" (Latin hypercube, in the
+    uniform or logarithmic coordinate) or "uniform"."""
     if sampling not in SAMPLINGS:
         raise ValueError(f"sampling must be one of {SAMPLINGS}, got {sampling!r}")
     if n < 1:
@@ -53,11 +75,26 @@ def draw_starts(
         ) / max(m, 1)
     else:
         unit = rng.uniform(size=(m, K))
+    lo, hi, logs = _ranges(theta0, lower, upper, spread)
+    safe = np.where(logs, lo, 1.0), np.where(logs, hi, 1.0)
+    llo, lhi = np.log(safe[0]), np.log(safe[1])
+    pts = np.where(logs, np.exp(llo + unit * (lhi - llo)), lo + unit * (hi - lo))
+    return np.vstack([theta0[None, :], np.clip(pts, lower, upper)])
+
+
+def _ranges(theta0, lower, upper, spread) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(lo, hi, logs): where each entry's starts are drawn (the box, or ±spread of
+    theta0 within the bounds) and which are drawn log-uniformly (factor 1 + spread):
+    those whose bounds span decades, where a uniform draw would land nearly every
+    start in the top decade."""
     boxed = np.isfinite(lower) & np.isfinite(upper)
-    lo = np.where(boxed, lower, theta0 - spread * np.abs(theta0))
-    hi = np.where(boxed, upper, theta0 + spread * np.abs(theta0))
-    pts = np.clip(lo + unit * (hi - lo), lower, upper)
-    return np.vstack([theta0[None, :], pts])
+    logs = np.isfinite(upper) & (lower > 0) & (upper >= 10 * lower)
+    s = 0.2 if spread is None else float(spread)
+    lo = np.where(logs, theta0 / (1 + s), theta0 - s * np.abs(theta0))
+    hi = np.where(logs, theta0 * (1 + s), theta0 + s * np.abs(theta0))
+    if spread is None:
+        lo, hi = np.where(boxed, lower, lo), np.where(boxed, upper, hi)
+    return np.maximum(lo, lower), np.minimum(hi, upper), logs
 
 
 def process_pool(workers: int) -> ProcessPoolExecutor:

@@ -7,12 +7,16 @@ freedom, and the test passes when Q is below its quantile at the stated level.
 Independence: the normalised cross-correlation of the residuals with each input for
 τ = 0..M (the residual now against the input τ samples earlier) should vanish: a
 model missing a dynamic leaves the past input in the residual. Q = N Σ r_eu(τ)² is χ²
-with M + 1 degrees of freedom. The figure shows r with the ±z/√N band of the level,
-as MATLAB draws it; the pass/fail comes from Q, which for 25 lags holds its level
-(a band test on every lag would fail a correct model one time in five). Q is χ² only
-for M well below N: with more than N/4 lags (``lag_limit``) the tests are not made
-and ``not_available`` says so (a Q summed over lags with almost no products under a
-threshold that grows with M "passes" any model).
+with M + 1 degrees of freedom. The negative lags τ = −1..−M (the residual against
+later inputs) are shown and reported beside it but not tested: in a closed loop the
+controller feeds the output, residual included, back into the input, so they measure
+the feedback, not a flaw of the model (MATLAB's resid draws both sides too). The
+figure shows r with the ±z/√N band of the level, as MATLAB draws it; the pass/fail
+comes from Q, which for 25 lags holds its level (a band test on every lag would fail
+a correct model one time in five). Q is χ² only for M well below N: with more than
+N/4 lags (``lag_limit``) the tests are not made and ``not_available`` says so (a Q
+summed over lags with almost no products under a threshold that grows with M
+"passes" any model).
 
 Information criteria, with Gaussian residuals of unknown variance: for n residuals
 and K unknowns, −2 log L = n (log(2π J/n) + 1), AIC = −2 log L + 2K,
@@ -38,15 +42,22 @@ class Correlation:
     statistic: float
     threshold: float
     passed: bool
+    # the cross-correlation at lags -1..-M (later inputs: feedback), not tested
+    feedback: np.ndarray | None = None
 
     def line(self) -> str:
         """The test in words."""
         verdict = "passes" if self.passed else "FAILS"
         side = "below" if self.passed else "above"
         shown = self.values[1:] if self.what.startswith("whiteness") else self.values
+        back = (
+            ""
+            if self.feedback is None
+            else f"; at negative lags (feedback) {np.max(np.abs(self.feedback)):.3f}"
+        )
         return (
             f"{self.what}: {verdict} (Q = {self.statistic:.1f}, {side} "
-            f"{self.threshold:.1f}; largest |r| {np.max(np.abs(shown)):.3f})"
+            f"{self.threshold:.1f}; largest |r| {np.max(np.abs(shown)):.3f}{back})"
         )
 
 
@@ -89,7 +100,7 @@ class ResidualTests:
                 "threshold": c.threshold,
                 "correlation": c.values.tolist(),
                 "lags": c.lags.tolist(),
-            }
+            } | ({} if c.feedback is None else {"correlation_negative_lags": c.feedback.tolist()})
 
         return {
             "level": self.level,
@@ -114,6 +125,10 @@ class ResidualTests:
         axes = fig.subplots(len(tests), 1, squeeze=False)[:, 0]
         for ax, c in zip(axes, tests, strict=True):
             ax.axhspan(-self.bound, self.bound, color="C0", alpha=0.15, lw=0)
+            if c.feedback is not None:  # not tested: drawn grey
+                back = -np.arange(1, c.feedback.size + 1)
+                ax.vlines(back, 0, c.feedback, color="0.6")
+                ax.plot(back, c.feedback, "o", ms=3, color="0.6")
             ax.vlines(c.lags, 0, c.values, color="C3" if not c.passed else "C0")
             ax.plot(c.lags, c.values, "o", ms=3, color="C3" if not c.passed else "C0")
             ax.axhline(0, color="k", lw=0.6)
@@ -188,9 +203,9 @@ def residual_tests(res, max_lag: int = 25, level: float = 0.99) -> ResidualTests
             u = [e.u[:, i] for e in exps]
             c = _correlation(err, u, max_lag)
             Qc = float(N * np.sum(c**2))
-            indep.append(
-                Correlation(f"{out} against input {name}", lags, c, Qc, q_cross, Qc <= q_cross)
-            )
+            back = _correlation(u, err, max_lag)[1:]  # Σ e[k] u[k + τ]: later inputs
+            what = f"{out} against input {name}"
+            indep.append(Correlation(what, lags, c, Qc, q_cross, Qc <= q_cross, back))
     bound = float(stats.norm.ppf(0.5 + level / 2) / np.sqrt(N))
     return ResidualTests(level, max_lag, N, bound, white, indep, constant)
 

@@ -98,6 +98,25 @@ def criteria_text(c: dict) -> str:
     return text
 
 
+def starts_outcome(starts: list[dict]) -> str:
+    """ ", 5 at the best cost (to 1e-9 relative), 3 failed: 2 nonfinite start, 1
+    maxiter": how many starts reached the best cost, how many failed and why."""
+    from collections import Counter
+
+    from .multistart import SAME_COST, at_best
+
+    best = min((s["cost"] for s in starts), default=math.inf)
+    if not math.isfinite(best):
+        return ""
+    same = sum(at_best(s["cost"], best) for s in starts)
+    text = f", {same} at the best cost (to {SAME_COST:g} relative)"
+    failed = Counter(str(s.get("status", "")) for s in starts if not s.get("success", True))
+    if failed:
+        why = ", ".join(f"{n} {k.replace('_', ' ')}" for k, n in failed.most_common())
+        text += f", {sum(failed.values())} failed: {why}"
+    return text
+
+
 def headline(res) -> str:
     """One line: method, how it ended, iterations, evaluations, cost."""
     line = (
@@ -106,7 +125,7 @@ def headline(res) -> str:
     )
     if res.starts:
         line += (
-            f" (best of {len(res.starts)} starts; all starts: "
+            f" (best of {len(res.starts)} starts{starts_outcome(res.starts)}; all starts: "
             f"{plural(res.nit_total, 'iteration')}, {plural(res.nfev, 'cost evaluation')})"
         )
     line += f"; cost {res.cost:.6g}"

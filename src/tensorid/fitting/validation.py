@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..engine.data import Experiment
-from ..engine.metrics import gof, nrmse, rmse
+from ..engine.metrics import gof, nrmse, r2, rmse
 from ..engine.problem import Problem
 from ..engine.simulate import Simulation, run_simulation
 from ..engine.sweeps import shared_sweeps
@@ -59,6 +59,22 @@ class Score:
     @property
     def nrmse(self) -> dict[str, float]:
         return self._per_output(nrmse)
+
+    @property
+    def r2(self) -> dict[str, float]:
+        """1 - ‖y - ŷ‖² / ‖y - mean y‖² per output (the coefficient of determination)."""
+        return self._per_output(r2)
+
+    @property
+    def fit_percent(self) -> dict[str, float]:
+        """100 · GOF per output (MATLAB's compare, the benchmarks' fit index)."""
+        return {o: 100.0 * v for o, v in self.gof.items()}
+
+    def metrics(self) -> dict[str, dict[str, float]]:
+        """{output: {"rmse", "nrmse", "r2", "fit_percent", "gof"}} (compare.json's)."""
+        names = ("rmse", "nrmse", "r2", "fit_percent", "gof")
+        values = {n: getattr(self, n) for n in names}
+        return {o: {n: values[n][o] for n in names} for o in self.simulation.model.outputs}
 
 
 def record_label(kind: str, name: str, alone: bool = True) -> str:
@@ -117,29 +133,64 @@ def _free_x0(problem: Problem) -> np.ndarray:
     return tr.theta(r.x if tr.best_phi is None else tr.best_phi)
 
 
+def check_init_window(init_window: int | None, record: Experiment) -> None:
+    """An initialisation window leaves at least two samples of ``record`` to score."""
+    if init_window is not None and not (2 <= int(init_window) < record.P - 1):
+        raise ValueError(
+            f"init_window must be between 2 and {record.P - 2} samples (the record "
+            f"{record.name!r} has {record.P}, and at least 2 are scored), got {init_window}"
+        )
+
+
+def score_record(
+    model,
+    params,
+    x0,
+    free_x0: list[str],
+    record: Experiment,
+    discretisation,
+    init_window: int | None = None,
+    *,
+    kind: str = "validation",
+    alone: bool = True,
+) -> Score:
+    """``model`` with ``params`` held, simulated on ``record`` (MATLAB's compare): the
+    initial states named in ``free_x0`` estimated on the first ``init_window`` samples
+    (the whole record when None; not at all without measured outputs), the others as
+    in ``x0``; scored after the window. The one routine behind ``FitResult.validate``,
+    ``tensorid simulate`` and ``tensorid compare``."""
+    check_init_window(init_window, record)
+    x0 = np.asarray(x0, dtype=float)
+    disc = discretisation.for_model(model)
+    if free_x0 and record.y is not None:
+        window = record if init_window is None else record.window(0, int(init_window))
+        x0 = estimate_x0(model, params, x0, list(free_x0), window, disc)
+    sim = run_simulation(shared_sweeps(model, (), (), disc), record, x0, model.params_array(params))
+    start = 0 if init_window is None else int(init_window)
+    return Score(kind, record, sim, x0, start, init_window, alone=alone)
+
+
 def validate(res, data, init_window: int | None = None) -> list[Score]:
     """See FitResult.validate."""
     exps = [data] if isinstance(data, Experiment) else list(data)
     prob = res.problem
-    m = prob.model
     x0_fit = np.atleast_2d(res.x0)[0]
-    out = []
     for i, e in enumerate(exps):
         if not isinstance(e, Experiment):
             raise TypeError(f"validation record {i} is a {type(e).__name__}, not an Experiment")
         if e.y is None:
             raise ValueError(f"validation record {i} ({e.name!r}) has no measured outputs")
-        if init_window is not None and not (2 <= int(init_window) < e.P):
-            raise ValueError(
-                f"init_window must be between 2 and {e.P - 1} samples (the record "
-                f"{e.name!r} has {e.P}), got {init_window}"
-            )
-        x0 = x0_fit.copy()
-        if prob.free_x0:
-            window = e if init_window is None else e.window(0, int(init_window))
-            x0 = estimate_x0(m, res.params, x0_fit, prob.free_x0, window, prob.discretisation)
-        sweeps = shared_sweeps(m, (), (), prob.discretisation)
-        sim = run_simulation(sweeps, e, x0, m.params_array(res.params))
-        start = 0 if init_window is None else int(init_window)
-        out.append(Score("validation", e, sim, x0, start, init_window, alone=len(exps) == 1))
-    return out
+        check_init_window(init_window, e)
+    return [
+        score_record(
+            prob.model,
+            res.params,
+            x0_fit,
+            prob.free_x0,
+            e,
+            prob.discretisation,
+            init_window,
+            alone=len(exps) == 1,
+        )  # fmt: skip
+        for e in exps
+    ]

@@ -240,7 +240,7 @@ def _robustness(r: dict) -> list[str]:
         "actually taken. Their measured output error (max |y − y_ref| / max |y_ref| at the "
         "paper's estimates, against RK4 with 2048 substeps) is:",
         "",
-        md_table(["level"] + levels, [[d] + [_f(err[d][lv], 2) for lv in levels] for d in err]),
+        md_table(["problem"] + levels, [[d] + [_f(err[d][lv], 2) for lv in levels] for d in err]),
         "",
         "A fixed-step scheme makes the simulated cost a smooth function of θ at every "
         "level, so finite differences are not corrupted by step-size changes there: on "

@@ -1,0 +1,86 @@
+"""Where a result came from: the model file and data files (path and SHA-256), the
+columns read, the command line, the versions and the time. fit.json, compare.json
+and report.md carry it, so a number can be traced back and reproduced."""
+
+from __future__ import annotations
+
+import datetime
+import hashlib
+import platform
+import shlex
+import sys
+from pathlib import Path
+
+
+def sha256(path) -> str | None:
+    """The file's SHA-256 (hex), or None when it cannot be read."""
+    h = hashlib.sha256()
+    try:
+        with Path(path).open("rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+    except OSError:
+        return None
+    return h.hexdigest()
+
+
+def _file(path) -> dict:
+    return {"path": str(path), "sha256": sha256(path)}
+
+
+def _versions() -> dict:
+    import jax
+    import numpy
+
+    from .._config import __version__
+
+    return {
+        "tensorid": __version__,
+        "jax": jax.__version__,
+        "numpy": numpy.__version__,
+        "python": platform.python_version(),
+    }
+
+
+def data_entries(specs: list, columns: list) -> list[dict]:
+    """One entry per data file: path, SHA-256 and the column map it was read with
+    (``specs`` may join files as "u.mat+y.mat": each file is listed)."""
+    out = []
+    for spec, cols in zip(specs, columns, strict=True):
+        for part in str(spec).split("+") if not Path(spec).exists() else [spec]:
+            out.append(dict(_file(part), columns=dict(cols or {})))
+    return out
+
+
+def provenance(model_path, data: list[dict], argv: list[str] | None) -> dict:
+    """fit.json's and compare.json's "provenance"."""
+    words = ["tensorid", *(sys.argv[1:] if argv is None else argv)]
+    return {
+        "model": _file(model_path),
+        "data": data,
+        "command": shlex.join(words),
+        "versions": _versions(),
+        "time": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+    }
+
+
+def markdown(prov: dict) -> list[str]:
+    """report.md's provenance section."""
+    lines = [
+        "## Provenance",
+        "",
+        f"- model file: `{prov['model']['path']}` (SHA-256 `{prov['model']['sha256']}`)",
+    ]
+    for d in prov["data"]:
+        cols = ", ".join(f"{k}={v}" for k, v in d["columns"].items())
+        lines.append(
+            f"- data file: `{d['path']}` (SHA-256 `{d['sha256']}`)"
+            + (f", columns {cols}" if cols else "")
+        )
+    v = prov["versions"]
+    lines += [
+        f"- command: `{prov['command']}`",
+        f"- tensorid {v['tensorid']}, JAX {v['jax']}, NumPy {v['numpy']}, "
+        f"Python {v['python']}; {prov['time']}",
+    ]
+    return lines

@@ -1,0 +1,294 @@
+"""`tensorid simulate` and `tensorid compare`: a model with given (or fitted)
+parameters on one record. Both call the library's scoring (``score_record``, the
+routine behind ``FitResult.validate``), so a record is simulated, its initial
+states estimated and its outputs scored exactly as ``fit --validate`` does."""
+
+from __future__ import annotations
+
+import json
+import sys
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+
+from ..engine.diagnostics import describe_failure
+from ..engine.discretisation import Discretisation
+from ..engine.status import Status
+from ..fitting.figures import compare_figure, file_name, save_png
+from ..fitting.validation import Score, check_init_window, score_record
+from .files import ModelSpec, load_data, load_model
+from .output import check_destination, write_atomic
+from .provenance import data_entries, provenance
+from .reports import write_json
+
+
+def _assignments(items: list[str], what: str) -> dict[str, float]:
+    out = {}
+    for it in items:
+        if "=" not in it:
+            raise ValueError(f"{what} must be NAME=VALUE, got {it!r}")
+        k, v = it.split("=", 1)
+        try:
+            out[k.strip()] = float(v)
+        except ValueError:
+            raise ValueError(f"{what}: {k.strip()}={v!r} is not a number") from None
+    return out
+
+
+def _fitted(path: Path, spec: ModelSpec) -> dict:
+    """A fit.json's parameters and initial state, checked against the model."""
+    if not path.is_file():
+        raise FileNotFoundError(f"--params {path} does not exist")
+    try:
+        fitted = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ValueError(f"--params {path} is not valid JSON ({e}); give a fit.json") from None
+    if not isinstance(fitted, dict) or not isinstance(fitted.get("params"), dict):
+        raise ValueError(f"--params {path} holds no params: give a fit.json written by tensorid")
+    bad = [k for k, v in fitted["params"].items() if not isinstance(v, int | float)]
+    if bad:
+        raise ValueError(f"--params {path}: params {bad} are not numbers")
+    if "x0" in fitted:
+        try:
+            x0 = np.atleast_2d(np.asarray(fitted["x0"], dtype=float))
+        except (TypeError, ValueError):
+            x0 = np.zeros((1, 0))
+        if x0.shape[1] != spec.model.N:
+            raise ValueError(
+                f"--params {path}: its x0 has {x0.shape[1]} values, the model has "
+                f"{spec.model.N} states {list(spec.model.states)}"
+            )
+    return fitted
+
+
+def _parameters(spec: ModelSpec, given: list[str]) -> tuple[dict, dict | None]:
+    """(parameters, the fit.json they came from or None): p0 of the model file,
+    updated by a fit.json or NAME=VALUE pairs."""
+    m = spec.model
+    params = dict(spec.p0 or {})
+    fitted = None
+    if len(given) == 1 and given[0].endswith(".json"):
+        fitted = _fitted(Path(given[0]), spec)
+        params.update(fitted["params"])
+    else:
+        params.update(_assignments(given, "--params"))
+    unknown = sorted(set(params) - set(m.params))
+    if unknown:
+        raise ValueError(
+            f"--params names {unknown}, which the model does not have; its parameters are "
+            f"{list(m.params)}"
+        )
+    missing = [n for n in m.params if n not in params]
+    if missing:
+        raise ValueError(
+            f"no value for the parameters {missing}: give them with --params NAME=VALUE, "
+            "a fit.json, or p0 in the model file"
+        )
+    return params, fitted
+
+
+def _integration(args, fitted: dict | None) -> Discretisation:
+    """The command line's integration settings; those it leaves out are the fit.json's
+    (a fit is scored as it was fitted), else the defaults."""
+    saved = dict((fitted or {}).get("integration") or {})
+    if saved.get("scheme") == "discrete":  # a discrete-time model: the defaults say so
+        saved = {}
+    scheme = args.scheme or saved.get("scheme", "rk4")
+    same = scheme == saved.get("scheme")
+    rtol = args.rtol if args.rtol is not None else saved.get("rtol") if same else None
+    atol = args.atol if args.atol is not None else saved.get("atol") if same else None
+    return Discretisation.of(
+        scheme,
+        args.substeps or saved.get("substeps", 4),
+        args.interpolation or saved.get("interpolation", "linear"),
+        rtol,
+        atol,
+    )
+
+
+def _start(spec: ModelSpec, args, e, fitted) -> tuple[np.ndarray, list[str], str]:
+    """(x0 to start from, the states to estimate on the record, where x0 comes from):
+    --x0 where given; the states the fit (else the model file) frees are estimated
+    when the record has outputs; the others are the fit.json's or the model file's."""
+    m = spec.model
+    x0 = dict(zip(m.states, spec.x0_array(), strict=True))
+    base, free = "the model file's x0", list(spec.free_x0)
+    if fitted is not None and "x0" in fitted:
+        x0 = dict(zip(m.states, np.atleast_2d(fitted["x0"])[0], strict=True))
+        base = f"the x0 of {args.params[0]} (its first training record's)"
+        free = list(fitted.get("free_x0", free))
+    given = _assignments(getattr(args, "x0", []), "--x0")
+    unknown = sorted(set(given) - set(m.states))
+    if unknown:
+        raise ValueError(f"--x0 names {unknown}; the model's states are {list(m.states)}")
+    x0.update(given)
+    free = [n for n in free if n not in given] if e.y is not None else []
+    where = "this record" if args.init_window is None else f"its first {args.init_window} samples"
+    rest = [n for n in m.states if n not in free and n not in given]
+    parts = [f"{', '.join(free)} estimated on {where} with the parameters held"] if free else []
+    parts += [f"{', '.join(given)} from --x0"] if given else []
+    if rest and parts:
+        parts.append(f"{', '.join(rest)} from {base}")
+    return m.states_array(x0), free, "; ".join(parts) or base
+
+
+def _record(args, spec: ModelSpec, require_outputs: bool):
+    """The one record of DATA, with the init window checked before any work."""
+    e = load_data(
+        [args.data], spec.model, ts=args.ts, require_outputs=require_outputs, columns=args.columns
+    )[0]
+    if args.init_window is not None:
+        if e.y is None:
+            raise ValueError(f"--init-window: {args.data} has no measured outputs to score")
+        try:
+            check_init_window(args.init_window, e)
+        except ValueError as err:
+            raise ValueError(f"--init-window: {err}") from None
+    return e
+
+
+def _simulation_table(m, e, sim, table_only: bool) -> tuple[list[str], np.ndarray]:
+    """(header, rows): as one table (.csv --out) the states and simulated outputs;
+    in a folder also the inputs and the measured outputs."""
+    states = [f"state_{n}" for n in m.states]
+    sims = [f"{o}_sim" for o in m.outputs]
+    if table_only:
+        return ["t", *states, *sims], np.column_stack([e.t, sim.x, sim.y])
+    measured = list(m.outputs) if e.y is not None else []
+    parts = [e.t[:, None], e.u] + ([e.y] if e.y is not None else []) + [sim.y, sim.x]
+    return ["t", *m.inputs, *measured, *sims, *states], np.column_stack(parts)
+
+
+def _score(args, require_outputs: bool):
+    """(spec, parameters, Score, where x0 came from, discretisation): the model
+    simulated on DATA as the options say."""
+    spec = load_model(args.model)
+    params, fitted = _parameters(spec, args.params)
+    e = _record(args, spec, require_outputs)
+    disc = _integration(args, fitted)
+    x0, free, source = _start(spec, args, e, fitted)
+    score = score_record(spec.model, params, x0, free, e, disc, args.init_window)
+    return spec, params, score, source, disc.for_model(spec.model)
+
+
+def run_simulate(args) -> int:
+    out = Path(args.out)
+    table_only = out.suffix.lower() == ".csv"
+    check_destination(out.parent if table_only else out)
+    spec, _, score, source, disc = _score(args, require_outputs=False)
+    m, e, sim = spec.model, score.experiment, score.simulation
+    header, table = _simulation_table(m, e, sim, table_only)
+    target = out if table_only else out / "simulation.csv"
+    target.parent.mkdir(parents=True, exist_ok=True)
+    write_atomic(target, partial(_savetxt, table, header))
+    written = [target]
+    if not table_only and e.y is not None and sim.status is Status.OK:
+        written += _figures(score, out, "simulation")
+    if e.y is not None:
+        for o, v in score.gof.items():
+            print(f"GOF {o}: {v:.4f}" + _after(score))
+    _print_x0(m, score.x0, source)
+    print("wrote " + ", ".join(map(str, written)))
+    return _finite(score, disc, args.data)
+
+
+def _after(score: Score) -> str:
+    return f" (scored after the first {score.start} samples)" if score.start else ""
+
+
+def _print_x0(m, x0, source: str) -> None:
+    values = ", ".join(f"{k}={v:.6g}" for k, v in zip(m.states, x0, strict=True))
+    print(f"initial state {values} ({source})")
+
+
+def _finite(score: Score, disc: Discretisation, data: str) -> int:
+    """0, or 1 with one line saying where the simulation stopped being finite."""
+    sim = score.simulation
+    if sim.status is Status.OK:
+        return 0
+    why = describe_failure(sim, disc.scheme, data)
+    print(f"tensorid: error: the simulation is not finite: {why}", file=sys.stderr)
+    return 1
+
+
+def _savetxt(table: np.ndarray, header: list[str], path: Path) -> None:
+    # 17 significant digits: every double read back exactly, without %.18e's noise
+    np.savetxt(path, table, fmt="%.17g", delimiter=",", header=",".join(header), comments="")
+
+
+def _figures(score: Score, out: Path, stem: str) -> list[Path]:
+    """One figure per output: measured against simulated, the window shaded."""
+    e, s = score.experiment, score.simulation
+    written = []
+    for j, name in enumerate(s.model.outputs):
+        fig = compare_figure(
+            e.t,
+            e.measured[:, j],
+            s.y[:, j],
+            ylabel=name,
+            title=f"{stem} on {e.name or 'data'}, output {name}: GOF {score.gof[name]:.4f}"
+            + _after(score),
+        )
+        if score.start:
+            for ax in fig.axes:
+                ax.axvspan(e.t[0], e.t[score.start], color="0.85", zorder=0)
+        path = out / f"{stem}_{file_name(name)}.png"
+        written.append(write_atomic(path, partial(save_png, fig)))
+    return written
+
+
+def effective_columns(model, columns: dict | None) -> dict:
+    """The column each model signal was read from ("t" too): the map's, else its own
+    name (a number: held constant)."""
+    columns = columns or {}
+    return {n: columns.get(n, n) for n in ("t", *model.inputs, *model.outputs)}
+
+
+def run_compare(args) -> int:
+    """`tensorid compare`: a fit.json scored on a record (compare.json, figures)."""
+    if args.horizon is not None:
+        raise ValueError(
+            f"--horizon {args.horizon}: k-step-ahead prediction needs the EKF predictor, "
+            "which tensorid does not have yet; drop --horizon to score the simulation"
+        )
+    if not str(args.params).endswith(".json"):
+        raise ValueError(f"--params {args.params}: give the fit.json of a fit")
+    out = check_destination(args.out)
+    args.params = [args.params]
+    spec, params, score, source, disc = _score(args, require_outputs=True)
+    m, sim = spec.model, score.simulation
+    data = {
+        "record": score.experiment.name,
+        "outputs": score.metrics(),
+        "init_window": args.init_window,
+        "scored_samples": score.experiment.P - score.start,
+        "x0": dict(zip(m.states, score.x0.tolist(), strict=True)),
+        "x0_source": source,
+        "params": {n: float(params[n]) for n in m.params},
+        "integration": disc.as_dict(),
+        "status": str(sim.status),
+        "provenance": provenance(
+            args.model,
+            data_entries([args.data], [effective_columns(m, args.columns)]),
+            getattr(args, "argv", None),
+        ),
+    }
+    out.mkdir(parents=True, exist_ok=True)
+    written = [write_json(out / "compare.json", data)]
+    if sim.status is Status.OK:
+        written += _figures(score, out, "compare")
+    _print_scores(score)
+    _print_x0(m, score.x0, source)
+    print("wrote " + ", ".join(map(str, written)))
+    return _finite(score, disc, args.data)
+
+
+def _print_scores(score: Score) -> None:
+    n = score.experiment.P - score.start
+    scored = f"{n} samples" + (f" after the first {score.start}" if score.start else "")
+    for o, v in score.metrics().items():
+        print(
+            f"{o}: RMSE {v['rmse']:.6g}, NRMSE {v['nrmse']:.6g}, R² {v['r2']:.9g}, "
+            f"fit {v['fit_percent']:.4f} %, GOF {v['gof']:.6f} ({scored})"
+        )
