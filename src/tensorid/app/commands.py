@@ -29,7 +29,7 @@ from ..fitting.figures import (
 from ..fitting.methods import fit
 from ..fitting.residuals import lag_limit
 from ..fitting.results import FitInterrupted
-from ..fitting.summary import summary_table
+from ..fitting.summary import coloured_residuals_line, summary_table
 from ..fitting.validation import Score, check_init_window, training_scores
 from .files import ModelSpec, load_data, load_model
 from .output import (
@@ -307,6 +307,9 @@ def _report(res, val, args, out: Path, old: set[Path], kept: dict) -> int:
     print(summary_table(res, everything))
     for line in _gof_lines(everything):
         print(line)
+    residual = extras.get("residual")
+    if residual is not None and res.has_uncertainty and False in residual.whiteness_passed:
+        print(f"residuals: {coloured_residuals_line(res)}")
     extras.update(provenance=args.provenance, overrides=args.overrides)
     figures, failures = _write_results(res, out, scores, old, extras, kept)
     failures = missing + failures

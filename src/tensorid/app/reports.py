@@ -11,6 +11,7 @@ import numpy as np
 
 from ..fitting.figures import new_figure, save_png
 from ..fitting.summary import (
+    coloured_residuals_line,
     criteria_text,
     headline,
     interval,
@@ -159,6 +160,9 @@ def fit_json(
         d.update(u.as_dicts())
         gn = res.uncertainty("gauss-newton").stderr.tolist()
         d["stderr_gauss_newton"] = dict(zip(names, gn, strict=True))
+        robust = res.uncertainty("robust")
+        d["stderr_robust"] = dict(zip(names, robust.stderr.tolist(), strict=True))
+        d["robust_lags"] = robust.lags
         d["information"] = res.information().as_dict()
     d.update(_profile_json(profiles))
     if missing:
@@ -298,6 +302,8 @@ def fit_report(
             "",
         ]
         lines += [f"- {line}" for line in residual.lines()]
+        if res.has_uncertainty and False in residual.whiteness_passed:
+            lines += ["", coloured_residuals_line(res) + "."]
     if "aic" in data:
         lines += ["", criteria_text(data) + "."]
     lines += _profile_lines(profiles, data)

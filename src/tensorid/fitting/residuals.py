@@ -82,6 +82,11 @@ class ResidualTests:
             return None
         return all(c.passed for c in self.whiteness + self.independence)
 
+    @property
+    def whiteness_passed(self) -> list[bool | None]:
+        """Per output, whether its residuals passed the whiteness test (None: not made)."""
+        return [c.passed for c in self.whiteness]
+
     def lines(self) -> list[str]:
         """One line per test, in words."""
         if self.not_available:

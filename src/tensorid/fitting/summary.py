@@ -6,6 +6,8 @@ from __future__ import annotations
 import io
 import math
 
+import numpy as np
+
 
 def plural(n: int, word: str) -> str:
     """'1 iteration', '2 iterations'."""
@@ -188,3 +190,23 @@ def summary_table(res, scores=None) -> str:
     for w in res.warnings:
         console.print(f"warning: {w}", soft_wrap=True)
     return console.export_text()
+
+
+def coloured_residuals_line(res) -> str:
+    """One line for residuals that fail whiteness: the standard errors robust to that
+    (Newey-West, tensorid.fitting.sandwich) beside the white ones, and which to trust."""
+    white, robust = res.uncertainty(), res.uncertainty("robust")
+    ratio = robust.stderr / white.stderr
+    finite = ratio[np.isfinite(ratio)]
+    if not finite.size:
+        return "the residuals are not white; no finite standard error to compare"
+    pairs = ", ".join(
+        f"{n} ±{w:.3g} → ±{r:.3g}"
+        for n, w, r in zip(white.names, white.stderr, robust.stderr, strict=True)
+    )
+    return (
+        f"the residuals are not white, so the white-noise standard errors are not to be "
+        f"trusted; those robust to coloured residuals (Newey-West, {robust.lags} lags) are "
+        f"{finite.min():.2g} to {finite.max():.2g} times them: {pairs} (fit.json "
+        "stderr_robust). Trust the robust ones, or model the disturbance"
+    )
