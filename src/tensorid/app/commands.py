@@ -277,6 +277,12 @@ def run_fit(args) -> int:
     )
     spec, args.overrides = overridden(spec, dict(args.fix), args.free, dict(args.bounds))
     problem = _problem(spec, train, args)
+    if not problem.loss.squared and (args.profile is not None or args.data_sensitivity):
+        raise ValueError(
+            f"--profile and --data-sensitivity assume the squared loss, not --loss "
+            f"{problem.loss.name} (its error bars are the sandwich form): drop them, or fit "
+            "with --loss squared"
+        )
     unknown = [n for n in args.profile or [] if n not in problem.theta_names]
     if unknown:
         raise ValueError(

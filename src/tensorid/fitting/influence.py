@@ -108,6 +108,11 @@ def data_sensitivity(res) -> DataSensitivity:
             f"data sensitivity needs a fit with a finite optimum; it ended as {res.status}"
         )
     problem = res.problem
+    if not problem.loss.squared:  # dθ̂/dy below is that of Σ w r²
+        raise ValueError(
+            f"data sensitivity assumes the squared loss; this fit's is {problem.loss.name} "
+            "(whose point is that a sample's pull is capped): fit with loss='squared' for it"
+        )
     # the inverse in Jacobi-scaled (unit-free) form: in natural units the Hessian's
     # condition number can reach 1e18, past what a pseudo-inverse resolves
     sc = jacobi_scale(res.hess)

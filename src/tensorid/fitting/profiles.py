@@ -268,6 +268,11 @@ def profile(
         raise ValueError(f"method must be 'integrate' or 'refit', got {method!r}")
     if not res.has_uncertainty:
         raise ValueError(f"profiles need a fit with a finite cost; this one ended as {res.status}")
+    if not problem.loss.squared:  # the threshold is a Gaussian likelihood ratio's
+        raise ValueError(
+            f"profile-likelihood intervals assume the squared loss; this fit's is "
+            f"{problem.loss.name}: use its sandwich intervals (res.uncertainty())"
+        )
     all_names = problem.theta_names
     if names is None:
         free_x0 = len(all_names) - len(problem.free_params)

@@ -243,6 +243,11 @@ def information_criteria(res) -> dict:
     K = problem.K
     J = res.cost - problem.prior_cost(res.theta)
     out = {"aic": np.nan, "aicc": np.nan, "bic": np.nan, "n": n, "K": K, "not_available": None}
+    if not problem.loss.squared:  # their likelihood is Gaussian: J must be Σ w r²
+        out["not_available"] = (
+            f"not available: they assume the squared loss, this fit's is {problem.loss.name}"
+        )
+        return out
     if not (np.isfinite(J) and J > 0):
         out["not_available"] = f"not available: the residual cost is {J:.3g}, not positive"
         return out
