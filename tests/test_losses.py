@@ -34,7 +34,7 @@ def _reference(prob, name):
         total = 0.0
         for e, (t, u, y) in enumerate(prob._arrays):
             local = theta[prob._slices(e)]
-            x0, p = sw._expand(local, jnp.asarray(prob.x0[e]), jnp.asarray(prob.p0))
+            x0, p = sw.expand(local, jnp.asarray(prob.x0[e]), jnp.asarray(prob.p0))
             ys = sw._simulate(x0, p, t, u)[1]
             for o in range(m.S):
                 sw_ = np.sqrt(prob.weights[o])

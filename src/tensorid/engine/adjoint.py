@@ -237,9 +237,9 @@ class SecondOrderAdjoint:
     # -- phase 1: x and S forward, λ backward --------------------------------------------
     def _backward(self, theta, x0, p, t, u, y, w, stretches: int, length: int):
         sw = self.sweeps
-        x0, p = sw._expand(theta, x0, p)
+        x0, p = sw.expand(theta, x0, p)
         m = sw.model
-        dx0, Psel = sw._seeds()
+        dx0, Psel = sw.seeds()
         Pt = jnp.asarray(Psel.T)
         dt, ua, ub, yh, live, seen = self._grid(t, u, y, length)
 
@@ -291,7 +291,7 @@ class SecondOrderAdjoint:
         S0, (xs, lams) = starts[k], (a[k] for a in per)
         t_dt, ua, ub, yh, live, seen = (a[k] for a in grid)
         m, K = sw.model, sw.K
-        Pt = jnp.asarray(sw._seeds()[1].T)
+        Pt = jnp.asarray(sw.seeds()[1].T)
 
         def forward(S, d):
             x, dt_, a, b, lv = d

@@ -8,7 +8,6 @@ units. Every check of the user's input happens here, before anything compiles.
 from __future__ import annotations
 
 import copy
-import warnings
 from collections.abc import Mapping, Sequence
 
 import jax
@@ -17,31 +16,16 @@ import numpy as np
 
 from .. import _config  # noqa: F401
 from .adjoint import choose_hessian
+from .checks import check_bounds, check_data, check_weights, check_x0, name_list
 from .data import Experiment
 from .discretisation import Discretisation
 from .integrators import RungeKuttaScheme, Scheme
 from .losses import Loss, make_loss
 from .model import Model
+from .priors import add_prior_terms, check_priors
 from .shooting import Shooting, resolve_segments
 from .simulate import Simulation, run_simulation
-from .sweeps import shared_sweeps, unpack_symmetric
-
-
-def _name_list(what: str, names, known: Sequence[str], kind: str) -> list[str]:
-    if names is None:
-        return []
-    if isinstance(names, str):
-        names = [names]
-    names = list(names)
-    unknown = [n for n in names if n not in known]
-    if unknown:
-        raise ValueError(
-            f"{what} names unknown {kind} {unknown}; the model's {kind} are {list(known)}"
-        )
-    dup = sorted({n for n in names if names.count(n) > 1})
-    if dup:
-        raise ValueError(f"{what} repeats {dup}")
-    return names
+from .sweeps import Sweeps, shared_sweeps, unpack_symmetric
 
 
 class Problem:
@@ -133,22 +117,22 @@ class Problem:
         if not isinstance(model, Model):
             raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
         self.model = model
-        self.experiments = self._check_data(data)
+        self.experiments = check_data(self, data)
         if p0 is None:
             raise ValueError(
                 f"p0 is required: give a start value for every parameter "
                 f"{list(model.params)} (dict or array)"
             )
         self.p0 = model.params_array(p0, "p0")
-        self.x0 = self._check_x0(x0)
-        self.free_x0 = _name_list("free_x0", free_x0, model.states, "states")
-        self.fixed = _name_list("fixed", fixed, model.params, "params")
+        self.x0 = check_x0(self, x0)
+        self.free_x0 = name_list("free_x0", free_x0, model.states, "states")
+        self.fixed = name_list("fixed", fixed, model.params, "params")
         self.free_params = [n for n in model.params if n not in self.fixed]
         discretisation = Discretisation.resolve(
             discretisation, scheme, substeps, interpolation, rtol, atol
         ).for_model(model)
         self.discretisation = discretisation
-        self.weights = self._check_weights(weights)
+        self.weights = check_weights(self, weights)
         self.loss, scale = make_loss(
             loss, loss_scale, list(model.outputs), self.weights, [e.y for e in self.experiments]
         )
@@ -156,8 +140,8 @@ class Problem:
         self.loss_weights = np.stack([self.weights, scale])
         # an estimated scale is checked against the residuals after a fit (fitting/robust.py)
         self.loss_scale_estimated = not self.loss.squared and loss_scale is None
-        self.lower, self.upper = self._check_bounds(bounds or {})
-        self.priors, self.noise_variance = self._check_priors(priors, noise)
+        self.lower, self.upper = check_bounds(self, bounds or {})
+        self.priors, self.noise_variance = check_priors(self, priors, noise)
         # an estimate, not the user's word: a fit may re-estimate it (fitting/priors.py)
         self.noise_estimated = bool(self.priors) and noise is None
         if self.K == 0:
@@ -182,6 +166,17 @@ class Problem:
     def inputs(self, e: Experiment) -> np.ndarray:
         """The inputs the model sees on experiment e: delayed where the model says so."""
         return self.model.delayed(e.t, e.u, self.discretisation.interpolation)
+
+    @property
+    def sweeps(self) -> Sweeps:
+        """The compiled sweeps of this θ layout, discretisation and loss (shared by every
+        Problem with the same ones)."""
+        return self._sweeps
+
+    @property
+    def arrays(self) -> list[tuple]:
+        """Per experiment, (t, u as the model sees it (delayed), y) as JAX arrays."""
+        return self._arrays
 
     @property
     def segments(self) -> list[int]:
@@ -236,171 +231,11 @@ class Problem:
             float(np.sum(self.weights * np.asarray(y) ** 2)) for _, _, y in self._arrays
         )
 
-    # -- input checks ---------------------------------------------------------------
-    def _check_data(self, data) -> list[Experiment]:
-        if not isinstance(data, Experiment | list | tuple):
-            raise TypeError(
-                f"data must be a tensorid.Experiment or a list of them, got "
-                f"{type(data).__name__}; build one with ti.Experiment(t, u, y) or read "
-                "files with ti.load_data(path, model)"
-            )
-        exps = [data] if isinstance(data, Experiment) else list(data)
-        if not exps:
-            raise ValueError("data is empty: pass an Experiment or a list of them")
-        m = self.model
-        for i, e in enumerate(exps):
-            if not isinstance(e, Experiment):
-                raise TypeError(
-                    f"data: experiment {i} is a {type(e).__name__}, not a tensorid.Experiment"
-                )
-            where = f"experiment {i}" + (f" ({e.name})" if e.name else "")
-            if e.y is None:
-                raise ValueError(f"{where} has no measured outputs y; a fit needs them")
-            if e.u.shape[1] != m.U:
-                raise ValueError(
-                    f"{where} has {e.u.shape[1]} input column(s) but the model "
-                    f"has {m.U} inputs {list(m.inputs)}"
-                )
-            if m.discrete and e.P > 2:
-                dt = np.diff(e.t)
-                if np.abs(dt - dt.mean()).max() > 1e-6 * abs(dt.mean()):
-                    raise ValueError(
-                        f"{where}: a discrete-time model steps once per sample, but the "
-                        "sample times are not uniform; resample the record to one rate, "
-                        "or take the samples as uniform with the sampling time (--ts on "
-                        "the command line, ts= in load_data)"
-                    )
-            if e.y.shape[1] != m.S:
-                raise ValueError(
-                    f"{where} has {e.y.shape[1]} output column(s) but the model "
-                    f"has {m.S} outputs {list(m.outputs)}"
-                )
-        return exps
-
-    def _check_x0(self, x0) -> np.ndarray:
-        m, E = self.model, len(self.experiments)
-        if x0 is None:
-            return np.zeros((E, m.N))
-        if isinstance(x0, Mapping):
-            return np.tile(m.states_array(x0), (E, 1))
-        if isinstance(x0, Sequence) and x0 and isinstance(x0[0], Mapping):
-            if len(x0) != E:
-                raise ValueError(f"x0 has {len(x0)} dicts but there are {E} experiments")
-            return np.stack([m.states_array(d, f"x0[{i}]") for i, d in enumerate(x0)])
-        arr = np.asarray(x0, dtype=float)
-        if arr.ndim == 1:
-            return np.tile(m.states_array(arr), (E, 1))
-        if arr.shape != (E, m.N):
-            raise ValueError(
-                f"x0 must have shape ({m.N},) or ({E}, {m.N}) for "
-                f"{E} experiment(s) and states {list(m.states)}, got {arr.shape}"
-            )
-        if not np.isfinite(arr).all():
-            raise ValueError("x0 contains non-finite values")
-        return arr
-
-    def _check_weights(self, weights) -> np.ndarray:
-        m = self.model
-        scale = self._output_scales()
-        if weights is None:
-            if m.S > 1 and scale.min() > 0 and scale.max() / scale.min() > 1e3:
-                sizes = ", ".join(f"{o} ~ {v:.1e}" for o, v in zip(m.outputs, scale, strict=True))
-                warnings.warn(
-                    f"the outputs differ in scale by {scale.max() / scale.min():.0e} ({sizes}) "
-                    "and no weights were given: the fit will all but ignore the small ones; "
-                    "pass weights='auto' (1/variance of each output) or weights={output: w}",
-                    UserWarning,
-                    stacklevel=3,
-                )
-            return np.ones(m.S)
-        if isinstance(weights, str):
-            if weights != "auto":
-                raise ValueError(f"weights must be 'auto', a dict or an array, got {weights!r}")
-            if not (scale > 0).all():
-                flat = [o for o, v in zip(m.outputs, scale, strict=True) if not v > 0]
-                raise ValueError(
-                    f"weights='auto' needs outputs that vary; {flat} are constant in the data: "
-                    "give weights={output: w} instead"
-                )
-            return 1.0 / scale**2
-        if isinstance(weights, Mapping):
-            w = _name_list("weights", list(weights), m.outputs, "outputs")
-            out = np.ones(m.S)
-            for n in w:
-                out[m.outputs.index(n)] = float(weights[n])
-        else:
-            out = np.asarray(weights, dtype=float).reshape(-1)
-            if out.shape != (m.S,):
-                raise ValueError(f"weights must have one value per output {list(m.outputs)}")
-        if not np.isfinite(out).all() or (out < 0).any():
-            raise ValueError("weights must be finite and non-negative")
-        return out
-
-    def _check_priors(self, priors, noise) -> tuple[dict, float]:
-        """{θ index: (mean, sd)} for the priors, and the noise variance that weighs them."""
-        if not priors:
-            if noise is not None:
-                raise ValueError("noise is only used with priors; give priors={name: (mean, sd)}")
-            return {}, float("nan")
-        if not isinstance(priors, Mapping):
-            raise TypeError(f"priors must be a dict {{parameter: (mean, sd)}}, got {priors!r}")
-        out = {}
-        for name, spec in priors.items():
-            if name not in self.free_params:
-                why = "fixed" if name in self.fixed else "not a parameter of the model"
-                raise ValueError(
-                    f"priors[{name!r}]: {name!r} is {why}; priors go on free parameters "
-                    f"{self.free_params}"
-                )
-            try:
-                mean, sd = (float(v) for v in spec)
-            except (TypeError, ValueError):
-                raise ValueError(f"priors[{name!r}] must be (mean, sd), got {spec!r}") from None
-            if not (np.isfinite(mean) and np.isfinite(sd) and sd > 0):
-                raise ValueError(f"priors[{name!r}] = ({mean}, {sd}): need a finite mean, sd > 0")
-            out[self.theta_names.index(name)] = (mean, sd)
-        if noise is None:
-            estimate = self._noise_from_data()
-            if not estimate > 0:
-                raise ValueError(
-                    "priors: the measured outputs show no noise to weigh the priors against "
-                    "(their second differences vanish); give noise= (a standard deviation)"
-                )
-            return out, estimate
-        if not (isinstance(noise, int | float) and np.isfinite(noise) and noise > 0):
-            raise ValueError(f"noise must be a standard deviation > 0, got {noise!r}")
-        return out, float(noise) ** 2
-
-    def _noise_from_data(self) -> float:
-        """The variance of a unit-weight residual, from the measured outputs alone: for
-        white noise on a signal that is smooth at the sampling rate, the second
-        difference y[k+1] − 2y[k] + y[k−1] has variance 6σ²."""
-        num = den = 0.0
-        for e in self.experiments:
-            d2 = np.diff(e.measured, n=2, axis=0)
-            num += float((self.weights * (d2**2).sum(axis=0)).sum()) / 6.0
-            den += d2.shape[0] * int((self.weights > 0).sum())
-        return num / max(den, 1.0)
-
-    def _prior_terms(self, theta, parts: str, more, out: list) -> None:
-        """Add the priors' terms to the assembled results (in place)."""
-        idx = np.array(list(self.priors))
-        mean = np.array([m for m, _ in self.priors.values()])
-        prec = self.noise_variance / np.array([sd for _, sd in self.priors.values()]) ** 2
-        d = theta[..., idx] - mean
-        seen_g = False
-        for k, c in enumerate(parts):
-            if c == "J":
-                out[k] = out[k] + (prec * d**2).sum(axis=-1)
-            elif c == "g" and not seen_g:
-                out[k][..., idx] += 2 * prec * d
-                seen_g = True
-            elif c == "g":  # a Hessian-vector product
-                out[k][..., idx] += 2 * prec * np.asarray(more[0])[..., idx]
-            elif c in "HP":
-                out[k][..., idx, idx] += 2 * prec
-            elif c == "r":
-                out[k] = np.concatenate([out[k], (np.sqrt(prec) * d).reshape(-1)])
+    # -- priors (engine/priors.py) ---------------------------------------------------
+    def add_prior_terms(self, theta, parts: str, more, out: list) -> None:
+        """Add the priors' terms to results assembled in θ's layout (in place): ``parts``
+        as in :meth:`_assemble`, ``more`` its extra arguments (a direction v)."""
+        add_prior_terms(self, theta, parts, more, out)
 
     def prior_cost(self, theta) -> float:
         """The priors' part of J at θ (0 without priors)."""
@@ -419,56 +254,6 @@ class Problem:
         for i, (_, sd) in self.priors.items():
             out[i] = 2 * self.noise_variance / sd**2
         return out
-
-    def _output_scales(self) -> np.ndarray:
-        """The standard deviation of each measured output, all experiments together."""
-        y = np.concatenate([e.y for e in self.experiments])
-        with np.errstate(over="ignore", invalid="ignore"):
-            return np.nan_to_num(np.std(y, axis=0), nan=np.inf, posinf=np.inf)
-
-    def _check_bounds(self, bounds: Mapping) -> tuple[np.ndarray, np.ndarray]:
-        m = self.model
-        _name_list("bounds", list(bounds), list(m.params) + list(m.states), "params or states")
-        for name in bounds:
-            if name in self.fixed:
-                raise ValueError(f"bounds given for {name!r}, which is fixed; drop one of them")
-            if name in m.states and name not in self.free_x0:
-                raise ValueError(
-                    f"bounds given for the initial state {name!r}, which is not "
-                    "in free_x0; add it to free_x0 or drop the bound"
-                )
-        lo = np.full(self.K, -np.inf)
-        hi = np.full(self.K, np.inf)
-        names = self.theta_entries
-        for k, (name, _) in enumerate(names):
-            if name in bounds:
-                try:
-                    a, b = bounds[name]
-                except (TypeError, ValueError):
-                    raise ValueError(
-                        f"bounds[{name!r}] must be a pair (lo, hi), got {bounds[name]!r}"
-                    ) from None
-                a = -np.inf if a is None else float(a)
-                b = np.inf if b is None else float(b)
-                if np.isnan(a) or np.isnan(b):
-                    raise ValueError(
-                        f"bounds[{name!r}] = ({a}, {b}) holds NaN; give numbers, or None "
-                        "(or -inf/inf) for no bound on that side"
-                    )
-                if a > b:
-                    raise ValueError(f"bounds[{name!r}] = ({a}, {b}) has lo > hi; swap them")
-                lo[k], hi[k] = a, b
-        theta0 = self.theta0
-        out = (theta0 < lo) | (theta0 > hi)
-        if out.any():
-            k = int(np.argmax(out))
-            what = "p0" if names[k][0] in m.params else "x0"
-            raise ValueError(
-                f"{what}[{names[k][0]!r}] = {theta0[k]:g} is outside its bounds "
-                f"({lo[k]:g}, {hi[k]:g}); move the start inside or widen the "
-                "bounds"
-            )
-        return lo, hi
 
     # -- θ layout ---------------------------------------------------------------------
     @property
@@ -576,7 +361,7 @@ class Problem:
                     acc[..., idx[:, None], idx[None, :]] += v
         out = [np.concatenate(a) if c == "r" else a for a, c in zip(out, parts, strict=True)]
         if self.priors:
-            self._prior_terms(theta, parts, more, out)
+            self.add_prior_terms(theta, parts, more, out)
         ok = np.ones(lead, dtype=bool)
         for a in out:
             ok &= (
@@ -679,7 +464,7 @@ class Problem:
             x0, p = jnp.asarray(self.x0[e]), jnp.asarray(self.p0)
 
             def outputs(local, x0=x0, p=p, t=t, u=u):
-                x0_, p_ = self._sweeps._expand(local, x0, p)
+                x0_, p_ = self._sweeps.expand(local, x0, p)
                 return self._sweeps._simulate(x0_, p_, t, u)[1].reshape(-1)
 
             dy = np.asarray(jax.jacfwd(outputs)(jnp.asarray(theta[idx])))

@@ -131,11 +131,11 @@ class Shooting:
         self.theta_index = np.concatenate(
             [self.state_slice(e, 0) for e in range(len(counts))] + [self.param_slice()]
         ).astype(int)
-        self.first_sweeps = problem._sweeps
+        self.first_sweeps = problem.sweeps
         self.state_sweeps = shared_sweeps(
             m,
             tuple(range(m.N)),
-            problem._sweeps.free_params,
+            problem.sweeps.free_params,
             problem.discretisation,
             problem.loss,
         )
@@ -181,7 +181,7 @@ class Shooting:
 
     def _inputs(self, e: int) -> np.ndarray:
         """Experiment e's inputs as the model sees them (delayed), from the Problem."""
-        return np.asarray(self.problem._arrays[e][1])
+        return np.asarray(self.problem.arrays[e][1])
 
     def _segment_data(self, e: int, i: int):
         ex, k = self.problem.experiments[e], self.bounds[e]
@@ -233,7 +233,7 @@ class Shooting:
         """The priors' terms, as the Problem adds them in θ's layout, placed into z's."""
         pr, w = self.problem, self.theta_index
         out = [0.0, np.zeros(pr.K), np.zeros((pr.K, pr.K))]
-        pr._prior_terms(self.to_theta(z), "JgH", (), out)
+        pr.add_prior_terms(self.to_theta(z), "JgH", (), out)
         g[w] += out[1]
         H[np.ix_(w, w)] += out[2]
         return J + float(out[0]), g, H
@@ -314,7 +314,7 @@ class Shooting:
             free = [pr.model.states.index(n) for n in pr.free_x0]
             p = (
                 jnp.asarray(pr.p0)
-                .at[jnp.array(pr._sweeps.free_params, dtype=int)]
+                .at[jnp.array(pr.sweeps.free_params, dtype=int)]
                 .set(z[self.param_slice()])
             )
             for i in range(len(k) - 1):

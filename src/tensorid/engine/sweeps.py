@@ -109,13 +109,13 @@ class Sweeps:
         return len(self.free_states) + len(self.free_params)
 
     # -- pieces shared by all sweeps -------------------------------------------------
-    def _expand(self, theta, x0, p):
+    def expand(self, theta, x0, p):
         nx = len(self.free_states)
         x0 = x0.at[jnp.array(self.free_states, dtype=int)].set(theta[:nx]) if nx else x0
         p = p.at[jnp.array(self.free_params, dtype=int)].set(theta[nx:]) if self.free_params else p
         return x0, p
 
-    def _seeds(self):
+    def seeds(self):
         """dx(t0) (N, K): unit columns for free initial states; P (M, K): the parameter
         rows of Z, constant in time."""
         N, M, K, nx = self.model.N, self.model.M, self.K, len(self.free_states)
@@ -168,7 +168,7 @@ class Sweeps:
         return xs, ys, code, at
 
     def _cost(self, theta, x0, p, t, u, y, w):
-        x0, p = self._expand(theta, x0, p)
+        x0, p = self.expand(theta, x0, p)
         m = self.model
 
         def field(x, uu):
@@ -181,7 +181,7 @@ class Sweeps:
         return J
 
     def _residuals(self, theta, x0, p, t, u, y, w):
-        x0, p = self._expand(theta, x0, p)
+        x0, p = self.expand(theta, x0, p)
         _, ys, _, _ = self._simulate(x0, p, t, u)
         return self.loss.residual(y, ys, w).reshape(-1)
 
@@ -189,9 +189,9 @@ class Sweeps:
     def _first_order(self, theta, x0, p, t, u, y, w, gauss_newton=True, end=False):
         """(J, ∇J, 2 Σ w (C_z Z)ᵀ(C_z Z)); the last is None when not ``gauss_newton``.
         With ``end``, also (x, dx) at the last sample (see _weighted for y and w)."""
-        x0, p = self._expand(theta, x0, p)
+        x0, p = self.expand(theta, x0, p)
         m, K = self.model, self.K
-        dx0, Psel = self._seeds()
+        dx0, Psel = self.seeds()
         Pt = jnp.asarray(Psel.T)
 
         def columns(fn, x, dx):
@@ -227,9 +227,9 @@ class Sweeps:
         (x, dx, d2x) at the last sample (see _weighted for y and w). With ``both``
         (v None), also the packed Gauss-Newton part: it is a term of the sum anyway,
         and the hybrid method compares the two models."""
-        x0, p = self._expand(theta, x0, p)
+        x0, p = self.expand(theta, x0, p)
         m, N, M, K = self.model, self.model.N, self.model.M, self.K
-        dx0, Psel = self._seeds()
+        dx0, Psel = self.seeds()
         # the parameter parts of the directions are constants (or Psel v): keeping them
         # apart from the state parts, rather than in z = (x, p), spares the compiled
         # sweep the concatenations, which costs ~30 % of its time on Silverbox

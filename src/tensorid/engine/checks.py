@@ -1,0 +1,183 @@
+"""The checks of a Problem's input: every mistake in the data, start values, weights and
+bounds is one clear line before anything compiles. Each function takes the Problem
+under construction (what it has set so far) and returns the checked value."""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from .data import Experiment
+
+
+def name_list(what: str, names, known: Sequence[str], kind: str) -> list[str]:
+    if names is None:
+        return []
+    if isinstance(names, str):
+        names = [names]
+    names = list(names)
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise ValueError(
+            f"{what} names unknown {kind} {unknown}; the model's {kind} are {list(known)}"
+        )
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise ValueError(f"{what} repeats {dup}")
+    return names
+
+
+def check_data(problem, data) -> list[Experiment]:
+    if not isinstance(data, Experiment | list | tuple):
+        raise TypeError(
+            f"data must be a tensorid.Experiment or a list of them, got "
+            f"{type(data).__name__}; build one with ti.Experiment(t, u, y) or read "
+            "files with ti.load_data(path, model)"
+        )
+    exps = [data] if isinstance(data, Experiment) else list(data)
+    if not exps:
+        raise ValueError("data is empty: pass an Experiment or a list of them")
+    m = problem.model
+    for i, e in enumerate(exps):
+        if not isinstance(e, Experiment):
+            raise TypeError(
+                f"data: experiment {i} is a {type(e).__name__}, not a tensorid.Experiment"
+            )
+        where = f"experiment {i}" + (f" ({e.name})" if e.name else "")
+        if e.y is None:
+            raise ValueError(f"{where} has no measured outputs y; a fit needs them")
+        if e.u.shape[1] != m.U:
+            raise ValueError(
+                f"{where} has {e.u.shape[1]} input column(s) but the model "
+                f"has {m.U} inputs {list(m.inputs)}"
+            )
+        if m.discrete and e.P > 2:
+            dt = np.diff(e.t)
+            if np.abs(dt - dt.mean()).max() > 1e-6 * abs(dt.mean()):
+                raise ValueError(
+                    f"{where}: a discrete-time model steps once per sample, but the "
+                    "sample times are not uniform; resample the record to one rate, "
+                    "or take the samples as uniform with the sampling time (--ts on "
+                    "the command line, ts= in load_data)"
+                )
+        if e.y.shape[1] != m.S:
+            raise ValueError(
+                f"{where} has {e.y.shape[1]} output column(s) but the model "
+                f"has {m.S} outputs {list(m.outputs)}"
+            )
+    return exps
+
+
+def check_x0(problem, x0) -> np.ndarray:
+    m, E = problem.model, len(problem.experiments)
+    if x0 is None:
+        return np.zeros((E, m.N))
+    if isinstance(x0, Mapping):
+        return np.tile(m.states_array(x0), (E, 1))
+    if isinstance(x0, Sequence) and x0 and isinstance(x0[0], Mapping):
+        if len(x0) != E:
+            raise ValueError(f"x0 has {len(x0)} dicts but there are {E} experiments")
+        return np.stack([m.states_array(d, f"x0[{i}]") for i, d in enumerate(x0)])
+    arr = np.asarray(x0, dtype=float)
+    if arr.ndim == 1:
+        return np.tile(m.states_array(arr), (E, 1))
+    if arr.shape != (E, m.N):
+        raise ValueError(
+            f"x0 must have shape ({m.N},) or ({E}, {m.N}) for "
+            f"{E} experiment(s) and states {list(m.states)}, got {arr.shape}"
+        )
+    if not np.isfinite(arr).all():
+        raise ValueError("x0 contains non-finite values")
+    return arr
+
+
+def check_weights(problem, weights) -> np.ndarray:
+    m = problem.model
+    scale = output_scales(problem)
+    if weights is None:
+        if m.S > 1 and scale.min() > 0 and scale.max() / scale.min() > 1e3:
+            sizes = ", ".join(f"{o} ~ {v:.1e}" for o, v in zip(m.outputs, scale, strict=True))
+            warnings.warn(
+                f"the outputs differ in scale by {scale.max() / scale.min():.0e} ({sizes}) "
+                "and no weights were given: the fit will all but ignore the small ones; "
+                "pass weights='auto' (1/variance of each output) or weights={output: w}",
+                UserWarning,
+                stacklevel=3,
+            )
+        return np.ones(m.S)
+    if isinstance(weights, str):
+        if weights != "auto":
+            raise ValueError(f"weights must be 'auto', a dict or an array, got {weights!r}")
+        if not (scale > 0).all():
+            flat = [o for o, v in zip(m.outputs, scale, strict=True) if not v > 0]
+            raise ValueError(
+                f"weights='auto' needs outputs that vary; {flat} are constant in the data: "
+                "give weights={output: w} instead"
+            )
+        return 1.0 / scale**2
+    if isinstance(weights, Mapping):
+        w = name_list("weights", list(weights), m.outputs, "outputs")
+        out = np.ones(m.S)
+        for n in w:
+            out[m.outputs.index(n)] = float(weights[n])
+    else:
+        out = np.asarray(weights, dtype=float).reshape(-1)
+        if out.shape != (m.S,):
+            raise ValueError(f"weights must have one value per output {list(m.outputs)}")
+    if not np.isfinite(out).all() or (out < 0).any():
+        raise ValueError("weights must be finite and non-negative")
+    return out
+
+
+def output_scales(problem) -> np.ndarray:
+    """The standard deviation of each measured output, all experiments together."""
+    y = np.concatenate([e.y for e in problem.experiments])
+    with np.errstate(over="ignore", invalid="ignore"):
+        return np.nan_to_num(np.std(y, axis=0), nan=np.inf, posinf=np.inf)
+
+
+def check_bounds(problem, bounds: Mapping) -> tuple[np.ndarray, np.ndarray]:
+    m = problem.model
+    name_list("bounds", list(bounds), list(m.params) + list(m.states), "params or states")
+    for name in bounds:
+        if name in problem.fixed:
+            raise ValueError(f"bounds given for {name!r}, which is fixed; drop one of them")
+        if name in m.states and name not in problem.free_x0:
+            raise ValueError(
+                f"bounds given for the initial state {name!r}, which is not "
+                "in free_x0; add it to free_x0 or drop the bound"
+            )
+    lo = np.full(problem.K, -np.inf)
+    hi = np.full(problem.K, np.inf)
+    names = problem.theta_entries
+    for k, (name, _) in enumerate(names):
+        if name in bounds:
+            try:
+                a, b = bounds[name]
+            except (TypeError, ValueError):
+                raise ValueError(
+                    f"bounds[{name!r}] must be a pair (lo, hi), got {bounds[name]!r}"
+                ) from None
+            a = -np.inf if a is None else float(a)
+            b = np.inf if b is None else float(b)
+            if np.isnan(a) or np.isnan(b):
+                raise ValueError(
+                    f"bounds[{name!r}] = ({a}, {b}) holds NaN; give numbers, or None "
+                    "(or -inf/inf) for no bound on that side"
+                )
+            if a > b:
+                raise ValueError(f"bounds[{name!r}] = ({a}, {b}) has lo > hi; swap them")
+            lo[k], hi[k] = a, b
+    theta0 = problem.theta0
+    out = (theta0 < lo) | (theta0 > hi)
+    if out.any():
+        k = int(np.argmax(out))
+        what = "p0" if names[k][0] in m.params else "x0"
+        raise ValueError(
+            f"{what}[{names[k][0]!r}] = {theta0[k]:g} is outside its bounds "
+            f"({lo[k]:g}, {hi[k]:g}); move the start inside or widen the "
+            "bounds"
+        )
+    return lo, hi
