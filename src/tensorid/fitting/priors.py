@@ -22,7 +22,6 @@ import copy
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
 
 from ..engine.status import Status
 from .summary import significant
@@ -186,6 +185,8 @@ def _chance(variance: float, residual: float, dof: int) -> bool:
     """Whether noise of ``variance`` leaves a residual variance like ``residual`` one
     time in a hundred or more (χ² with ``dof`` degrees of freedom): a short record's
     residual variance scatters by √(2/dof), 23 % at 40 samples."""
+    from scipy import stats  # here, not at the top: keeps `import tensorid` cheap
+
     lo, hi = stats.chi2.ppf([0.005, 0.995], dof) / dof
     return bool(lo <= residual / variance <= hi)
 

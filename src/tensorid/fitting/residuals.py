@@ -29,7 +29,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
 
 
 @dataclass
@@ -189,6 +188,8 @@ def residual_tests(res, max_lag: int = 25, level: float = 0.99) -> ResidualTests
     constant = [
         name for i, name in enumerate(model.inputs) if all(np.ptp(e.u[:, i]) == 0 for e in exps)
     ]
+    from scipy import stats  # here, not at the top: keeps `import tensorid` cheap
+
     q_white = stats.chi2.ppf(level, max_lag)
     q_cross = stats.chi2.ppf(level, max_lag + 1)
     for j, out in enumerate(model.outputs):

@@ -23,7 +23,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
 
 from .residuals import residual_count, too_few
 
@@ -262,6 +261,8 @@ def uncertainty(
         var[held] = _variances(H_gn, sigma2, names, flat_directions(H_gn, names), meat)[1][held]
         forms = ["gauss-newton" if h else form for h in held]
     se = np.full(K, np.nan) if missing else np.sqrt(var)
+    from scipy import stats  # here, not at the top: keeps `import tensorid` cheap
+
     q = stats.t.ppf(0.975, dof)
     ci = np.stack([theta - q * se, theta + q * se], axis=1)
     cut = _cut(problem, ci)
