@@ -282,9 +282,9 @@ def profile(
     if u.not_available:
         raise ValueError(f"profiles need the residual variance, and it is {u.not_available}")
     n_data = u.dof + problem.K
-    from scipy import stats  # here, not at the top: keeps `import tensorid` cheap
+    from scipy import special  # not scipy.stats: the same quantile, 0.3-1 s less import
 
-    dJ = u.sigma2 * stats.f.ppf(level, 1, max(n_data - problem.K, 1))
+    dJ = u.sigma2 * special.fdtri(1, max(n_data - problem.K, 1), level)  # F quantile
     out = {}
     # far along a profile the model may blow up: such trial points are rejected
     # steps (inf), so the overflow on the way is expected, not news for the user
