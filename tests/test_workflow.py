@@ -5,6 +5,7 @@ identifiability warnings, and the errors a user meets first."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import textwrap
@@ -348,19 +349,44 @@ def test_integration_options_on_the_command_line(workdir, capsys):
     assert err.startswith("tensorid: error: rtol/atol apply to the adaptive schemes")
 
 
-def test_compilation_cache_keeps_compiled_sweeps_on_disk(tmp_path):
-    # in a fresh process: the cache folder is process-wide JAX state
+def test_compilation_cache_is_on_by_default_and_can_be_turned_off(tmp_path):
+    # in a fresh process: the cache folder is process-wide JAX state. No call: the
+    # import turns the cache on (in $TENSORID_CACHE_DIR); after the opt-out a new
+    # model's sweeps compile without writing anything
     script = textwrap.dedent(
-        f"""
-        import numpy as np, tensorid as ti
-        ti.enable_compilation_cache({str(tmp_path / "cache")!r})
-        m = ti.Model(rhs=lambda x, p, u: -p[0] * x + u[0], output=lambda x, p: x,
-                     states=["x"], params=["k"], inputs=["u"], outputs=["y"])
-        t = np.linspace(0, 1, 17)
-        e = ti.Experiment(t, np.zeros(17), np.exp(-2 * t))
-        print(ti.fit(ti.Problem(m, e, p0={{"k": 1.0}}, x0=[1.0])).params["k"])
+        """
+        import os, numpy as np, tensorid as ti
+        def fit(k):
+            m = ti.Model(rhs=lambda x, p, u: -p[0] * x + u[0], output=lambda x, p: x,
+                         states=["x"], params=["k"], inputs=["u"], outputs=["y"])
+            t = np.linspace(0, 1, 17)
+            e = ti.Experiment(t, np.zeros(17), np.exp(-k * t))
+            return ti.fit(ti.Problem(m, e, p0={"k": 1.0}, x0=[1.0])).params["k"]
+        print(fit(2.0), len(os.listdir(os.environ["TENSORID_CACHE_DIR"])))
+        ti.disable_compilation_cache()
+        print(fit(3.0), len(os.listdir(os.environ["TENSORID_CACHE_DIR"])))
         """
     )
-    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
-    assert float(r.stdout.split()[-1]) == pytest.approx(2.0, rel=1e-3)  # RK4 x4 error
-    assert len(list((tmp_path / "cache").iterdir())) >= 2  # cost and Hessian sweeps, at least
+    env = {**os.environ, "TENSORID_CACHE_DIR": str(tmp_path / "cache")}
+    env.pop("TENSORID_CACHE", None)
+    r = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, check=True, env=env
+    )
+    (k2, n_on), (k3, n_off) = (line.split() for line in r.stdout.split("\n")[-3:-1])
+    assert float(k2) == pytest.approx(2.0, rel=1e-3)  # RK4 x4 error
+    assert float(k3) == pytest.approx(3.0, rel=1e-3)
+    assert int(n_on) >= 2 and int(n_off) == int(n_on)  # cost and Hessian sweeps, at least
+
+
+def test_tensorid_cache_0_turns_the_cache_off(monkeypatch):
+    import jax
+
+    from tensorid._config import default_compilation_cache
+
+    folder = jax.config.values["jax_compilation_cache_dir"]
+    monkeypatch.setenv("TENSORID_CACHE", "0")
+    try:
+        assert default_compilation_cache() is None
+        assert not jax.config.values["jax_enable_compilation_cache"]
+    finally:
+        ti.enable_compilation_cache(folder)

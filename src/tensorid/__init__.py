@@ -8,7 +8,7 @@ docs/architecture.md): ``engine`` (model, data, integrators, sweeps, problem),
 a user needs is re-exported here.
 """
 
-from ._config import __version__, enable_compilation_cache
+from ._config import __version__, disable_compilation_cache, enable_compilation_cache
 from .app.files import ModelSpec, load_data, load_model
 from .engine.data import Experiment
 from .engine.discretisation import Discretisation
@@ -65,6 +65,7 @@ __all__ = [
     "Uncertainty",
     "__version__",
     "enable_compilation_cache",
+    "disable_compilation_cache",
     "design_input",
     "fit",
     "fit_batch",

@@ -2,7 +2,14 @@
 
 Identification needs float64: the Silverbox cost Hessian spans ~18 orders of
 magnitude before scaling, and exactness tests compare to 1e-9 relative.
+
+Compiled sweeps are kept on disk by default (JAX's persistent compilation cache), so
+that a second process fitting the same problem skips most of the compilation, which
+is seconds against fits of a fraction of one. ``TENSORID_CACHE=0`` in the
+environment or ``disable_compilation_cache()`` turns it off.
 """
+
+import os
 
 import jax
 
@@ -10,21 +17,56 @@ __version__ = "0.1.0"
 
 jax.config.update("jax_enable_x64", True)
 
+_OFF = ("0", "false", "no", "off")
+
 
 def enable_compilation_cache(path=None) -> str:
     """Keep compiled sweeps on disk so that the next process skips compilation
     (JAX's persistent compilation cache). ``path`` defaults to $TENSORID_CACHE_DIR
-    or ~/.cache/tensorid/jax. The command-line tool turns this on; call it yourself
-    in scripts. Returns the folder used."""
-    import os
+    or ~/.cache/tensorid/jax. ``import tensorid`` already does this unless
+    $TENSORID_CACHE is 0 or JAX was given a cache folder of its own; call it to choose
+    another folder. Returns the folder used."""
     from pathlib import Path
+
+    from jax.experimental.compilation_cache import compilation_cache
 
     folder = Path(
         path or os.environ.get("TENSORID_CACHE_DIR") or Path.home() / ".cache/tensorid/jax"
     )
     folder.mkdir(parents=True, exist_ok=True)
+    jax.config.update("jax_enable_compilation_cache", True)
     jax.config.update("jax_compilation_cache_dir", str(folder))
     # our sweeps compile in 0.1-3 s: cache them all, not only the > 1 s default
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    compilation_cache.reset_cache()  # JAX reads the folder once, at the first compile
     return str(folder)
+
+
+def disable_compilation_cache() -> None:
+    """Compile everything in this process afresh and write nothing to disk (the
+    same as TENSORID_CACHE=0 in the environment before ``import tensorid``)."""
+    from jax.experimental.compilation_cache import compilation_cache
+
+    jax.config.update("jax_enable_compilation_cache", False)
+    compilation_cache.reset_cache()
+
+
+def default_compilation_cache() -> str | None:
+    """The cache as ``import tensorid`` and the command line set it up: on, in the
+    default folder, unless $TENSORID_CACHE says off or JAX already has a folder (the
+    user's own choice). A folder that cannot be made only leaves the cache off: a
+    read-only home must not stop a fit. Returns the folder, or None when off."""
+    if os.environ.get("TENSORID_CACHE", "1").strip().lower() in _OFF:
+        disable_compilation_cache()
+        return None
+    own = jax.config.values.get("jax_compilation_cache_dir")
+    if own:
+        return str(own)
+    try:
+        return enable_compilation_cache()
+    except OSError:
+        return None
+
+
+default_compilation_cache()

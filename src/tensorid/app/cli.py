@@ -495,9 +495,9 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     to fix it; a traceback only hides that (set TENSORID_TRACEBACK=1 to see it)."""
     args = parser.parse_args(argv)
     args.argv = sys.argv[1:] if argv is None else list(argv)  # for the results' provenance
-    from .._config import enable_compilation_cache
+    from .._config import default_compilation_cache
 
-    enable_compilation_cache()
+    default_compilation_cache()  # on unless TENSORID_CACHE=0
     try:
         with _notes():
             return args.func(args)

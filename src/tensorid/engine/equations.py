@@ -12,24 +12,27 @@ must be named, and every other symbol is a parameter (in alphabetical order, unl
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING
 
 import jax.numpy as jnp
-import sympy as sp
 
 from .model import Model
 
+if TYPE_CHECKING:
+    import sympy as sp
+
 # names SymPy would otherwise read as its own constants or functions
-_LOCALS = {
-    name: sp.Symbol(name)
-    for name in ("beta", "gamma", "zeta", "lambda", "E", "I", "N", "O", "Q", "S")
-}
+_LOCALS = ("beta", "gamma", "zeta", "lambda", "E", "I", "N", "O", "Q", "S")
 
 
 def _parse(where: str, text: str, symbols: dict) -> sp.Expr:
+    import sympy as sp  # here, not at the top: sympy costs 0.2-0.5 s to import
+
     if not isinstance(text, str | int | float):
         raise TypeError(f"{where} must be a string like 'a*x - b', got {type(text).__name__}")
     try:
-        expr = sp.sympify(str(text), locals={**_LOCALS, **symbols})
+        names = {n: sp.Symbol(n) for n in _LOCALS}
+        expr = sp.sympify(str(text), locals={**names, **symbols})
     except (sp.SympifyError, SyntaxError, TypeError) as e:
         # SymPy's message spans lines; its last line says what was wrong
         why = [ln.strip() for ln in str(e).splitlines() if ln.strip()][-1:] or ["invalid"]
@@ -61,7 +64,7 @@ def _unknown_symbols(missing, rhs_e, out_e, states, output, inputs, params) -> s
     rhs), an output expression with a typo, or a parameter left out of ``params``."""
 
     def users(exprs, keys, n) -> list[str]:
-        return [k for k, e in zip(keys, exprs, strict=True) if sp.Symbol(n) in e.free_symbols]
+        return [k for k, e in zip(keys, exprs, strict=True) if n in map(str, e.free_symbols)]
 
     lines = []
     for n in missing:
@@ -93,6 +96,8 @@ def model_from_equations(
         raise TypeError(
             f"output must be a dict {{output name: 'expression'}}, got {type(output).__name__}"
         )
+    import sympy as sp  # here, not at the top: see _parse
+
     states = list(rhs)
     output = dict(output) if output is not None else {s: s for s in states}
     inputs = _names("inputs", inputs)

@@ -19,7 +19,6 @@ g nearly orthogonal to the lowest eigenvector) the dense solver takes over.
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve, cho_solve_banded, cholesky_banded
 
 from .trust_region import solve_subproblem
 
@@ -63,6 +62,9 @@ class _Shifted:
         self.last = None
 
     def __call__(self, lam: float, g: np.ndarray):
+        # scipy is imported where it is used: `import tensorid` stays cheap
+        from scipy.linalg import cho_factor, cho_solve, cho_solve_banded, cholesky_banded
+
         nb = self.nb
         ab = self.ab.copy()
         ab[0] += lam
@@ -80,6 +82,8 @@ class _Shifted:
 
     def inverse_norm2(self, s: np.ndarray) -> float:
         """sᵀ(H + λI)⁻¹s for the λ of the last successful call."""
+        from scipy.linalg import cho_solve, cho_solve_banded
+
         L, X, F = self.last
         nb = self.nb
         y_b = cho_solve_banded((L, True), s[:nb])

@@ -8,7 +8,6 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
-import scipy.optimize
 
 from ..engine.status import Status
 from .options import FitOptions
@@ -44,6 +43,8 @@ def run_baseline(
                 "nfev": tr.nfev,
             }
         )
+
+    import scipy.optimize  # here, not at the top: keeps `import tensorid` cheap
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

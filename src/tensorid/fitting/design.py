@@ -26,7 +26,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import optimize
 
 from ..engine.data import Experiment
 from ..engine.problem import Problem
@@ -271,6 +270,8 @@ def _optimise(objective, a0, lo, hi, starts: int, seed: int) -> np.ndarray:
     for p in points:
         if not np.isfinite(objective(p)):
             continue
+        from scipy import optimize  # here, not at the top: keeps `import tensorid` cheap
+
         r = optimize.minimize(objective, p, method="L-BFGS-B", bounds=box)
         if r.fun < best_value:
             best, best_value = np.asarray(r.x), float(r.fun)

@@ -19,7 +19,9 @@ def new_figure(**kwargs):
 
 def save_png(fig, path: Path) -> Path:
     """Write ``fig`` as PNG to ``path`` (whatever its suffix)."""
-    fig.savefig(path, dpi=120, format="png")
+    # 100 dpi and light compression: a fifth less time than 120 dpi at zlib's
+    # default, for files of about the same size (the CLI writes 4+ after every fit)
+    fig.savefig(path, dpi=100, format="png", pil_kwargs={"compress_level": 1})
     return path
 
 

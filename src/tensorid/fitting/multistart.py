@@ -106,7 +106,9 @@ def process_pool(workers: int) -> ProcessPoolExecutor:
     )
     import jax
 
-    cache = jax.config.values.get("jax_compilation_cache_dir")  # shared with the parent
+    # the parent's cache folder, or None where it turned the cache off
+    on = jax.config.values.get("jax_enable_compilation_cache")
+    cache = jax.config.values.get("jax_compilation_cache_dir") if on else None
     return ProcessPoolExecutor(
         workers, mp_context=get_context("spawn"), initializer=_worker_init, initargs=(cache,)
     )
@@ -118,10 +120,12 @@ def _worker_init(cache: str | None) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     # one core per worker: the adjoint Hessian's threads would only contend
     os.environ.setdefault("TENSORID_THREADS", "1")
-    if cache:
-        from .._config import enable_compilation_cache
+    from .._config import disable_compilation_cache, enable_compilation_cache
 
+    if cache:
         enable_compilation_cache(cache)
+    else:
+        disable_compilation_cache()
 
 
 _WORKER_PROBLEMS: dict[str, Any] = {}

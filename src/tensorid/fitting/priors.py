@@ -22,7 +22,6 @@ import copy
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
 
 from ..engine.status import Status
 from .summary import significant
@@ -186,7 +185,9 @@ def _chance(variance: float, residual: float, dof: int) -> bool:
     """Whether noise of ``variance`` leaves a residual variance like ``residual`` one
     time in a hundred or more (χ² with ``dof`` degrees of freedom): a short record's
     residual variance scatters by √(2/dof), 23 % at 40 samples."""
-    lo, hi = stats.chi2.ppf([0.005, 0.995], dof) / dof
+    from scipy import special  # not scipy.stats: the same quantile, 0.3-1 s less import
+
+    lo, hi = 2 * special.gammaincinv(dof / 2, [0.005, 0.995]) / dof  # χ² quantiles
     return bool(lo <= residual / variance <= hi)
 
 

@@ -29,7 +29,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
 
 
 @dataclass
@@ -194,8 +193,10 @@ def residual_tests(res, max_lag: int = 25, level: float = 0.99) -> ResidualTests
     constant = [
         name for i, name in enumerate(model.inputs) if all(np.ptp(e.u[:, i]) == 0 for e in exps)
     ]
-    q_white = stats.chi2.ppf(level, max_lag)
-    q_cross = stats.chi2.ppf(level, max_lag + 1)
+    from scipy import special  # not scipy.stats: the same quantiles, 0.3-1 s less import
+
+    q_white = 2 * special.gammaincinv(max_lag / 2, level)  # χ² quantiles
+    q_cross = 2 * special.gammaincinv((max_lag + 1) / 2, level)
     for j, out in enumerate(model.outputs):
         err = [e.measured[:, j] - s.y[:, j] for e, s in zip(exps, sims, strict=True)]
         r = _correlation(err, err, max_lag)
@@ -211,7 +212,7 @@ def residual_tests(res, max_lag: int = 25, level: float = 0.99) -> ResidualTests
             back = _correlation(u, err, max_lag)[1:]  # Σ e[k] u[k + τ]: later inputs
             what = f"{out} against input {name}"
             indep.append(Correlation(what, lags, c, Qc, q_cross, Qc <= q_cross, back))
-    bound = float(stats.norm.ppf(0.5 + level / 2) / np.sqrt(N))
+    bound = float(special.ndtri(0.5 + level / 2) / np.sqrt(N))
     return ResidualTests(level, max_lag, N, bound, white, indep, constant)
 
 

@@ -23,7 +23,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
 
 from .residuals import residual_count, too_few
 
@@ -262,7 +261,9 @@ def uncertainty(
         var[held] = _variances(H_gn, sigma2, names, flat_directions(H_gn, names), meat)[1][held]
         forms = ["gauss-newton" if h else form for h in held]
     se = np.full(K, np.nan) if missing else np.sqrt(var)
-    q = stats.t.ppf(0.975, dof)
+    from scipy import special  # not scipy.stats: the same quantile, 0.3-1 s less import
+
+    q = special.stdtrit(dof, 0.975)  # Student t quantile
     ci = np.stack([theta - q * se, theta + q * se], axis=1)
     cut = _cut(problem, ci)
     with np.errstate(divide="ignore", invalid="ignore"):
