@@ -33,6 +33,7 @@ def _shown(fitted):
         "Profile": (res.profile(["a"])["a"], ["a"]),
         "Score": (res.validate(e, 10)[0], ["y"]),
         "NoiseCheck": (with_prior.noise_check, ["y"]),
+        "ResidualTests": (res.residual_tests(8), ["whiteness of y", "y against input v"]),
     }
 
 
@@ -52,7 +53,7 @@ def test_results_print_as_tables_naming_the_unknowns_and_outputs(fitted):
 
 def test_the_fit_prints_its_summary_and_keeps_its_one_line_repr(fitted):
     res = fitted[0]
-    assert str(res) == res.summary()
+    assert str(res) == res.summary().rstrip("\n")
     assert repr(res).startswith("FitResult(method='auto', status=")
     assert "params={a=" in repr(res)
 

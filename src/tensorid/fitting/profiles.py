@@ -92,7 +92,7 @@ class Profile(Tabular):
             "flat": "flat (not identifiable)",
             "failed": "simulation fails",
         }
-        header = ["unknown", "estimate", f"{self.level:.0%} profile interval"]
+        header = ["unknown", "estimate", f"{100 * self.level:g} % profile interval"]
         header += ["lower side", "upper side", "points", "evaluations"]
         row = [self.name, significant(self.estimate), interval(*self.interval)]
         row += [how[self.ends[s]] for s in SIDES] + [str(self.values.size), str(self.evaluations)]

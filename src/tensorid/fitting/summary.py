@@ -159,7 +159,7 @@ class Table(NamedTuple):
 
 
 # columns of names, read left to right; every other column holds numbers
-LEFT = {"unknown", "record", "output", "note", "lower side", "upper side"}
+LEFT = {"unknown", "record", "output", "note", "lower side", "upper side", "test", "verdict"}
 
 
 def as_text(blocks: list) -> str:
@@ -208,7 +208,7 @@ class Tabular(ABC):
         """The display: lines of text and :class:`Table` s, in order."""
 
     def __str__(self) -> str:
-        return as_text(self.blocks())
+        return as_text(self.blocks()).rstrip("\n")  # print() adds the last newline
 
     def _repr_html_(self) -> str:
         return as_html(self.blocks())
