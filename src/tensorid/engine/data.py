@@ -168,7 +168,8 @@ class Experiment:
 
         inputs, outputs : the columns of ``u`` and ``y`` to keep, in the model's order
             (an index or a list of indices); None keeps them all.
-        Ts : the sampling period where the record has none (a discrete-time record).
+        Ts : the sampling period, for a record that has none (a discrete-time record);
+            given, it replaces the record's ``sampling_time``.
         name : the Experiment's name; default the record's ``name``.
         A list or tuple of records gives a list of Experiments."""
         if isinstance(record, (list, tuple)):
