@@ -169,7 +169,7 @@ def test_the_command_line_writes_null_and_the_reason(tmp_path, capsys):
     assert data["residual_tests"]["not_available"].startswith("not available: 1 lags on 2")
     report = (out / "report.md").read_text()
     assert "AIC, AICc, BIC not available" in report
-    assert not re.search(r"\bnan\b", report)  # (not the "nan" of "Provenance")
+    assert not re.search(r"\bnan\b", report)  # a word: "Provenance" holds the letters
     assert "residuals: tests not available" in capsys.readouterr().out
     assert not (out / "residual_tests.png").exists()
     # asked for more lags than the record supports: refused before any work

@@ -3,6 +3,8 @@ reported by the compiled march itself (experiment, sample, cause)."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from conftest import (
@@ -49,16 +51,21 @@ def test_every_status_has_its_own_message_and_integrator_codes_round_trip():
 )
 def test_the_integrator_reports_how_and_where_it_failed(scheme, substeps, status, sample):
     t = np.linspace(0, 2, 21)
-    sim = ti.simulate(
-        _blowup_model(), [1.0], [1.0], ti.Experiment(t), scheme=scheme, substeps=substeps
-    )
+    # the user who does not read sim.status is told too: where, and why
+    with pytest.warns(
+        RuntimeWarning, match=f"finite at sample {sample} .*{re.escape(status.message)}"
+    ):
+        sim = ti.simulate(
+            _blowup_model(), [1.0], [1.0], ti.Experiment(t), scheme=scheme, substeps=substeps
+        )
     assert sim.status is status and sim.failed_at == sample
     assert np.isfinite(sim.x[:sample]).all() and not np.isfinite(sim.x[sample]).all()
 
 
 def test_an_adaptive_scheme_on_a_stiff_model_reports_its_step_limit():
     data = robertson_data()
-    sim = ti.simulate(robertson_model(), ROBERTSON_K, [1.0, 0.0, 0.0], data, scheme="dopri5")
+    with pytest.warns(RuntimeWarning, match=re.escape(ti.Status.STEP_LIMIT.message)):
+        sim = ti.simulate(robertson_model(), ROBERTSON_K, [1.0, 0.0, 0.0], data, scheme="dopri5")
     assert sim.status is ti.Status.STEP_LIMIT and sim.failed_at >= 1
 
 

@@ -23,6 +23,80 @@ def _as_2d(name: str, a, P: int | None) -> np.ndarray:
     return arr
 
 
+def _init_window(n, P: int, what: str = "init_window") -> int:
+    """An initialisation window of at least 2 samples (the initial state is estimated
+    on them) that leaves at least 2 of P to score."""
+    try:
+        ok = not isinstance(n, bool) and float(n).is_integer() and 2 <= n <= P - 2
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise ValueError(
+            f"{what} must be a whole number of samples from 2 to {P - 2} (the record "
+            f"has {P}, and at least 2 are scored), got {n!r}"
+        )
+    return int(n)
+
+
+def _columns(name: str, a, keep, record: str) -> np.ndarray:
+    """``a`` as (P, channels), only the columns ``keep`` (an index or indices) where given."""
+    arr = np.asarray(a, dtype=float)
+    if arr.ndim == 1:
+        arr = arr[:, None]
+    if arr.ndim != 2 or arr.shape[0] < 2:
+        raise ValueError(
+            f"benchmark record {record!r}: {name} has shape {arr.shape}; expected (P,) or "
+            "(P, channels) with P >= 2 samples"
+        )
+    if keep is None:
+        return arr
+    cols = np.atleast_1d(np.asarray(keep))
+    if cols.dtype.kind not in "iu" or ((cols < 0) | (cols >= arr.shape[1])).any():
+        raise ValueError(
+            f"benchmark record {record!r}: {name}s={keep!r} must be column indices from 0 "
+            f"to {arr.shape[1] - 1} ({name} has {arr.shape[1]} column(s))"
+        )
+    return arr[:, cols]
+
+
+def _benchmark_fields(record, inputs, outputs, Ts, name) -> tuple:
+    """(u, y, sampling period, init window, name) of a benchmark record, checked."""
+    missing = [a for a in ("u", "y") if getattr(record, a, None) is None]
+    if missing:
+        raise ValueError(
+            f"a benchmark record needs attributes u and y (nonlinear_benchmarks' "
+            f"Input_output_data); this {type(record).__name__} lacks {', '.join(missing)}"
+        )
+    label = str(name if name is not None else getattr(record, "name", "") or "benchmark")
+    u = _columns("input", record.u, inputs, label)
+    y = _columns("output", record.y, outputs, label)
+    if u.shape[0] != y.shape[0]:
+        raise ValueError(
+            f"benchmark record {label!r}: u has {u.shape[0]} samples but y has {y.shape[0]}"
+        )
+    given = getattr(record, "sampling_time", None) if Ts is None else Ts
+    try:  # the package writes a discrete-time record's sampling_time as None or text
+        ts = float(given) if given is not None else np.nan
+    except (TypeError, ValueError):
+        ts = np.nan
+    if not (np.isfinite(ts) and ts > 0):
+        if Ts is not None:
+            what = f"got Ts={Ts!r}"
+        elif isinstance(given, (int, float)):
+            what = f"has sampling_time={given!r}"
+        else:
+            what = "has no sampling_time"
+        raise ValueError(
+            f"benchmark record {label!r} {what}; give Ts= the sampling period (a positive "
+            "number; 1.0 for a discrete-time model whose equations do not use time)"
+        )
+    window = getattr(record, "state_initialization_window_length", None)
+    if window is not None:
+        what = f"benchmark record {label!r}: its state_initialization_window_length"
+        window = _init_window(window, y.shape[0], what)
+    return u, y, ts, window, label
+
+
 def _check_finite(name: str, arr: np.ndarray) -> None:
     bad = ~np.isfinite(arr)
     if bad.any():
@@ -44,12 +118,17 @@ class Experiment:
     u : (P, U) or (P,) inputs at the sample times; None for an autonomous model.
     y : (P, S) or (P,) measured outputs; may be None for simulation only.
     name : label used in reports and parameter names.
+    init_window : the record's own initialisation window (a benchmark test record's
+        ``state_initialization_window_length``, see :meth:`from_benchmark`): the first
+        samples, spent estimating the initial state, that a score leaves out.
+        ``FitResult.validate`` uses it where no ``init_window`` is given. None: none.
     """
 
     t: np.ndarray
     u: np.ndarray = None  # type: ignore[assignment]  # None becomes (P, 0)
     y: np.ndarray | None = None
     name: str = ""
+    init_window: int | None = None
 
     def __post_init__(self) -> None:
         t = np.asarray(self.t, dtype=float)
@@ -76,6 +155,30 @@ class Experiment:
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "u", u)
         object.__setattr__(self, "y", y)
+        if self.init_window is not None:
+            object.__setattr__(self, "init_window", _init_window(self.init_window, P))
+
+    @classmethod
+    def from_benchmark(cls, record, inputs=None, outputs=None, *, Ts=None, name=None):
+        """A record of the nonlinear-benchmarks package (its loaders'
+        ``Input_output_data``, or any object with ``u``, ``y``, ``sampling_time`` and
+        ``state_initialization_window_length``) as an Experiment, its time axis
+        ``k · sampling_time`` from 0 and its initialisation window kept as
+        ``init_window`` (None where the record has none, as training records).
+
+        inputs, outputs : the columns of ``u`` and ``y`` to keep, in the model's order
+            (an index or a list of indices); None keeps them all.
+        Ts : the sampling period, for a record that has none (a discrete-time record);
+            given, it replaces the record's ``sampling_time``.
+        name : the Experiment's name; default the record's ``name``.
+        A list or tuple of records gives a list of Experiments."""
+        if isinstance(record, (list, tuple)):
+            return [cls.from_benchmark(r, inputs, outputs, Ts=Ts, name=name) for r in record]
+        u, y, ts, window, label = _benchmark_fields(record, inputs, outputs, Ts, name)
+        try:
+            return cls(np.arange(y.shape[0]) * ts, u, y, label, window)
+        except ValueError as e:  # the record's own words: u or y holds NaN, ...
+            raise ValueError(f"benchmark record {label!r}: {e}") from None
 
     @property
     def measured(self) -> np.ndarray:
@@ -109,5 +212,7 @@ class Experiment:
         S = 0 if self.y is None else self.y.shape[1]
         return (
             f"Experiment({self.name!r}, P={self.P}, U={self.u.shape[1]}, S={S}, "
-            f"t=[{self.t[0]:g} .. {self.t[-1]:g}])"
+            f"t=[{self.t[0]:g} .. {self.t[-1]:g}]"
+            + ("" if self.init_window is None else f", init_window={self.init_window}")
+            + ")"
         )

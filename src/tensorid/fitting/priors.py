@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..engine.status import Status
-from .summary import significant
+from .summary import Table, Tabular, significant
 from .uncertainty import FLAT, _directions, _variances, negative_directions
 
 TOLERANCE = 1.5  # the factor by which σ² and the residual variance may differ
@@ -34,8 +34,8 @@ FIX = "noise= (a standard deviation; `noise = ...` in a model file)"
 MOVED = 2.0  # a prior that moves an estimate by more data-only standard errors is named
 
 
-@dataclass
-class NoiseCheck:
+@dataclass(repr=False)
+class NoiseCheck(Tabular):
     """The noise variance that weighed the priors against the residuals of the fit.
 
     source : "given" (``noise=``) or "second differences" (estimated from the data).
@@ -68,6 +68,27 @@ class NoiseCheck:
             "tolerance": TOLERANCE,
             "outputs": self.outputs,
         }
+
+    def blocks(self) -> list:
+        """The variances in one line, the per-output evidence, and the warning if any."""
+        refits = f"refitted {_count(self.refits)}" if self.refits else "no refits"
+        head = (
+            f"noise variance weighing the priors: {self.used:.4g} ({_SOURCE[self.source]}; first "
+            f"{self.first:.4g}, {refits}); residual variance at the fit {self.residual:.4g}: "
+            + ("they agree" if self.agree else "they disagree")
+            + f" (tolerance {TOLERANCE:g}×)"
+        )
+        header = ["output", "second-difference variance", "residual variance", "lag-1 correlation"]
+        keys = ("second_difference_variance", "residual_variance", "second_difference_lag1")
+        rows = [[o, *(f"{v[k]:.4g}" for k in keys)] for o, v in self.outputs.items()]
+        warning = self.message()
+        return [head, Table(None, header, rows)] + ([f"warning: {warning}"] if warning else [])
+
+    def __repr__(self) -> str:
+        return (
+            f"NoiseCheck(source={self.source!r}, used={self.used:.4g}, "
+            f"residual={self.residual:.4g}, refits={self.refits}, agree={self.agree})"
+        )
 
     def _smooth(self) -> str:
         """Why the second differences misled, where their correlation shows it."""
@@ -114,6 +135,9 @@ class NoiseCheck:
         if self.refits == 0:
             return head + f"; it was not re-estimated: give {FIX}"
         return head + f"; {redone}, it did not settle (last {self.used:.3g}): give {FIX}"
+
+
+_SOURCE = {"given": "given as noise=", "second differences": "from the second differences"}
 
 
 def _times(ratio: float) -> str:

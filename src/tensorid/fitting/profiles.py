@@ -30,13 +30,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .summary import Table, Tabular, interval, significant
 from .trust_region import minimize_trust_region
 
 SIDES = ("lower", "upper")
 
 
-@dataclass
-class Profile:
+@dataclass(repr=False)
+class Profile(Tabular):
     """The profile of one unknown.
 
     values, costs : the traced points c and PL(c), sorted by c; thetas (n, K) the
@@ -81,6 +82,24 @@ class Profile:
         }
         sides = [f"{s} side {why[e]}" for s, e in self.ends.items() if e != "crossed"]
         return text + (f" ({'; '.join(sides)})" if sides else "")
+
+    def blocks(self) -> list:
+        """One row: the estimate, the interval and how each side of it ends."""
+        how = {
+            "crossed": "crossed",
+            "bound": "at the bound",
+            "flat": "flat (not identifiable)",
+            "failed": "simulation fails",
+        }
+        header = ["unknown", "estimate", f"{100 * self.level:g} % profile interval"]
+        header += ["lower side", "upper side", "points", "evaluations"]
+        row = [self.name, significant(self.estimate), interval(*self.interval)]
+        row += [how[self.ends[s]] for s in SIDES] + [str(self.values.size), str(self.evaluations)]
+        return [Table(None, header, [row]), *self.notes]
+
+    def __repr__(self) -> str:
+        lo, hi = self.interval
+        return f"Profile({self.name!r}, interval=({lo:.6g}, {hi:.6g}), ends={self.ends})"
 
 
 class _Held:

@@ -30,6 +30,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .summary import Table, Tabular
+
 
 @dataclass
 class Correlation:
@@ -48,7 +50,6 @@ class Correlation:
         """The test in words."""
         verdict = "passes" if self.passed else "FAILS"
         side = "below" if self.passed else "above"
-        shown = self.values[1:] if self.what.startswith("whiteness") else self.values
         back = (
             ""
             if self.feedback is None
@@ -56,12 +57,18 @@ class Correlation:
         )
         return (
             f"{self.what}: {verdict} (Q = {self.statistic:.1f}, {side} "
-            f"{self.threshold:.1f}; largest |r| {np.max(np.abs(shown)):.3f}{back})"
+            f"{self.threshold:.1f}; largest |r| {self.largest:.3f}{back})"
         )
 
+    @property
+    def largest(self) -> float:
+        """The largest |r| over the tested lags (lag 0 of a whiteness test is 1)."""
+        shown = self.values[1:] if self.what.startswith("whiteness") else self.values
+        return float(np.max(np.abs(shown)))
 
-@dataclass
-class ResidualTests:
+
+@dataclass(repr=False)
+class ResidualTests(Tabular):
     """Whiteness per output and independence from each input, at ``level``."""
 
     level: float
@@ -94,6 +101,31 @@ class ResidualTests:
             f"input {name}: not tested (constant on every record, so nothing to correlate)"
             for name in self.constant_inputs
         ]
+
+    def blocks(self) -> list:
+        """One row per test: Q against its threshold, the largest |r|, the verdict."""
+        if self.not_available:
+            return [f"residual tests {self.not_available}"]
+        tests = self.whiteness + self.independence
+        header = ["test", "Q", "threshold", "largest |r|", "verdict"]
+        rows = [
+            [c.what, f"{c.statistic:.1f}", f"{c.threshold:.1f}", f"{c.largest:.3f}"]
+            + ["passes" if c.passed else "FAILS"]
+            for c in tests
+        ]
+        if any(c.feedback is not None for c in tests):  # feedback: shown, not tested
+            header.insert(4, "|r| at negative lags")
+            for row, c in zip(rows, tests, strict=True):
+                row.insert(4, "" if c.feedback is None else f"{np.max(np.abs(c.feedback)):.3f}")
+        head = f"residual tests at the {self.level:.0%} level, up to lag {self.max_lag}"
+        head += f", {self.samples} samples"
+        constant = [
+            f"input {n}: not tested (constant on every record)" for n in self.constant_inputs
+        ]
+        return [head, Table(None, header, rows), *constant]
+
+    def __repr__(self) -> str:
+        return f"ResidualTests(passed={self.passed}, level={self.level}, max_lag={self.max_lag})"
 
     def as_dict(self) -> dict:
         def one(c: Correlation) -> dict:

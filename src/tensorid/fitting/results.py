@@ -16,6 +16,7 @@ from ..engine.metrics import gof
 from ..engine.problem import Problem
 from ..engine.status import Status
 from .priors import NoiseCheck, move_lines, prior_moves
+from .summary import Tabular
 from .uncertainty import Information, Uncertainty, information, uncertainty
 
 
@@ -24,8 +25,9 @@ def _squeeze(a: np.ndarray) -> np.ndarray:
 
 
 @dataclass
-class FitResult:
+class FitResult(Tabular):
     """Outcome of :func:`fit`, with scipy.optimize.OptimizeResult's names where they fit.
+    ``print(res)`` shows :meth:`summary`; a notebook shows the same as HTML tables.
 
     theta : (K,) estimate in natural units, θ layout of ``problem`` (alias ``x``).
     params : {name: value} for every parameter (fixed ones included).
@@ -174,7 +176,11 @@ class FitResult:
         return self.problem.simulate(self.theta)
 
     def gof(self) -> list:
-        """Goodness of fit per experiment (per output for several outputs)."""
+        """Goodness of fit per experiment (per output for several outputs): a list with
+        a float per experiment, or an (S,) array for S outputs, in the order of
+        ``problem.experiments``. (``validate()`` instead returns Scores, whose ``gof``
+        is a dict keyed by output; ``training_scores`` in
+        :mod:`tensorid.fitting.validation` gives the training records that way.)"""
         sims = self.simulate()
         return [
             gof(_squeeze(e.measured), _squeeze(s.y))
@@ -272,8 +278,9 @@ class FitResult:
         """Score the fitted model on new records (an Experiment or a list of them), as
         MATLAB's compare does: initial states that were free in the fit are
         estimated on each record with the parameters held, on its first
-        ``init_window`` samples only when given (the benchmarks' protocol), and the
-        model is scored on the samples after them. Returns a list of
+        ``init_window`` samples only when given (the benchmarks' protocol; without it,
+        a record's own ``init_window``, as ``Experiment.from_benchmark`` sets it), and
+        the model is scored on the samples after them. Returns a list of
         :class:`tensorid.fitting.validation.Score`."""
         from .validation import validate
 
@@ -323,6 +330,13 @@ class FitResult:
         from .summary import summary_table
 
         return summary_table(self)
+
+    def blocks(self) -> list:
+        """The summary's content (headline, estimates, information, criteria, warnings)
+        as text and tables, for ``str()`` and a notebook's ``_repr_html_``."""
+        from .summary import fit_blocks
+
+        return fit_blocks(self)
 
     def plot(self, path=None, validation=None):
         """Measured against simulated outputs with residuals, and the convergence

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import io
 import math
+from abc import ABC, abstractmethod
+from typing import NamedTuple
 
 import numpy as np
 
@@ -61,7 +63,8 @@ def interval_note(u, name: str) -> str:
     elif name in u.cut:
         notes.append(f"cut at {u.cut[name]} bound")
     k = u.names.index(name)
-    if u.forms and u.forms[k] != u.kind:
+    kind = "hessian" if u.kind == "robust" else u.kind  # a sandwich on the exact Hessian
+    if u.forms and u.forms[k] != kind:
         notes.append(f"{u.forms[k]} form")
     return ", ".join(notes)
 
@@ -148,48 +151,109 @@ def headline(res) -> str:
     return line
 
 
-def summary_table(res, scores=None) -> str:
-    """The estimates of a FitResult as a plain-text table, then the warnings and, with
-    ``scores`` (see tensorid.fitting.validation), the metric table."""
-    from rich.console import Console
-    from rich.table import Table
+class Table(NamedTuple):
+    """One table of a result's display: a title (or None), column names, rows of text."""
 
-    u = res.uncertainty() if res.has_uncertainty else None
-    tab = Table(
-        title=f"{res.problem.model.name}: {'converged' if res.success else 'NOT converged'}"
-    )
-    names = res.problem.theta_names
+    title: str | None
+    header: list[str]
+    rows: list[list[str]]
+    edge: bool = True
+
+
+# columns of names, read left to right; every other column holds numbers
+LEFT = {"unknown", "record", "output", "note", "lower side", "upper side", "test", "verdict"}
+
+
+def as_text(blocks: list) -> str:
+    """``blocks`` (lines of text and Tables) as the terminal shows them."""
+    from rich.console import Console
+    from rich.table import Table as RichTable
+
+    console = Console(width=110, record=True, file=io.StringIO())
+    for b in blocks:
+        if isinstance(b, str):
+            console.print(b, soft_wrap=True, markup=False, highlight=False)
+            continue
+        tab = RichTable(title=b.title, show_edge=b.edge, highlight=False)
+        for col in b.header:
+            tab.add_column(col, justify="left" if col in LEFT else "right")
+        for row in b.rows:
+            tab.add_row(*row)
+        console.print(tab)
+    return console.export_text()
+
+
+def as_html(blocks: list) -> str:
+    """``blocks`` as a notebook shows them: plain, escaped <table>s and <p>s."""
+    from html import escape
+
+    out = []
+    for b in blocks:
+        if isinstance(b, str):
+            out.append(f"<p>{escape(b)}</p>")
+            continue
+        cap = f"<caption>{escape(b.title)}</caption>" if b.title else ""
+        head = "".join(f"<th>{escape(c)}</th>" for c in b.header)
+        body = "".join(
+            "<tr>" + "".join(f"<td>{escape(c)}</td>" for c in row) + "</tr>" for row in b.rows
+        )
+        out.append(f"<table>{cap}<thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>")
+    return "<div>" + "".join(out) + "</div>"
+
+
+class Tabular(ABC):
+    """``str()`` for a terminal and ``_repr_html_()`` for a notebook, both from one
+    description of the result: ``blocks()``, lines of text and Tables."""
+
+    @abstractmethod
+    def blocks(self) -> list:
+        """The display: lines of text and :class:`Table` s, in order."""
+
+    def __str__(self) -> str:
+        return as_text(self.blocks()).rstrip("\n")  # print() adds the last newline
+
+    def _repr_html_(self) -> str:
+        return as_html(self.blocks())
+
+
+def estimates_table(names: list[str], theta, u=None, title: str | None = None) -> Table:
+    """Estimate, standard error, 95 % interval and note per unknown (``u``: an
+    Uncertainty, or None for a fit without error bars)."""
     notes = [interval_note(u, n) for n in names] if u else [""] * len(names)
-    columns = ["unknown", "estimate", "std. error", "95 % interval"]
-    for col in columns + (["note"] if any(notes) else []):
-        tab.add_column(col, justify="left" if col in ("unknown", "note") else "right")
+    header = ["unknown", "estimate", "std. error", "95 % interval"]
+    rows = []
     for k, name in enumerate(names):
         se = float(u.stderr[k]) if u else math.nan
         ci = interval(*u.ci95[k]) if u else "–"
-        row = [name, significant(res.theta[k], se), stderr_text(se), ci]
-        tab.add_row(*row, *([notes[k]] if any(notes) else []))
-    console = Console(width=110, record=True, file=io.StringIO())
-    console.print(headline(res), soft_wrap=True)
-    console.print(tab)
+        rows.append([name, significant(float(theta[k]), se), stderr_text(se), ci])
+    if any(notes):
+        header.append("note")
+        rows = [r + [n] for r, n in zip(rows, notes, strict=True)]
+    return Table(title, header, rows)
+
+
+def fit_blocks(res, scores=None) -> list:
+    """A FitResult's display: the headline, the estimates, the metric table (with
+    ``scores``, see tensorid.fitting.validation), information, criteria, warnings."""
+    u = res.uncertainty() if res.has_uncertainty else None
+    title = f"{res.problem.model.name}: {'converged' if res.success else 'NOT converged'}"
+    blocks: list = [headline(res), estimates_table(res.problem.theta_names, res.theta, u, title)]
     if scores:
-        header, rows = metric_rows(scores)
-        mt = Table(show_edge=False)
-        for c in header:
-            mt.add_column(c, justify="left" if c in ("record", "output") else "right")
-        for r in rows:
-            mt.add_row(*r)
-        console.print(mt)
+        blocks.append(Table(None, *metric_rows(scores), edge=False))
     if u is not None:
-        console.print("information: " + res.information().describe(), soft_wrap=True)
+        blocks.append("information: " + res.information().describe())
         c = res.criteria()
-        console.print(
+        blocks.append(
             criteria_text(c) + f" (n = {c['n']}, K = {c['K']}; lower is better, for models "
-            "of the same data)",
-            soft_wrap=True,
+            "of the same data)"
         )
-    for w in res.warnings:
-        console.print(f"warning: {w}", soft_wrap=True)
-    return console.export_text()
+    return blocks + [f"warning: {w}" for w in res.warnings]
+
+
+def summary_table(res, scores=None) -> str:
+    """The estimates of a FitResult as a plain-text table, then the warnings and, with
+    ``scores`` (see tensorid.fitting.validation), the metric table."""
+    return as_text(fit_blocks(res, scores))
 
 
 def coloured_residuals_line(res) -> str:

@@ -25,14 +25,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .residuals import residual_count, too_few
+from .summary import Table, Tabular, estimates_table, stderr_text
 
 # relative eigenvalue below which a direction counts as not identifiable; the
 # Hessian is exact to ~1e-12 relative, so this is far above its rounding
 FLAT = 1e-8
 
 
-@dataclass
-class Uncertainty:
+@dataclass(repr=False)
+class Uncertainty(Tabular):
     """Standard errors, 95 % intervals and correlations of θ (natural units).
 
     ``forms`` names, per unknown, the Hessian its interval comes from ("hessian" or
@@ -71,6 +72,35 @@ class Uncertainty:
             "interval_cut_at_bound": dict(self.cut),
             "stderr_not_available": self.not_available,
         }
+
+    def blocks(self) -> list:
+        """What the numbers rest on, the estimates table, the strong correlations and
+        the warnings (``print(u)``; a notebook shows the same as HTML)."""
+        if self.lags is None:
+            how = {"hessian": "exact Hessian", "gauss-newton": "Gauss-Newton form"}[self.kind]
+        else:
+            how = "sandwich, " + (
+                f"{self.lags} Newey-West lags" if self.lags else "independent samples"
+            )
+        head = self.not_available or (
+            f"standard errors ({how}): residual variance {self.sigma2:.4g} on {self.dof} "
+            "degrees of freedom"
+        )
+        out: list = [head, estimates_table(self.names, self.theta, self)]
+        i, j = np.triu_indices(len(self.names), 1)
+        strong = [(a, b) for a, b in zip(i, j, strict=True) if abs(self.correlation[a, b]) >= 0.9]
+        if strong:
+            pairs = [
+                f"{self.names[a]}-{self.names[b]} {self.correlation[a, b]:+.3f}" for a, b in strong
+            ]
+            out.append("correlations of 0.9 or more: " + ", ".join(pairs))
+        return out + [f"warning: {w}" for w in self.warnings]
+
+    def __repr__(self) -> str:
+        se = ", ".join(
+            f"{n}={stderr_text(float(s))}" for n, s in zip(self.names, self.stderr, strict=True)
+        )
+        return f"Uncertainty(kind={self.kind!r}, stderr={{{se}}}, dof={self.dof})"
 
 
 def jacobi_scale(H: np.ndarray) -> np.ndarray:
@@ -277,8 +307,8 @@ def uncertainty(
     )
 
 
-@dataclass
-class Information:
+@dataclass(repr=False)
+class Information(Tabular):
     """Observed against expected information at an estimate.
 
     The observed information is the exact Hessian of J (transition tensors included);
@@ -329,6 +359,30 @@ class Information:
             "weakest_direction": dict(self.weakest),
             "text": self.describe(),
         }
+
+    def blocks(self) -> list:
+        """The standard errors from each side per unknown, then ``describe()``."""
+        rows = []
+        for n, a, b in zip(self.names, self.stderr_observed, self.stderr_expected, strict=True):
+            with np.errstate(divide="ignore", invalid="ignore"):  # inf/inf: a flat direction
+                ratio = float(a / b)
+            rows.append(
+                [
+                    n,
+                    stderr_text(float(a)),
+                    stderr_text(float(b)),
+                    f"{ratio:.3f}" if np.isfinite(ratio) else "–",
+                ]
+            )
+        header = ["unknown", "std. error (observed)", "std. error (expected)", "observed/expected"]
+        return [Table("observed and expected information", header, rows), self.describe()]
+
+    def __repr__(self) -> str:
+        return (
+            f"Information(condition_observed={self.condition_observed:.3g}, "
+            f"condition_expected={self.condition_expected:.3g}, "
+            f"weakest={ {n: round(c, 3) for n, c in self.weakest.items()} })"
+        )
 
 
 def _condition(H: np.ndarray) -> float:

@@ -15,11 +15,12 @@ from ..engine.problem import Problem
 from ..engine.simulate import Simulation, run_simulation
 from ..engine.sweeps import shared_sweeps
 from .scaling import Tracker
+from .summary import Table, Tabular, metric_rows
 from .trust_region import minimize_trust_region
 
 
-@dataclass(frozen=True, eq=False)
-class Score:
+@dataclass(frozen=True, eq=False, repr=False)
+class Score(Tabular):
     """How well a simulation matches one record, per output.
 
     ``kind`` is "training" or "validation"; ``x0`` the initial state simulated from;
@@ -75,6 +76,17 @@ class Score:
         names = ("rmse", "nrmse", "r2", "fit_percent", "gof")
         values = {n: getattr(self, n) for n in names}
         return {o: {n: values[n][o] for n in names} for o in self.simulation.model.outputs}
+
+    def blocks(self) -> list:
+        """The metric table of the summary and report.md, for this record."""
+        return [Table(None, *metric_rows([self]))]
+
+    def __repr__(self) -> str:
+        fits = ", ".join(f"{o}: {v:.4f}" for o, v in self.gof.items())
+        after = f" after {self.start}" if self.start else ""
+        return (
+            f"Score({self.label}, gof={{{fits}}}, {self.experiment.P - self.start} samples{after})"
+        )
 
 
 def record_label(kind: str, name: str, alone: bool = True) -> str:
@@ -175,12 +187,14 @@ def validate(res, data, init_window: int | None = None) -> list[Score]:
     exps = [data] if isinstance(data, Experiment) else list(data)
     prob = res.problem
     x0_fit = np.atleast_2d(res.x0)[0]
+    windows = []
     for i, e in enumerate(exps):
         if not isinstance(e, Experiment):
             raise TypeError(f"validation record {i} is a {type(e).__name__}, not an Experiment")
         if e.y is None:
             raise ValueError(f"validation record {i} ({e.name!r}) has no measured outputs")
-        check_init_window(init_window, e)
+        windows.append(e.init_window if init_window is None else init_window)
+        check_init_window(windows[-1], e)
     return [
         score_record(
             prob.model,
@@ -189,8 +203,8 @@ def validate(res, data, init_window: int | None = None) -> list[Score]:
             prob.free_x0,
             e,
             prob.discretisation,
-            init_window,
+            w,
             alone=len(exps) == 1,
         )  # fmt: skip
-        for e in exps
+        for e, w in zip(exps, windows, strict=True)
     ]
