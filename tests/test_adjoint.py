@@ -83,13 +83,26 @@ def test_discrete_time_models_and_input_delays():
 def test_several_stretches_and_blocks_of_one_interval(monkeypatch):
     """Three threads over a 41-sample record, one interval per block: the stretch
     starts, the padding and the threads give the tensors' Hessian."""
-    monkeypatch.setattr(adjoint, "threads", lambda: 3)
+    monkeypatch.setattr(adjoint, "threads", lambda cap=None: 3)
     monkeypatch.setattr(adjoint, "BLOCK_ELEMENTS", 1)
     t = np.linspace(0, 2, 41)
     data = ti.Experiment(t, np.sin(3 * t), np.exp(-t) + 0.05 * np.cos(5 * t))
     probs = [ti.Problem(decay_model(), data, p0={"k": 0.7}, x0=[0.9], free_x0=["x"], hessian=h)
              for h in ("adjoint", "tensors")]  # fmt: skip
     _same_as_tensors(*probs, np.array([1.1, 0.6]))
+
+
+def test_the_problems_threads_cap_the_adjoints_threads(monkeypatch):
+    """Problem(threads=1), as each multi-start worker is given: an explicit argument
+    down to the adjoint, not an environment variable."""
+    real, caps = adjoint.threads, []
+    monkeypatch.setattr(adjoint, "threads", lambda cap=None: caps.append(cap) or real(cap))
+    t = np.linspace(0, 2, 41)
+    data = ti.Experiment(t, np.sin(3 * t), np.exp(-t) + 0.05 * np.cos(5 * t))
+    prob = ti.Problem(decay_model(), data, p0={"k": 0.7}, x0=[0.9], free_x0=["x"],
+                      hessian="adjoint", threads=1)  # fmt: skip
+    prob.cost_grad_hess(np.array([1.1, 0.6]))
+    assert caps and set(caps) == {1} and real(1) == 1
 
 
 def test_a_step_past_the_record_that_is_not_finite_changes_nothing():
@@ -116,7 +129,7 @@ def test_threads_and_block_sizes_do_not_change_the_result(monkeypatch):
     theta = prob.theta0 * 1.1
     ref = prob.cost_grad_hess_gn(theta)
     for threads, elements in ((1, 1), (3, 10**6), (2, 50)):
-        monkeypatch.setattr(adjoint, "threads", lambda n=threads: n)
+        monkeypatch.setattr(adjoint, "threads", lambda cap=None, n=threads: n)
         monkeypatch.setattr(adjoint, "BLOCK_ELEMENTS", elements)
         for a, b in zip(prob.cost_grad_hess_gn(theta), ref, strict=True):
             _close(a, b, 1e-12)

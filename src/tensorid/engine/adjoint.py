@@ -111,10 +111,12 @@ def predicted_seconds(N: int, K: int, samples, n_threads: int | None = None) -> 
     return {"tensors": tensors, "adjoint": len(samples) * ADJOINT_CALL + tensors / ratio}
 
 
-def choose_hessian(hessian: str, discretisation: Discretisation, N: int, K: int, samples) -> str:
+def choose_hessian(
+    hessian: str, discretisation: Discretisation, N: int, K: int, samples, cap=None
+) -> str:
     """The Hessian path a Problem uses: ``hessian`` checked, and "auto" resolved by
     the cost model (the adjoint where it is predicted MARGIN times faster and the
-    scheme allows it)."""
+    scheme allows it, with at most ``cap`` threads)."""
     if hessian not in HESSIANS:
         raise ValueError(f"hessian must be one of {HESSIANS}, got {hessian!r}")
     if hessian == "adjoint" and not supports(discretisation):
@@ -128,20 +130,22 @@ def choose_hessian(hessian: str, discretisation: Discretisation, N: int, K: int,
         return hessian
     if not supports(discretisation):
         return "tensors"
-    t = predicted_seconds(N, K, samples)
+    t = predicted_seconds(N, K, samples, threads(cap))
     return "adjoint" if MARGIN * t["adjoint"] < t["tensors"] else "tensors"
 
 
-def threads() -> int:
+def threads(cap: int | None = None) -> int:
     """Threads for the stretches: the cores this process may use, at most
-    MAX_STRETCHES ($TENSORID_THREADS caps it; 1 turns the parallel stretches off, as
-    in the workers of a multi-start pool, which have a core each)."""
+    MAX_STRETCHES and ``cap`` (``Problem(threads=)``; 1 turns the parallel stretches
+    off, as the workers of a multi-start pool do, which have a core each).
+    $TENSORID_THREADS, where a user sets it, caps it too."""
     try:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
         cores = os.cpu_count() or 1
-    cap = os.environ.get("TENSORID_THREADS")
-    n = min(cores, int(cap)) if cap and cap.isdigit() else cores
+    env = os.environ.get("TENSORID_THREADS")
+    n = min(cores, int(env)) if env and env.isdigit() else cores
+    n = n if cap is None else min(n, cap)
     return max(1, min(n, MAX_STRETCHES))
 
 
@@ -356,10 +360,12 @@ class SecondOrderAdjoint:
 
         return jax.jit(fn, static_argnums=0)
 
-    def __call__(self, theta, x0, p, t, u, y, w):
+    def __call__(self, theta, x0, p, t, u, y, w, threads_cap: int | None = None):
+        """(J, ∇J, ∇²J, Gauss-Newton part); ``threads_cap``: at most that many threads
+        over stretches of the record (see :func:`threads`)."""
         P, K, N = t.shape[0], self.sweeps.K, self.sweeps.model.N
         B = block_size(K, N, theta.shape[0] if self.batched else 1)
-        n = max(1, min(threads(), -(-P // B)))
+        n = max(1, min(threads(threads_cap), -(-P // B)))
         R = B * -(-P // (B * n))  # a whole number of blocks per stretch
         length = n * R
         J, starts, per, grid, p_full = self._phase1(theta, x0, p, t, u, y, w, n, length)

@@ -8,6 +8,7 @@ units. Every check of the user's input happens here, before anything compiles.
 from __future__ import annotations
 
 import copy
+import functools
 from collections.abc import Mapping, Sequence
 
 import jax
@@ -82,6 +83,9 @@ class Problem:
         2.385 (Cauchy) or 1 (Student-t) times each output's noise level from its
         second differences (a median, so outliers do not inflate it); the value used
         is ``Problem.loss_scale``.
+    threads : at most this many threads for the second-order adjoint's stretches of
+        the record (default: the cores this process may use, at most 8); 1 turns them
+        off, as each worker of a multi-start pool does.
     hessian : how exact Hessians are computed: "tensors" (the paper's transition
         tensors, forward in time), "adjoint" (second-order adjoints, parallel in time:
         faster for many states or unknowns; explicit schemes and discrete-time models
@@ -113,6 +117,7 @@ class Problem:
         hessian: str = "auto",
         loss: str | Loss = "squared",
         loss_scale: float | Mapping[str, float] | None = None,
+        threads: int | None = None,
     ):
         if not isinstance(model, Model):
             raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
@@ -157,10 +162,20 @@ class Problem:
             (jnp.asarray(e.t), jnp.asarray(self.inputs(e)), jnp.asarray(e.y))
             for e in self.experiments
         ]
+        if threads is not None and (
+            isinstance(threads, bool) or not isinstance(threads, int) or threads < 1
+        ):
+            raise ValueError(f"threads must be a whole number >= 1 or None, got {threads!r}")
+        self.threads = threads
         counts = resolve_segments(self.experiments, segments, segment_length)
         self.shooting = Shooting(self, counts) if counts else None
         self.hessian = choose_hessian(
-            hessian, discretisation, model.N, self._sweeps.K, [e.P for e in self.experiments]
+            hessian,
+            discretisation,
+            model.N,
+            self._sweeps.K,
+            [e.P for e in self.experiments],
+            threads,
         )
 
     def inputs(self, e: Experiment) -> np.ndarray:
@@ -421,7 +436,8 @@ class Problem:
         """The sweep giving (J, ∇J, ∇²J, Gauss-Newton part) and its parts letters."""
         sw = self._sweeps
         if self.hessian == "adjoint":
-            return (sw.adjoint_batch if batched else sw.adjoint), "JgHH"
+            adjoint = sw.adjoint_batch if batched else sw.adjoint
+            return functools.partial(adjoint, threads_cap=self.threads), "JgHH"
         return (sw.second_order_both_batch if batched else sw.second_order_both), "JgPP"
 
     def cost_grad_hess_batch(self, thetas, gauss_newton: bool = False, both: bool = False):

@@ -118,8 +118,6 @@ def _worker_init(cache: str | None) -> None:
     # Ctrl-C in a terminal reaches the whole process group: the parent alone
     # decides (it stops the workers and keeps what finished)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    # one core per worker: the adjoint Hessian's threads would only contend
-    os.environ.setdefault("TENSORID_THREADS", "1")
     from .._config import disable_compilation_cache, enable_compilation_cache
 
     if cache:
@@ -139,7 +137,11 @@ def _run_payload(payload: tuple) -> list[dict]:
     key = hashlib.sha1(blob).hexdigest()
     if key not in _WORKER_PROBLEMS:
         _WORKER_PROBLEMS.clear()
-        _WORKER_PROBLEMS[key] = cloudpickle.loads(blob)
+        problem = cloudpickle.loads(blob)
+        # one core per worker: the adjoint Hessian's threads would only contend (this
+        # worker's own copy of the problem, told so explicitly)
+        problem.threads = 1
+        _WORKER_PROBLEMS[key] = problem
     return task(_WORKER_PROBLEMS[key], thetas)
 
 
