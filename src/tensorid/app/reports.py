@@ -145,6 +145,7 @@ def fit_json(
         "shooting": res.shooting,
         "hybrid": res.hybrid,
         "warnings": res.convergence_warnings if missing else res.warnings,
+        "notes": res.notes,
         "residual_variance": u.sigma2 if u else None,
         "correlation_names": names,
         "history": res.history,
@@ -280,6 +281,8 @@ def fit_report(
     ]
     if data["warnings"]:
         lines += ["## Warnings", ""] + [f"- {w}" for w in data["warnings"]] + [""]
+    if data["notes"] and res.success:
+        lines += ["## Notes", ""] + [f"- {n}" for n in data["notes"]] + [""]
     lines += _prior_lines(res)
     if "information" in data:
         lines += ["## Observed and expected information", "", data["information"]["text"] + ".", ""]

@@ -135,8 +135,10 @@ def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResul
     and "gauss-newton"; options as for :func:`fit` (x_scale, maxiter, gtol, ftol,
     xtol, or options=FitOptions(...)). Each result is what
     ``fit(problem, method, theta0=row)`` returns; its ``seconds`` and
-    ``compile_seconds`` are those of the whole batch. Ctrl-C raises
-    :class:`FitInterrupted` with every start's best point so far."""
+    ``compile_seconds`` are those of the whole batch — except for a robust loss,
+    which is fitted as given here (no least-squares stage, no scale check: use
+    :func:`fit` for those). Ctrl-C raises :class:`FitInterrupted` with every start's
+    best point so far."""
     started = time.perf_counter()
     if method not in LOCKSTEP:
         raise ValueError(

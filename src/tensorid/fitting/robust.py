@@ -78,8 +78,11 @@ def fit_robust(problem, first, refit):
     if estimated:
         scale = ", ".join(f"{k} {v:.3g}" for k, v in res.problem.loss_scale.items())
         notes.append(f"its scale, {scale}, came from the residuals; give loss_scale= to fix it")
+    if first.starts:
+        notes.append(f"its starts were ranked by the least-squares stage ({len(first.starts)})")
     res.problem.loss_scale_estimated = estimated
     res.notes[:0] = first.notes + notes
-    res.seconds += seconds
+    res.starts, res.seconds = first.starts, res.seconds + seconds
     res.nfev += first.nfev
+    res.nit_total = (res.nit_total or 0) + (first.nit_total or 0)
     return res

@@ -234,7 +234,8 @@ def estimates_table(names: list[str], theta, u=None, title: str | None = None) -
 
 def fit_blocks(res, scores=None) -> list:
     """A FitResult's display: the headline, the estimates, the metric table (with
-    ``scores``, see tensorid.fitting.validation), information, criteria, warnings."""
+    ``scores``, see tensorid.fitting.validation), information, criteria, notes,
+    warnings."""
     u = res.uncertainty() if res.has_uncertainty else None
     title = f"{res.problem.model.name}: {'converged' if res.success else 'NOT converged'}"
     blocks: list = [headline(res), estimates_table(res.problem.theta_names, res.theta, u, title)]
@@ -247,7 +248,10 @@ def fit_blocks(res, scores=None) -> list:
             criteria_text(c) + f" (n = {c['n']}, K = {c['K']}; lower is better, for models "
             "of the same data)"
         )
-    return blocks + [f"warning: {w}" for w in res.warnings]
+    # what happened on the way (a robust loss's stages, rejected trial points); a fit
+    # that did not converge has them among its warnings already
+    notes = [f"note: {n}" for n in res.notes] if res.success else []
+    return blocks + notes + [f"warning: {w}" for w in res.warnings]
 
 
 def summary_table(res, scores=None) -> str:
