@@ -166,6 +166,10 @@ def test_huber_and_cauchy_are_not_pulled_by_outliers_where_least_squares_is():
             tuning = {"huber": 1.345, "cauchy": 2.385}[loss]
             assert 0.5e-4 < res.problem.loss_scale["y"] / tuning < 2e-4
     assert est["huber"].max() < 2.5 and est["cauchy"].max() < 2.5
+    # with a prior too: the noise level that weighs it is read robustly from the
+    # residuals (not from the robust cost, nor inflated by the outliers)
+    res = ti.fit(ti.Problem(m, e, p0=start, loss="huber", priors={"a": (0.9675, 0.05)}))
+    assert res.success and 0.3e-8 < res.noise_check.residual < 3e-8  # σ² = 1e-8
     # least squares: the outliers inflate its own error bars, but against what the data
     # can resolve (the robust fit's standard errors) it is pulled far off
     assert (err["squared"] / se["huber"]).max() > 10

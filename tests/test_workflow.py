@@ -70,6 +70,30 @@ def workdir(tmp_path):
     return tmp_path
 
 
+def test_a_robust_fit_from_the_command_line_says_what_it_did(workdir, capsys):
+    train = _write_csv(workdir / "train.csv", seed=1)
+    lines = train.read_text().splitlines()
+    for k in range(20, len(lines), 25):  # a glitch every 25 samples: 4 % outliers
+        t, f, y = lines[k].split(",")
+        lines[k] = f"{t},{f},{float(y) + 2.0:.10g}"
+    train.write_text("\n".join(lines) + "\n")
+    out = workdir / "out"
+    model = str(workdir / "model.py")
+    options = ["--loss", "huber", "--starts", "2", "--workers", "1", "--no-progress"]
+    rc = cli.main(["fit", model, str(train), *options, "--out", str(out)])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "note: the huber fit started from the least-squares estimate" in printed
+    assert "best of 2 starts" in printed
+    d = json.loads((out / "fit.json").read_text())
+    assert d["loss"] == "huber" and 0.005 < d["loss_scale"]["pos"] < 0.03  # 1.345 × 0.01
+    assert d["aic"] is None and "squared loss" in d["criteria_not_available"]
+    assert d["stderr_robust"] is not None and len(d["starts"]) == 2
+    for name, true in TRUTH.items():  # the glitches do not pull the estimates off
+        assert abs(d["params"][name] - true) < 4 * d["stderr"][name], name
+    assert "## Notes" in (out / "report.md").read_text()
+
+
 def test_fit_command_end_to_end(workdir, capsys):
     train = _write_csv(workdir / "train.csv", seed=1)
     val = _write_csv(workdir / "val.csv", seed=2, vel0=-0.2)

@@ -138,7 +138,7 @@ def fit_json(
         "priors": {names[i]: list(ms) for i, ms in res.problem.priors.items()},
         "prior_noise_variance": res.problem.noise_variance if res.problem.priors else None,
         "prior_noise_check": res.noise_check.as_dict() if res.noise_check else None,
-        "prior_moves": res.prior_moves(),
+        "prior_moves": None if missing else res.prior_moves(),  # (a computation)
         "seconds": res.seconds,
         "compile_seconds": res.compile_seconds,
         "segments": res.problem.segments,
@@ -161,9 +161,14 @@ def fit_json(
         d.update(u.as_dicts())
         gn = res.uncertainty("gauss-newton").stderr.tolist()
         d["stderr_gauss_newton"] = dict(zip(names, gn, strict=True))
-        robust = res.uncertainty("robust")
-        d["stderr_robust"] = dict(zip(names, robust.stderr.tolist(), strict=True))
-        d["robust_lags"] = robust.lags
+        # the Newey-West form where the residuals are not white (or the loss robust);
+        # null where they passed whiteness: then it would only repeat stderr
+        coloured = residual is not None and False in residual.whiteness_passed
+        robust = res.uncertainty("robust") if coloured or not res.problem.loss.squared else None
+        d["stderr_robust"] = (
+            dict(zip(names, robust.stderr.tolist(), strict=True)) if robust else None
+        )
+        d["robust_lags"] = robust.lags if robust else None
         d["information"] = res.information().as_dict()
     d.update(_profile_json(profiles))
     if missing:

@@ -11,7 +11,6 @@ import copy
 import functools
 from collections.abc import Mapping, Sequence
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -81,8 +80,9 @@ class Problem:
     loss_scale : a robust loss's scale in the outputs' units: a number for every
         output or {output: value}. Default: estimated from the data, 1.345 (Huber),
         2.385 (Cauchy) or 1 (Student-t) times each output's noise level from its
-        second differences (a median, so outliers do not inflate it); the value used
-        is ``Problem.loss_scale``.
+        second differences (a median, so outliers do not inflate it), which
+        :func:`tensorid.fit` then replaces by one from the residuals (the scale a fit
+        used is ``result.problem.loss_scale``).
     threads : at most this many threads for the second-order adjoint's stretches of
         the record (default: the cores this process may use, at most 8); 1 turns them
         off, as each worker of a multi-start pool does.
@@ -478,15 +478,10 @@ class Problem:
         for e, (t, u, y) in enumerate(self._arrays):
             idx = self._slices(e)
             x0, p = jnp.asarray(self.x0[e]), jnp.asarray(self.p0)
-
-            def outputs(local, x0=x0, p=p, t=t, u=u):
-                x0_, p_ = self._sweeps.expand(local, x0, p)
-                return self._sweeps._simulate(x0_, p_, t, u)[1].reshape(-1)
-
-            dy = np.asarray(jax.jacfwd(outputs)(jnp.asarray(theta[idx])))
-            full = np.zeros((dy.shape[0], self.K))
-            full[:, idx] = dy
-            out.append(full.reshape(*np.shape(y), self.K))
+            dy = np.asarray(self._sweeps.output_jacobian(jnp.asarray(theta[idx]), x0, p, t, u))
+            full = np.zeros(np.shape(y) + (self.K,))
+            full[..., idx] = dy
+            out.append(full)
         return out
 
     def simulate(self, theta) -> list[Simulation]:

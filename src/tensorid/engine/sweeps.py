@@ -180,6 +180,15 @@ class Sweeps:
         J, _, _ = self._march(field, observe, x0, jnp.zeros(()), t, u, y, p)
         return J
 
+    def _output_jacobian(self, theta, x0, p, t, u):
+        """∂ŷ/∂θ (P, S, K) by forward-mode differentiation of the simulation."""
+
+        def outputs(th):
+            x0_, p_ = self.expand(th, x0, p)
+            return self._simulate(x0_, p_, t, u)[1]
+
+        return jax.jacfwd(outputs)(theta)
+
     def _residuals(self, theta, x0, p, t, u, y, w):
         x0, p = self.expand(theta, x0, p)
         _, ys, _, _ = self._simulate(x0, p, t, u)
@@ -187,7 +196,8 @@ class Sweeps:
 
     # -- first order: (J, ∇J) and the Gauss-Newton Hessian -----------------------------
     def _first_order(self, theta, x0, p, t, u, y, w, gauss_newton=True, end=False):
-        """(J, ∇J, 2 Σ w (C_z Z)ᵀ(C_z Z)); the last is None when not ``gauss_newton``.
+        """(J, ∇J, Σ (C_z Z)ᵀ γ (C_z Z)) with γ the loss's Gauss-Newton weights (2w for
+        the squared loss); the last is None when not ``gauss_newton``.
         With ``end``, also (x, dx) at the last sample (see _weighted for y and w)."""
         x0, p = self.expand(theta, x0, p)
         m, K = self.model, self.K
@@ -319,6 +329,7 @@ class Sweeps:
     simulate = _Compiled("_simulate")
     cost = _Compiled("_cost")
     residuals = _Compiled("_residuals")
+    output_jacobian = _Compiled("_output_jacobian")
     first_order = _Compiled("_first_order")
     second_order = _Compiled("_second_order")
     gradient = _Compiled("_gradient")

@@ -114,10 +114,15 @@ def process_pool(workers: int) -> ProcessPoolExecutor:
     )
 
 
+_LOCAL_WORKER = False  # set in the processes of process_pool
+
+
 def _worker_init(cache: str | None) -> None:
     # Ctrl-C in a terminal reaches the whole process group: the parent alone
     # decides (it stops the workers and keeps what finished)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    global _LOCAL_WORKER
+    _LOCAL_WORKER = True
     from .._config import disable_compilation_cache, enable_compilation_cache
 
     if cache:
@@ -138,9 +143,11 @@ def _run_payload(payload: tuple) -> list[dict]:
     if key not in _WORKER_PROBLEMS:
         _WORKER_PROBLEMS.clear()
         problem = cloudpickle.loads(blob)
-        # one core per worker: the adjoint Hessian's threads would only contend (this
-        # worker's own copy of the problem, told so explicitly)
-        problem.threads = 1
+        if _LOCAL_WORKER and problem.threads is None:
+            # a local pool's worker has one core: the adjoint Hessian's threads would
+            # only contend (its own copy of the problem, told so explicitly; a Dask
+            # worker keeps its cores, and a user's threads= is kept)
+            problem.threads = 1
         _WORKER_PROBLEMS[key] = problem
     return task(_WORKER_PROBLEMS[key], thetas)
 

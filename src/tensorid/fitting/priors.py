@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..engine.status import Status
+from .robust import residual_noise
 from .summary import Table, Tabular, significant
 from .uncertainty import FLAT, _directions, _variances, negative_directions
 
@@ -160,6 +161,17 @@ def weighed(fits):
     return run
 
 
+def _residual_variance(res) -> float:
+    """The variance of a unit-weight residual at the fit: the data's share of J over
+    n − K for the squared loss; for a robust loss, whose J is not Σ w r², each counted
+    output's weighted residuals' median absolute deviation (× 1.4826, squared),
+    averaged, so that the outliers it is robust to do not inflate it either."""
+    if res.problem.loss.squared:
+        return res.uncertainty().sigma2
+    w = res.problem.weights
+    return float(np.mean((w * residual_noise(res) ** 2)[w > 0]))
+
+
 def weigh_priors(res, fits, method, options, started):
     """``res`` after the check of its priors' noise variance, refitted where it was
     estimated and disagrees with the residuals: by ``fits(problem, method, thetas,
@@ -169,7 +181,7 @@ def weigh_priors(res, fits, method, options, started):
     if not problem.priors or not res.success or not res.has_uncertainty:
         return res
     first, done, refits = problem.noise_variance, res, 0
-    residual = done.uncertainty().sigma2
+    residual = _residual_variance(done)
     floor = problem.rounding_floor / max(done.uncertainty().dof, 1)
     while (
         problem.noise_estimated
@@ -190,7 +202,7 @@ def weigh_priors(res, fits, method, options, started):
         if not again.success or not again.has_uncertainty:
             break  # keep the last fit that converged, and say the check did not settle
         done = _chained(done, again)
-        residual = done.uncertainty().sigma2
+        residual = _residual_variance(done)
     used = done.problem.noise_variance
     if problem.noise_estimated:
         source, agree = "second differences", _agree(used, residual)

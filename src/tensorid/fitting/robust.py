@@ -44,45 +44,59 @@ def residual_noise(res) -> np.ndarray:
 
 def _implied(problem, res) -> dict | None:
     """The scale the residuals of ``res`` imply, where it differs from the one
-    ``problem`` uses by more than RESCALE (else None)."""
+    ``problem`` uses by more than RESCALE on an output that counts (else None)."""
     implied = TUNING[problem.loss.name] * residual_noise(res)
     used = np.array(list(problem.loss_scale.values()))
-    if not (implied > 0).all() or np.all(np.abs(np.log(implied / used)) < np.log(RESCALE)):
+    counts = problem.weights > 0  # an output of weight 0 keeps a placeholder scale
+    if not (implied[counts] > 0).all():
         return None
-    return dict(zip(problem.model.outputs, implied.tolist(), strict=True))
+    if np.all(np.abs(np.log(implied[counts] / used[counts])) < np.log(RESCALE)):
+        return None
+    scale = np.where(counts & (implied > 0), implied, used)
+    return dict(zip(problem.model.outputs, scale.tolist(), strict=True))
 
 
 def fit_robust(problem, first, refit):
     """Stages 2-4 of the module docstring. ``first``: stage 1's result (the squared
-    loss); ``refit(problem, theta)`` fits a problem from one start."""
-    if first.status is Status.INTERRUPTED or not np.isfinite(first.cost):
+    loss, with its priors' noise level checked); ``refit(problem, theta)`` fits a
+    problem from one start."""
+    if first.status is Status.INTERRUPTED:
         return first
-    estimated, seconds = problem.loss_scale_estimated, first.seconds
-    if estimated:
-        implied = TUNING[problem.loss.name] * residual_noise(first)
-        if (implied > 0).all():
-            problem = problem.with_loss(
-                problem.loss, dict(zip(problem.model.outputs, implied.tolist(), strict=True))
-            )
-    notes = [
-        f"the {problem.loss.name} fit started from the least-squares estimate (cost "
-        f"{first.cost:.6g}, {first.nit} iterations, {first.status})"
-    ]
-    res = refit(problem, first.theta)
+    estimated, spent = problem.loss_scale_estimated, [first]
+    # the robust problem on the least-squares one's settings (its priors' noise level
+    # already checked against its residuals), with the loss and scale asked for
+    given = None if estimated else problem.loss_scale
+    robust = first.problem.with_loss(problem.loss, given)
+    notes = []
+    if not np.isfinite(first.cost):
+        notes.append(f"the least-squares stage failed ({first.message}); the "
+                     f"{problem.loss.name} fit ran from the start")  # fmt: skip
+    else:
+        notes.append(
+            f"the {problem.loss.name} fit started from the least-squares estimate (cost "
+            f"{first.cost:.6g}, {first.nit} iterations, {first.status})"
+        )
+        scale = _implied(robust, first) if estimated else None
+        robust = robust.with_loss(problem.loss, scale) if scale else robust
+    res = refit(robust, first.theta)
     for _ in range(ROUNDS if estimated else 0):
         scale = _implied(res.problem, res) if res.success else None
         if scale is None:
             break
-        seconds += res.seconds
+        spent.append(res)
         res = refit(res.problem.with_loss(problem.loss, scale), res.theta)
     if estimated:
         scale = ", ".join(f"{k} {v:.3g}" for k, v in res.problem.loss_scale.items())
-        notes.append(f"its scale, {scale}, came from the residuals; give loss_scale= to fix it")
+        notes.append(
+            f"its scale, {scale}, was estimated (from the outputs, then checked against "
+            "each fit's residuals); give loss_scale= to fix it"
+        )
     if first.starts:
         notes.append(f"its starts were ranked by the least-squares stage ({len(first.starts)})")
     res.problem.loss_scale_estimated = estimated
     res.notes[:0] = first.notes + notes
-    res.starts, res.seconds = first.starts, res.seconds + seconds
-    res.nfev += first.nfev
-    res.nit_total = (res.nit_total or 0) + (first.nit_total or 0)
+    res.starts = first.starts
+    res.seconds += sum(r.seconds for r in spent)
+    res.nfev += sum(r.nfev for r in spent)
+    res.nit_total = (res.nit_total or 0) + sum(r.nit_total or 0 for r in spent)
     return res

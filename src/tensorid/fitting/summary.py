@@ -264,7 +264,8 @@ def coloured_residuals_line(res) -> str:
     """One line for residuals that fail whiteness: the standard errors robust to that
     (Newey-West, tensorid.fitting.sandwich) beside the white ones, and which to trust."""
     white, robust = res.uncertainty(), res.uncertainty("robust")
-    ratio = robust.stderr / white.stderr
+    with np.errstate(divide="ignore", invalid="ignore"):  # inf/inf: a flat direction
+        ratio = robust.stderr / white.stderr
     finite = ratio[np.isfinite(ratio)]
     if not finite.size:
         return "the residuals are not white; no finite standard error to compare"
