@@ -143,7 +143,8 @@ def _run_payload(payload: tuple) -> list[dict]:
     if key not in _WORKER_PROBLEMS:
         _WORKER_PROBLEMS.clear()
         problem = cloudpickle.loads(blob)
-        if _LOCAL_WORKER and problem.threads is None:
+        # (run_starts runs any task: its "problem" may be anything, None included)
+        if _LOCAL_WORKER and getattr(problem, "threads", 1) is None:
             # a local pool's worker has one core: the adjoint Hessian's threads would
             # only contend (its own copy of the problem, told so explicitly; a Dask
             # worker keeps its cores, and a user's threads= is kept)
