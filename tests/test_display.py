@@ -61,7 +61,8 @@ def test_the_fit_prints_its_summary_and_keeps_its_one_line_repr(fitted):
 def test_a_sandwich_says_so_and_notes_no_other_form(fitted):
     # a robust sandwich is built on the exact Hessian: its intervals are of that form
     u = replace(fitted[0].uncertainty(), kind="robust", lags=2)
-    assert "sandwich, 2 Newey-West lags" in str(u) and "form" not in str(u).split("\n", 1)[1]
+    head = "sandwich, Newey-West after prewhitening, 2 lags"
+    assert head in str(u) and "form" not in str(u).split("\n", 1)[1]
 
 
 def test_html_escapes_what_it_shows(fitted):

@@ -482,7 +482,10 @@ def _on_grid(p, t: np.ndarray) -> np.ndarray:
     Ts, t0 = np.polynomial.polynomial.polyfit(k, t, 1)[::-1]
     grid = t0 + k * Ts
     off = float(np.abs(t - grid).max())
-    if not 1e-9 * Ts < off <= JITTER * Ts:  # uniform to rounding, or truly uneven
+    # below this the stamps are uniform to the rounding of their own digits (which near
+    # t = 2 is a few 1e-16 s, far above 1e-9 of a microsecond's sample time)
+    rounding = max(1e-9 * Ts, 64 * np.finfo(float).eps * float(np.abs(t).max()))
+    if not rounding < off <= JITTER * Ts:  # uniform to rounding, or truly uneven
         return t
     import warnings
 

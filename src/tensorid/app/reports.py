@@ -99,6 +99,21 @@ def _profile_json(profiles: dict | None) -> dict:
     }
 
 
+def _error_bars(res, u, names: list[str], residual) -> dict:
+    """fit.json's error bars: the exact Hessian's, the Gauss-Newton form's, the
+    Newey-West form's where the residuals are not white or the loss is robust (null
+    where they passed whiteness: it would only repeat stderr), and the information."""
+    d = u.as_dicts()
+    gn = res.uncertainty("gauss-newton").stderr.tolist()
+    d["stderr_gauss_newton"] = dict(zip(names, gn, strict=True))
+    coloured = residual is not None and False in residual.whiteness_passed
+    robust = res.uncertainty("robust") if coloured or not res.problem.loss.squared else None
+    d["stderr_robust"] = dict(zip(names, robust.stderr.tolist(), strict=True)) if robust else None
+    d["robust_lags"] = robust.lags if robust else None
+    d["information"] = res.information().as_dict()
+    return d
+
+
 def fit_json(
     res,
     validation: list[Score],
@@ -158,18 +173,7 @@ def fit_json(
     for metric in ("gof", "rmse", "nrmse"):
         d[metric] = {"train": _metrics(train, metric), "validation": _metrics(validation, metric)}
     if u:
-        d.update(u.as_dicts())
-        gn = res.uncertainty("gauss-newton").stderr.tolist()
-        d["stderr_gauss_newton"] = dict(zip(names, gn, strict=True))
-        # the Newey-West form where the residuals are not white (or the loss robust);
-        # null where they passed whiteness: then it would only repeat stderr
-        coloured = residual is not None and False in residual.whiteness_passed
-        robust = res.uncertainty("robust") if coloured or not res.problem.loss.squared else None
-        d["stderr_robust"] = (
-            dict(zip(names, robust.stderr.tolist(), strict=True)) if robust else None
-        )
-        d["robust_lags"] = robust.lags if robust else None
-        d["information"] = res.information().as_dict()
+        d.update(_error_bars(res, u, names, residual))
     d.update(_profile_json(profiles))
     if missing:
         d["statistics_missing"] = missing

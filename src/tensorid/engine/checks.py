@@ -181,3 +181,22 @@ def check_bounds(problem, bounds: Mapping) -> tuple[np.ndarray, np.ndarray]:
             "bounds"
         )
     return lo, hi
+
+
+def check_p0(problem, p0) -> np.ndarray:
+    """The parameters' start values (M,), required."""
+    if p0 is None:
+        raise ValueError(
+            f"p0 is required: give a start value for every parameter "
+            f"{list(problem.model.params)} (dict or array)"
+        )
+    return problem.model.params_array(p0, "p0")
+
+
+def check_threads(threads) -> int | None:
+    """A cap on the adjoint's threads: None or a whole number >= 1."""
+    if threads is not None and (
+        isinstance(threads, bool) or not isinstance(threads, int) or threads < 1
+    ):
+        raise ValueError(f"threads must be a whole number >= 1 or None, got {threads!r}")
+    return threads

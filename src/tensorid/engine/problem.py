@@ -16,7 +16,15 @@ import numpy as np
 
 from .. import _config  # noqa: F401
 from .adjoint import choose_hessian
-from .checks import check_bounds, check_data, check_weights, check_x0, name_list
+from .checks import (
+    check_bounds,
+    check_data,
+    check_p0,
+    check_threads,
+    check_weights,
+    check_x0,
+    name_list,
+)
 from .data import Experiment
 from .discretisation import Discretisation
 from .integrators import RungeKuttaScheme, Scheme
@@ -123,12 +131,7 @@ class Problem:
             raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
         self.model = model
         self.experiments = check_data(self, data)
-        if p0 is None:
-            raise ValueError(
-                f"p0 is required: give a start value for every parameter "
-                f"{list(model.params)} (dict or array)"
-            )
-        self.p0 = model.params_array(p0, "p0")
+        self.p0 = check_p0(self, p0)
         self.x0 = check_x0(self, x0)
         self.free_x0 = name_list("free_x0", free_x0, model.states, "states")
         self.fixed = name_list("fixed", fixed, model.params, "params")
@@ -162,20 +165,12 @@ class Problem:
             (jnp.asarray(e.t), jnp.asarray(self.inputs(e)), jnp.asarray(e.y))
             for e in self.experiments
         ]
-        if threads is not None and (
-            isinstance(threads, bool) or not isinstance(threads, int) or threads < 1
-        ):
-            raise ValueError(f"threads must be a whole number >= 1 or None, got {threads!r}")
-        self.threads = threads
+        self.threads = check_threads(threads)
         counts = resolve_segments(self.experiments, segments, segment_length)
         self.shooting = Shooting(self, counts) if counts else None
+        samples = [e.P for e in self.experiments]
         self.hessian = choose_hessian(
-            hessian,
-            discretisation,
-            model.N,
-            self._sweeps.K,
-            [e.P for e in self.experiments],
-            threads,
+            hessian, discretisation, model.N, self._sweeps.K, samples, threads
         )
 
     def inputs(self, e: Experiment) -> np.ndarray:

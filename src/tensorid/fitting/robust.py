@@ -67,7 +67,7 @@ def fit_robust(problem, first, refit):
     # already checked against its residuals), with the loss and scale asked for
     given = None if estimated else problem.loss_scale
     robust = first.problem.with_loss(problem.loss, given)
-    notes = []
+    notes, source = [], "the outputs"
     if not np.isfinite(first.cost):
         notes.append(f"the least-squares stage failed ({first.message}); the "
                      f"{problem.loss.name} fit ran from the start")  # fmt: skip
@@ -78,6 +78,7 @@ def fit_robust(problem, first, refit):
         )
         scale = _implied(robust, first) if estimated else None
         robust = robust.with_loss(problem.loss, scale) if scale else robust
+        source = "the least-squares fit's residuals" if scale else "the outputs"
     res = refit(robust, first.theta)
     for _ in range(ROUNDS if estimated else 0):
         scale = _implied(res.problem, res) if res.success else None
@@ -85,12 +86,12 @@ def fit_robust(problem, first, refit):
             break
         spent.append(res)
         res = refit(res.problem.with_loss(problem.loss, scale), res.theta)
+        source = f"the residuals of the {problem.loss.name} fit"
     if estimated:
         scale = ", ".join(f"{k} {v:.3g}" for k, v in res.problem.loss_scale.items())
-        notes.append(
-            f"its scale, {scale}, was estimated (from the outputs, then checked against "
-            "each fit's residuals); give loss_scale= to fix it"
-        )
+        refits = len(spent) - 1
+        again = f" ({refits} refit(s) as it moved)" if refits else ""
+        notes.append(f"its scale, {scale}, came from {source}{again}; give loss_scale= to fix it")
     if first.starts:
         notes.append(f"its starts were ranked by the least-squares stage ({len(first.starts)})")
     res.problem.loss_scale_estimated = estimated

@@ -244,10 +244,9 @@ def fit_blocks(res, scores=None) -> list:
     if u is not None:
         blocks.append("information: " + res.information().describe())
         c = res.criteria()
-        blocks.append(
-            criteria_text(c) + f" (n = {c['n']}, K = {c['K']}; lower is better, for models "
-            "of the same data)"
-        )
+        shown = any(c.get(k) is not None and math.isfinite(c[k]) for k in ("aic", "aicc", "bic"))
+        better = "; lower is better, for models of the same data" if shown else ""
+        blocks.append(criteria_text(c) + f" (n = {c['n']}, K = {c['K']}{better})")
     # what happened on the way (a robust loss's stages, rejected trial points); a fit
     # that did not converge has them among its warnings already
     notes = [f"note: {n}" for n in res.notes] if res.success else []

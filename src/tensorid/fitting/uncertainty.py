@@ -80,7 +80,9 @@ class Uncertainty(Tabular):
             how = {"hessian": "exact Hessian", "gauss-newton": "Gauss-Newton form"}[self.kind]
         else:
             how = "sandwich, " + (
-                f"{self.lags} Newey-West lags" if self.lags else "independent samples"
+                f"Newey-West after prewhitening, {self.lags} lags"
+                if self.kind == "robust"
+                else "independent samples"
             )
         head = self.not_available or (
             f"standard errors ({how}): residual variance {self.sigma2:.4g} on {self.dof} "
