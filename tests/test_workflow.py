@@ -321,7 +321,10 @@ def test_multistart_local_and_dask_agree(workdir):
     assert remote.cost == pytest.approx(local.cost, rel=1e-12)
     np.testing.assert_allclose(remote.theta, local.theta, rtol=1e-9)
     costs = [s["cost"] for s in local.starts]
-    assert costs == sorted(costs) and local.cost <= costs[0] * (1 + 1e-12)
+    # ranked by cost, starts tied to 1e-9 by fewest iterations (so tied costs may differ
+    # in their last digits either way)
+    assert all(b >= a * (1 - 1e-9) for a, b in zip(costs, costs[1:], strict=False))
+    assert local.cost <= min(costs) * (1 + 1e-9)
 
 
 def test_draw_starts_respect_bounds_and_are_seeded():
