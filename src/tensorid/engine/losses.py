@@ -143,8 +143,13 @@ def robust_noise(y: np.ndarray) -> np.ndarray:
     d2 = np.diff(np.asarray(y, dtype=float), n=2, axis=0)
     if d2.shape[0] == 0:
         return np.zeros(np.shape(y)[1])
-    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
-    return 1.4826 * mad / np.sqrt(6.0)
+    return robust_sd(d2) / np.sqrt(6.0)
+
+
+def robust_sd(a: np.ndarray) -> np.ndarray:
+    """Per column, 1.4826 × the median absolute deviation: the standard deviation for
+    Gaussian samples, untouched by a few gross outliers."""
+    return 1.4826 * np.median(np.abs(a - np.median(a, axis=0)), axis=0)
 
 
 def make_loss(

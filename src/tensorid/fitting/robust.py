@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..engine.losses import TUNING
+from ..engine.losses import TUNING, robust_sd
 from ..engine.status import Status
 
 RESCALE = 1.5  # a factor: closer than this, the scale is left as it is
@@ -39,7 +39,7 @@ def residual_noise(res) -> np.ndarray:
     r = np.concatenate(
         [e.y - s.y for e, s in zip(res.problem.experiments, res.simulate(), strict=True)]
     )
-    return 1.4826 * np.median(np.abs(r - np.median(r, axis=0)), axis=0)
+    return robust_sd(r)
 
 
 def _implied(problem, res) -> dict | None:
