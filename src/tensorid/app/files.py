@@ -7,7 +7,9 @@ and it may define ``p0`` (dict), ``x0``
 (dict state -> value), ``free_x0`` (list), ``fixed`` (list), ``bounds`` (dict name ->
 (lo, hi)), ``weights`` ("auto" or dict output -> weight), ``priors`` (dict name ->
 (mean, sd)) and ``noise`` (the noise standard deviation that weighs the priors; without
-it, it is estimated and checked by the fit). A file that has not finished running
+it, it is estimated and checked by the fit), ``loss``/``loss_scale`` and, for a
+stochastic model, ``predictor = "ekf"`` with ``process_noise`` (dict state -> σ_w)
+and ``measurement_noise`` (dict output -> σ_e). A file that has not finished running
 after TENSORID_MODEL_TIMEOUT seconds (default 60) is stopped with a clear message.
 
 Data files are CSV (a time column ``t``, or a sampling time given as ``ts``, plus
@@ -35,6 +37,7 @@ import numpy as np
 from ..engine.equations import model_from_equations
 from ..engine.losses import LOSSES
 from ..engine.model import Model
+from ..engine.predictors import PREDICTORS
 from .datafiles import load_data
 
 __all__ = ["ModelSpec", "load_data", "load_model"]
@@ -56,6 +59,9 @@ class ModelSpec:
     loss: str | None = None
     loss_scale: float | dict | None = None
     noise: float | None = None
+    predictor: str | None = None
+    process_noise: dict | None = None
+    measurement_noise: dict | None = None
 
     def x0_array(self) -> np.ndarray:
         """x0 of the model file as an array (N,), states it does not name at 0."""
@@ -218,4 +224,13 @@ def _spec(ns: dict, path: Path) -> ModelSpec:
         raise TypeError(f"loss_scale must be a number or a dict {{output: scale}}, got {scale!r}")
     out.loss, out.loss_scale = loss, scale
     out.noise = ns.get("noise")  # Problem checks it, naming this file
+    predictor = ns.get("predictor")
+    if predictor is not None and predictor not in PREDICTORS:
+        raise ValueError(f"predictor must be one of {list(PREDICTORS)}, got {predictor!r}")
+    out.predictor = predictor
+    for key in ("process_noise", "measurement_noise"):
+        value = ns.get(key)
+        if value is not None and not isinstance(value, dict):
+            raise TypeError(f"{key} must be a dict {{name: standard deviation}}, got {value!r}")
+        setattr(out, key, value)
     return out

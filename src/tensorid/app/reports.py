@@ -17,6 +17,7 @@ from ..fitting.summary import (
     interval,
     interval_note,
     metric_rows,
+    noise_intensities,
     plural,
     significant,
     stderr_text,
@@ -107,7 +108,9 @@ def _error_bars(res, u, names: list[str], residual) -> dict:
     gn = res.uncertainty("gauss-newton").stderr.tolist()
     d["stderr_gauss_newton"] = dict(zip(names, gn, strict=True))
     coloured = residual is not None and False in residual.whiteness_passed
-    robust = res.uncertainty("robust") if coloured or not res.problem.loss.squared else None
+    loss = res.problem.loss
+    wanted = (coloured and not loss.likelihood) or loss.robust
+    robust = res.uncertainty("robust") if wanted else None
     d["stderr_robust"] = dict(zip(names, robust.stderr.tolist(), strict=True)) if robust else None
     d["robust_lags"] = robust.lags if robust else None
     d["information"] = res.information().as_dict()
@@ -148,6 +151,8 @@ def fit_json(
         "integration": res.problem.discretisation.as_dict(),
         "hessian_path": res.problem.hessian,
         "loss": res.problem.loss.name,
+        "predictor": res.problem.predictor.name,
+        "noise_intensities": noise_intensities(res, u),
         "loss_scale": res.problem.loss_scale,
         "weights": dict(zip(res.problem.model.outputs, res.problem.weights.tolist(), strict=True)),
         "priors": {names[i]: list(ms) for i, ms in res.problem.priors.items()},

@@ -200,3 +200,24 @@ def check_threads(threads) -> int | None:
     ):
         raise ValueError(f"threads must be a whole number >= 1 or None, got {threads!r}")
     return threads
+
+
+def check_filter_options(predictor: str, **options) -> None:
+    """One line, before any work, for an option that a filter (predictor="ekf") cannot
+    serve: it estimates its own noise, and corrects the state at every sample."""
+    if predictor != "ekf":
+        return
+    why = {
+        "loss": "its loss is the likelihood of the innovations (drop loss=)",
+        "loss_scale": "its loss is the likelihood of the innovations (drop loss_scale=)",
+        "weights": "the measurement noise intensities weigh the outputs (drop weights=)",
+        "noise": "the measurement noise is estimated with the parameters (drop noise=)",
+        "segments": "the filter already corrects the state at every sample (drop segments=)",
+        "segment_length": "the filter already corrects the state at every sample "
+        "(drop segment_length=)",
+        "hessian": "its exact Hessian comes from the transition tensors only (use "
+        "hessian='tensors' or 'auto')",
+    }
+    for name, value in options.items():
+        if value not in (None, "squared", "auto", "tensors", 1):
+            raise ValueError(f"predictor='ekf' cannot take {name}={value!r}: {why[name]}")

@@ -138,6 +138,7 @@ def march(
     *,
     discretisation: Discretisation,
     state_field: Callable | None = None,
+    update: Callable | None = None,
 ):
     """Integrate ``y' = field(y, u)`` over the sample grid ``t`` and fold every sample
     into an accumulator.
@@ -147,6 +148,8 @@ def march(
             each interval; ``obs`` is a pytree whose leaves have a leading sample axis.
         state_field: ``state_field(x, u)``, the model's own F, needed by implicit
             schemes (for F_x) when ``y`` is augmented.
+        update: ``update(y, obs_h) -> y``, applied at each sample after ``observe``:
+            a filter's measurement update (None: the state is not corrected).
 
     Returns:
         (final accumulator, stacked ``out_h`` (P leading), failure) where failure is
@@ -159,6 +162,8 @@ def march(
     first = jax.tree_util.tree_map(lambda a: a[0], obs)
     rest = jax.tree_util.tree_map(lambda a: a[1:], obs)
     acc, out0 = observe(acc0, y0, first)
+    if update is not None:
+        y0 = update(y0, first)
 
     def interval(carry, data):
         y, h_trial, acc, fail, at = carry
@@ -176,6 +181,8 @@ def march(
         new = (fail == 0) & (code != 0)
         fail, at = jnp.where(new, code, fail), jnp.where(new, k, at)
         acc, out = observe(acc, y, obs_h)
+        if update is not None:
+            y = update(y, obs_h)
         return (y, h_trial, acc, fail, at), out
 
     P = t.shape[0]

@@ -39,7 +39,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+import jax
 import jax.numpy as jnp
+import jax.scipy.linalg
 import numpy as np
 
 LOSSES = ("squared", "huber", "cauchy", "student-t")
@@ -73,6 +75,17 @@ class Loss:
         """Whether this is weighted least squares (the Gauss-Newton part is then the
         exact Hessian's first term, and the statistics' Gaussian formulas hold)."""
         return self.name == "squared"
+
+    @property
+    def robust(self) -> bool:
+        """Whether this is a robust loss (Huber, Cauchy, Student-t), with a scale."""
+        return self.name in TUNING
+
+    @property
+    def likelihood(self) -> bool:
+        """Whether J is −2 log-likelihood with the noise among the unknowns (a filter's
+        Gaussian loss): then cov(θ) = 2 H⁻¹, with no residual variance to estimate."""
+        return False
 
     # -- ρ and its derivatives, on z = e / c -------------------------------------------
     def rho(self, z):
@@ -134,6 +147,60 @@ class Loss:
 SQUARED = Loss()
 
 
+@dataclass(frozen=True)
+class Gaussian(Loss):
+    """The Gaussian negative log-likelihood of a prediction with its own covariance,
+    π = (ŷ (S), vec Σ (S²)) (an extended Kalman filter's predicted output and
+    innovation covariance, see predictors.py), up to the constant S log 2π:
+
+        ℓ = log det Σ + εᵀ Σ⁻¹ ε,    ε = y − ŷ       (−2 log-likelihood)
+
+    so that J = Σ_h ℓ_h is −2 log L and cov(θ) ≈ 2 H⁻¹ (no residual variance to
+    estimate: the noise intensities are unknowns of θ). Its curvature in π is a full
+    matrix, and its Gauss-Newton weights are the Fisher information of (ŷ, Σ):
+    2 Σ⁻¹ for ŷ and Σ⁻¹ ⊗ Σ⁻¹ for vec Σ (Fisher scoring). ``lw`` is not used."""
+
+    name: str = "gaussian"
+
+    @property
+    def likelihood(self) -> bool:
+        return True
+
+    @staticmethod
+    def _split(y, pi):
+        S = y.shape[-1]
+        return y - pi[..., :S], pi[..., S:].reshape(pi.shape[:-1] + (S, S))
+
+    def value(self, y, pi, lw):
+        eps, Sig = self._split(y, pi)
+        L = jnp.linalg.cholesky(Sig)
+        z = jax.scipy.linalg.solve_triangular(L, eps[..., None], lower=True)[..., 0]
+        logdet = 2.0 * jnp.sum(jnp.log(jnp.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
+        return jnp.sum(logdet + jnp.sum(z * z, axis=-1))
+
+    def terms(self, y, pi, lw):
+        ell = self.value(y, pi, lw)
+        l1 = jax.grad(lambda q: self.value(y, q, lw))(pi)
+        l2 = jax.hessian(lambda q: self.value(y, q, lw))(pi)
+        _, Sig = self._split(y, pi)
+        Si = jnp.linalg.inv(Sig)
+        Si = 0.5 * (Si + Si.T)
+        S = y.shape[-1]
+        fisher = jnp.zeros((S + S * S, S + S * S), dtype=pi.dtype)
+        fisher = fisher.at[:S, :S].set(2.0 * Si).at[S:, S:].set(jnp.kron(Si, Si))
+        return ell, l1, l2, fisher
+
+    def residual(self, y, pi, lw):
+        """The standardised innovations L⁻¹ ε (L L ᵀ = Σ): white with unit variance
+        where the model and its noise are right (what the whiteness tests see)."""
+        eps, Sig = self._split(y, pi)
+        L = jnp.linalg.cholesky(Sig)
+        return jax.scipy.linalg.solve_triangular(L, eps[..., None], lower=True)[..., 0]
+
+
+GAUSSIAN = Gaussian()
+
+
 def robust_noise(y: np.ndarray) -> np.ndarray:
     """(S,) the noise standard deviation of each measured output from its second
     differences, robustly: for white noise on a signal that is smooth at the sampling
@@ -167,7 +234,7 @@ def make_loss(
     else:
         raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
     S = len(outputs)
-    if name == "squared":
+    if name == "squared" or loss.likelihood:
         if scale is not None:
             raise ValueError("loss_scale is for a robust loss; the squared loss has none")
         return loss, np.ones(S)

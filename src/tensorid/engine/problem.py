@@ -19,6 +19,7 @@ from .adjoint import choose_hessian
 from .checks import (
     check_bounds,
     check_data,
+    check_filter_options,
     check_p0,
     check_threads,
     check_weights,
@@ -28,8 +29,9 @@ from .checks import (
 from .data import Experiment
 from .discretisation import Discretisation
 from .integrators import RungeKuttaScheme, Scheme
-from .losses import Loss, make_loss
+from .losses import GAUSSIAN, Loss, make_loss
 from .model import Model
+from .predictors import make_predictor
 from .priors import add_prior_terms, check_priors
 from .shooting import Shooting, resolve_segments
 from .simulate import Simulation, run_simulation
@@ -100,6 +102,18 @@ class Problem:
         only) or "auto" (default): the faster of the two by a cost model measured on
         N, K and the record length (:func:`tensorid.engine.adjoint.choose_hessian`). Both
         give the same Hessian to rounding. The resolved choice is ``Problem.hessian``.
+    predictor : how the state is carried from sample to sample: "simulation" (default:
+        output error, the model simulated from its initial state) or "ekf" (a
+        continuous-discrete extended Kalman filter: prediction error, J = −2 log L of
+        the innovations; see :mod:`tensorid.engine.predictors`). With "ekf" the model
+        gains a parameter log σ per noise intensity (``log_sigma_w_<state>``,
+        ``log_sigma_e_<output>``), estimated unless named in ``fixed``.
+    process_noise : {state: σ_w}: the states driven by process noise dω, each with the
+        start of its intensity (a standard deviation per √time unit); states not
+        listed have none ("ekf" only).
+    measurement_noise : {output: σ_e}: the start of each output's measurement noise
+        (standard deviation); an output not listed starts from its noise level in the
+        data ("ekf" only).
     """
 
     def __init__(
@@ -126,12 +140,20 @@ class Problem:
         loss: str | Loss = "squared",
         loss_scale: float | Mapping[str, float] | None = None,
         threads: int | None = None,
+        predictor: str = "simulation",
+        process_noise: Mapping[str, float] | None = None,
+        measurement_noise: Mapping[str, float] | None = None,
     ):
         if not isinstance(model, Model):
             raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
+        check_filter_options(
+            predictor, loss=loss, loss_scale=loss_scale, weights=weights, noise=noise,
+            segments=segments, segment_length=segment_length, hessian=hessian,
+        )  # fmt: skip
         self.model = model
         self.experiments = check_data(self, data)
         self.p0 = check_p0(self, p0)
+        model = self._with_predictor(predictor, process_noise, measurement_noise)
         self.x0 = check_x0(self, x0)
         self.free_x0 = name_list("free_x0", free_x0, model.states, "states")
         self.fixed = name_list("fixed", fixed, model.params, "params")
@@ -142,16 +164,15 @@ class Problem:
         self.discretisation = discretisation
         self.weights = check_weights(self, weights)
         self.loss, scale = make_loss(
-            loss, loss_scale, list(model.outputs), self.weights, [e.y for e in self.experiments]
-        )
+            loss if predictor == "simulation" else GAUSSIAN,
+            loss_scale, list(model.outputs), self.weights, [e.y for e in self.experiments],
+        )  # fmt: skip
         # what every sweep's per-sample loss is evaluated with, [w; c] (see losses.py)
         self.loss_weights = np.stack([self.weights, scale])
         # an estimated scale is checked against the residuals after a fit (fitting/robust.py)
-        self.loss_scale_estimated = not self.loss.squared and loss_scale is None
+        self.loss_scale_estimated = self.loss.robust and loss_scale is None
         self.lower, self.upper = check_bounds(self, bounds or {})
-        self.priors, self.noise_variance = check_priors(self, priors, noise)
-        # an estimate, not the user's word: a fit may re-estimate it (fitting/priors.py)
-        self.noise_estimated = bool(self.priors) and noise is None
+        self._set_priors(priors, noise)
         if self.K == 0:
             raise ValueError("nothing to estimate: every parameter is fixed and free_x0 is empty")
         self._sweeps = shared_sweeps(
@@ -160,6 +181,7 @@ class Problem:
             tuple(model.params.index(n) for n in self.free_params),
             discretisation,
             self.loss,
+            self.predictor,
         )
         self._arrays = [
             (jnp.asarray(e.t), jnp.asarray(self.inputs(e)), jnp.asarray(e.y))
@@ -170,8 +192,26 @@ class Problem:
         self.shooting = Shooting(self, counts) if counts else None
         samples = [e.P for e in self.experiments]
         self.hessian = choose_hessian(
-            hessian, discretisation, model.N, self._sweeps.K, samples, threads
+            "tensors" if self.predictor.update else hessian,
+            discretisation, model.N, self._sweeps.K, samples, threads,
+        )  # fmt: skip
+
+    def _set_priors(self, priors, noise) -> None:
+        self.priors, self.noise_variance = check_priors(self, priors, noise)
+        # an estimate, not the user's word: a fit may re-estimate it (fitting/priors.py)
+        self.noise_estimated = bool(self.priors) and noise is None and not self.loss.likelihood
+        if self.loss.likelihood:  # J is −2 log L: a prior adds ((θ − mean)/sd)² as it is
+            self.noise_variance = 1.0
+
+    def _with_predictor(self, predictor, process_noise, measurement_noise) -> Model:
+        """Set the predictor; a filter's model has its noise intensities appended to the
+        parameters (and p0). Returns the model the problem estimates."""
+        measured = [e.y for e in self.experiments]
+        self.model, self.predictor, starts = make_predictor(
+            self.model, predictor, process_noise, measurement_noise, measured
         )
+        self.p0 = np.concatenate([self.p0, list(starts.values())])
+        return self.model
 
     def inputs(self, e: Experiment) -> np.ndarray:
         """The inputs the model sees on experiment e: delayed where the model says so."""
@@ -211,7 +251,7 @@ class Problem:
     @property
     def loss_scale(self) -> dict[str, float] | None:
         """A robust loss's scale per output, in the outputs' units (None: squared loss)."""
-        if self.loss.squared:
+        if not self.loss.robust:
             return None
         w = np.where(self.weights > 0, self.weights, 1.0)
         c = self.loss_weights[1] / np.sqrt(w)
@@ -225,7 +265,7 @@ class Problem:
         measured = [e.y for e in self.experiments]
         new.loss, c = make_loss(loss, scale, list(self.model.outputs), self.weights, measured)
         new.loss_weights = np.stack([self.weights, c])
-        new.loss_scale_estimated = not new.loss.squared and scale is None
+        new.loss_scale_estimated = new.loss.robust and scale is None
         sw = self._sweeps
         new._sweeps = shared_sweeps(
             self.model, sw.free_states, sw.free_params, self.discretisation, new.loss
@@ -236,7 +276,10 @@ class Problem:
     @property
     def rounding_floor(self) -> float:
         """The cost of residuals at 1e-13 of the data (double precision leaves a few
-        digits to the simulation): a fit that reaches it has matched the data exactly."""
+        digits to the simulation): a fit that reaches it has matched the data exactly
+        (-inf for a likelihood, which has no floor)."""
+        if self.loss.likelihood:
+            return -np.inf
         return 1e-26 * sum(
             float(np.sum(self.weights * np.asarray(y) ** 2)) for _, _, y in self._arrays
         )
@@ -479,12 +522,24 @@ class Problem:
             out.append(full)
         return out
 
+    def predict(self, theta, horizon: int = 1) -> list:
+        """Per experiment, what the predictor makes of the record at θ: outputs
+        predicted ``horizon`` samples ahead (1: one step), the filter's innovation
+        covariances and standardised innovations (see
+        :class:`tensorid.engine.predictors.Prediction`). For output error every
+        horizon gives the simulation."""
+        from .predictors import predictions
+
+        return predictions(self, theta, horizon)
+
     def simulate(self, theta) -> list[Simulation]:
-        """Simulate every experiment at θ; returns a list of Simulation."""
+        """Simulate every experiment at θ (the model alone, whatever the predictor);
+        returns a list of Simulation."""
         p, x0 = self.unpack(theta)
+        sw = self._sweeps
+        sw = shared_sweeps(self.model, sw.free_states, sw.free_params, self.discretisation)
         return [
-            run_simulation(self._sweeps, self.experiments[e], x0[e], p)
-            for e in range(len(self.experiments))
+            run_simulation(sw, self.experiments[e], x0[e], p) for e in range(len(self.experiments))
         ]
 
     def diagnose(self, theta) -> str | None:

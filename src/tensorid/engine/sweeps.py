@@ -39,6 +39,7 @@ from .adjoint import SecondOrderAdjoint
 from .discretisation import Discretisation, march
 from .losses import SQUARED, Loss
 from .model import Model
+from .predictors import SIMULATION, Simulation
 
 
 def pair_indices(K: int) -> tuple[np.ndarray, np.ndarray]:
@@ -103,6 +104,7 @@ class Sweeps:
     free_params: tuple[int, ...]
     discretisation: Discretisation
     loss: Loss = SQUARED
+    predictor: Simulation = SIMULATION
 
     @property
     def K(self) -> int:
@@ -116,22 +118,60 @@ class Sweeps:
         return x0, p
 
     def seeds(self):
-        """dx(t0) (N, K): unit columns for free initial states; P (M, K): the parameter
-        rows of Z, constant in time."""
-        N, M, K, nx = self.model.N, self.model.M, self.K, len(self.free_states)
+        """dz(t0) (carried state's size, K): unit columns for free initial states (the
+        predictor's own part of z, a filter's covariance, starts at 0); P (M, K): the
+        parameter rows of Z, constant in time."""
+        N, M, K, nx = self._size, self.model.M, self.K, len(self.free_states)
         dx0 = np.zeros((N, K))
         dx0[list(self.free_states), list(range(nx))] = 1.0
         Psel = np.zeros((M, K))
         Psel[list(self.free_params), list(range(nx, K))] = 1.0
         return dx0, Psel
 
-    def _march(self, field, observe, y0, acc0, t, u, obs, p, end=False):
-        """``march`` with the model's F; with ``end``, the accumulator comes back as
-        (accumulator, the augmented state at the last sample)."""
-        m = self.model
+    @property
+    def _size(self) -> int:
+        """The length of the carried state z (the model's N for output error)."""
+        return self.predictor.size(self.model)
+
+    def _start(self, theta, x0, p):
+        """(z0, p): the carried state at t0 and the parameters, θ written in."""
+        x0, p = self.expand(theta, x0, p)
+        return self.predictor.start(x0), p
+
+    def _f(self, p, uu):
+        """z ↦ the predictor's field (the model's F for output error)."""
+        return lambda z, p_=p: self.predictor.field(self.model, z, p_, uu)
+
+    def _pi(self, z, p):
+        """The prediction the loss compares with a sample (ŷ for output error)."""
+        return self.predictor.predict(self.model, z, p)
+
+    def _update(self, push=None):
+        """``march``'s update hook: None for output error; for a filter, the measurement
+        update of the carried state, with ``push(fn, state)`` carrying the sensitivities
+        of an augmented state through the map z ↦ fn(z, p)."""
+        pr, m = self.predictor, self.model
+        if pr.update is None:
+            return None
+
+        def update(state, obs_h, p):
+            y_h = obs_h[0] if isinstance(obs_h, tuple) else obs_h
+
+            def fn(z, p_):
+                return pr.update(m, z, p_, y_h)
+
+            return fn(state, p) if push is None else push(fn, state)
+
+        return update
+
+    def _march(self, field, observe, y0, acc0, t, u, obs, p, end=False, update=None, own=None):
+        """``march`` with the predictor's field (``own``: the field of the unaugmented
+        state, when it is not the predictor's); with ``end``, the accumulator comes
+        back as (accumulator, the augmented state at the last sample); ``update(state,
+        obs_h, p)`` corrects the state at each sample (a filter)."""
 
         def state_field(x, uu):
-            return m.f(x, p, uu)
+            return self._f(p, uu)(x) if own is None else own(x, uu)
 
         if end:
             inner = observe
@@ -151,6 +191,7 @@ class Sweeps:
             obs,
             discretisation=self.discretisation,
             state_field=state_field,
+            update=None if update is None else (lambda st, o: update(st, o, p)),
         )
 
     # -- plain simulation --------------------------------------------------------------
@@ -164,21 +205,36 @@ class Sweeps:
         def observe(acc, x, _):
             return acc, (x, m.h(x, p))
 
-        _, (xs, ys), (code, at) = self._march(field, observe, x0, 0.0, t, u, jnp.zeros(t.shape), p)
+        _, (xs, ys), (code, at) = self._march(
+            field, observe, x0, 0.0, t, u, jnp.zeros(t.shape), p, own=field
+        )
         return xs, ys, code, at
 
     def _cost(self, theta, x0, p, t, u, y, w):
-        x0, p = self.expand(theta, x0, p)
-        m = self.model
+        z0, p = self._start(theta, x0, p)
 
-        def field(x, uu):
-            return m.f(x, p, uu)
+        def field(z, uu):
+            return self._f(p, uu)(z)
 
-        def observe(J, x, y_h):
-            return J + self.loss.value(y_h, m.h(x, p), w), None
+        def observe(J, z, y_h):
+            return J + self.loss.value(y_h, self._pi(z, p), w), None
 
-        J, _, _ = self._march(field, observe, x0, jnp.zeros(()), t, u, y, p)
+        J, _, _ = self._march(field, observe, z0, jnp.zeros(()), t, u, y, p, update=self._update())
         return J
+
+    def _predictions(self, theta, x0, p, t, u, y):
+        """(z, π) at every sample, before each sample's update: the carried states and
+        the predictions the loss sees (for output error, the simulation)."""
+        z0, p = self._start(theta, x0, p)
+
+        def field(z, uu):
+            return self._f(p, uu)(z)
+
+        def observe(acc, z, _):
+            return acc, (z, self._pi(z, p))
+
+        _, (zs, pis), _ = self._march(field, observe, z0, 0.0, t, u, y, p, update=self._update())
+        return zs, pis
 
     def _output_jacobian(self, theta, x0, p, t, u):
         """∂ŷ/∂θ (P, S, K) by forward-mode differentiation of the simulation."""
@@ -189,18 +245,42 @@ class Sweeps:
 
         return jax.jacfwd(outputs)(theta)
 
-    def _residuals(self, theta, x0, p, t, u, y, w):
+    def _k_step(self, theta, x0, p, t, u, y, k: int):
+        """ŷ_{h|h−k} (P, S): each sample's output predicted k intervals ahead from the
+        state the predictor had after sample h − k's update, by the model alone (for
+        output error, the simulation); for h < k, from x0 (the simulation)."""
+        zs, _ = self._predictions(theta, x0, p, t, u, y)
         x0, p = self.expand(theta, x0, p)
-        _, ys, _, _ = self._simulate(x0, p, t, u)
-        return self.loss.residual(y, ys, w).reshape(-1)
+        m, pr = self.model, self.predictor
+        if pr.update is not None:
+            zs = jax.vmap(lambda z, yy: pr.update(m, z, p, yy))(zs, y)
+        xs = pr.states(zs)
+
+        def field(x, uu):
+            return m.f(x, p, uu)
+
+        def ahead(h):
+            window = [jax.lax.dynamic_slice_in_dim(a, h, k + 1) for a in (t, u)]
+            _, ys, _ = march(
+                field, lambda acc, x, _: (acc, m.h(x, p)), xs[h], 0.0, *window,
+                jnp.zeros(k + 1), discretisation=self.discretisation,
+            )  # fmt: skip
+            return ys[-1]
+
+        sim = self._simulate(x0, p, t, u)[1]
+        return jnp.concatenate([sim[:k], jax.vmap(ahead)(jnp.arange(t.shape[0] - k))])
+
+    def _residuals(self, theta, x0, p, t, u, y, w):
+        _, pis = self._predictions(theta, x0, p, t, u, y)
+        return self.loss.residual(y, pis, w).reshape(-1)
 
     # -- first order: (J, ∇J) and the Gauss-Newton Hessian -----------------------------
     def _first_order(self, theta, x0, p, t, u, y, w, gauss_newton=True, end=False):
         """(J, ∇J, Σ (C_z Z)ᵀ γ (C_z Z)) with γ the loss's Gauss-Newton weights (2w for
         the squared loss); the last is None when not ``gauss_newton``.
         With ``end``, also (x, dx) at the last sample (see _weighted for y and w)."""
-        x0, p = self.expand(theta, x0, p)
-        m, K = self.model, self.K
+        x0, p = self._start(theta, x0, p)
+        K = self.K
         dx0, Psel = self.seeds()
         Pt = jnp.asarray(Psel.T)
 
@@ -208,24 +288,28 @@ class Sweeps:
             """(fn_z Z)ᵀ, one row per column of Z = [dx; Psel], by forward mode."""
             return jax.vmap(lambda sx, sp: jax.jvp(fn, (x, p), (sx, sp))[1])(dx.T, Pt)
 
-        def field(state, uu):
+        def push(fn, state):  # (fn, fn_z Z) of z ↦ fn(z, p)
             x, dx = state
-            return m.f(x, p, uu), columns(lambda x_, p_: m.f(x_, p_, uu), x, dx).T
+            return fn(x, p), columns(fn, x, dx).T
+
+        def field(state, uu):
+            return push(self._f(p, uu), state)
 
         def observe(acc, state, obs_h):
             J, g, H = acc
             x, dx = state
             y_h, w = _weighted(obs_h, w_all)
-            ell, l1, _, gamma = self.loss.terms(y_h, m.h(x, p), w)
-            D = columns(m.h, x, dx)  # (K, outputs) = (C_z Z)ᵀ
+            ell, l1, _, gamma = self.loss.terms(y_h, self._pi(x, p), w)
+            D = columns(self._pi, x, dx)  # (K, outputs) = (C_z Z)ᵀ
             if gauss_newton:
-                H = H + (D * gamma) @ D.T
+                H = H + _quadratic_full(D, gamma)
             return (J + ell, g + D @ l1, H), None
 
         acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros((K, K)) if gauss_newton else None)
         w_all = w
         state0 = (x0, jnp.asarray(dx0))
-        acc, _, _ = self._march(field, observe, state0, acc0, t, u, y, p, end)
+        update = self._update(push)
+        acc, _, _ = self._march(field, observe, state0, acc0, t, u, y, p, end, update)
         return (*acc[0], acc[1]) if end else acc
 
     # -- second order: (J, ∇J, ∇²J) or (J, ∇J, ∇²J v) by transition tensors ------------
@@ -237,8 +321,8 @@ class Sweeps:
         (x, dx, d2x) at the last sample (see _weighted for y and w). With ``both``
         (v None), also the packed Gauss-Newton part: it is a term of the sum anyway,
         and the hybrid method compares the two models."""
-        x0, p = self.expand(theta, x0, p)
-        m, N, M, K = self.model, self.model.N, self.model.M, self.K
+        x0, p = self._start(theta, x0, p)
+        N, M, K = self._size, self.model.M, self.K
         dx0, Psel = self.seeds()
         # the parameter parts of the directions are constants (or Psel v): keeping them
         # apart from the state parts, rather than in z = (x, p), spares the compiled
@@ -270,28 +354,30 @@ class Sweeps:
 
             return jax.vmap(one)(*A, *B, *Cc)
 
-        def field(state, uu):
+        def push(fn, state):
+            """(fn, fn_z Z, fn_zz[Z, Z] + fn_z d2x) of z ↦ fn(z, p): the field's
+            right-hand side, or a filter's update map."""
             x, dx, d2x_v = state
             A, B, Cc = directions(dx, d2x_v)
-            Fa, d2 = pairs(lambda x_, p_: m.f(x_, p_, uu), x, A, B, Cc)
+            Fa, d2 = pairs(fn, x, A, B, Cc)
             # the first K columns of A are Z itself (diagonal pairs come first)
-            return (
-                m.f(x, p, uu),
-                Fa[:K].T,
-                d2.T,
-            )  # ẋ, d(dx)/dt = F_z Z, d(d2x)/dt = F_zz[Z,Z] + F_x d2x
+            return fn(x, p), Fa[:K].T, d2.T
+
+        def field(state, uu):
+            # ẋ, d(dx)/dt = F_z Z, d(d2x)/dt = F_zz[Z,Z] + F_x d2x
+            return push(self._f(p, uu), state)
 
         def observe(acc, state, obs_h):
             J, g, H = acc[:3]
             x, dx, d2x_v = state
             y_h, w = _weighted(obs_h, w_all)
             A, B, Cc = directions(dx, d2x_v)
-            Ca, e2 = pairs(m.h, x, A, B, Cc)
+            Ca, e2 = pairs(self._pi, x, A, B, Cc)
             D = Ca[:K]  # (K, outputs) = (C_z Z)ᵀ
-            ell, l1, l2, gamma = self.loss.terms(y_h, m.h(x, p), w)
+            ell, l1, l2, gamma = self.loss.terms(y_h, self._pi(x, p), w)
 
-            def quadratic(c):  # Σ_s c_s D_s D_sᵀ, packed (or times v)
-                return (D[jj] * D[kk]) @ c if v is None else D @ (c * (v @ D))
+            def quadratic(c):
+                return _quadratic_packed(D, c, (jj, kk) if v is None else None, v)
 
             curv = quadratic(l2)
             out = (J + ell, g + D @ l1, H + curv + e2 @ l1)
@@ -303,7 +389,8 @@ class Sweeps:
         acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros(ncols))
         acc0 = acc0 + (jnp.zeros(ncols),) if both else acc0
         w_all = w
-        acc, _, _ = self._march(field, observe, state0, acc0, t, u, y, p, end)
+        update = self._update(push)
+        acc, _, _ = self._march(field, observe, state0, acc0, t, u, y, p, end, update)
         return (*acc[0], acc[1]) if end else acc
 
     def _second_order_both(self, theta, x0, p, t, u, y, w):
@@ -328,6 +415,7 @@ class Sweeps:
     # -- compiled entry points ---------------------------------------------------------
     simulate = _Compiled("_simulate")
     cost = _Compiled("_cost")
+    predictions = _Compiled("_predictions")
     residuals = _Compiled("_residuals")
     output_jacobian = _Compiled("_output_jacobian")
     first_order = _Compiled("_first_order")
@@ -342,6 +430,11 @@ class Sweeps:
     # the segments of a multiple-shooting problem, one per row (each its own x0 and data)
     segments = _Compiled("_segment", batched=True, axes=(0, 0, None, 0, 0, 0, 0))
     segments_gn = _Compiled("_segment_gn", batched=True, axes=(0, 0, None, 0, 0, 0, 0))
+
+    @cached_property
+    def k_step(self):
+        """Compiled :meth:`_k_step` (one program per horizon k)."""
+        return jax.jit(self._k_step, static_argnames=("k",))
 
     # (J, ∇J, ∇²J, Gauss-Newton part) by second-order adjoints (see adjoint.py)
     @cached_property
@@ -363,6 +456,20 @@ class Sweeps:
         self.__dict__.update(state)
 
 
+def _quadratic_packed(D, c, pairs, v):
+    """Σ_st c_st D_s D_tᵀ for D (K, outputs), packed (pairs (jj, kk)) or times v; c a
+    matrix, or its diagonal (outputs,)."""
+    if pairs is not None:
+        jj, kk = pairs
+        return ((D @ c)[jj] * D[kk]).sum(-1) if c.ndim == 2 else (D[jj] * D[kk]) @ c
+    return D @ (c @ (v @ D)) if c.ndim == 2 else D @ (c * (v @ D))
+
+
+def _quadratic_full(D, c):
+    """Σ_st c_st D_s D_tᵀ (K, K) for D (K, outputs); c (outputs,) a diagonal."""
+    return D @ c @ D.T if c.ndim == 2 else (D * c) @ D.T
+
+
 def _weighted(obs_h, w):
     """(y_h, w_h): a segment sweep passes per-sample loss weights with the data,
     obs = (y, W), which zero the sample a segment shares with the next; otherwise w
@@ -380,12 +487,13 @@ def shared_sweeps(
     free_params: tuple[int, ...],
     discretisation: Discretisation,
     loss: Loss = SQUARED,
+    predictor: Simulation = SIMULATION,
 ) -> Sweeps:
     """The Sweeps for this structure, compiled once per process and data shape: every
     Problem (and simulation) with the same model, θ layout, discretisation and loss
     shares them, and jit recompiles only for new data shapes. The cache lives on the
     model, so it goes when the model goes (and is not pickled with it)."""
-    key = (tuple(free_states), tuple(free_params), discretisation, loss)
+    key = (tuple(free_states), tuple(free_params), discretisation, loss, predictor)
     try:
         return model.compiled_sweeps.setdefault(key, Sweeps(model, *key))
     except TypeError:  # an unhashable user scheme: not shared

@@ -116,7 +116,7 @@ def fit(
 def _starts(problem, method, thetas, options, where, started) -> FitResult:
     """One start (``where`` None) or many on workers, the best refined; a robust loss
     in stages, from the least-squares estimate (robust.py)."""
-    if not problem.loss.squared:
+    if problem.loss.robust:
         first = _starts(problem.with_loss("squared"), method, thetas, options, where, started)
         return fit_robust(
             problem,

@@ -288,6 +288,11 @@ def profile(
         raise ValueError(f"method must be 'integrate' or 'refit', got {method!r}")
     if not res.has_uncertainty:
         raise ValueError(f"profiles need a fit with a finite cost; this one ended as {res.status}")
+    if problem.loss.likelihood:
+        raise ValueError(
+            "profile-likelihood intervals are not implemented for predictor='ekf' yet: use "
+            "its Hessian intervals (res.uncertainty())"
+        )
     if not problem.loss.squared:  # the threshold is a Gaussian likelihood ratio's
         raise ValueError(
             f"profile-likelihood intervals assume the squared loss; this fit's is "

@@ -220,7 +220,10 @@ def residual_tests(res, max_lag: int = 25, level: float = 0.99) -> ResidualTests
             f"for lags well below N; at most N/4); {fix}"
         )
         return ResidualTests(level, max_lag, N, np.nan, [], [], [], why)
-    sims = res.simulate()
+    if problem.loss.likelihood:  # a filter's: its standardised innovations
+        errors = [np.asarray(o.innovations) for o in problem.predict(res.theta)]
+    else:
+        errors = [e.measured - s.y for e, s in zip(exps, res.simulate(), strict=True)]
     white, indep = [], []
     constant = [
         name for i, name in enumerate(model.inputs) if all(np.ptp(e.u[:, i]) == 0 for e in exps)
@@ -230,7 +233,7 @@ def residual_tests(res, max_lag: int = 25, level: float = 0.99) -> ResidualTests
     q_white = 2 * special.gammaincinv(max_lag / 2, level)  # χ² quantiles
     q_cross = 2 * special.gammaincinv((max_lag + 1) / 2, level)
     for j, out in enumerate(model.outputs):
-        err = [e.measured[:, j] - s.y[:, j] for e, s in zip(exps, sims, strict=True)]
+        err = [a[:, j] for a in errors]
         r = _correlation(err, err, max_lag)
         Q = float(N * np.sum(r[1:] ** 2))
         lags = np.arange(max_lag + 1)
@@ -276,6 +279,12 @@ def information_criteria(res) -> dict:
     K = problem.K
     J = res.cost - problem.prior_cost(res.theta)
     out = {"aic": np.nan, "aicc": np.nan, "bic": np.nan, "n": n, "K": K, "not_available": None}
+    if problem.loss.likelihood:  # J is −2 log L already (less n log 2π)
+        m2logL = J + n * np.log(2 * np.pi)
+        out.update(aic=float(m2logL + 2 * K), bic=float(m2logL + K * np.log(n)))
+        if n > K + 1:
+            out["aicc"] = float(m2logL + 2 * K + 2 * K * (K + 1) / (n - K - 1))
+        return out
     if not problem.loss.squared:  # their likelihood is Gaussian: J must be Σ w r²
         out["not_available"] = (
             f"not available: they assume the squared loss, this fit's is {problem.loss.name}"

@@ -214,7 +214,12 @@ class FitResult(Tabular):
             return problem.cost_grad_gn(theta)[2]
 
         meat, lags = None, None
-        if kind == "robust" or not problem.loss.squared:
+        if kind == "robust" and problem.loss.likelihood:
+            raise ValueError(
+                "kind='robust' is for output error, whose residuals may be coloured; a "
+                "filter's innovations are white where its model is right: use 'hessian'"
+            )
+        if kind == "robust" or problem.loss.robust:
             from .sandwich import score_covariance
 
             meat, lags = score_covariance(problem, theta, "auto" if kind == "robust" else 0)
@@ -274,17 +279,20 @@ class FitResult(Tabular):
             )
         return out
 
-    def validate(self, data, init_window: int | None = None) -> list:
+    def validate(self, data, init_window: int | None = None, horizon: int | None = None) -> list:
         """Score the fitted model on new records (an Experiment or a list of them), as
         MATLAB's compare does: initial states that were free in the fit are
         estimated on each record with the parameters held, on its first
         ``init_window`` samples only when given (the benchmarks' protocol; without it,
         a record's own ``init_window``, as ``Experiment.from_benchmark`` sets it), and
         the model is scored on the samples after them. Returns a list of
-        :class:`tensorid.fitting.validation.Score`."""
+        :class:`tensorid.fitting.validation.Score`. With ``horizon`` k, each record is
+        scored as k-step-ahead prediction instead (MATLAB's compare with a prediction
+        horizon): a filter's (predictor="ekf") state after sample h − k, run k samples
+        ahead by the model; for output error, the simulation at every horizon."""
         from .validation import validate
 
-        return validate(self, data, init_window)
+        return validate(self, data, init_window, horizon)
 
     def information(self) -> Information:
         """Observed (exact Hessian) against expected (Gauss-Newton) information: the

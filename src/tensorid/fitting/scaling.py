@@ -21,7 +21,7 @@ def auto_scale(theta0: np.ndarray, J0: float, H_gn: np.ndarray) -> np.ndarray:
     zero = scale == 0
     if zero.any():
         with np.errstate(divide="ignore", invalid="ignore"):
-            curv = np.sqrt(max(J0, 1e-300) / np.diag(H_gn))
+            curv = np.sqrt(max(abs(J0), 1e-300) / np.diag(H_gn))  # |J0|: a likelihood
         scale[zero] = np.where(np.isfinite(curv[zero]) & (curv[zero] > 0), curv[zero], 1.0)
     return scale
 
@@ -55,7 +55,8 @@ class Tracker:
     def start(cls, problem: Problem, theta0, J0: float, H_gn, x_scale) -> Tracker:
         """A tracker for a fit from θ0 with cost J0 and Gauss-Newton Hessian H_gn."""
         scale = resolve_scale(problem.K, theta0, J0, H_gn, x_scale)
-        tracker = cls(problem, scale, J0 if J0 > 0 else 1.0, theta0)
+        # |J0|: a likelihood's J (predictor="ekf") may be negative
+        tracker = cls(problem, scale, abs(J0) if J0 != 0 else 1.0, theta0)
         tracker.best_J, tracker.best_phi = J0, tracker.phi(theta0)  # the start counts
         return tracker
 

@@ -241,6 +241,9 @@ def fit_blocks(res, scores=None) -> list:
     blocks: list = [headline(res), estimates_table(res.problem.theta_names, res.theta, u, title)]
     if scores:
         blocks.append(Table(None, *metric_rows(scores), edge=False))
+    noise = noise_intensities(res, u)
+    if noise:
+        blocks.append(noise_text(noise))
     if u is not None:
         blocks.append("information: " + res.information().describe())
         c = res.criteria()
@@ -253,6 +256,41 @@ def fit_blocks(res, scores=None) -> list:
     return blocks + notes + [f"warning: {w}" for w in res.warnings]
 
 
+def noise_intensities(res, u=None) -> dict | None:
+    """A filter's (predictor="ekf") noise intensities as standard deviations, from
+    their log-scale estimates: {"process": {state: {...}}, "measurement": {output:
+    {...}}}, each {"sigma", "stderr" (delta method: σ × se of log σ), "ci95" (the log
+    interval's ends, exponentiated), "fixed"}; None for output error."""
+    if not res.problem.loss.likelihood:
+        return None
+    names = res.problem.theta_names
+    out: dict = {"process": {}, "measurement": {}}
+    for name, value in res.params.items():
+        for prefix, kind in (("log_sigma_w_", "process"), ("log_sigma_e_", "measurement")):
+            if not name.startswith(prefix):
+                continue
+            entry = {"sigma": float(np.exp(value)), "stderr": None, "ci95": None,
+                     "fixed": name not in names}  # fmt: skip
+            if u is not None and name in names:
+                i = names.index(name)
+                entry["stderr"] = float(np.exp(value) * u.stderr[i])
+                entry["ci95"] = [float(np.exp(c)) for c in u.ci95[i]]
+            out[kind][name[len(prefix) :]] = entry
+    return out
+
+
+def noise_text(noise: dict) -> str:
+    """One line: each noise intensity with its interval."""
+    parts = []
+    for kind, unit in (("process", "per √time"), ("measurement", "")):
+        for name, e in noise[kind].items():
+            ci = f" [{e['ci95'][0]:.3g}, {e['ci95'][1]:.3g}]" if e["ci95"] else ""
+            held = " (fixed)" if e["fixed"] else ""
+            tail = f" {unit}" if unit else ""
+            parts.append(f"σ_{kind[0]}({name}) = {e['sigma']:.4g}{ci}{held}{tail}")
+    return "noise intensities (standard deviations, 95 % intervals): " + "; ".join(parts)
+
+
 def summary_table(res, scores=None) -> str:
     """The estimates of a FitResult as a plain-text table, then the warnings and, with
     ``scores`` (see tensorid.fitting.validation), the metric table."""
@@ -262,6 +300,12 @@ def summary_table(res, scores=None) -> str:
 def coloured_residuals_line(res) -> str:
     """One line for residuals that fail whiteness: the standard errors robust to that
     (Newey-West, tensorid.fitting.sandwich) beside the white ones, and which to trust."""
+    if res.problem.loss.likelihood:
+        return (
+            "the filter's innovations are not white: the model or its noise misses "
+            "something (process noise on another state, or the model's structure), and the "
+            "error bars, which assume white innovations, are optimistic"
+        )
     white, robust = res.uncertainty(), res.uncertainty("robust")
     with np.errstate(divide="ignore", invalid="ignore"):  # inf/inf: a flat direction
         ratio = robust.stderr / white.stderr

@@ -336,7 +336,7 @@ def trust_region_steps(
         if accepted:
             x, J, g, H = x_new, J_new, g_new, H_new
         record(it, step, rho, accepted)
-        if accepted and actual <= ftol * J_old and pred <= ftol * J_old:
+        if accepted and actual <= ftol * abs(J_old) and pred <= ftol * abs(J_old):
             status = Status.FTOL
             break
         if accepted and np.linalg.norm(d, np.inf) <= xtol * xscale:

@@ -276,6 +276,8 @@ def uncertainty(
     dof = max(n - K, 1)
     missing = too_few(n, K)  # then no σ², and no number derived from it
     sigma2 = np.nan if missing else (J - problem.prior_cost(theta)) / dof  # data's share
+    if problem.loss.likelihood and not missing:  # J = −2 log L: cov = 2 H⁻¹
+        sigma2 = 1.0
     on, held = on_bounds(problem, theta, grad, scale)
     H_used, form, unbounded, warnings = _indefinite(H, names, held, kind, gauss_newton)
     flat = flat_directions(H_used, names)

@@ -34,11 +34,14 @@ class Score(Tabular):
     start: int = 0
     init_window: int | None = None
     alone: bool = True  # the only record of its kind
+    horizon: int | None = None  # k: scored as k-step-ahead prediction, not simulation
 
     @property
     def label(self) -> str:
-        """The kind, with the record's name where it tells records apart."""
-        return record_label(self.kind, self.experiment.name, self.alone)
+        """The kind, with the record's name where it tells records apart (and the
+        prediction horizon, where scored as prediction)."""
+        label = record_label(self.kind, self.experiment.name, self.alone)
+        return label if self.horizon is None else f"{label}, {self.horizon}-step prediction"
 
     def _pairs(self):
         y, s = self.experiment.measured[self.start :], self.simulation.y[self.start :]
@@ -165,12 +168,17 @@ def score_record(
     *,
     kind: str = "validation",
     alone: bool = True,
+    horizon: int | None = None,
+    predictor=None,
 ) -> Score:
     """``model`` with ``params`` held, simulated on ``record`` (MATLAB's compare): the
     initial states named in ``free_x0`` estimated on the first ``init_window`` samples
     (the whole record when None; not at all without measured outputs), the others as
-    in ``x0``; scored after the window. The one routine behind ``FitResult.validate``,
-    ``tensorid simulate`` and ``tensorid compare``."""
+    in ``x0``; scored after the window. With ``horizon`` k, scored as k-step-ahead
+    prediction by ``predictor`` (a Sweeps' predictor and loss, (loss, predictor);
+    default output error, whose predictions at every horizon are the simulation).
+    The one routine behind ``FitResult.validate``, ``tensorid simulate`` and
+    ``tensorid compare``."""
     check_init_window(init_window, record)
     x0 = np.asarray(x0, dtype=float)
     disc = discretisation.for_model(model)
@@ -178,11 +186,33 @@ def score_record(
         window = record if init_window is None else record.window(0, int(init_window))
         x0 = estimate_x0(model, params, x0, list(free_x0), window, disc)
     sim = run_simulation(shared_sweeps(model, (), (), disc), record, x0, model.params_array(params))
+    if horizon is not None:
+        sim = _predicted(sim, model, params, x0, record, disc, horizon, predictor)
     start = 0 if init_window is None else int(init_window)
-    return Score(kind, record, sim, x0, start, init_window, alone=alone)
+    return Score(kind, record, sim, x0, start, init_window, alone=alone, horizon=horizon)
 
 
-def validate(res, data, init_window: int | None = None) -> list[Score]:
+def _predicted(sim, model, params, x0, record, disc, horizon, predictor) -> Simulation:
+    """``sim`` with its outputs replaced by the k-step-ahead predictions."""
+    if record.y is None:
+        raise ValueError(f"a prediction horizon needs measured outputs; {record.name!r} has none")
+    if not (isinstance(horizon, int | np.integer) and 1 <= horizon < record.P):
+        raise ValueError(
+            f"horizon must be a whole number of samples from 1 to {record.P - 1}, got {horizon!r}"
+        )
+    import jax.numpy as jnp
+
+    loss, pred = predictor if predictor is not None else (None, None)
+    sw = shared_sweeps(model, (), (), disc) if pred is None else shared_sweeps(
+        model, (), (), disc, loss, pred
+    )  # fmt: skip
+    u = model.delayed(record.t, record.u, disc.interpolation)
+    args = (jnp.asarray(a) for a in (x0, model.params_array(params), record.t, u, record.y))
+    y = np.asarray(sw.k_step(jnp.zeros(0), *args, k=int(horizon)))
+    return Simulation(model, record, sim.x, y, sim.status, sim.failed_at)
+
+
+def validate(res, data, init_window: int | None = None, horizon: int | None = None) -> list[Score]:
     """See FitResult.validate."""
     exps = [data] if isinstance(data, Experiment) else list(data)
     prob = res.problem
@@ -205,6 +235,8 @@ def validate(res, data, init_window: int | None = None) -> list[Score]:
             prob.discretisation,
             w,
             alone=len(exps) == 1,
+            horizon=horizon,
+            predictor=(prob.loss, prob.predictor),
         )  # fmt: skip
         for e, w in zip(exps, windows, strict=True)
     ]

@@ -1,0 +1,315 @@
+"""How the state is carried from one sample to the next: the predictor.
+
+The sweeps march a *carried state* z across the record and ask the predictor three
+things about it (every derivative of them comes from forward-mode differentiation,
+so a predictor is only these maps, written once):
+
+    dz/dt = field(z, p, u)          between samples (or z⁺ = field(z, p, u) for a
+                                    discrete-time model)
+    π     = predict(z, p)           at each sample: what the loss compares with y
+    z⁺    = update(z, p, y)         at each sample, after the loss has seen z
+                                    (None: the state is not corrected)
+
+:class:`Simulation` is output error, today's default: z = x, the model's own F and
+C, no update; π = ŷ. :class:`ExtendedKalman` is a continuous-discrete extended
+Kalman filter: z = (x̂, P) with P the state covariance, π = (ŷ, S) the predicted
+output and its covariance, and the measurement update at each sample, so that the
+loss (``losses.GAUSSIAN``) is the negative log-likelihood of the innovations.
+
+The transition tensors differentiate the whole chain — propagation, the update and
+the loss — exactly, so the EKF's gradient and Hessian are those of its discretised
+likelihood (to rounding), as for output error.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import _config  # noqa: F401
+
+PREDICTORS = ("simulation", "ekf")
+
+
+@dataclass(frozen=True)
+class Simulation:
+    """Output error: the model simulated from its initial state, never corrected.
+
+    ``size``, ``start`` and ``states`` map between the model's states x and the
+    carried state z (here the same)."""
+
+    name = "simulation"
+    update = None
+
+    def size(self, model) -> int:
+        return model.N
+
+    def start(self, x0):
+        return x0
+
+    def states(self, z):
+        return z
+
+    def field(self, model, z, p, u):
+        return model.f(z, p, u)
+
+    def predict(self, model, z, p):
+        return model.h(z, p)
+
+
+SIMULATION = Simulation()
+
+
+@dataclass(frozen=True)
+class ExtendedKalman(Simulation):
+    """A continuous-discrete extended Kalman filter (EKF).
+
+    Carried state z = (x̂, vec P), P the covariance of the state estimate (N + N²).
+    Between samples, with A = ∂F/∂x at x̂ and Q = diag(σ_w²) (per unit time)::
+
+        dx̂/dt = F(x̂, p, u),    dP/dt = A P + P Aᵀ + Q            (continuous time)
+        x̂⁺ = F(x̂, p, u),       P⁺ = A P Aᵀ + Q                   (discrete time)
+
+    integrated by the model's own scheme and substeps (the right-hand side is
+    symmetric in P by construction, so P stays symmetric). At each sample, with
+    C = ∂h/∂x, R = diag(σ_e²) and the innovation ε = y − h(x̂)::
+
+        S = C P Cᵀ + R,   K = P Cᵀ S⁻¹,   x̂ ← x̂ + K ε,
+        P ← (I − K C) P (I − K C)ᵀ + K R Kᵀ                        (Joseph form)
+
+    The Joseph form keeps P symmetric and positive semi-definite under rounding.
+    ``predict`` gives π = (ŷ, vec S) before the update, which the Gaussian loss
+    turns into log det S + εᵀ S⁻¹ ε. The initial covariance is P0 = 0: an initial
+    state is either estimated (a free x0, an unknown of θ) or known.
+
+    Arguments:
+        process: (state index, parameter index) pairs: the states with process noise
+            and where each one's log σ_w sits in p.
+        measurement: per output, the parameter index of its log σ_e.
+    """
+
+    name = "ekf"
+    process: tuple[tuple[int, int], ...] = ()
+    measurement: tuple[int, ...] = ()
+
+    def size(self, model) -> int:
+        return model.N + model.N**2
+
+    def start(self, x0):
+        return jnp.concatenate([x0, jnp.zeros(x0.shape[0] ** 2, dtype=x0.dtype)])
+
+    def states(self, z):
+        n = _n(z)
+        return z[..., :n]
+
+    def _split(self, z):
+        n = _n(z)
+        return z[:n], z[n:].reshape(n, n)
+
+    def _Q(self, n, p):
+        q = jnp.zeros(n, dtype=p.dtype)
+        for i, k in self.process:
+            q = q.at[i].set(jnp.exp(2.0 * p[k]))
+        return q
+
+    def field(self, model, z, p, u):
+        x, P = self._split(z)
+
+        def f(xx):
+            return model.f(xx, p, u)
+
+        fx, A = f(x), jax.jacfwd(f)(x)
+        AP = A @ P
+        if model.discrete:
+            Pn = AP @ A.T + jnp.diag(self._Q(x.shape[0], p))
+        else:
+            Pn = AP + AP.T + jnp.diag(self._Q(x.shape[0], p))
+        return jnp.concatenate([fx, Pn.reshape(-1)])
+
+    def _R(self, p):
+        return jnp.exp(2.0 * p[jnp.array(self.measurement, dtype=int)])
+
+    def _measurement(self, model, z, p):
+        x, P = self._split(z)
+
+        def h(xx):
+            return model.h(xx, p)
+
+        C = jax.jacfwd(h)(x)
+        R = self._R(p)
+        S = C @ P @ C.T + jnp.diag(R)
+        return x, P, h(x), C, R, S
+
+    def predict(self, model, z, p):
+        _, _, yhat, _, _, S = self._measurement(model, z, p)
+        return jnp.concatenate([yhat, S.reshape(-1)])
+
+    def update(self, model, z, p, y):
+        x, P, yhat, C, R, S = self._measurement(model, z, p)
+        PCt = P @ C.T
+        K = jnp.linalg.solve(S, PCt.T).T  # P Cᵀ S⁻¹ (S symmetric)
+        IKC = jnp.eye(x.shape[0], dtype=z.dtype) - K @ C
+        P = IKC @ P @ IKC.T + (K * R) @ K.T
+        return jnp.concatenate([x + K @ (y - yhat), P.reshape(-1)])
+
+
+def _n(z) -> int:
+    """N from the carried state's length N + N²."""
+    m = z.shape[-1]
+    return int(round((-1 + np.sqrt(1 + 4 * m)) / 2))
+
+
+class _Leading:
+    """A model function of (x, p[:M], ...) called with the longer p of a filter's
+    model (its noise intensities appended): picklable, for worker processes."""
+
+    def __init__(self, fn, M: int):
+        self.fn, self.M = fn, M
+
+    def __call__(self, x, p, *rest):
+        return self.fn(x, p[: self.M], *rest)
+
+
+def noise_names(model, process, measurement) -> tuple[list[str], list[str]]:
+    """The filter's parameter names: log σ_w of each state with process noise
+    (``log_sigma_w_<state>``) and log σ_e of each output (``log_sigma_e_<output>``)."""
+    return [f"log_sigma_w_{s}" for s in process], [f"log_sigma_e_{o}" for o in measurement]
+
+
+def _intensities(what: str, given, names: tuple[str, ...], kind: str) -> dict[str, float]:
+    if given is None:
+        return {}
+    if not isinstance(given, dict):
+        raise ValueError(f"{what} must be a dict {{{kind}: standard deviation}}, got {given!r}")
+    unknown = [k for k in given if k not in names]
+    if unknown:
+        raise ValueError(
+            f"{what} names {unknown}, which the model lacks; its {kind}s: {list(names)}"
+        )
+    out = {}
+    for k, v in given.items():
+        try:
+            v = float(v)
+        except (TypeError, ValueError):
+            raise ValueError(f"{what}[{k!r}] must be a number, got {v!r}") from None
+        if not (np.isfinite(v) and v > 0):
+            raise ValueError(
+                f"{what}[{k!r}] = {v}: a noise intensity is a standard deviation, give a "
+                "finite number > 0 (it is estimated on a log scale from there)"
+            )
+        out[k] = v
+    return out
+
+
+def make_predictor(model, predictor, process_noise, measurement_noise, measured):
+    """(model, predictor, {noise parameter: start (log σ)}) from the Problem's
+    arguments. For "ekf" the model gains one parameter per noise intensity (see
+    :func:`noise_names`), started at log of the given σ; an output without a given
+    measurement noise starts from its noise level in the data (second differences,
+    :func:`tensorid.engine.losses.robust_noise`)."""
+    from .losses import robust_noise
+    from .model import Model
+
+    if predictor not in PREDICTORS:
+        raise ValueError(f"predictor must be one of {PREDICTORS}, got {predictor!r}")
+    if predictor == "simulation":
+        for what, v in (("process_noise", process_noise), ("measurement_noise", measurement_noise)):
+            if v:
+                raise ValueError(
+                    f"{what} is for predictor='ekf' (output error has no noise model); "
+                    "add predictor='ekf'"
+                )
+        return model, SIMULATION, {}
+    q = _intensities("process_noise", process_noise, model.states, "state")
+    r = _intensities("measurement_noise", measurement_noise, model.outputs, "output")
+    y = np.concatenate([np.asarray(m, dtype=float) for m in measured])
+    level = robust_noise(y)
+    for k, o in enumerate(model.outputs):
+        if o not in r:
+            if not level[k] > 0:
+                raise ValueError(
+                    f"predictor='ekf': output {o!r} shows no noise in the data to start its "
+                    f"measurement noise from; give measurement_noise={{{o!r}: σ}}"
+                )
+            r[o] = float(level[k])
+    states = [s for s in model.states if s in q]
+    wq, wr = noise_names(model, states, list(model.outputs))
+    clash = sorted(set(wq + wr) & set(model.params))
+    if clash:
+        raise ValueError(f"the model already has parameters named {clash}; rename them")
+    M = model.M
+    noisy = Model(
+        _Leading(model.rhs, M),
+        _Leading(model.h, M),
+        states=model.states,
+        params=list(model.params) + wq + wr,
+        inputs=model.inputs,
+        outputs=model.outputs,
+        name=model.name,
+        input_delays=model.input_delays,
+        discrete=model.discrete,
+    )
+    filt = ExtendedKalman(
+        process=tuple((model.states.index(s), M + i) for i, s in enumerate(states)),
+        measurement=tuple(range(M + len(states), M + len(states) + model.S)),
+    )
+    starts = dict(zip(wq, [float(np.log(q[s])) for s in states], strict=True))
+    starts.update(zip(wr, [float(np.log(r[o])) for o in model.outputs], strict=True))
+    return noisy, filt, starts
+
+
+@dataclass
+class Prediction:
+    """What a predictor made of one record at θ, per sample (P leading).
+
+    Arguments:
+        t: the sample times.
+        measured: y (P, S).
+        predicted: the one-step-ahead outputs ŷ_{h|h−1} (output error: the simulation),
+            or with ``horizon`` k, ŷ_{h|h−k}.
+        covariance: the filter's innovation covariances S_h (P, S, S); None for output
+            error.
+        innovations: standardised innovations L_h⁻¹ (y_h − ŷ_h), L_h L_hᵀ = S_h: white
+            with unit variance where the model and its noise are right (output error:
+            the plain residuals y − ŷ).
+        horizon: k (1: one step ahead).
+    """
+
+    t: np.ndarray
+    measured: np.ndarray
+    predicted: np.ndarray
+    covariance: np.ndarray | None
+    innovations: np.ndarray
+    horizon: int = 1
+
+
+def predictions(problem, theta, horizon: int = 1) -> list[Prediction]:
+    """Per experiment of ``problem``, its :class:`Prediction` at θ (see
+    :meth:`tensorid.Problem.predict`)."""
+    if not (isinstance(horizon, int | np.integer) and horizon >= 1):
+        raise ValueError(f"horizon must be a whole number of samples >= 1, got {horizon!r}")
+    theta = problem.check_theta(theta)
+    sw, out = problem.sweeps, []
+    S = problem.model.S
+    for e, (t, u, y) in enumerate(problem.arrays):
+        x0, p = jnp.asarray(problem.x0[e]), jnp.asarray(problem.p0)
+        local = jnp.asarray(theta[problem._slices(e)])
+        _, pis = (np.asarray(a) for a in sw.predictions(local, x0, p, t, u, y))
+        yhat, cov = pis[:, :S], None
+        meas = np.asarray(y)
+        if sw.predictor.update is not None:
+            cov = pis[:, S:].reshape(-1, S, S)
+            innov = np.asarray(sw.loss.residual(y, jnp.asarray(pis), None))
+        else:
+            innov = meas - yhat
+        if horizon > 1:
+            if horizon >= meas.shape[0]:
+                raise ValueError(
+                    f"horizon {horizon} must be below the record's {meas.shape[0]} samples"
+                )
+            yhat = np.asarray(sw.k_step(local, x0, p, t, u, y, k=int(horizon)))
+        out.append(Prediction(np.asarray(t), meas, yhat, cov, innov, int(horizon)))
+    return out

@@ -1,0 +1,323 @@
+"""The extended-Kalman predictor (predictor="ekf"): its likelihood, gradient and
+Hessian against a plainly written filter differentiated by jax.grad/jax.hessian, on
+four models (one and two outputs, continuous and discrete time, several
+experiments), implicit schemes, bad input, and a fit of a record with process noise."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import tensorid as ti
+
+# -- models ------------------------------------------------------------------------------
+
+
+def duffing():
+    def f(x, p, u):
+        return jnp.array([x[1], -p[0] * x[0] - p[1] * x[1] - p[2] * x[0] ** 3 + u[0]])
+
+    return ti.Model(
+        f, lambda x, p: x[:1], states=["x", "v"], params=["k", "c", "a"], inputs=["u"],
+        outputs=["y"], name="duffing",
+    )  # fmt: skip
+
+
+def lotka():
+    def f(x, p, u):
+        return jnp.array([p[0] * x[0] - p[1] * x[0] * x[1], p[1] * x[0] * x[1] - p[2] * x[1]])
+
+    return ti.Model(f, states=["prey", "pred"], params=["a", "b", "c"], name="lv")
+
+
+def tanks():
+    def f(x, p, u):
+        q1 = p[1] * jnp.sqrt(jnp.abs(x[0]) + 1e-3)
+        return jnp.array([p[0] * u[0] - q1, q1 - p[2] * jnp.sqrt(jnp.abs(x[1]) + 1e-3)])
+
+    return ti.Model(
+        f, lambda x, p: x[1:], states=["h1", "h2"], params=["k", "a1", "a2"],
+        inputs=["u"], outputs=["level"], name="tanks",
+    )  # fmt: skip
+
+
+def first_order_discrete():
+    def f(x, p, u):
+        return jnp.array([p[0] * x[0] + p[1] * jnp.tanh(u[0])])
+
+    return ti.Model(
+        f, lambda x, p: x, states=["x"], params=["a", "b"], inputs=["u"], outputs=["y"],
+        discrete=True, name="ar1",
+    )  # fmt: skip
+
+
+def record(model, P, seed, x0, params, noise=0.02, dt=0.1):
+    rng = np.random.default_rng(seed)
+    t = np.arange(P) * dt
+    u = 1.0 + 0.5 * np.sin(0.7 * t)[:, None] + 0.2 * rng.standard_normal((P, model.U))
+    u = u[:, : model.U]
+    sim = ti.simulate(model, params, x0, ti.Experiment(t, u, np.zeros((P, model.S))))
+    return ti.Experiment(t, u, sim.y + noise * rng.standard_normal(sim.y.shape))
+
+
+# -- a plainly written filter --------------------------------------------------------------
+
+
+def plain_filter_cost(model, theta, problem, substeps, interpolation):
+    """−2 log L (less n log 2π) of a continuous-discrete EKF written out plainly:
+    joint RK4 of (x, P) over each interval, Joseph update, scan over samples."""
+    J = 0.0
+    K_x = len(problem.free_x0)
+    E = len(problem.experiments)
+    p_all = jnp.asarray(problem.p0)
+    free = [problem.model.params.index(n) for n in problem.free_params]
+    p_all = p_all.at[jnp.array(free)].set(theta[E * K_x :])
+    M = model.M
+    p = p_all[:M]
+    n = model.N
+    qn = [(model.states.index(s[len("log_sigma_w_") :]), problem.model.params.index(s))
+          for s in problem.model.params if s.startswith("log_sigma_w_")]  # fmt: skip
+    Q = jnp.zeros(n)
+    for i, k in qn:
+        Q = Q.at[i].set(jnp.exp(2 * p_all[k]))
+    R = jnp.array([jnp.exp(2 * p_all[problem.model.params.index(f"log_sigma_e_{o}")])
+                   for o in model.outputs])  # fmt: skip
+
+    def ode(x, P, u):
+        A = jax.jacfwd(lambda xx: model.f(xx, p, u))(x)
+        if model.discrete:
+            return model.f(x, p, u), A @ P @ A.T + jnp.diag(Q)
+        return model.f(x, p, u), A @ P + P @ A.T + jnp.diag(Q)
+
+    for e, exp in enumerate(problem.experiments):
+        x0 = jnp.asarray(problem.x0[e])
+        x0 = x0.at[jnp.array([model.states.index(s) for s in problem.free_x0])].set(
+            theta[e * K_x : (e + 1) * K_x]
+        )
+        t, u, y = (jnp.asarray(a) for a in (exp.t, exp.u, exp.y))
+
+        def step(carry, k, t=t, u=u, y=y):
+            x, P, J = carry
+            C = jax.jacfwd(lambda xx: model.h(xx, p))(x)
+            Sg = C @ P @ C.T + jnp.diag(R)
+            eps = y[k] - model.h(x, p)
+            J = J + jnp.linalg.slogdet(Sg)[1] + eps @ jnp.linalg.solve(Sg, eps)
+            G = P @ C.T @ jnp.linalg.inv(Sg)
+            I_GC = jnp.eye(n) - G @ C
+            x, P = x + G @ eps, I_GC @ P @ I_GC.T + G @ jnp.diag(R) @ G.T
+            if model.discrete:
+                return (*ode(x, P, u[k]), J), None
+            h = (t[k + 1] - t[k]) / substeps
+            for i in range(substeps):
+
+                def uin(stage, i=i):
+                    frac = (i + stage) / substeps
+                    return u[k] if interpolation == "zoh" else u[k] + frac * (u[k + 1] - u[k])
+
+                k1 = ode(x, P, uin(0.0))
+                k2 = ode(x + h / 2 * k1[0], P + h / 2 * k1[1], uin(0.5))
+                k3 = ode(x + h / 2 * k2[0], P + h / 2 * k2[1], uin(0.5))
+                k4 = ode(x + h * k3[0], P + h * k3[1], uin(1.0))
+                x = x + h / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
+                P = P + h / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
+            return (x, P, J), None
+
+        (x, P, Je), _ = jax.lax.scan(step, (x0, jnp.zeros((n, n)), 0.0), jnp.arange(t.size - 1))
+        # the last sample's share
+        C = jax.jacfwd(lambda xx: model.h(xx, p))(x)
+        Sg = C @ P @ C.T + jnp.diag(R)
+        eps = y[-1] - model.h(x, p)
+        J = J + Je + jnp.linalg.slogdet(Sg)[1] + eps @ jnp.linalg.solve(Sg, eps)
+    return J
+
+
+CASES = {
+    "duffing, 2 experiments, linear": (
+        duffing, {"k": 2.0, "c": 0.3, "a": 0.5}, [0.1, 0.0], ["x", "v"], {"v": 0.2}, "linear",
+    ),
+    "lotka-volterra, 2 outputs, zoh": (
+        lotka, {"a": 1.0, "b": 0.5, "c": 1.0}, [1.0, 0.5], ["prey"],
+        {"prey": 0.05, "pred": 0.1}, "zoh",
+    ),
+    "two tanks": (tanks, {"k": 0.5, "a1": 0.4, "a2": 0.3}, [1.0, 0.5], ["h1", "h2"],
+                  {"h2": 0.05}, "linear"),
+    "discrete time": (first_order_discrete, {"a": 0.8, "b": 0.5}, [0.2], ["x"], {"x": 0.1},
+                      "zoh"),
+}  # fmt: skip
+
+
+def ekf_problem(case, **kw):
+    build, params, x0, free, qn, interp = CASES[case]
+    m = build()
+    if m.discrete:
+        kw.pop("substeps", None)
+    E = 2 if case.startswith("duffing") else 1
+    data = [record(m, 30, seed, x0, params) for seed in range(E)]
+    return m, ti.Problem(
+        m, data, p0=params, x0=x0, free_x0=free, predictor="ekf", process_noise=qn,
+        interpolation=interp, **kw,
+    )  # fmt: skip
+
+
+SLOW = pytest.mark.slow  # each compiles jax.hessian of a filter: ~20 s on 2 idle cores
+
+
+@pytest.mark.parametrize(
+    "case", [c if c.startswith("duffing") else pytest.param(c, marks=SLOW) for c in CASES]
+)
+def test_ekf_derivatives_equal_jax_hessian_of_a_plain_filter(case):
+    m, pr = ekf_problem(case, substeps=2)
+    rng = np.random.default_rng(3)
+    theta = pr.theta0 * (1 + 0.05 * rng.standard_normal(pr.K))
+    J, g, H = pr.cost_grad_hess(theta)
+
+    def ref(th):
+        return plain_filter_cost(m, th, pr, 2, pr.interpolation)
+
+    Jr = float(ref(jnp.asarray(theta)))
+    gr = np.asarray(jax.grad(ref)(jnp.asarray(theta)))
+    Hr = np.asarray(jax.hessian(ref)(jnp.asarray(theta)))
+    assert abs(J - Jr) <= 1e-9 * abs(Jr)
+    assert np.abs(g - gr).max() <= 1e-9 * np.abs(gr).max()
+    assert np.abs(H - Hr).max() <= 1e-9 * np.abs(Hr).max()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "case", ["duffing, 2 experiments, linear", "lotka-volterra, 2 outputs, zoh"]
+)
+def test_ekf_other_sweeps_agree_with_the_hessian(case):
+    """The first-order sweep (its Gauss-Newton part is the Fisher information), the
+    Hessian-vector product and the lock-step batch give the same numbers."""
+    _, pr = ekf_problem(case, substeps=2)
+    rng = np.random.default_rng(3)
+    theta = pr.theta0 * (1 + 0.05 * rng.standard_normal(pr.K))
+    J, g, H = pr.cost_grad_hess(theta)
+    J1, g1, H_gn = pr.cost_grad_gn(theta)
+    assert abs(J1 - J) <= 1e-12 * abs(J) and np.allclose(g1, g, rtol=0, atol=1e-10 * abs(g).max())
+    assert np.all(np.linalg.eigvalsh(H_gn) > -1e-9 * np.abs(H_gn).max())  # Fisher: PSD
+    v = rng.standard_normal(pr.K)
+    assert np.abs(pr.cost_grad_hessp(theta, v)[2] - H @ v).max() <= 1e-9 * np.abs(H @ v).max()
+    Jb, gb, Hb = pr.cost_grad_hess_batch(np.stack([theta, theta]))
+    assert np.abs(Hb[1] - H).max() <= 1e-12 * np.abs(H).max()
+
+
+@pytest.mark.parametrize(
+    "scheme", [pytest.param(s, marks=SLOW) for s in ("sdirk2", "implicit-euler", "heun")]
+)
+def test_ekf_derivatives_on_other_schemes_equal_forward_mode_of_its_cost(scheme):
+    _, pr = ekf_problem("duffing, 2 experiments, linear", scheme=scheme)
+    theta = jnp.asarray(pr.theta0 * 1.03)
+    J, g, H = pr.cost_grad_hess(np.asarray(theta))
+    # implicit schemes' Newton loops allow forward mode only
+    Hr = np.asarray(jax.jacfwd(jax.jacfwd(pr.jax_cost))(theta))
+    gr = np.asarray(jax.jacfwd(pr.jax_cost)(theta))
+    assert np.abs(g - gr).max() <= 1e-9 * np.abs(gr).max()
+    assert np.abs(H - Hr).max() <= 1e-9 * np.abs(Hr).max()
+
+
+def test_ekf_noise_parameters_and_defaults():
+    m, pr = ekf_problem("duffing, 2 experiments, linear")
+    assert pr.theta_names[-2:] == ["log_sigma_w_v", "log_sigma_e_y"]
+    assert pr.hessian == "tensors"
+    assert pr.theta0[-2] == pytest.approx(np.log(0.2))
+    # the measurement noise starts from the data's noise level (0.02 here)
+    assert 0.005 < np.exp(pr.theta0[-1]) < 0.08
+    fixed = ti.Problem(
+        m, pr.experiments, p0=pr.p0[:3], x0=[0.1, 0], predictor="ekf",
+        process_noise={"v": 0.2}, fixed=["log_sigma_e_y"],
+    )  # fmt: skip
+    assert "log_sigma_e_y" not in fixed.theta_names
+
+
+@pytest.mark.parametrize(
+    "kw, words",
+    [
+        ({"process_noise": {"speed": 0.1}}, ["process_noise", "speed", "states"]),
+        ({"measurement_noise": {"z": 0.1}}, ["measurement_noise", "'z'", "outputs"]),
+        ({"process_noise": {"v": 0.0}}, ["process_noise['v']", "> 0"]),
+        ({"process_noise": {"v": float("nan")}}, ["process_noise['v']"]),
+        ({"measurement_noise": {"y": -1}}, ["measurement_noise['y']", "> 0"]),
+        ({"loss": "huber"}, ["predictor='ekf'", "loss='huber'"]),
+        ({"weights": {"y": 2.0}}, ["predictor='ekf'", "weights"]),
+        ({"segments": 3}, ["predictor='ekf'", "segments=3"]),
+        ({"hessian": "adjoint"}, ["predictor='ekf'", "hessian='adjoint'", "tensors"]),
+        ({"noise": 0.1}, ["predictor='ekf'", "noise=0.1"]),
+        ({"predictor": "kalman"}, ["predictor must be one of", "'kalman'"]),
+    ],
+)
+def test_ekf_bad_input_is_one_line_before_any_work(kw, words):
+    m = duffing()
+    data = record(m, 20, 0, [0.1, 0.0], {"k": 2.0, "c": 0.3, "a": 0.5})
+    args = {"predictor": "ekf", "process_noise": {"v": 0.1}, **kw}
+    with pytest.raises(ValueError) as err:
+        ti.Problem(m, data, p0={"k": 2.0, "c": 0.3, "a": 0.5}, **args)
+    msg = str(err.value)
+    assert "\n" not in msg
+    for w in words:
+        assert w in msg, (w, msg)
+
+
+def test_noise_without_the_filter_is_refused():
+    m = duffing()
+    data = record(m, 20, 0, [0.1, 0.0], {"k": 2.0, "c": 0.3, "a": 0.5})
+    with pytest.raises(ValueError, match="predictor='ekf'"):
+        ti.Problem(m, data, p0={"k": 2.0, "c": 0.3, "a": 0.5}, process_noise={"v": 0.1})
+
+
+def sde_record(seed, P=400, dt=0.05, sw=0.3, se=0.02, fine=20):
+    """The Duffing oscillator with process noise on v by Euler-Maruyama on a grid
+    ``fine`` times finer than the samples."""
+    rng = np.random.default_rng(seed)
+    u = np.repeat(rng.standard_normal(P // 10 + 1), 10)[:P, None]
+    p = np.array([2.0, 0.3, 0.5])
+    x, ys, h = np.array([0.1, 0.0]), [], dt / fine
+    for k in range(P):
+        ys.append(x[0] + se * rng.standard_normal())
+        for _ in range(fine):
+            a = -p[0] * x[0] - p[1] * x[1] - p[2] * x[0] ** 3 + u[k, 0]
+            kick = sw * np.sqrt(h) * rng.standard_normal()
+            x = x + h * np.array([x[1], a]) + np.array([0.0, kick])
+    return ti.Experiment(np.arange(P) * dt, u, np.array(ys)[:, None])
+
+
+def test_ekf_fit_recovers_parameters_and_noise_where_output_error_is_pulled_off():
+    data = sde_record(0)
+    m = duffing()
+    start = {"k": 1.5, "c": 0.5, "a": 0.3}
+    pr = ti.Problem(
+        m, data, p0=start, x0=[0, 0], free_x0=["x", "v"], predictor="ekf",
+        process_noise={"v": 0.1}, measurement_noise={"y": 0.05}, interpolation="zoh",
+    )  # fmt: skip
+    res = ti.fit(pr)
+    assert res.success and np.isfinite(res.cost)
+    u = res.uncertainty()
+    truth = {"k": 2.0, "c": 0.3, "a": 0.5, "log_sigma_w_v": np.log(0.3),
+             "log_sigma_e_y": np.log(0.02)}  # fmt: skip
+    for name, value in truth.items():
+        i = pr.theta_names.index(name)
+        assert abs(res.theta[i] - value) <= 3 * u.stderr[i], (name, res.theta[i], u.stderr[i])
+    assert u.sigma2 == 1.0  # J = −2 log L: no residual variance
+    assert all(res.residual_tests().whiteness_passed)
+    # the same record by output error: white residual tests fail
+    oe = ti.fit(ti.Problem(m, data, p0=start, x0=[0, 0], free_x0=["x", "v"], interpolation="zoh"))
+    assert not all(oe.residual_tests().whiteness_passed)
+    # one-step prediction beats the simulation, and horizons in between lie between
+    one, five = pr.predict(res.theta)[0], pr.predict(res.theta, horizon=5)[0]
+    rms = [np.sqrt(np.mean((d.measured - d.predicted) ** 2)) for d in (one, five)]
+    sim = res.simulate()[0]
+    rms_sim = np.sqrt(np.mean((data.y - sim.y) ** 2))
+    assert rms[0] < rms[1] < rms_sim
+
+
+def test_output_error_predictions_are_the_simulation_at_every_horizon():
+    m = duffing()
+    data = record(m, 40, 0, [0.1, 0.0], {"k": 2.0, "c": 0.3, "a": 0.5})
+    pr = ti.Problem(m, data, p0={"k": 2.0, "c": 0.3, "a": 0.5}, x0=[0.1, 0], free_x0=["x"])
+    sim = pr.simulate(pr.theta0)[0].y
+    for k in (1, 3):
+        pred = pr.predict(pr.theta0, horizon=k)[0]
+        assert np.abs(pred.predicted - sim).max() <= 1e-12
+        assert pred.covariance is None
+    with pytest.raises(ValueError, match="horizon"):
+        pr.predict(pr.theta0, horizon=0)
