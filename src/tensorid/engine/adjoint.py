@@ -72,8 +72,6 @@ def block_size(K: int, N: int, starts: int = 1) -> int:
 # at most this many stretches: each is its own scan in the compiled first phase, and
 # the threads were measured on 2 cores only
 MAX_STRETCHES = 8
-_POOL: ThreadPoolExecutor | None = None
-_POOL_LOCK = threading.Lock()
 
 
 def supports(discretisation: Discretisation) -> bool:
@@ -149,21 +147,23 @@ def threads(cap: int | None = None) -> int:
     return max(1, min(n, MAX_STRETCHES))
 
 
-def _pool(n: int) -> ThreadPoolExecutor:
-    global _POOL
-    with _POOL_LOCK:
-        if _POOL is None or _POOL._max_workers < n:
-            _POOL = ThreadPoolExecutor(max_workers=n, thread_name_prefix="tensorid-adjoint")
-        return _POOL
+class _Threads:
+    """The threads that run an adjoint's stretches: owned by the adjoint (no module
+    state), started on first use and grown to what a call asks for; a forked child,
+    which inherits the object but not its threads, starts its own."""
 
+    def __init__(self):
+        self._pool: ThreadPoolExecutor | None = None
+        self._pid = os.getpid()
+        self._lock = threading.Lock()
 
-def _forget_pool() -> None:  # a forked child inherits the pool but not its threads
-    global _POOL
-    _POOL = None
-
-
-if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_forget_pool)
+    def get(self, n: int) -> ThreadPoolExecutor:
+        with self._lock:
+            if self._pid != os.getpid():
+                self._pool, self._pid = None, os.getpid()
+            if self._pool is None or self._pool._max_workers < n:
+                self._pool = ThreadPoolExecutor(n, thread_name_prefix="tensorid-adjoint")
+            return self._pool
 
 
 def _symmetric(a):
@@ -191,6 +191,7 @@ class SecondOrderAdjoint:
             )
         self.sweeps, self.batched = sweeps, batched
         self._compiled: set = set()
+        self._threads = _Threads()
 
     # -- the step map and the padded grid ----------------------------------------------
     def _phi(self, x, p, dt, ua, ub):
@@ -380,6 +381,9 @@ class SecondOrderAdjoint:
         first = [] if key in self._compiled else [part(0)]
         self._compiled.add(key)
         rest = range(len(first), n)
-        more = list(_pool(n).map(part, rest)) if len(rest) > 1 else [part(k) for k in rest]
+        if len(rest) > 1:
+            more = list(self._threads.get(n).map(part, rest))
+        else:
+            more = [part(k) for k in rest]
         g, Hcurv, Hgn, Hso = (sum(q[i] for q in first + more) for i in range(4))
         return J, g, _symmetric(Hcurv + Hso), _symmetric(Hgn)

@@ -121,6 +121,26 @@ class Discretisation:
         return d
 
 
+class DiscretisationSettings:
+    """``scheme``, ``substeps`` and ``interpolation`` as attributes of an object that
+    has a ``discretisation`` (a Problem)."""
+
+    @property
+    def scheme(self) -> Scheme | RungeKuttaScheme:
+        """The integration scheme (of ``discretisation``)."""
+        return self.discretisation.scheme
+
+    @property
+    def substeps(self) -> int:
+        """Steps per sample interval (of ``discretisation``)."""
+        return self.discretisation.substeps
+
+    @property
+    def interpolation(self) -> str:
+        """Input interpolation between samples (of ``discretisation``)."""
+        return self.discretisation.interpolation
+
+
 def input_at(u0: jax.Array, u1: jax.Array, s, interpolation: str) -> jax.Array:
     if interpolation == "zoh":
         return u0

@@ -79,3 +79,38 @@ def add_prior_terms(problem, theta, parts: str, more, out: list) -> None:
             out[k][..., idx, idx] += 2 * prec
         elif c == "r":
             out[k] = np.concatenate([out[k], (np.sqrt(prec) * d).reshape(-1)])
+
+
+class PriorTerms:
+    """The priors' part of a Problem (a Problem is a PriorTerms): it reads
+    ``priors`` {θ index: (mean, sd)} and ``noise_variance``."""
+
+    def _set_priors(self, priors, noise) -> None:
+        self.priors, self.noise_variance = check_priors(self, priors, noise)
+        # an estimate, not the user's word: a fit may re-estimate it (fitting/priors.py)
+        self.noise_estimated = bool(self.priors) and noise is None and not self.loss.likelihood
+        if self.loss.likelihood:  # J is −2 log L: a prior adds ((θ − mean)/sd)² as it is
+            self.noise_variance = 1.0
+
+    def add_prior_terms(self, theta, parts: str, more, out: list) -> None:
+        """Add the priors' terms to results assembled in θ's layout (in place): ``parts``
+        as in :meth:`_assemble`, ``more`` its extra arguments (a direction v)."""
+        add_prior_terms(self, theta, parts, more, out)
+
+    def prior_cost(self, theta) -> float:
+        """The priors' part of J at θ (0 without priors)."""
+        theta = np.asarray(theta, dtype=float)
+        return float(
+            sum(
+                self.noise_variance * ((theta[i] - m) / sd) ** 2
+                for i, (m, sd) in self.priors.items()
+            )
+        )
+
+    @property
+    def prior_curvature(self) -> np.ndarray:
+        """(K,) the priors' contribution to the diagonal of the Hessian (0 without)."""
+        out = np.zeros(self.K)
+        for i, (_, sd) in self.priors.items():
+            out[i] = 2 * self.noise_variance / sd**2
+        return out

@@ -27,18 +27,20 @@ from .checks import (
     name_list,
 )
 from .data import Experiment
-from .discretisation import Discretisation
-from .integrators import RungeKuttaScheme, Scheme
+from .discretisation import Discretisation, DiscretisationSettings
+from .integrators import Scheme
+from .layout import ThetaLayout
 from .losses import GAUSSIAN, Loss, make_loss
 from .model import Model
+from .packing import unpack_symmetric
 from .predictors import make_predictor
-from .priors import add_prior_terms, check_priors
+from .priors import PriorTerms
 from .shooting import Shooting, resolve_segments
 from .simulate import Simulation, run_simulation
-from .sweeps import Sweeps, shared_sweeps, unpack_symmetric
+from .sweeps import Sweeps, shared_sweeps
 
 
-class Problem:
+class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
     """A least-squares identification problem.
 
     Parameters
@@ -196,13 +198,6 @@ class Problem:
             discretisation, model.N, self._sweeps.K, samples, threads,
         )  # fmt: skip
 
-    def _set_priors(self, priors, noise) -> None:
-        self.priors, self.noise_variance = check_priors(self, priors, noise)
-        # an estimate, not the user's word: a fit may re-estimate it (fitting/priors.py)
-        self.noise_estimated = bool(self.priors) and noise is None and not self.loss.likelihood
-        if self.loss.likelihood:  # J is −2 log L: a prior adds ((θ − mean)/sd)² as it is
-            self.noise_variance = 1.0
-
     def _with_predictor(self, predictor, process_noise, measurement_noise) -> Model:
         """Set the predictor; a filter's model has its noise intensities appended to the
         parameters (and p0). Returns the model the problem estimates."""
@@ -232,21 +227,6 @@ class Problem:
     def segments(self) -> list[int]:
         """The number of shooting segments of each experiment (all 1: single shooting)."""
         return self.shooting.counts if self.shooting else [1] * len(self.experiments)
-
-    @property
-    def scheme(self) -> Scheme | RungeKuttaScheme:
-        """The integration scheme (of ``discretisation``)."""
-        return self.discretisation.scheme
-
-    @property
-    def substeps(self) -> int:
-        """Steps per sample interval (of ``discretisation``)."""
-        return self.discretisation.substeps
-
-    @property
-    def interpolation(self) -> str:
-        """Input interpolation between samples (of ``discretisation``)."""
-        return self.discretisation.interpolation
 
     @property
     def loss_scale(self) -> dict[str, float] | None:
@@ -283,103 +263,6 @@ class Problem:
         return 1e-26 * sum(
             float(np.sum(self.weights * np.asarray(y) ** 2)) for _, _, y in self._arrays
         )
-
-    # -- priors (engine/priors.py) ---------------------------------------------------
-    def add_prior_terms(self, theta, parts: str, more, out: list) -> None:
-        """Add the priors' terms to results assembled in θ's layout (in place): ``parts``
-        as in :meth:`_assemble`, ``more`` its extra arguments (a direction v)."""
-        add_prior_terms(self, theta, parts, more, out)
-
-    def prior_cost(self, theta) -> float:
-        """The priors' part of J at θ (0 without priors)."""
-        theta = np.asarray(theta, dtype=float)
-        return float(
-            sum(
-                self.noise_variance * ((theta[i] - m) / sd) ** 2
-                for i, (m, sd) in self.priors.items()
-            )
-        )
-
-    @property
-    def prior_curvature(self) -> np.ndarray:
-        """(K,) the priors' contribution to the diagonal of the Hessian (0 without)."""
-        out = np.zeros(self.K)
-        for i, (_, sd) in self.priors.items():
-            out[i] = 2 * self.noise_variance / sd**2
-        return out
-
-    # -- θ layout ---------------------------------------------------------------------
-    @property
-    def theta_entries(self) -> list[tuple[str, int | None]]:
-        """(name, experiment index or None for parameters) for each entry of θ."""
-        out: list[tuple[str, int | None]] = []
-        for e in range(len(self.experiments)):
-            out += [(n, e) for n in self.free_x0]
-        return out + [(n, None) for n in self.free_params]
-
-    @property
-    def theta_names(self) -> list[str]:
-        """Names of the entries of θ: "state(t0)" (with "[experiment]" when there are
-        several) for free initial states, then parameter names."""
-        E = len(self.experiments)
-        names = []
-        for n, e in self.theta_entries:
-            if e is None:
-                names.append(n)
-            else:
-                label = self.experiments[e].name or str(e)
-                names.append(f"{n}(t0)" if E == 1 else f"{n}(t0)[{label}]")
-        return names
-
-    @property
-    def K(self) -> int:
-        """Number of unknowns (entries of θ)."""
-        return len(self.experiments) * len(self.free_x0) + len(self.free_params)
-
-    @property
-    def theta0(self) -> np.ndarray:
-        """The start: free x0 entries then free parameters, natural units."""
-        m = self.model
-        xs = [
-            self.x0[e, m.states.index(n)]
-            for e in range(len(self.experiments))
-            for n in self.free_x0
-        ]
-        ps = [self.p0[m.params.index(n)] for n in self.free_params]
-        return np.array(xs + ps, dtype=float)
-
-    def check_theta(self, theta) -> np.ndarray:
-        """θ as a float array (K,); a clear error for a wrong length or non-finite
-        entries."""
-        theta = np.asarray(theta, dtype=float).reshape(-1)
-        if theta.shape != (self.K,):
-            raise ValueError(
-                f"theta must have {self.K} entries {self.theta_names}, got {theta.size}"
-            )
-        bad = [n for n, v in zip(self.theta_names, theta, strict=True) if not np.isfinite(v)]
-        if bad:
-            raise ValueError(f"theta has non-finite values for {bad}; give finite numbers")
-        return theta
-
-    def _slices(self, e: int) -> np.ndarray:
-        """Indices into θ of experiment e's local θ (its free x0, then free params)."""
-        nx, E = len(self.free_x0), len(self.experiments)
-        return np.concatenate([np.arange(e * nx, (e + 1) * nx), np.arange(E * nx, self.K)]).astype(
-            int
-        )
-
-    def unpack(self, theta) -> tuple[np.ndarray, np.ndarray]:
-        """(params (M,), x0 (E, N)) with θ written into the fixed values."""
-        theta = self.check_theta(theta)
-        m = self.model
-        p = self.p0.copy()
-        x0 = self.x0.copy()
-        for k, (name, e) in enumerate(self.theta_entries):
-            if e is None:
-                p[m.params.index(name)] = theta[k]
-            else:
-                x0[e, m.states.index(name)] = theta[k]
-        return p, x0
 
     # -- cost and derivatives ------------------------------------------------------------
     def _assemble(self, sweep, theta, *more, parts: str):

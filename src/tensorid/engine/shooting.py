@@ -26,7 +26,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401
-from .sweeps import shared_sweeps, unpack_symmetric
+from .packing import unpack_symmetric
+from .sweeps import shared_sweeps
 
 
 def segment_bounds(P: int, segments: int) -> np.ndarray:

@@ -36,54 +36,12 @@ import numpy as np
 
 from .. import _config  # noqa: F401
 from .adjoint import SecondOrderAdjoint
+from .compiled import Compiled
 from .discretisation import Discretisation, march
 from .losses import SQUARED, Loss
 from .model import Model
+from .packing import pair_indices, quadratic_full, quadratic_packed
 from .predictors import SIMULATION, Simulation
-
-
-def pair_indices(K: int) -> tuple[np.ndarray, np.ndarray]:
-    """Packed symmetric storage: the K diagonal pairs (j, j) first, then j < k."""
-    jj = list(range(K))
-    kk = list(range(K))
-    for j in range(K):
-        for k in range(j + 1, K):
-            jj.append(j)
-            kk.append(k)
-    return np.array(jj, dtype=int), np.array(kk, dtype=int)
-
-
-def unpack_symmetric(packed: np.ndarray, K: int) -> np.ndarray:
-    """(..., K(K+1)/2) packed pairs -> (..., K, K) symmetric matrices."""
-    jj, kk = pair_indices(K)
-    H = np.zeros(packed.shape[:-1] + (K, K))
-    H[..., jj, kk] = packed
-    H[..., kk, jj] = packed
-    return H
-
-
-class _Compiled:
-    """A jit-compiled entry point of :class:`Sweeps`, compiled on first use and kept
-    per instance (``batched``: vmapped over a leading axis of θ, one start per row).
-    Compiled functions are per process: pickling a Sweeps drops them."""
-
-    def __init__(self, sweep: str, batched: bool = False, axes=(0,) + (None,) * 6):
-        self.sweep, self.batched, self.axes = sweep, batched, axes
-
-    def __set_name__(self, owner, name: str) -> None:
-        self.name = name
-
-    def __get__(self, obj, owner=None):
-        if obj is None:
-            return self
-        fn = obj.__dict__.get(self.name)
-        if fn is None:
-            fn = getattr(obj, self.sweep)
-            if self.batched:
-                fn = jax.vmap(fn, in_axes=self.axes)
-            fn = jax.jit(fn)
-            obj.__dict__[self.name] = fn
-        return fn
 
 
 @dataclass(frozen=True, eq=False)
@@ -302,7 +260,7 @@ class Sweeps:
             ell, l1, _, gamma = self.loss.terms(y_h, self._pi(x, p), w)
             D = columns(self._pi, x, dx)  # (K, outputs) = (C_z Z)ᵀ
             if gauss_newton:
-                H = H + _quadratic_full(D, gamma)
+                H = H + quadratic_full(D, gamma)
             return (J + ell, g + D @ l1, H), None
 
         acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros((K, K)) if gauss_newton else None)
@@ -377,7 +335,7 @@ class Sweeps:
             ell, l1, l2, gamma = self.loss.terms(y_h, self._pi(x, p), w)
 
             def quadratic(c):
-                return _quadratic_packed(D, c, (jj, kk) if v is None else None, v)
+                return quadratic_packed(D, c, (jj, kk) if v is None else None, v)
 
             curv = quadratic(l2)
             out = (J + ell, g + D @ l1, H + curv + e2 @ l1)
@@ -413,23 +371,23 @@ class Sweeps:
         return self._first_order(theta, x0, p, t, u, y, w, gauss_newton=False)[:2]
 
     # -- compiled entry points ---------------------------------------------------------
-    simulate = _Compiled("_simulate")
-    cost = _Compiled("_cost")
-    predictions = _Compiled("_predictions")
-    residuals = _Compiled("_residuals")
-    output_jacobian = _Compiled("_output_jacobian")
-    first_order = _Compiled("_first_order")
-    second_order = _Compiled("_second_order")
-    gradient = _Compiled("_gradient")
-    hessp = _Compiled("_hessp")
+    simulate = Compiled("_simulate")
+    cost = Compiled("_cost")
+    predictions = Compiled("_predictions")
+    residuals = Compiled("_residuals")
+    output_jacobian = Compiled("_output_jacobian")
+    first_order = Compiled("_first_order")
+    second_order = Compiled("_second_order")
+    gradient = Compiled("_gradient")
+    hessp = Compiled("_hessp")
     # one start per row of theta: multi-start in lock-step, one call for all
-    first_order_batch = _Compiled("_first_order", batched=True)
-    second_order_batch = _Compiled("_second_order", batched=True)
-    second_order_both = _Compiled("_second_order_both")
-    second_order_both_batch = _Compiled("_second_order_both", batched=True)
+    first_order_batch = Compiled("_first_order", batched=True)
+    second_order_batch = Compiled("_second_order", batched=True)
+    second_order_both = Compiled("_second_order_both")
+    second_order_both_batch = Compiled("_second_order_both", batched=True)
     # the segments of a multiple-shooting problem, one per row (each its own x0 and data)
-    segments = _Compiled("_segment", batched=True, axes=(0, 0, None, 0, 0, 0, 0))
-    segments_gn = _Compiled("_segment_gn", batched=True, axes=(0, 0, None, 0, 0, 0, 0))
+    segments = Compiled("_segment", batched=True, axes=(0, 0, None, 0, 0, 0, 0))
+    segments_gn = Compiled("_segment_gn", batched=True, axes=(0, 0, None, 0, 0, 0, 0))
 
     @cached_property
     def k_step(self):
@@ -449,25 +407,11 @@ class Sweeps:
         return {
             k: v
             for k, v in self.__dict__.items()
-            if not isinstance(_entry(k), _Compiled | cached_property)
+            if not isinstance(_entry(k), Compiled | cached_property)
         }
 
     def __setstate__(self, state):
         self.__dict__.update(state)
-
-
-def _quadratic_packed(D, c, pairs, v):
-    """Σ_st c_st D_s D_tᵀ for D (K, outputs), packed (pairs (jj, kk)) or times v; c a
-    matrix, or its diagonal (outputs,)."""
-    if pairs is not None:
-        jj, kk = pairs
-        return ((D @ c)[jj] * D[kk]).sum(-1) if c.ndim == 2 else (D[jj] * D[kk]) @ c
-    return D @ (c @ (v @ D)) if c.ndim == 2 else D @ (c * (v @ D))
-
-
-def _quadratic_full(D, c):
-    """Σ_st c_st D_s D_tᵀ (K, K) for D (K, outputs); c (outputs,) a diagonal."""
-    return D @ c @ D.T if c.ndim == 2 else (D * c) @ D.T
 
 
 def _weighted(obs_h, w):

@@ -106,8 +106,7 @@ class Hybrid:
                 self.switches += 1
             return
         # |J_old|: a likelihood's J (predictor="ekf") may be negative
-        big = new is not None and np.isfinite(J_old) and J_old != 0
-        decrease = (J_old - new[1]) / abs(J_old) if big else 0.0
+        decrease = (J_old - new[1]) / abs(J_old) if new is not None and J_old != 0 else 0.0
         self.stalled = self.stalled + 1 if decrease < STALL else 0
         if self.stalled >= max(STALL_RUN, self.cost_ratio):
             self.exact = True

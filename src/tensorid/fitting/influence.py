@@ -108,6 +108,12 @@ def data_sensitivity(res) -> DataSensitivity:
             f"data sensitivity needs a fit with a finite optimum; it ended as {res.status}"
         )
     problem = res.problem
+    if problem.loss.likelihood:
+        raise ValueError(
+            "data sensitivity is for output error (the squared loss); this fit's predictor "
+            "is a filter (ekf), whose estimate depends on the data through it: fit with "
+            "predictor='simulation' for it"
+        )
     if not problem.loss.squared:  # dθ̂/dy below is that of Σ w r²
         raise ValueError(
             f"data sensitivity assumes the squared loss; this fit's is {problem.loss.name} "

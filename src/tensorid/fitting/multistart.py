@@ -101,9 +101,6 @@ def process_pool(workers: int) -> ProcessPoolExecutor:
     """A local pool of fresh ("spawn") processes, each with one XLA thread: the
     problems are small, so the cores are better spent on separate starts. Spawn,
     not fork, because forking a process that has started JAX's threads is unsafe."""
-    os.environ.setdefault(
-        "XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
-    )
     import jax
 
     # the parent's cache folder, or None where it turned the cache off
@@ -121,6 +118,11 @@ def _worker_init(cache: str | None) -> None:
     # Ctrl-C in a terminal reaches the whole process group: the parent alone
     # decides (it stops the workers and keeps what finished)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # one XLA thread per worker, set in the worker (not in the parent's environment):
+    # read when JAX first computes, which comes after this
+    os.environ.setdefault(
+        "XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+    )
     global _LOCAL_WORKER
     _LOCAL_WORKER = True
     from .._config import disable_compilation_cache, enable_compilation_cache
