@@ -112,16 +112,15 @@ def _check_finite(name: str, arr: np.ndarray) -> None:
 class Experiment:
     """One measured record.
 
-    Parameters
-    ----------
-    t : (P,) sample times, strictly increasing (seconds or any unit the model uses).
-    u : (P, U) or (P,) inputs at the sample times; None for an autonomous model.
-    y : (P, S) or (P,) measured outputs; may be None for simulation only.
-    name : label used in reports and parameter names.
-    init_window : the record's own initialisation window (a benchmark test record's
-        ``state_initialization_window_length``, see :meth:`from_benchmark`): the first
-        samples, spent estimating the initial state, that a score leaves out.
-        ``FitResult.validate`` uses it where no ``init_window`` is given. None: none.
+    Arguments:
+        t: (P,) sample times, strictly increasing (seconds or any unit the model uses).
+        u: (P, U) or (P,) inputs at the sample times; None for an autonomous model.
+        y: (P, S) or (P,) measured outputs; may be None for simulation only.
+        name: label used in reports and parameter names.
+        init_window: the record's own initialisation window (a benchmark test record's
+            ``state_initialization_window_length``, see :meth:`from_benchmark`): the first
+            samples, spent estimating the initial state, that a score leaves out.
+            ``FitResult.validate`` uses it where no ``init_window`` is given. None: none.
     """
 
     t: np.ndarray

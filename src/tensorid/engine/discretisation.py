@@ -125,6 +125,8 @@ class DiscretisationSettings:
     """``scheme``, ``substeps`` and ``interpolation`` as attributes of an object that
     has a ``discretisation`` (a Problem)."""
 
+    discretisation: Discretisation
+
     @property
     def scheme(self) -> Scheme | RungeKuttaScheme:
         """The integration scheme (of ``discretisation``)."""

@@ -9,11 +9,24 @@ units. :class:`ThetaLayout` is the part of :class:`tensorid.Problem` that knows 
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:
+    from .data import Experiment
+    from .model import Model
 
 
 class ThetaLayout:
     """The θ layout of a Problem (see the module docstring)."""
+
+    model: Model
+    experiments: list[Experiment]
+    free_x0: list[str]
+    free_params: list[str]
+    x0: np.ndarray
+    p0: np.ndarray
 
     @property
     def theta_entries(self) -> list[tuple[str, int | None]]:

@@ -71,28 +71,27 @@ def _check_delays(delays, inputs) -> dict | None:
 class Model:
     """A nonlinear state-space model.
 
-    Parameters
-    ----------
-    rhs : callable ``f(x, p, u) -> dx/dt``
-        ``x`` has shape (N,), ``p`` shape (M,), ``u`` shape (U,) (U may be 0);
-        must return shape (N,). Written with ``jax.numpy``.
-    output : callable ``h(x, p) -> y``, optional
-        Must return shape (S,) (a scalar is accepted when S = 1). May be
-        nonlinear and depend on ``p``. Default: every state is an output.
-    states, params, inputs, outputs : lists of names
-        Names of x, p, u and y entries, in order. Names must be unique across
-        states and params, because bounds and fixed lists refer to both.
-    discrete : bool
-        A discrete-time model: ``rhs`` returns x[k+1] = f(x[k], p, u[k]) on the
-        experiment's sampling grid (uniform) instead of dx/dt; the derivatives are
-        exact by the same recursion (see integrators.DiscreteMap).
-    input_delays : dict {input: seconds}, optional
-        Known transport or computation delays: the model sees u(t − τ) for that input
-        (before the record starts, its first sample). The delayed input is exact at
-        every sample instant (the record interpolated at t_k − τ, linearly or held as
-        the Problem's interpolation says); between samples the integrator interpolates
-        those values, so a delay of whole samples is exact throughout. Known, not
-        estimated: the derivatives stay exact.
+    Arguments:
+        rhs: callable ``f(x, p, u) -> dx/dt``
+            ``x`` has shape (N,), ``p`` shape (M,), ``u`` shape (U,) (U may be 0);
+            must return shape (N,). Written with ``jax.numpy``.
+        output: callable ``h(x, p) -> y``, optional
+            Must return shape (S,) (a scalar is accepted when S = 1). May be
+            nonlinear and depend on ``p``. Default: every state is an output.
+        states, params, inputs, outputs: lists of names
+            Names of x, p, u and y entries, in order. Names must be unique across
+            states and params, because bounds and fixed lists refer to both.
+        discrete: bool
+            A discrete-time model: ``rhs`` returns x[k+1] = f(x[k], p, u[k]) on the
+            experiment's sampling grid (uniform) instead of dx/dt; the derivatives are
+            exact by the same recursion (see integrators.DiscreteMap).
+        input_delays: dict {input: seconds}, optional
+            Known transport or computation delays: the model sees u(t − τ) for that input
+            (before the record starts, its first sample). The delayed input is exact at
+            every sample instant (the record interpolated at t_k − τ, linearly or held as
+            the Problem's interpolation says); between samples the integrator interpolates
+            those values, so a delay of whole samples is exact throughout. Known, not
+            estimated: the derivatives stay exact.
     """
 
     rhs: Callable[[Array, Array, Array], Array]

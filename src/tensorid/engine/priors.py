@@ -8,8 +8,12 @@ J/σ² is −2 log posterior. Each function takes the Problem (its ``priors`` {�
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from .losses import Loss
 
 
 def check_priors(problem, priors, noise) -> tuple[dict, float]:
@@ -84,6 +88,14 @@ def add_prior_terms(problem, theta, parts: str, more, out: list) -> None:
 class PriorTerms:
     """The priors' part of a Problem (a Problem is a PriorTerms): it reads
     ``priors`` {θ index: (mean, sd)} and ``noise_variance``."""
+
+    loss: Loss
+    priors: dict
+    noise_variance: float
+    if TYPE_CHECKING:  # from ThetaLayout, beside it in Problem
+
+        @property
+        def K(self) -> int: ...
 
     def _set_priors(self, priors, noise) -> None:
         self.priors, self.noise_variance = check_priors(self, priors, noise)

@@ -41,81 +41,81 @@ from .sweeps import Sweeps, shared_sweeps
 
 
 class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
-    """A least-squares identification problem.
+    """An identification problem: a model, measured records and the unknowns, with its
+    cost (least squares, a robust loss, or an extended Kalman filter's likelihood).
 
-    Parameters
-    ----------
-    model : Model
-    data : Experiment or list of Experiment
-        Each experiment has its own initial state; all share the parameters.
-    p0 : dict {name: value} or array (M,)
-        Parameter values: the start for free parameters, the value of fixed ones.
-    x0 : array (N,), array (E, N), dict {state: value} or list of dicts; default zeros
-        Initial states: the start for free entries, the value of fixed ones.
-    free_x0 : list of state names whose initial value is estimated (in every experiment).
-    fixed : list of parameter names held at their p0 value.
-    bounds : dict {name: (lo, hi)} for parameters or free initial states; None or
-        ±inf for an open side.
-    substeps : Runge-Kutta steps per sample interval (for an adaptive scheme: the
-        first trial step is one sample interval / substeps).
-    interpolation : "linear" or "zoh" for the input between samples.
-    scheme : explicit fixed-step "rk4" (default), "rk38", "heun", "euler"; implicit
-        (L-stable, for stiff models) "sdirk3", "sdirk2", "implicit-euler"; adaptive
-        (error-controlled) "dopri5", "bosh3".
-    rtol, atol : error tolerances of an adaptive scheme (defaults 1e-6, 1e-9).
-    priors : dict {parameter: (mean, sd)}: Gaussian priors on free parameters (MAP
-        estimation). J gains σ² Σ ((θ_i − mean)/sd)², σ² the variance of a unit-weight
-        residual (``noise``² when given, else estimated from the measured outputs' second
-        differences, ``noise_variance``), so that J/σ² is −2 log posterior; the exact
-        Hessian includes the prior's curvature.
-    noise : standard deviation of a unit-weight residual (weighted measurement noise),
-        for priors. Without it, :func:`tensorid.fit` checks the estimate against the
-        residual variance at the fit and, where they disagree, re-estimates it from the
-        residuals and refits (``noise_estimated`` is then True).
-    weights : dict {output: weight} or array (S,); J = Σ_h Σ_g w_g r_g². "auto":
-        1 / (variance of each measured output, all experiments together), so that
-        outputs on very different scales (volts and micrometres) count alike. Without
-        weights, outputs whose scales differ by more than 1e3 raise a warning.
-    discretisation : a :class:`Discretisation`, in place of scheme, substeps,
-        interpolation, rtol and atol.
-    segments : multiple shooting: cut each experiment into this many segments (or a
-        list, one count per experiment), each with its own initial state as an unknown
-        and continuity as a constraint (see :mod:`tensorid.engine.shooting`); 1, the
-        default, is single shooting. θ, ``theta0`` and every result stay in the layout
-        above; only :func:`tensorid.fit` sees the segments.
-    segment_length : instead of segments: samples per segment (about).
-    loss : what a sample's misfit costs: "squared" (default; weighted least squares,
-        J = Σ w r²), or a robust loss that lets gross outliers pull less, "huber"
-        (linear beyond the scale), "cauchy" or "student-t" (logarithmic beyond it); or
-        a :class:`tensorid.engine.losses.Loss`. Each equals the squared loss for
-        residuals well inside its scale (see :mod:`tensorid.engine.losses`).
-    loss_scale : a robust loss's scale in the outputs' units: a number for every
-        output or {output: value}. Default: estimated from the data, 1.345 (Huber),
-        2.385 (Cauchy) or 1 (Student-t) times each output's noise level from its
-        second differences (a median, so outliers do not inflate it), which
-        :func:`tensorid.fit` then replaces by one from the residuals (the scale a fit
-        used is ``result.problem.loss_scale``).
-    threads : at most this many threads for the second-order adjoint's stretches of
-        the record (default: the cores this process may use, at most 8); 1 turns them
-        off, as each worker of a multi-start pool does.
-    hessian : how exact Hessians are computed: "tensors" (the paper's transition
-        tensors, forward in time), "adjoint" (second-order adjoints, parallel in time:
-        faster for many states or unknowns; explicit schemes and discrete-time models
-        only) or "auto" (default): the faster of the two by a cost model measured on
-        N, K and the record length (:func:`tensorid.engine.adjoint.choose_hessian`). Both
-        give the same Hessian to rounding. The resolved choice is ``Problem.hessian``.
-    predictor : how the state is carried from sample to sample: "simulation" (default:
-        output error, the model simulated from its initial state) or "ekf" (a
-        continuous-discrete extended Kalman filter: prediction error, J = −2 log L of
-        the innovations; see :mod:`tensorid.engine.predictors`). With "ekf" the model
-        gains a parameter log σ per noise intensity (``log_sigma_w_<state>``,
-        ``log_sigma_e_<output>``), estimated unless named in ``fixed``.
-    process_noise : {state: σ_w}: the states driven by process noise dω, each with the
-        start of its intensity (a standard deviation per √time unit); states not
-        listed have none ("ekf" only).
-    measurement_noise : {output: σ_e}: the start of each output's measurement noise
-        (standard deviation); an output not listed starts from its noise level in the
-        data ("ekf" only).
+    Arguments:
+        model: Model
+        data: Experiment or list of Experiment
+            Each experiment has its own initial state; all share the parameters.
+        p0: dict {name: value} or array (M,)
+            Parameter values: the start for free parameters, the value of fixed ones.
+        x0: array (N,), array (E, N), dict {state: value} or list of dicts; default zeros
+            Initial states: the start for free entries, the value of fixed ones.
+        free_x0: list of state names whose initial value is estimated (in every experiment).
+        fixed: list of parameter names held at their p0 value.
+        bounds: dict {name: (lo, hi)} for parameters or free initial states; None or
+            ±inf for an open side.
+        substeps: Runge-Kutta steps per sample interval (for an adaptive scheme: the
+            first trial step is one sample interval / substeps).
+        interpolation: "linear" or "zoh" for the input between samples.
+        scheme: explicit fixed-step "rk4" (default), "rk38", "heun", "euler"; implicit
+            (L-stable, for stiff models) "sdirk3", "sdirk2", "implicit-euler"; adaptive
+            (error-controlled) "dopri5", "bosh3".
+        rtol, atol: error tolerances of an adaptive scheme (defaults 1e-6, 1e-9).
+        priors: dict {parameter: (mean, sd)}: Gaussian priors on free parameters (MAP
+            estimation). J gains σ² Σ ((θ_i − mean)/sd)², σ² the variance of a unit-weight
+            residual (``noise``² when given, else estimated from the measured outputs' second
+            differences, ``noise_variance``), so that J/σ² is −2 log posterior; the exact
+            Hessian includes the prior's curvature.
+        noise: standard deviation of a unit-weight residual (weighted measurement noise),
+            for priors. Without it, :func:`tensorid.fit` checks the estimate against the
+            residual variance at the fit and, where they disagree, re-estimates it from the
+            residuals and refits (``noise_estimated`` is then True).
+        weights: dict {output: weight} or array (S,); J = Σ_h Σ_g w_g r_g². "auto":
+            1 / (variance of each measured output, all experiments together), so that
+            outputs on very different scales (volts and micrometres) count alike. Without
+            weights, outputs whose scales differ by more than 1e3 raise a warning.
+        discretisation: a :class:`Discretisation`, in place of scheme, substeps,
+            interpolation, rtol and atol.
+        segments: multiple shooting: cut each experiment into this many segments (or a
+            list, one count per experiment), each with its own initial state as an unknown
+            and continuity as a constraint (see :mod:`tensorid.engine.shooting`); 1, the
+            default, is single shooting. θ, ``theta0`` and every result stay in the layout
+            above; only :func:`tensorid.fit` sees the segments.
+        segment_length: instead of segments: samples per segment (about).
+        loss: what a sample's misfit costs: "squared" (default; weighted least squares,
+            J = Σ w r²), or a robust loss that lets gross outliers pull less, "huber"
+            (linear beyond the scale), "cauchy" or "student-t" (logarithmic beyond it); or
+            a :class:`tensorid.engine.losses.Loss`. Each equals the squared loss for
+            residuals well inside its scale (see :mod:`tensorid.engine.losses`).
+        loss_scale: a robust loss's scale in the outputs' units: a number for every
+            output or {output: value}. Default: estimated from the data, 1.345 (Huber),
+            2.385 (Cauchy) or 1 (Student-t) times each output's noise level from its
+            second differences (a median, so outliers do not inflate it), which
+            :func:`tensorid.fit` then replaces by one from the residuals (the scale a fit
+            used is ``result.problem.loss_scale``).
+        threads: at most this many threads for the second-order adjoint's stretches of
+            the record (default: the cores this process may use, at most 8); 1 turns them
+            off, as each worker of a multi-start pool does.
+        hessian: how exact Hessians are computed: "tensors" (the paper's transition
+            tensors, forward in time), "adjoint" (second-order adjoints, parallel in time:
+            faster for many states or unknowns; explicit schemes and discrete-time models
+            only) or "auto" (default): the faster of the two by a cost model measured on
+            N, K and the record length (:func:`tensorid.engine.adjoint.choose_hessian`). Both
+            give the same Hessian to rounding. The resolved choice is ``Problem.hessian``.
+        predictor: how the state is carried from sample to sample: "simulation" (default:
+            output error, the model simulated from its initial state) or "ekf" (a
+            continuous-discrete extended Kalman filter: prediction error, J = −2 log L of
+            the innovations; see :mod:`tensorid.engine.predictors`). With "ekf" the model
+            gains a parameter log σ per noise intensity (``log_sigma_w_<state>``,
+            ``log_sigma_e_<output>``), estimated unless named in ``fixed``.
+        process_noise: {state: σ_w}: the states driven by process noise dω, each with the
+            start of its intensity (a standard deviation per √time unit); states not
+            listed have none ("ekf" only).
+        measurement_noise: {output: σ_e}: the start of each output's measurement noise
+            (standard deviation); an output not listed starts from its noise level in the
+            data ("ekf" only).
     """
 
     def __init__(

@@ -269,7 +269,7 @@ def noise_intensities(res, u=None) -> dict | None:
         for prefix, kind in (("log_sigma_w_", "process"), ("log_sigma_e_", "measurement")):
             if not name.startswith(prefix):
                 continue
-            entry = {"sigma": float(np.exp(value)), "stderr": None, "ci95": None,
+            entry: dict = {"sigma": float(np.exp(value)), "stderr": None, "ci95": None,
                      "fixed": name not in names}  # fmt: skip
             if u is not None and name in names:
                 i = names.index(name)

@@ -202,10 +202,7 @@ def _predicted(sim, model, params, x0, record, disc, horizon, predictor) -> Simu
         )
     import jax.numpy as jnp
 
-    loss, pred = predictor if predictor is not None else (None, None)
-    sw = shared_sweeps(model, (), (), disc) if pred is None else shared_sweeps(
-        model, (), (), disc, loss, pred
-    )  # fmt: skip
+    sw = shared_sweeps(model, (), (), disc, *(predictor or ()))
     u = model.delayed(record.t, record.u, disc.interpolation)
     args = (jnp.asarray(a) for a in (x0, model.params_array(params), record.t, u, record.y))
     y = np.asarray(sw.k_step(jnp.zeros(0), *args, k=int(horizon)))
