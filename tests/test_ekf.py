@@ -308,6 +308,12 @@ def test_ekf_fit_recovers_parameters_and_noise_where_output_error_is_pulled_off(
     sim = res.simulate()[0]
     rms_sim = np.sqrt(np.mean((data.y - sim.y) ** 2))
     assert rms[0] < rms[1] < rms_sim
+    # the figures: a prediction figure per output beside the simulation's
+    from tensorid.fitting.figures import fit_figures
+
+    stems = [stem for stem, _ in fit_figures(res, named=True)]
+    assert "prediction_data_y" in stems and "train_data_y" in stems
+    assert "noise intensities" in res.summary()
 
 
 def test_output_error_predictions_are_the_simulation_at_every_horizon():

@@ -62,7 +62,9 @@ def convergence_figure(history: list[dict], title: str):
     it = [h["iteration"] for h in history]
     fig = new_figure(figsize=(9, 3.5))
     a1, a2 = fig.subplots(1, 2)
-    a1.semilogy(it, [h["cost"] for h in history], "o-", ms=3)
+    costs = [h["cost"] for h in history]
+    # a likelihood's J (a filter's fit) may be negative: then a linear axis
+    (a1.semilogy if min(costs) > 0 else a1.plot)(it, costs, "o-", ms=3)
     a1.set_xlabel("iteration")
     a1.set_ylabel("cost J")
     grads = [h["grad_norm"] for h in history]
@@ -109,6 +111,49 @@ def profile_figure(prof, sigma2: float, stderr: float):
     return fig
 
 
+def prediction_figure(prediction, simulated: np.ndarray, j: int, *, title: str, ylabel: str):
+    """A filter's fit on one output: measured, simulated and predicted one step ahead
+    (with the ±2σ band of the innovation covariance), and the standardised
+    innovations below, which should look like white noise inside ±2."""
+    fig = new_figure(figsize=(9, 5.5))
+    ax, axr = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
+    t, pr = prediction.t, prediction
+    ax.plot(t, pr.measured[:, j], color="0.2", lw=1.0, label="measured")
+    ax.plot(t, simulated, color="tab:red", lw=0.9, ls="--", label="simulated")
+    ax.plot(t, pr.predicted[:, j], color="tab:green", lw=0.9, label="predicted one step ahead")
+    if pr.covariance is not None:
+        sd = np.sqrt(np.maximum(pr.covariance[:, j, j], 0.0))
+        lo, hi = pr.predicted[:, j] - 2 * sd, pr.predicted[:, j] + 2 * sd
+        ax.fill_between(t, lo, hi, color="tab:green", alpha=0.15, lw=0, label="±2σ")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10)
+    ax.legend(loc="upper right", fontsize=8)
+    ax.grid(alpha=0.3)
+    axr.plot(t, pr.innovations[:, j], color="tab:blue", lw=0.6)
+    for level in (-2, 2):
+        axr.axhline(level, color="k", lw=0.6, ls=":")
+    axr.set_ylabel("innovation / σ")
+    axr.set_xlabel("t [s]")
+    axr.grid(alpha=0.3)
+    fig.tight_layout()
+    return fig
+
+
+def _prediction_pairs(res) -> list:
+    """A filter fit's prediction figures, one per training record and output."""
+    if not res.problem.loss.likelihood:
+        return []
+    pairs = []
+    preds, sims = res.problem.predict(res.theta), res.simulate()
+    for e, pred, sim in zip(res.problem.experiments, preds, sims, strict=True):
+        for j, name in enumerate(res.problem.model.outputs):
+            label = f"training '{e.name}'" if e.name else "training"
+            title = f"{label}, output {name}: prediction and innovations"
+            fig = prediction_figure(pred, sim.y[:, j], j, title=title, ylabel=name)
+            pairs.append((file_name(f"prediction_{e.name or 'data'}_{name}"), fig))
+    return pairs
+
+
 def file_name(s: str) -> str:
     """A label as a file stem: letters, digits, - and _ kept, the rest _."""
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in s)
@@ -134,6 +179,7 @@ def fit_figures(res, out=None, validation=None, named: bool = False) -> list:
                 e.t, e.measured[:, j], s.simulation.y[:, j], ylabel=name, title=title
             )
             pairs.append((file_name(stem), fig))
+    pairs += _prediction_pairs(res)
     if len(res.history) > 1:
         what = f"best of {len(res.starts)} starts" if res.starts else res.method
         title = f"{what}: cost and gradient norm per iteration"
