@@ -327,3 +327,24 @@ def test_output_error_predictions_are_the_simulation_at_every_horizon():
         assert pred.covariance is None
     with pytest.raises(ValueError, match="horizon"):
         pr.predict(pr.theta0, horizon=0)
+
+
+@pytest.mark.slow
+def test_ekf_profile_intervals_use_the_likelihood_ratio_and_agree_with_wald_here():
+    """J = −2 log L: the profile's threshold is χ²(1) = 3.84 on the rise of J itself;
+    on this well-determined record the profile and Wald intervals nearly agree."""
+    m, data = duffing(), sde_record(0, P=300)
+    pr = ti.Problem(
+        m, data, p0={"k": 1.5, "c": 0.5, "a": 0.3}, x0=[0, 0], free_x0=["x", "v"],
+        predictor="ekf", process_noise={"v": 0.1}, interpolation="zoh",
+    )  # fmt: skip
+    res = ti.fit(pr)
+    prof = res.profile(["k", "log_sigma_w_v"])
+    u = res.uncertainty()
+    for name, p in prof.items():
+        i = pr.theta_names.index(name)
+        assert p.threshold == pytest.approx(3.841458820694124)
+        lo, hi = p.interval
+        assert lo < res.theta[i] < hi
+        width = u.ci95[i, 1] - u.ci95[i, 0]
+        assert abs((hi - lo) - width) < 0.15 * width

@@ -288,12 +288,8 @@ def profile(
         raise ValueError(f"method must be 'integrate' or 'refit', got {method!r}")
     if not res.has_uncertainty:
         raise ValueError(f"profiles need a fit with a finite cost; this one ended as {res.status}")
-    if problem.loss.likelihood:
-        raise ValueError(
-            "profile-likelihood intervals are not implemented for predictor='ekf' yet: use "
-            "its Hessian intervals (res.uncertainty())"
-        )
-    if not problem.loss.squared:  # the threshold is a Gaussian likelihood ratio's
+    # the threshold is a Gaussian likelihood ratio's (least squares, or a filter's J)
+    if not (problem.loss.squared or problem.loss.likelihood):
         raise ValueError(
             f"profile-likelihood intervals assume the squared loss; this fit's is "
             f"{problem.loss.name}: use its sandwich intervals (res.uncertainty())"
@@ -313,7 +309,10 @@ def profile(
     n_data = u.dof + problem.K
     from scipy import special  # not scipy.stats: the same quantile, 0.3-1 s less import
 
-    dJ = u.sigma2 * special.fdtri(1, max(n_data - problem.K, 1), level)  # F quantile
+    if problem.loss.likelihood:  # J = −2 log L: Wilks' χ²(1) on the rise itself
+        dJ = float(special.chdtri(1, 1 - level))
+    else:
+        dJ = u.sigma2 * special.fdtri(1, max(n_data - problem.K, 1), level)  # F quantile
     out = {}
     # far along a profile the model may blow up: such trial points are rejected
     # steps (inf), so the overflow on the way is expected, not news for the user
@@ -327,9 +326,8 @@ def profile(
 def _one(res, i, dJ, level, se, method, max_steps) -> Profile:
     started = time.perf_counter()
     problem, theta_hat, J_hat = res.problem, res.theta, res.cost
-    held = _Held(
-        problem, i, res.scale, max(J_hat, 1e-300), problem.rounding_floor / max(J_hat, 1e-300)
-    )
+    J_ref = abs(J_hat) if J_hat != 0 else 1.0  # |J|: a likelihood may be negative
+    held = _Held(problem, i, res.scale, J_ref, problem.rounding_floor / J_ref)
     scale = abs(theta_hat[i]) if theta_hat[i] != 0 else res.scale[i]
     step = 0.5 * se if np.isfinite(se) and se > 0 else 0.05 * scale
     points: list[tuple] = [(theta_hat[i], J_hat, theta_hat)]
