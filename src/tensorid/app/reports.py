@@ -18,6 +18,7 @@ from ..fitting.summary import (
     interval_note,
     metric_rows,
     noise_intensities,
+    noise_text,
     plural,
     significant,
     stderr_text,
@@ -293,6 +294,9 @@ def fit_report(
         md_table(["unknown", "estimate", "std. error", "95 % interval", "note"], rows),
         "",
     ]
+    if data.get("noise_intensities"):
+        lines += ["## Noise model", "", f"Predictor: {data['predictor']} (prediction error). "
+                  + noise_text(data["noise_intensities"]) + ".", ""]  # fmt: skip
     if data["warnings"]:
         lines += ["## Warnings", ""] + [f"- {w}" for w in data["warnings"]] + [""]
     if data["notes"] and res.success:
