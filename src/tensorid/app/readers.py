@@ -53,8 +53,6 @@ _BOMS = (  # UTF-32 first: its little-endian mark starts with UTF-16's
     (codecs.BOM_UTF16_LE, "utf-16", "UTF-16"),
     (codecs.BOM_UTF16_BE, "utf-16", "UTF-16"),
 )
-
-
 _DELIMITERS = {",": "comma", ";": "semicolon", "\t": "tab"}
 
 
@@ -169,8 +167,6 @@ def _columns_csv(path: Path) -> _Columns:
 
 # -- MATLAB ----------------------------------------------------------------------------
 _HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
-
-
 _TS = ("Ts", "ts", "TS")  # a sampling time: one number, kept although not a signal
 
 
