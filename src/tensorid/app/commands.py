@@ -15,7 +15,7 @@ from rich.live import Live
 
 from ..engine.problem import Problem
 from ..engine.status import Status
-from ..fitting.figures import fit_figures, save_png
+from ..fitting.figures import figure_jobs, save_png
 from ..fitting.methods import fit
 from ..fitting.results import FitInterrupted
 from ..fitting.summary import coloured_residuals_line, summary_table
@@ -43,6 +43,7 @@ from .output import check_destination, claimed, previous_outputs, write_atomic, 
 from .overrides import overridden
 from .progress import _log_line, _progress_table
 from .provenance import provenance
+from .renderer import Renderer
 from .reports import fit_json, fit_report
 
 __all__ = ["discretisation", "run_fit"]
@@ -76,10 +77,11 @@ def _run(problem: Problem, args, console: Console, executor, timeout):
         return fit(problem, args.method, callback=show, **options)
 
 
-def _write_results(res, out: Path, scores: list[Score], old: set[Path], extras, kept: dict):
+def _write_results(res, out: Path, scores: list[Score], old, extras, kept: dict, drawn):
     """fit.json first (the estimates are what matters), then the figures and
     report.md, each atomically; what an earlier run wrote and this one did not is
-    removed. Returns (figures written, failures as one line each). A failing figure,
+    removed. ``drawn`` is (renderer, the stems of the figures it was given, in their
+    order). Returns (figures written, failures as one line each). A failing figure,
     report or folder does not lose fit.json (see _keep)."""
     profiles, influence = extras.get("profiles"), extras.get("influence")
     residual = extras.get("residual")
@@ -88,16 +90,20 @@ def _write_results(res, out: Path, scores: list[Score], old: set[Path], extras, 
     failures = _keep(out, data, kept)
     if kept.get("fit.json") != out / "fit.json":
         return [], failures  # the folder cannot be written: the rest would fail as well
+    renderer, stems = drawn
     written, figures = [kept["fit.json"]], []
-    more = _profile_figures(res, profiles)
-    residual_figure = residual.figure() if residual is not None else None
-    if residual_figure is not None:  # None: no test was made (too many lags)
-        more.append(("residual_tests", residual_figure))
+    # in the report's order: the fit's figures, profiles, residual tests, sensitivity
+    order = [(stem, None) for stem in stems if stem != "residual_tests"]
+    order += _profile_figures(res, profiles)
+    order += [(stem, None) for stem in stems if stem == "residual_tests"]
     if influence is not None:
-        more.append(("data_sensitivity", influence.figure()))
-    for stem, fig in fit_figures(res, None, scores, named=True) + more:
+        order.append(("data_sensitivity", influence.figure()))
+    for stem, fig in order:
         try:
-            figures.append(write_atomic(out / f"{stem}.png", partial(save_png, fig)))
+            if fig is None:  # drawn by the renderer (or here, where it could not)
+                figures.append(renderer.collect(stem))
+            else:
+                figures.append(write_atomic(out / f"{stem}.png", partial(save_png, fig)))
         except OSError as e:
             failures.append(f"could not write {out / (stem + '.png')}: {e.strerror or e}")
     everything = training_scores(res) + scores
@@ -111,8 +117,18 @@ def _write_results(res, out: Path, scores: list[Score], old: set[Path], extras, 
 
 
 def run_fit(args) -> int:
-    console = Console(stderr=True)
     check_destination(args.out)
+    # the figures are drawn in a second process, started now so that its imports
+    # overlap the fit's; it is ended however the command ends
+    renderer = Renderer()
+    try:
+        return _fit_command(args, renderer)
+    finally:
+        renderer.close()
+
+
+def _fit_command(args, renderer: Renderer) -> int:
+    console = Console(stderr=True)
     spec = load_model(args.model)
     m = spec.model
     train_maps = _maps(args.columns, args.data, "--columns")
@@ -150,26 +166,36 @@ def run_fit(args) -> int:
                 return _save_interrupted(stop.result, out, old)
         kept: dict = {}  # where the complete fit.json went, once it is written
         try:
-            return _report(res, val, args, out, old, kept)
+            return _report(res, val, args, out, old, kept, renderer)
         except KeyboardInterrupt:  # Ctrl-C after the fit: the estimates are kept
             with _no_interrupt():
                 return _save_after_interrupt(res, out, old, kept)
 
 
-def _report(res, val, args, out: Path, old: set[Path], kept: dict) -> int:
-    """Everything after a fit: validation, statistics, the console, the files."""
+def _report(res, val, args, out: Path, old: set[Path], kept: dict, renderer) -> int:
+    """Everything after a fit: validation, statistics, the console, the files. Each
+    figure goes to the renderer as soon as its data are known, so that it is drawn
+    while the statistics are computed."""
+    early = renderer.submit(out, figure_jobs(res))  # the training records, convergence
     # what follows the fit may be stopped or fail; the fit itself is kept
     scores, extras, missing, stopped = _after_fit(res, val, args)
+    late = renderer.submit(out, figure_jobs(res, scores, training=False, convergence=False))
+    # in fit_figures' order: training, validation, convergence; then the residual tests
+    stems = [s for s in early if s != "convergence"] + late
+    stems += [s for s in early if s == "convergence"]
+    residual = extras.get("residual")
+    job = residual.figure_job() if residual is not None else None
+    if job is not None:  # None: no test was made (too many lags)
+        stems += renderer.submit(out, [job])
     everything = training_scores(res) + scores
     # the estimates reach the terminal before any file is written
     print(summary_table(res, everything))
     for line in _gof_lines(everything):
         print(line)
-    residual = extras.get("residual")
     if residual is not None and res.has_uncertainty and False in residual.whiteness_passed:
         print(f"residuals: {coloured_residuals_line(res)}")
     extras.update(provenance=args.provenance, overrides=args.overrides)
-    figures, failures = _write_results(res, out, scores, old, extras, kept)
+    figures, failures = _write_results(res, out, scores, old, extras, kept, (renderer, stems))
     failures = missing + failures
     if failures or stopped:
         for f in failures:

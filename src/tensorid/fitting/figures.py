@@ -114,32 +114,80 @@ def file_name(s: str) -> str:
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in s)
 
 
-def fit_figures(res, out=None, validation=None, named: bool = False) -> list:
-    """The figures of a fit: per record and output, measured against simulated (the
-    training records, then the ``validation`` scores), and the convergence history
-    of the run that produced the estimate. Returns the matplotlib figures (with
-    ``named``, (file stem, figure) pairs), or, with a folder ``out``, writes them
-    there as PNG and returns their paths."""
+def figure_jobs(res, validation=None, training: bool = True, convergence: bool = True) -> list:
+    """What :func:`fit_figures` draws, as plain data: (file stem, kind, arguments) per
+    figure, ``draw(kind, arguments)`` making it. Plain data (arrays, strings) can be
+    drawn in another process (the command line does), with the same pixels."""
     from .validation import training_scores
 
-    pairs = []
-    for s in training_scores(res) + list(validation or []):
+    jobs = []
+    for s in (training_scores(res) if training else []) + list(validation or []):
         e = s.experiment
         for j, name in enumerate(res.problem.model.outputs):
             stem = f"{s.kind[:5] if s.kind == 'training' else s.kind}_{e.name or 'data'}_{name}"
             title = f"{s.label}, output {name}: GOF {s.gof[name]:.4f}"
             if s.start:
                 title += f" (scored after the first {s.start} samples)"
-            fig = compare_figure(
-                e.t, e.measured[:, j], s.simulation.y[:, j], ylabel=name, title=title
+            arguments = dict(
+                t=np.asarray(e.t),
+                y_meas=np.asarray(e.measured[:, j]),
+                y_sim=np.asarray(s.simulation.y[:, j]),
+                ylabel=name,
+                title=title,
             )
-            pairs.append((file_name(stem), fig))
-    if len(res.history) > 1:
+            jobs.append((file_name(stem), "compare", arguments))
+    if convergence and len(res.history) > 1:
         what = f"best of {len(res.starts)} starts" if res.starts else res.method
         title = f"{what}: cost and gradient norm per iteration"
-        pairs.append(("convergence", convergence_figure(res.history, title)))
+        history = [{k: h[k] for k in ("iteration", "cost", "grad_norm")} for h in res.history]
+        jobs.append(("convergence", "convergence", dict(history=history, title=title)))
+    return jobs
+
+
+def draw(kind: str, arguments: dict):
+    """The figure of one of :func:`figure_jobs`' (or ``ResidualTests.figure_job``'s)
+    entries."""
+    makers = {
+        "compare": compare_figure,
+        "convergence": convergence_figure,
+        "residual": residual_figure,
+    }
+    return makers[kind](**arguments)
+
+
+def fit_figures(res, out=None, validation=None, named: bool = False) -> list:
+    """The figures of a fit: per record and output, measured against simulated (the
+    training records, then the ``validation`` scores), and the convergence history
+    of the run that produced the estimate. Returns the matplotlib figures (with
+    ``named``, (file stem, figure) pairs), or, with a folder ``out``, writes them
+    there as PNG and returns their paths."""
+    pairs = [(stem, draw(kind, a)) for stem, kind, a in figure_jobs(res, validation)]
     if out is None:
         return pairs if named else [fig for _, fig in pairs]
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     return [save_png(fig, out / f"{stem}.png") for stem, fig in pairs]
+
+
+def residual_figure(bound: float, panels: list[dict]):
+    """Autocorrelation and cross-correlation panels with the ±``bound`` band; a panel
+    is a dict of ``what``, ``passed``, ``lags``, ``values`` and ``feedback`` (the
+    negative lags, not tested, drawn grey; or None)."""
+    fig = new_figure(figsize=(9, 1.2 + 2.0 * len(panels)))
+    axes = fig.subplots(len(panels), 1, squeeze=False)[:, 0]
+    for ax, c in zip(axes, panels, strict=True):
+        ax.axhspan(-bound, bound, color="C0", alpha=0.15, lw=0)
+        if c["feedback"] is not None:  # not tested: drawn grey
+            back = -np.arange(1, c["feedback"].size + 1)
+            ax.vlines(back, 0, c["feedback"], color="0.6")
+            ax.plot(back, c["feedback"], "o", ms=3, color="0.6")
+        colour = "C3" if not c["passed"] else "C0"
+        ax.vlines(c["lags"], 0, c["values"], color=colour)
+        ax.plot(c["lags"], c["values"], "o", ms=3, color=colour)
+        ax.axhline(0, color="k", lw=0.6)
+        ax.set_title(f"{c['what']}: {'passes' if c['passed'] else 'fails'}", fontsize=9)
+        ax.set_ylabel("r(τ)")
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("lag τ (samples)")
+    fig.tight_layout()
+    return fig
