@@ -53,8 +53,8 @@ def serve(figures_path: str) -> None:
         while True:
             try:
                 jobs.put(pickle.load(sys.stdin.buffer))
-            except (EOFError, OSError, pickle.UnpicklingError):
-                jobs.put(None)
+            except Exception:  # end of input, or a job it cannot read: it ends, and
+                jobs.put(None)  # the command draws what is left itself
                 return
 
     threading.Thread(target=read, daemon=True).start()
@@ -86,7 +86,7 @@ class Renderer:
                 stderr=subprocess.DEVNULL,
                 start_new_session=True,  # Ctrl-C at the terminal reaches the command only
             )
-        except OSError:
+        except (OSError, ValueError, TypeError):  # no usable interpreter, no processes
             self._proc = None  # then every figure is drawn here
             return
         threading.Thread(target=self._read, args=(self._proc.stdout,), daemon=True).start()
@@ -119,7 +119,7 @@ class Renderer:
             pickle.dump((stem, kind, arguments, name), self._proc.stdin)
             self._proc.stdin.flush()
             return tmp
-        except (OSError, pickle.PicklingError):
+        except Exception:  # a folder it cannot write to, a job it cannot send
             if tmp is not None:
                 tmp.unlink(missing_ok=True)
             self._stop()

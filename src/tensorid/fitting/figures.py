@@ -139,7 +139,14 @@ def figure_jobs(res, validation=None, training: bool = True, convergence: bool =
     if convergence and len(res.history) > 1:
         what = f"best of {len(res.starts)} starts" if res.starts else res.method
         title = f"{what}: cost and gradient norm per iteration"
-        history = [{k: h[k] for k in ("iteration", "cost", "grad_norm")} for h in res.history]
+        history = [
+            {
+                "iteration": int(h["iteration"]),
+                "cost": float(h["cost"]),
+                "grad_norm": float(h["grad_norm"]),
+            }
+            for h in res.history
+        ]
         jobs.append(("convergence", "convergence", dict(history=history, title=title)))
     return jobs
 
