@@ -133,3 +133,13 @@ def test_fitting_modules_are_at_most_450_lines():
     # the app's larger modules are still over it: splitting them is that issue's work)
     sizes = {m: len(p.read_text().splitlines()) for m, p in MODULES.items() if ".fitting" in m}
     assert max(sizes.values()) <= 450, sizes
+
+
+# engine/problem.py is being split by the seams issue's Problem work (issue 24)
+STILL_LONG = {"tensorid.engine.problem"}
+
+
+def test_modules_are_at_most_450_lines():
+    sizes = {m: len(p.read_text().splitlines()) for m, p in MODULES.items()}
+    long = {m: n for m, n in sizes.items() if n > 450 and m not in STILL_LONG}
+    assert not long, long

@@ -319,7 +319,8 @@ def test_ctrl_c_after_fit_json_was_written_keeps_it_whole(tmp_path, capsys, monk
 
     out = tmp_path / "o"
     assert cli.main(FIT + ["--out", str(out)]) == 0 and list(out.glob("*.png"))
-    monkeypatch.setattr("tensorid.app.commands.fit_figures", pressed)
+    # Ctrl-C while the figures are collected (they are drawn in a second process)
+    monkeypatch.setattr("tensorid.app.renderer.Renderer.collect", pressed)
     assert cli.main(FIT + ["--out", str(out)]) == 130
     assert f"tensorid: interrupted; {out / 'fit.json'} was written" in capsys.readouterr().err
     data = json.loads((out / "fit.json").read_text())

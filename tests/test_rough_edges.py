@@ -208,6 +208,9 @@ def test_a_failing_figure_write_keeps_fit_json_and_leaves_no_partial_file(
         raise OSError(errno.ENOSPC, "No space left on device")
 
     monkeypatch.setattr(Figure, "savefig", full_disk)
+    # no renderer process (it would draw with its own savefig): every figure is drawn
+    # here, as when the renderer cannot start
+    monkeypatch.setattr("tensorid.app.renderer._SERVE", "raise SystemExit(1)")
     out = tmp_path / "fit"
     args = ["fit", str(EXAMPLE / "model.py"), str(EXAMPLE / "train.csv"), "--no-progress"]
     assert cli.main(args + ["--out", str(out)]) == 1

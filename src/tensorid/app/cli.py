@@ -1,5 +1,7 @@
-"""The command line's own commands (fit, simulate), their options, and the one way
-every command reports a user's mistake: a single line, exit status 2."""
+"""The command line's own commands (fit, simulate, compare), the options of `fit`,
+and the one way every command reports a user's mistake: a single line, exit status
+2. The value types are in :mod:`.argtypes`; the options shared with simulate and
+compare, and their parsers, in :mod:`.options`."""
 
 from __future__ import annotations
 
@@ -10,23 +12,39 @@ import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 
+from .argtypes import (
+    _count,
+    _level,
+    _mapping,
+    _non_negative,
+    _positive_seconds,
+    _range,
+    _samples,
+    _value,
+)
+from .options import (
+    _TS_HELP,
+    integration_options,
+    record_options,
+    register_compare,
+    register_simulate,
+)
+
+__all__ = [
+    "Parser",
+    "integration_options",
+    "record_options",
+    "register",
+    "register_compare",
+    "register_simulate",
+    "run",
+]
+
 
 def _fit(args) -> int:
     from .commands import run_fit
 
     return run_fit(args)
-
-
-def _simulate(args) -> int:
-    from .simulate import run_simulate
-
-    return run_simulate(args)
-
-
-def _compare(args) -> int:
-    from .simulate import run_compare
-
-    return run_compare(args)
 
 
 class Parser(argparse.ArgumentParser):
@@ -35,93 +53,6 @@ class Parser(argparse.ArgumentParser):
 
     def error(self, message: str):  # type: ignore[override]
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
-
-
-def _count(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}")
-    return n
-
-
-def _non_negative(text: str) -> float:
-    try:
-        x = float(text)
-    except ValueError:
-        x = -1.0
-    if not (x >= 0 and x < float("inf")):
-        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
-    return x
-
-
-def _positive_seconds(text: str) -> float:
-    x = _non_negative(text)
-    if x == 0:
-        raise argparse.ArgumentTypeError(f"expected a number of seconds > 0, got {text!r}")
-    return x
-
-
-def _level(text: str) -> float:
-    x = _non_negative(text)
-    if not 0 < x < 1:
-        raise argparse.ArgumentTypeError(f"expected a level between 0 and 1, got {text!r}")
-    return x
-
-
-def _mapping(text: str) -> dict[str, str]:
-    """NAME=COLUMN,NAME=COLUMN (a number for COLUMN: a constant signal)"""
-    out: dict[str, str] = {}
-    for item in text.split(","):
-        name, eq, column = item.partition("=")
-        if not eq or not name.strip() or not column.strip():
-            raise argparse.ArgumentTypeError(
-                f"expected NAME=COLUMN pairs separated by commas (u=uEst,y=yEst), got {text!r}"
-            )
-        if name.strip() in out:  # the last would win silently
-            raise argparse.ArgumentTypeError(
-                f"{name.strip()!r} is mapped twice ({name.strip()}={out[name.strip()]} and "
-                f"{name.strip()}={column.strip()}); give each name once"
-            )
-        out[name.strip()] = column.strip()
-    return out
-
-
-def _samples(text: str) -> tuple[int, int]:
-    try:
-        a, b = text.split(":")
-        return int(a), int(b)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected START:STOP sample indices, got {text!r}"
-        ) from None
-
-
-def _value(text: str) -> tuple[str, float]:
-    """NAME=VALUE"""
-    name, eq, value = text.partition("=")
-    try:
-        number = float(value)
-    except ValueError:
-        number = float("nan")
-    if not eq or not name.strip() or not abs(number) < float("inf"):
-        raise argparse.ArgumentTypeError(f"expected NAME=VALUE with a finite number, got {text!r}")
-    return name.strip(), number
-
-
-def _range(text: str) -> tuple[str, tuple[float, float]]:
-    """NAME=LO:HI (either end may be empty or inf: no bound on that side)"""
-    name, eq, rest = text.partition("=")
-    lo, colon, hi = rest.partition(":")
-    try:
-        ends = tuple(float(v) if v.strip() else float("inf") * s for v, s in ((lo, -1), (hi, 1)))
-    except ValueError:
-        ends = ()
-    if not eq or not colon or not name.strip() or len(ends) != 2:
-        raise argparse.ArgumentTypeError(f"expected NAME=LO:HI (e.g. M=50:150), got {text!r}")
-    return name.strip(), (ends[0], ends[1])
 
 
 _COLUMNS_HELP = (
@@ -134,7 +65,7 @@ _COLUMNS_HELP = (
 
 
 def register(sub) -> None:
-    """Add the fit and simulate commands to the subparsers ``sub``."""
+    """Add the fit, simulate and compare commands to the subparsers ``sub``."""
     f = sub.add_parser(
         "fit",
         help="fit a model file to data files",
@@ -345,124 +276,8 @@ def register(sub) -> None:
     f.add_argument("--no-progress", action="store_true", help="no live progress display")
     f.set_defaults(func=_fit)
 
-    s = sub.add_parser(
-        "simulate",
-        help="simulate a model file for given parameters",
-        description="Simulate MODEL.py on the inputs of DATA with the given "
-        "parameters; write simulation.csv (time, inputs, measured and simulated "
-        "outputs, states) and, when DATA has outputs, GOF and figures to --out. "
-        "Initial states that the fit.json (else the model file) frees are estimated "
-        "on DATA (its first N samples with --init-window) with the parameters held, "
-        "unless --x0 gives them; the one used is printed. Integration settings left "
-        "out are the fit.json's.",
-    )
-    s.add_argument("model", help="model file (Python)")
-    s.add_argument("data", help="data file (.csv, .mat, .npz) with the inputs (outputs optional)")
-    s.add_argument(
-        "--params",
-        nargs="*",
-        default=[],
-        metavar="NAME=VALUE",
-        help="parameter values (default: p0 of the model file), or a fit.json",
-    )
-    s.add_argument(
-        "--x0", nargs="*", default=[], metavar="STATE=VALUE", help="initial state values"
-    )
-    record_options(s)
-    s.add_argument(
-        "--out",
-        default="simulation-results",
-        help="output folder (as for fit); a path ending in .csv writes only the table of "
-        "states and simulated outputs there",
-    )
-    s.set_defaults(func=_simulate)
+    register_simulate(sub)
     register_compare(sub)
-
-
-_TS_HELP = (
-    "sampling time TS: the samples are taken at k·TS, whatever time column the files "
-    "have (for files without one, or whose time stamps are too uneven for a "
-    "discrete-time model); without it, time comes from the column 't', else a "
-    "column or variable 'Ts'"
-)
-
-
-def record_options(p: argparse.ArgumentParser) -> None:
-    """How simulate and compare read their one record and integrate the model."""
-    p.add_argument(
-        "--columns",
-        type=_mapping,
-        default=None,
-        metavar="NAME=COLUMN,...",
-        help="DATA's column (variable) for each model input/output, e.g. u=uVal,y=yVal; "
-        "a number holds an input the record lacks constant (pulses=0)",
-    )
-    p.add_argument("--ts", type=float, default=None, help=_TS_HELP)
-    p.add_argument(
-        "--init-window",
-        type=_count,
-        default=None,
-        metavar="N",
-        help="as fit's: the initial states the fit (or model file) frees are estimated "
-        "on the first N samples only, with the parameters held, and the record is "
-        "scored after them (default: estimated on the whole record, all scored)",
-    )
-    integration_options(p, inherit=True)
-
-
-def register_compare(sub) -> None:
-    c = sub.add_parser(
-        "compare",
-        help="score a saved fit on a record, as the benchmarks do (MATLAB's compare)",
-        description="Simulate MODEL.py with the parameters of a fit.json on DATA: the "
-        "initial states the fit estimated are estimated again on the first N samples "
-        "(--init-window), the parameters held, and every output is scored after them "
-        "(RMSE, NRMSE, R², fit percent, GOF). Writes compare.json and a figure per "
-        "output to --out; the same numbers as fit --validate DATA --init-window N.",
-    )
-    c.add_argument("model", help="model file (Python)")
-    c.add_argument("data", help="data file (.csv, .mat, .npz) with inputs and outputs")
-    c.add_argument("--params", required=True, metavar="FIT.json", help="the fit.json of a fit")
-    record_options(c)
-    c.add_argument(
-        "--horizon",
-        default=None,
-        metavar="K",
-        help="k-step-ahead prediction: not available yet (it needs the EKF predictor); "
-        "without it the record is simulated (an infinite horizon)",
-    )
-    c.add_argument("--out", default="compare-results", help="output folder")
-    c.set_defaults(func=_compare)
-
-
-def integration_options(p: argparse.ArgumentParser, inherit: bool = False) -> None:
-    """--scheme, --substeps, --rtol, --atol, --interpolation. With ``inherit`` their
-    defaults are those of the fit.json given with --params (then rk4, 4, linear)."""
-    from ..engine.integrators import SCHEMES
-
-    default = " (default: the fit.json's, else %s)" if inherit else " (default %s)"
-    p.add_argument(
-        "--scheme",
-        default=None if inherit else "rk4",
-        choices=list(SCHEMES),
-        help="integrator: explicit rk4, rk38, heun, euler; implicit sdirk3, "
-        "sdirk2, implicit-euler for stiff models; adaptive dopri5, bosh3 (with "
-        "--rtol/--atol)" + default % "rk4",
-    )
-    p.add_argument(
-        "--substeps",
-        type=int,
-        default=None if inherit else 4,
-        help="steps per sample interval" + default % 4,
-    )
-    p.add_argument("--rtol", type=float, default=None, help="adaptive schemes: relative tolerance")
-    p.add_argument("--atol", type=float, default=None, help="adaptive schemes: absolute tolerance")
-    p.add_argument(
-        "--interpolation",
-        default=None if inherit else "linear",
-        choices=["linear", "zoh"],
-        help="the input between samples: linear or zero-order hold" + default % "linear",
-    )
 
 
 def _one_line(message, category, filename, lineno, file=None, line=None) -> None:

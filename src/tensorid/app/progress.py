@@ -1,5 +1,6 @@
 """Live progress for long runs: a rich progress bar on a terminal, plain complete
-lines in a log (no bar, no carriage returns), nothing when disabled."""
+lines in a log (no bar, no carriage returns), nothing when disabled; and the live
+table of a fit's iterations (``tensorid fit``), one plain line each in a log."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import sys
 import time
 from contextlib import contextmanager
 
+import numpy as np
 from rich.console import Console
 from rich.progress import (
     BarColumn,
@@ -16,6 +18,7 @@ from rich.progress import (
     TextColumn,
     TimeElapsedColumn,
 )
+from rich.table import Table
 
 
 class _StudyProgress:
@@ -81,3 +84,31 @@ def study_progress(enabled: bool = True, stream=None):
     )
     with Progress(*columns, console=console, transient=False) as progress:
         yield _StudyProgress(progress, console)
+
+
+def _progress_table(rows: list[dict]) -> Table:
+    t = Table(title="tensorid fit", show_edge=False)
+    for c in ("iter", "cost", "grad norm", "trust radius", "step"):
+        t.add_column(c, justify="right")
+    for h in rows[-12:]:
+        t.add_row(
+            str(h["iteration"]),
+            f"{h['cost']:.8g}",
+            f"{h['grad_norm']:.2e}",
+            f"{h['radius']:.2e}",
+            "accepted" if h["accepted"] else "rejected",
+        )
+    return t
+
+
+def _log_line(console: Console):
+    def show(h: dict) -> None:
+        parts = [f"iteration {h['iteration']}: cost {h['cost']:.8g}"]
+        for key, label in (("grad_norm", "gradient norm"), ("radius", "trust radius")):
+            if np.isfinite(h[key]):  # the finite-difference baselines have neither
+                parts.append(f"{label} {h[key]:.2e}")
+        if h["iteration"] > 0:
+            parts.append("accepted" if h["accepted"] else "rejected")
+        console.print(", ".join(parts), soft_wrap=True, highlight=False)
+
+    return show

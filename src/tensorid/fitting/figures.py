@@ -111,25 +111,23 @@ def profile_figure(prof, sigma2: float, stderr: float):
     return fig
 
 
-def prediction_figure(prediction, simulated: np.ndarray, j: int, *, title: str, ylabel: str):
+def prediction_figure(t, measured, simulated, predicted, sd, innovations, *, title, ylabel):
     """A filter's fit on one output: measured, simulated and predicted one step ahead
-    (with the ±2σ band of the innovation covariance), and the standardised
-    innovations below, which should look like white noise inside ±2."""
+    (with the ±2σ band of the innovation covariance, sd its standard deviation), and
+    the standardised innovations below, which should look like white noise inside ±2."""
     fig = new_figure(figsize=(9, 5.5))
     ax, axr = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
-    t, pr = prediction.t, prediction
-    ax.plot(t, pr.measured[:, j], color="0.2", lw=1.0, label="measured")
+    ax.plot(t, measured, color="0.2", lw=1.0, label="measured")
     ax.plot(t, simulated, color="tab:red", lw=0.9, ls="--", label="simulated")
-    ax.plot(t, pr.predicted[:, j], color="tab:green", lw=0.9, label="predicted one step ahead")
-    if pr.covariance is not None:
-        sd = np.sqrt(np.maximum(pr.covariance[:, j, j], 0.0))
-        lo, hi = pr.predicted[:, j] - 2 * sd, pr.predicted[:, j] + 2 * sd
+    ax.plot(t, predicted, color="tab:green", lw=0.9, label="predicted one step ahead")
+    if sd is not None:
+        lo, hi = predicted - 2 * sd, predicted + 2 * sd
         ax.fill_between(t, lo, hi, color="tab:green", alpha=0.15, lw=0, label="±2σ")
     ax.set_ylabel(ylabel)
     ax.set_title(title, fontsize=10)
     ax.legend(loc="upper right", fontsize=8)
     ax.grid(alpha=0.3)
-    axr.plot(t, pr.innovations[:, j], color="tab:blue", lw=0.6)
+    axr.plot(t, innovations, color="tab:blue", lw=0.6)
     for level in (-2, 2):
         axr.axhline(level, color="k", lw=0.6, ls=":")
     axr.set_ylabel("innovation / σ")
@@ -139,24 +137,80 @@ def prediction_figure(prediction, simulated: np.ndarray, j: int, *, title: str, 
     return fig
 
 
-def _prediction_pairs(res) -> list:
+def _prediction_jobs(res) -> list:
     """A filter fit's prediction figures, one per training record and output."""
     if not res.problem.loss.likelihood:
         return []
-    pairs = []
+    jobs = []
     preds, sims = res.problem.predict(res.theta), res.simulate()
     for e, pred, sim in zip(res.problem.experiments, preds, sims, strict=True):
         for j, name in enumerate(res.problem.model.outputs):
             label = f"training '{e.name}'" if e.name else "training"
-            title = f"{label}, output {name}: prediction and innovations"
-            fig = prediction_figure(pred, sim.y[:, j], j, title=title, ylabel=name)
-            pairs.append((file_name(f"prediction_{e.name or 'data'}_{name}"), fig))
-    return pairs
+            sd = np.sqrt(np.maximum(pred.covariance[:, j, j], 0.0))
+            arguments = dict(
+                t=np.asarray(pred.t), measured=pred.measured[:, j], simulated=sim.y[:, j],
+                predicted=pred.predicted[:, j], sd=sd, innovations=pred.innovations[:, j],
+                title=f"{label}, output {name}: prediction and innovations", ylabel=name,
+            )  # fmt: skip
+            jobs.append(
+                (file_name(f"prediction_{e.name or 'data'}_{name}"), "prediction", arguments)
+            )
+    return jobs
 
 
 def file_name(s: str) -> str:
     """A label as a file stem: letters, digits, - and _ kept, the rest _."""
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in s)
+
+
+def figure_jobs(res, validation=None, training: bool = True, convergence: bool = True) -> list:
+    """What :func:`fit_figures` draws, as plain data: (file stem, kind, arguments) per
+    figure, ``draw(kind, arguments)`` making it. Plain data (arrays, strings) can be
+    drawn in another process (the command line does), with the same pixels."""
+    from .validation import training_scores
+
+    jobs = []
+    for s in (training_scores(res) if training else []) + list(validation or []):
+        e = s.experiment
+        for j, name in enumerate(res.problem.model.outputs):
+            stem = f"{s.kind[:5] if s.kind == 'training' else s.kind}_{e.name or 'data'}_{name}"
+            title = f"{s.label}, output {name}: GOF {s.gof[name]:.4f}"
+            if s.start:
+                title += f" (scored after the first {s.start} samples)"
+            arguments = dict(
+                t=np.asarray(e.t),
+                y_meas=np.asarray(e.measured[:, j]),
+                y_sim=np.asarray(s.simulation.y[:, j]),
+                ylabel=name,
+                title=title,
+            )
+            jobs.append((file_name(stem), "compare", arguments))
+    jobs += _prediction_jobs(res) if training else []
+    if convergence and len(res.history) > 1:
+        what = f"best of {len(res.starts)} starts" if res.starts else res.method
+        title = f"{what}: cost and gradient norm per iteration"
+        history = [
+            {
+                "iteration": int(h["iteration"]),
+                "cost": float(h["cost"]),
+                "grad_norm": float(h["grad_norm"]),
+            }
+            for h in res.history
+        ]
+        jobs.append(("convergence", "convergence", dict(history=history, title=title)))
+    return jobs
+
+
+def draw(kind: str, arguments: dict):
+    """The figure of one of :func:`figure_jobs`' (or ``ResidualTests.figure_job``'s)
+    entries."""
+    makers = {
+        "compare": compare_figure,
+        "convergence": convergence_figure,
+        "residual": residual_figure,
+        "prediction": prediction_figure,
+    }
+    return makers[kind](**arguments)
 
 
 def fit_figures(res, out=None, validation=None, named: bool = False) -> list:
@@ -165,27 +219,33 @@ def fit_figures(res, out=None, validation=None, named: bool = False) -> list:
     of the run that produced the estimate. Returns the matplotlib figures (with
     ``named``, (file stem, figure) pairs), or, with a folder ``out``, writes them
     there as PNG and returns their paths."""
-    from .validation import training_scores
-
-    pairs = []
-    for s in training_scores(res) + list(validation or []):
-        e = s.experiment
-        for j, name in enumerate(res.problem.model.outputs):
-            stem = f"{s.kind[:5] if s.kind == 'training' else s.kind}_{e.name or 'data'}_{name}"
-            title = f"{s.label}, output {name}: GOF {s.gof[name]:.4f}"
-            if s.start:
-                title += f" (scored after the first {s.start} samples)"
-            fig = compare_figure(
-                e.t, e.measured[:, j], s.simulation.y[:, j], ylabel=name, title=title
-            )
-            pairs.append((file_name(stem), fig))
-    pairs += _prediction_pairs(res)
-    if len(res.history) > 1:
-        what = f"best of {len(res.starts)} starts" if res.starts else res.method
-        title = f"{what}: cost and gradient norm per iteration"
-        pairs.append(("convergence", convergence_figure(res.history, title)))
+    pairs = [(stem, draw(kind, a)) for stem, kind, a in figure_jobs(res, validation)]
     if out is None:
         return pairs if named else [fig for _, fig in pairs]
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     return [save_png(fig, out / f"{stem}.png") for stem, fig in pairs]
+
+
+def residual_figure(bound: float, panels: list[dict]):
+    """Autocorrelation and cross-correlation panels with the ±``bound`` band; a panel
+    is a dict of ``what``, ``passed``, ``lags``, ``values`` and ``feedback`` (the
+    negative lags, not tested, drawn grey; or None)."""
+    fig = new_figure(figsize=(9, 1.2 + 2.0 * len(panels)))
+    axes = fig.subplots(len(panels), 1, squeeze=False)[:, 0]
+    for ax, c in zip(axes, panels, strict=True):
+        ax.axhspan(-bound, bound, color="C0", alpha=0.15, lw=0)
+        if c["feedback"] is not None:  # not tested: drawn grey
+            back = -np.arange(1, c["feedback"].size + 1)
+            ax.vlines(back, 0, c["feedback"], color="0.6")
+            ax.plot(back, c["feedback"], "o", ms=3, color="0.6")
+        colour = "C3" if not c["passed"] else "C0"
+        ax.vlines(c["lags"], 0, c["values"], color=colour)
+        ax.plot(c["lags"], c["values"], "o", ms=3, color=colour)
+        ax.axhline(0, color="k", lw=0.6)
+        ax.set_title(f"{c['what']}: {'passes' if c['passed'] else 'fails'}", fontsize=9)
+        ax.set_ylabel("r(τ)")
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("lag τ (samples)")
+    fig.tight_layout()
+    return fig

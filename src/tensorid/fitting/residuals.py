@@ -149,31 +149,24 @@ class ResidualTests(Tabular):
             "not_available": self.not_available,
         }
 
+    def figure_job(self) -> tuple[str, str, dict] | None:
+        """The figure as plain data, (file stem, kind, arguments) for
+        ``tensorid.fitting.figures.draw``; None where no test was made."""
+        if self.not_available:
+            return None
+        panels = [
+            dict(what=c.what, passed=c.passed, lags=c.lags, values=c.values, feedback=c.feedback)
+            for c in self.whiteness + self.independence
+        ]
+        return "residual_tests", "residual", dict(bound=self.bound, panels=panels)
+
     def figure(self):
         """Autocorrelation and cross-correlation panels with the ±z/√N band; None where
         no test was made."""
-        from .figures import new_figure
+        from .figures import draw
 
-        if self.not_available:
-            return None
-        tests = self.whiteness + self.independence
-        fig = new_figure(figsize=(9, 1.2 + 2.0 * len(tests)))
-        axes = fig.subplots(len(tests), 1, squeeze=False)[:, 0]
-        for ax, c in zip(axes, tests, strict=True):
-            ax.axhspan(-self.bound, self.bound, color="C0", alpha=0.15, lw=0)
-            if c.feedback is not None:  # not tested: drawn grey
-                back = -np.arange(1, c.feedback.size + 1)
-                ax.vlines(back, 0, c.feedback, color="0.6")
-                ax.plot(back, c.feedback, "o", ms=3, color="0.6")
-            ax.vlines(c.lags, 0, c.values, color="C3" if not c.passed else "C0")
-            ax.plot(c.lags, c.values, "o", ms=3, color="C3" if not c.passed else "C0")
-            ax.axhline(0, color="k", lw=0.6)
-            ax.set_title(f"{c.what}: {'passes' if c.passed else 'fails'}", fontsize=9)
-            ax.set_ylabel("r(τ)")
-            ax.grid(alpha=0.3)
-        axes[-1].set_xlabel("lag τ (samples)")
-        fig.tight_layout()
-        return fig
+        job = self.figure_job()
+        return None if job is None else draw(job[1], job[2])
 
 
 def _correlation(a: list[np.ndarray], b: list[np.ndarray], lags: int) -> np.ndarray:

@@ -1,0 +1,106 @@
+"""What `tensorid fit` computes after the fit on request: validation scores, profile
+likelihoods, data sensitivity and the residual tests, each printed as it comes. A
+failure or Ctrl-C in one of them does not lose the fit."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+from ..fitting.figures import file_name, profile_figure
+from ..fitting.residuals import lag_limit
+from ..fitting.validation import Score
+
+
+def _gof_lines(scores: list[Score]) -> list[str]:
+    kinds = {"training": "train", "validation": "validation"}
+    out = []
+    for s in scores:
+        label = s.label.replace(s.kind, kinds[s.kind], 1)
+        label = label.replace("'", "")
+        per = ", ".join(f"{o} {v:.4f}" for o, v in s.gof.items())
+        out.append(f"GOF {label}: {per}")
+    return out
+
+
+def _after_fit(res, val, args) -> tuple[list, dict, list[str], bool]:
+    """Validation, profiles and data sensitivity: (scores, extras, what could not be
+    computed, whether Ctrl-C stopped them). Neither Ctrl-C nor a failure here loses
+    the fit: the results are written without what is missing."""
+    scores: list = []
+    extras: dict = {}
+    steps = [("validation", lambda: res.validate(val, args.init_window) if val else [])]
+    steps += [("profiles", lambda: _profiles(res, args))]
+    steps += [("data sensitivity", lambda: _influence(res, args))]
+    steps += [("residual tests", lambda: _residual_tests(res, args))]
+    missing: list[str] = []
+    for name, step in steps:
+        try:
+            value = step()
+        except KeyboardInterrupt:
+            return scores, extras, [f"interrupted during the {name}: written without it"], True
+        except (ValueError, ArithmeticError) as e:  # LinAlgError is a ValueError
+            missing.append(f"could not compute the {name} ({e}): written without it")
+            continue
+        if name == "validation":
+            scores = value
+        else:
+            keys = {"profiles": "profiles", "data sensitivity": "influence"}
+            extras[keys.get(name, "residual")] = value
+    return scores, extras, missing, False
+
+
+DEFAULT_LAGS = 25  # MATLAB resid's
+
+
+def _residual_tests(res, args):
+    """Whiteness and independence of the residuals, one line each (a fit with a
+    finite cost only)."""
+    if not np.isfinite(res.cost):
+        return None
+    samples = sum(e.P for e in res.problem.experiments)
+    # the default shrinks on a short record; below 4 samples the tests say not available
+    lags = args.residual_lags or max(min(DEFAULT_LAGS, lag_limit(samples)), 1)
+    tests = res.residual_tests(lags)
+    for line in tests.lines():
+        print(f"residuals: {line}")
+    return tests
+
+
+def _profiles(res, args) -> dict | None:
+    """--profile: the profile likelihood of the named unknowns (all free parameters
+    when none is named), one line each."""
+    if args.profile is None:
+        return None
+    if not res.has_uncertainty:
+        print(f"tensorid: no profiles: the fit ended as {res.status}", file=sys.stderr)
+        return None
+    profiles = res.profile(args.profile or None, level=args.profile_level)
+    for p in profiles.values():
+        print(p.describe())
+    return profiles
+
+
+def _influence(res, args):
+    """--data-sensitivity: dθ/dy, and the samples that pulled each estimate most."""
+    if not args.data_sensitivity:
+        return None
+    if not res.has_uncertainty:
+        print(f"tensorid: no data sensitivity: the fit ended as {res.status}", file=sys.stderr)
+        return None
+    influence = res.data_sensitivity()
+    for name in influence.names:
+        record, k, output, pull = influence.most_influential(name, 1)[0]
+        print(f"{name}: pulled most by {record} sample {k} ({output}), by {pull:.3g}")
+    return influence
+
+
+def _profile_figures(res, profiles) -> list:
+    if not profiles:
+        return []
+    u = res.uncertainty()
+    return [
+        (f"profile_{file_name(name)}", profile_figure(p, u.sigma2, u.stderr[p.index]))
+        for name, p in profiles.items()
+    ]

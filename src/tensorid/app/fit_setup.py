@@ -1,0 +1,149 @@
+"""What `tensorid fit` makes of its command line before any work: the Problem (model
+file, records and options), the validation records, the column maps and the checks
+of options that depend on the records. Every mistake is one line (a ValueError)."""
+
+from __future__ import annotations
+
+from ..engine.adjoint import supports as adjoint_supports
+from ..engine.discretisation import Discretisation
+from ..engine.integrators import SCHEMES
+from ..engine.problem import Problem
+from ..engine.shooting import resolve_segments
+from ..fitting.residuals import lag_limit
+from ..fitting.validation import check_init_window
+from .files import ModelSpec, load_data
+from .provenance import data_entries
+from .simulate import effective_columns
+
+
+def discretisation(args) -> Discretisation:
+    """The integration settings of the command line, checked once."""
+    return Discretisation.of(args.scheme, args.substeps, args.interpolation, args.rtol, args.atol)
+
+
+def _problem(spec: ModelSpec, train, args) -> Problem:
+    if spec.p0 is None:
+        raise ValueError(
+            f"{spec.path} defines no p0: add p0 = {{name: start value}} for "
+            f"{list(spec.model.params)}"
+        )
+    disc = discretisation(args)
+    hessian = getattr(args, "hessian", "auto")
+    if hessian == "adjoint" and not adjoint_supports(disc):
+        explicit = [n for n in SCHEMES if adjoint_supports(Discretisation.of(n))]
+        raise ValueError(
+            f"--hessian adjoint needs an explicit scheme ({', '.join(explicit)}) or a "
+            f"discrete-time model, not --scheme {disc.scheme.name}: drop --hessian or "
+            "give --hessian tensors"
+        )
+    try:  # the segments are the command line's, not the model file's
+        resolve_segments(train, args.segments, args.segment_length)
+    except ValueError as e:
+        raise ValueError(f"--segments/--segment-length: {e}") from None
+    try:
+        return Problem(
+            spec.model,
+            train,
+            p0=spec.p0,
+            x0=spec.x0_array(),
+            free_x0=spec.free_x0,
+            fixed=spec.fixed,
+            bounds=spec.bounds,
+            weights=spec.weights,
+            priors=spec.priors or None,
+            noise=spec.noise,
+            discretisation=disc,
+            segments=args.segments,
+            segment_length=args.segment_length,
+            hessian=hessian,
+            **_loss(spec, args),
+        )
+    except (ValueError, TypeError) as e:  # the settings come from the model file
+        raise type(e)(f"{spec.path}: {e}") from None
+
+
+def _loss(spec: ModelSpec, args) -> dict:
+    """loss and loss_scale: the command line's over the model file's."""
+    loss = getattr(args, "loss", None) or spec.loss or "squared"
+    scale = getattr(args, "loss_scale", None)
+    scale = spec.loss_scale if scale is None else scale
+    if loss == "squared" and scale is not None:
+        raise ValueError("--loss-scale (or loss_scale) is for a robust --loss; drop it or give one")
+    return {"loss": loss, "loss_scale": scale}
+
+
+def _validation_data(args, model, columns) -> list:
+    """The --validate records, read with their column maps (--validate-columns,
+    default: --columns where it is one map for all files)."""
+    if not args.validate:
+        return []
+    try:
+        return load_data(
+            args.validate, model, ts=args.ts, samples=args.validate_samples, columns=columns
+        )
+    except ValueError as e:
+        if "column" not in str(e) or args.validate_columns:
+            raise
+        hint = "--columns applies to them too" if args.columns else "they are read by name"
+        raise ValueError(
+            f"{e} ({hint}: name their columns with --validate-columns NAME=COLUMN,...)"
+        ) from None
+
+
+def _check_options(args, train, val) -> None:
+    """The options that depend on the records, checked before any work."""
+    if args.init_window is not None and not val:
+        raise ValueError("--init-window applies to validation records: give --validate FILE")
+    if args.init_window is not None and args.init_window < 2:
+        raise ValueError(
+            f"--init-window {args.init_window}: the initial states are estimated on at least "
+            "2 samples; give 2 or more"
+        )
+    if args.validate_columns and not val:
+        raise ValueError("--validate-columns applies to validation files: give --validate FILE")
+    if args.no_polish and args.segments is None and args.segment_length is None:
+        raise ValueError(
+            "--no-polish applies to multiple shooting (the polish follows the segments): "
+            "give --segments or --segment-length, or drop --no-polish"
+        )
+    if getattr(args, "hessian", "auto") != "auto" and args.method.startswith("fd-"):
+        raise ValueError(
+            f"--hessian {args.hessian}: --method {args.method} is a finite-difference "
+            "baseline and computes no exact Hessian; drop --hessian or choose another method"
+        )
+    for e in val if args.init_window is not None else []:
+        try:
+            check_init_window(args.init_window, e)
+        except ValueError as err:
+            raise ValueError(f"--init-window: {err}") from None
+    samples = sum(e.P for e in train)
+    if args.residual_lags is not None and args.residual_lags > lag_limit(samples):
+        raise ValueError(
+            f"--residual-lags {args.residual_lags}: the training records have {samples} "
+            f"samples; the residual tests take at most N/4 = {lag_limit(samples)} lags"
+        )
+
+
+def _maps(given: list | None, files: list, option: str):
+    """The column maps of the command line for ``files``: one for all (a dict), one
+    per file (a list), or none."""
+    if not given:
+        return None
+    if len(given) == 1:
+        return given[0]
+    if len(given) != len(files):
+        raise ValueError(
+            f"{option} is given {len(given)} times for {len(files)} data files: give it "
+            "once for all files, or once per file in their order"
+        )
+    return list(given)
+
+
+def _one(maps: list | None):
+    """--columns as the validation files' default: only when it is one map for all."""
+    return maps if maps and len(maps) == 1 else None
+
+
+def _data_entries(m, files: list, maps) -> list[dict]:
+    per_file = maps if isinstance(maps, list) else [maps] * len(files)
+    return data_entries(files, [effective_columns(m, c) for c in per_file])

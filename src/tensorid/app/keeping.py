@@ -1,0 +1,106 @@
+"""fit.json kept whatever happens: written where it can be (else to a fallback file,
+else to the console), and saved at once on Ctrl-C, during the fit (the best point so
+far) or after it (the estimates), with the earlier run's files removed so that two
+runs never mix."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+from ..fitting.summary import summary_table
+from .output import replace_outputs, write_kept
+from .reports import fit_json, json_text
+
+
+def _keep(out: Path, data: dict, kept: dict) -> list[str]:
+    """fit.json into ``out`` or, where that fails, into a fallback file; its path goes
+    to kept["fit.json"]. Where nothing can be written the JSON goes to the console.
+    Returns the failures, one line each, naming the file and where the result went."""
+    text = json_text(data)
+    try:
+        where, why = write_kept(out / "fit.json", text)
+    except OSError as e:
+        print(text)  # the last place left: the console
+        return [f"{e}; fit.json is printed above"]
+    kept["fit.json"] = where
+    return [f"{why}; the results are in {where}"] if why else []
+
+
+def _save_after_interrupt(res, out: Path, old: set[Path], kept: dict) -> int:
+    """Ctrl-C while the statistics, the console or the files of a finished fit were
+    being made: a complete fit.json already written stays; otherwise the estimates
+    go to fit.json without the statistics (no further computation). Exit status 130."""
+    if kept.get("fit.json"):
+        _tidy(out, old, kept, [])
+        print(f"tensorid: interrupted; {kept['fit.json']} was written", file=sys.stderr)
+        return 130
+    why = "interrupted after the fit, before its statistics were written: run it again for them"
+    for name, value in res.params.items():  # the estimates on the console first
+        print(f"{name} = {value!r}")
+    where = _save_now(out, old, lambda: fit_json(res, [], missing=why))
+    print(f"tensorid: interrupted after the fit; the estimates are in {where}", file=sys.stderr)
+    return 130
+
+
+def _save_now(out: Path, old: set[Path], data) -> Path | str:
+    """fit.json from ``data()`` at once (under _no_interrupt), the failures printed.
+    Returns where it went ("the console" where nowhere else)."""
+    kept: dict = {}
+    _tidy(out, old, kept, _keep(out, data(), kept))
+    return kept.get("fit.json", "the console")
+
+
+def _tidy(out: Path, old: set[Path], kept: dict, failures: list[str]) -> None:
+    """After an interrupt: with fit.json in ``out``, the earlier run's files removed
+    (no mix of two runs); the failures printed."""
+    if kept.get("fit.json") == out / "fit.json":
+        _replace_quietly(out, old, [kept["fit.json"]], failures)
+    for f in failures:
+        print(f"tensorid: error: {f}", file=sys.stderr)
+
+
+@contextmanager
+def _no_interrupt() -> Iterator[None]:
+    """SIGINT ignored inside (main thread only: elsewhere signals are not ours)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, before)
+
+
+def _replace_quietly(out: Path, old: set[Path], written: list[Path], failures: list):
+    """replace_outputs, a failure appended to ``failures`` instead of raised."""
+    try:
+        replace_outputs(out, old, written)
+    except OSError as e:
+        failures.append(f"could not remove the earlier results in {out}: {e.strerror or e}")
+
+
+def _save_interrupted(res, out: Path, old: set[Path]) -> int:
+    """Ctrl-C: the best point so far goes to fit.json (status "interrupted") at once;
+    no figures or report (the user is waiting); older results are removed, not
+    mixed in. Exit status 130, as for any interrupted command."""
+    if not np.isfinite(res.cost):  # nothing worth more than what the folder holds
+        print(
+            f"tensorid: interrupted before any start finished; {out} is as it was", file=sys.stderr
+        )
+        return 130
+    print(summary_table(res, []))
+    where = _save_now(out, old, lambda: fit_json(res, []))
+    print(
+        f"tensorid: interrupted; the best point so far (cost {res.cost:.6g}) is in {where}",
+        file=sys.stderr,
+    )
+    return 130

@@ -1,0 +1,140 @@
+"""Options that several commands share (reading one record, the integration settings)
+and the parsers of the `simulate` and `compare` commands."""
+
+from __future__ import annotations
+
+import argparse
+
+from .argtypes import _count, _mapping
+
+_TS_HELP = (
+    "sampling time TS: the samples are taken at k·TS, whatever time column the files "
+    "have (for files without one, or whose time stamps are too uneven for a "
+    "discrete-time model); without it, time comes from the column 't', else a "
+    "column or variable 'Ts'"
+)
+
+
+def record_options(p: argparse.ArgumentParser) -> None:
+    """How simulate and compare read their one record and integrate the model."""
+    p.add_argument(
+        "--columns",
+        type=_mapping,
+        default=None,
+        metavar="NAME=COLUMN,...",
+        help="DATA's column (variable) for each model input/output, e.g. u=uVal,y=yVal; "
+        "a number holds an input the record lacks constant (pulses=0)",
+    )
+    p.add_argument("--ts", type=float, default=None, help=_TS_HELP)
+    p.add_argument(
+        "--init-window",
+        type=_count,
+        default=None,
+        metavar="N",
+        help="as fit's: the initial states the fit (or model file) frees are estimated "
+        "on the first N samples only, with the parameters held, and the record is "
+        "scored after them (default: estimated on the whole record, all scored)",
+    )
+    integration_options(p, inherit=True)
+
+
+def integration_options(p: argparse.ArgumentParser, inherit: bool = False) -> None:
+    """--scheme, --substeps, --rtol, --atol, --interpolation. With ``inherit`` their
+    defaults are those of the fit.json given with --params (then rk4, 4, linear)."""
+    from ..engine.integrators import SCHEMES
+
+    default = " (default: the fit.json's, else %s)" if inherit else " (default %s)"
+    p.add_argument(
+        "--scheme",
+        default=None if inherit else "rk4",
+        choices=list(SCHEMES),
+        help="integrator: explicit rk4, rk38, heun, euler; implicit sdirk3, "
+        "sdirk2, implicit-euler for stiff models; adaptive dopri5, bosh3 (with "
+        "--rtol/--atol)" + default % "rk4",
+    )
+    p.add_argument(
+        "--substeps",
+        type=int,
+        default=None if inherit else 4,
+        help="steps per sample interval" + default % 4,
+    )
+    p.add_argument("--rtol", type=float, default=None, help="adaptive schemes: relative tolerance")
+    p.add_argument("--atol", type=float, default=None, help="adaptive schemes: absolute tolerance")
+    p.add_argument(
+        "--interpolation",
+        default=None if inherit else "linear",
+        choices=["linear", "zoh"],
+        help="the input between samples: linear or zero-order hold" + default % "linear",
+    )
+
+
+def _simulate(args) -> int:
+    from .simulate import run_simulate
+
+    return run_simulate(args)
+
+
+def register_simulate(sub) -> None:
+    """Add the simulate command to the subparsers ``sub``."""
+    s = sub.add_parser(
+        "simulate",
+        help="simulate a model file for given parameters",
+        description="Simulate MODEL.py on the inputs of DATA with the given "
+        "parameters; write simulation.csv (time, inputs, measured and simulated "
+        "outputs, states) and, when DATA has outputs, GOF and figures to --out. "
+        "Initial states that the fit.json (else the model file) frees are estimated "
+        "on DATA (its first N samples with --init-window) with the parameters held, "
+        "unless --x0 gives them; the one used is printed. Integration settings left "
+        "out are the fit.json's.",
+    )
+    s.add_argument("model", help="model file (Python)")
+    s.add_argument("data", help="data file (.csv, .mat, .npz) with the inputs (outputs optional)")
+    s.add_argument(
+        "--params",
+        nargs="*",
+        default=[],
+        metavar="NAME=VALUE",
+        help="parameter values (default: p0 of the model file), or a fit.json",
+    )
+    s.add_argument(
+        "--x0", nargs="*", default=[], metavar="STATE=VALUE", help="initial state values"
+    )
+    record_options(s)
+    s.add_argument(
+        "--out",
+        default="simulation-results",
+        help="output folder (as for fit); a path ending in .csv writes only the table of "
+        "states and simulated outputs there",
+    )
+    s.set_defaults(func=_simulate)
+
+
+def _compare(args) -> int:
+    from .simulate import run_compare
+
+    return run_compare(args)
+
+
+def register_compare(sub) -> None:
+    c = sub.add_parser(
+        "compare",
+        help="score a saved fit on a record, as the benchmarks do (MATLAB's compare)",
+        description="Simulate MODEL.py with the parameters of a fit.json on DATA: the "
+        "initial states the fit estimated are estimated again on the first N samples "
+        "(--init-window), the parameters held, and every output is scored after them "
+        "(RMSE, NRMSE, R², fit percent, GOF). Writes compare.json and a figure per "
+        "output to --out; the same numbers as fit --validate DATA --init-window N.",
+    )
+    c.add_argument("model", help="model file (Python)")
+    c.add_argument("data", help="data file (.csv, .mat, .npz) with inputs and outputs")
+    c.add_argument("--params", required=True, metavar="FIT.json", help="the fit.json of a fit")
+    record_options(c)
+    c.add_argument(
+        "--horizon",
+        default=None,
+        metavar="K",
+        help="k-step-ahead prediction: not available yet (it needs the EKF predictor); "
+        "without it the record is simulated (an infinite horizon)",
+    )
+    c.add_argument("--out", default="compare-results", help="output folder")
+    c.set_defaults(func=_compare)

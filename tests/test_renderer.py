@@ -1,0 +1,110 @@
+"""The fit command's figures drawn in a second process (app/renderer.py): the same
+PNG bytes as drawn in this process, and nothing lost or left behind when that
+process fails or the command ends early."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tensorid.app import renderer as renderer_module
+from tensorid.app.renderer import Renderer
+from tensorid.fitting import figures
+
+T = np.linspace(0.0, 2.0, 400)
+JOBS = [
+    (
+        "train_a_y",
+        "compare",
+        dict(t=T, y_meas=np.sin(5 * T), y_sim=np.sin(5 * T) * 0.98, ylabel="y", title="a"),
+    ),
+    (
+        "convergence",
+        "convergence",
+        dict(
+            history=[{"iteration": i, "cost": 10.0**-i, "grad_norm": 2.0**-i} for i in range(6)],
+            title="newton: cost and gradient norm per iteration",
+        ),
+    ),
+    (
+        "residual_tests",
+        "residual",
+        dict(
+            bound=0.1,
+            panels=[
+                dict(
+                    what="whiteness of y",
+                    passed=False,
+                    lags=np.arange(1, 11),
+                    values=np.linspace(0.3, 0.0, 10),
+                    feedback=None,
+                ),
+                dict(
+                    what="y against input u",
+                    passed=True,
+                    lags=np.arange(0, 11),
+                    values=np.linspace(0.05, 0.0, 11),
+                    feedback=np.linspace(0.02, 0.0, 10),
+                ),
+            ],
+        ),
+    ),
+]
+
+
+def _here(tmp_path, stem, kind, arguments) -> bytes:
+    path = tmp_path / f"{stem}.here.png"
+    figures.save_png(figures.draw(kind, arguments), path)
+    return path.read_bytes()
+
+
+def test_the_renderer_draws_the_same_pngs_as_this_process(tmp_path, monkeypatch):
+    out = tmp_path / "o"
+    out.mkdir()
+    expected = {stem: _here(tmp_path, stem, kind, a) for stem, kind, a in JOBS}
+    r = Renderer()
+    try:
+        assert r.submit(out, JOBS) == [stem for stem, _, _ in JOBS]
+
+        def not_here(*a, **k):  # so that a file can only come from the renderer
+            raise AssertionError("drawn in this process")
+
+        monkeypatch.setattr(figures, "draw", not_here)
+        paths = [r.collect(stem) for stem, _, _ in JOBS]
+    finally:
+        r.close()
+    assert [p.name for p in paths] == [f"{stem}.png" for stem, _, _ in JOBS]
+    for stem, _, _ in JOBS:
+        assert (out / f"{stem}.png").read_bytes() == expected[stem], stem
+    assert not list(out.glob(".*.part"))
+
+
+@pytest.mark.parametrize("how", ["cannot start", "dies"])
+def test_figures_are_drawn_here_when_the_renderer_fails(tmp_path, monkeypatch, how):
+    out = tmp_path / "o"
+    out.mkdir()
+    if how == "cannot start":
+        monkeypatch.setattr(renderer_module, "_SERVE", "raise SystemExit(1)")
+    r = Renderer()
+    try:
+        r.submit(out, JOBS[:2])
+        if how == "dies":
+            r._proc.kill()
+        paths = [r.collect(stem) for stem, _, _ in JOBS[:2]]
+    finally:
+        r.close()
+    for (stem, kind, a), path in zip(JOBS[:2], paths, strict=True):
+        assert path.read_bytes() == _here(tmp_path, stem, kind, a)
+    assert not list(out.glob(".*.part"))
+
+
+def test_closing_ends_the_renderer_and_removes_what_was_not_collected(tmp_path):
+    out = tmp_path / "o"
+    out.mkdir()
+    r = Renderer()
+    proc = r._proc
+    r.submit(out, JOBS)
+    assert list(out.glob(".*.part"))  # its files, until collected
+    r.close()
+    assert proc.poll() is not None
+    assert not list(out.iterdir())
