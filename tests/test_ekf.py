@@ -348,3 +348,52 @@ def test_ekf_profile_intervals_use_the_likelihood_ratio_and_agree_with_wald_here
         assert lo < res.theta[i] < hi
         width = u.ci95[i, 1] - u.ci95[i, 0]
         assert abs((hi - lo) - width) < 0.15 * width
+
+
+EKF_MODEL_FILE = """
+import jax.numpy as jnp
+import tensorid
+
+def rhs(x, p, u):
+    k, c, a = p
+    return jnp.stack([x[1], -k * x[0] - c * x[1] - a * x[0] ** 3 + u[0]])
+
+model = tensorid.Model(rhs=rhs, output=lambda x, p: x[:1], states=["x", "v"],
+                       params=["k", "c", "a"], inputs=["u"], outputs=["y"])
+p0 = {"k": 1.5, "c": 0.5, "a": 0.3}
+free_x0 = ["x", "v"]
+predictor = "ekf"
+process_noise = {"v": 0.1}
+"""
+
+
+def test_ekf_from_the_command_line(tmp_path, capsys):
+    import json
+
+    from tensorid import cli
+
+    (tmp_path / "model.py").write_text(EKF_MODEL_FILE)
+    for name, seed in (("train", 0), ("val", 1)):
+        d = sde_record(seed, P=300)
+        rows = ["t,u,y"] + [
+            f"{a:.10g},{b:.10g},{c:.10g}" for a, b, c in zip(d.t, d.u[:, 0], d.y[:, 0], strict=True)
+        ]
+        (tmp_path / f"{name}.csv").write_text("\n".join(rows) + "\n")
+    out = tmp_path / "out"
+    argv = ["fit", str(tmp_path / "model.py"), str(tmp_path / "train.csv"), "--validate",
+            str(tmp_path / "val.csv"), "--horizon", "5", "--interpolation", "zoh",
+            "--measurement-noise", "y=0.05", "--no-progress", "--out", str(out)]  # fmt: skip
+    assert cli.main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "noise intensities" in printed and "5-step prediction" in printed
+    d = json.loads((out / "fit.json").read_text())
+    assert d["predictor"] == "ekf" and d["horizon"] == 5
+    noise = d["noise_intensities"]
+    assert 0.15 < noise["process"]["v"]["sigma"] < 0.6  # the record's 0.3
+    assert 0.01 < noise["measurement"]["y"]["sigma"] < 0.04  # its 0.02
+    assert "log_sigma_w_v" in d["stderr"]
+    assert "## Noise model" in (out / "report.md").read_text()
+    assert (out / "prediction_train_y.png").exists()
+    # a filter refuses what it cannot serve, in one line, before any work
+    assert cli.main([*argv[:3], "--data-sensitivity", "--out", str(tmp_path / "o2")]) != 0
+    assert "--data-sensitivity is for output error" in capsys.readouterr().err

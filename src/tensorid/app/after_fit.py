@@ -30,7 +30,8 @@ def _after_fit(res, val, args) -> tuple[list, dict, list[str], bool]:
     the fit: the results are written without what is missing."""
     scores: list = []
     extras: dict = {}
-    steps = [("validation", lambda: res.validate(val, args.init_window) if val else [])]
+    horizon = getattr(args, "horizon", None)
+    steps = [("validation", lambda: res.validate(val, args.init_window, horizon) if val else [])]
     steps += [("profiles", lambda: _profiles(res, args))]
     steps += [("data sensitivity", lambda: _influence(res, args))]
     steps += [("residual tests", lambda: _residual_tests(res, args))]

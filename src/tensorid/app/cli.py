@@ -118,7 +118,44 @@ def register(sub) -> None:
         "multiple of each output's noise level; fit.json records it)",
     )
     f.add_argument(
+        "--predictor",
+        default=None,
+        # tensorid.engine.predictors.PREDICTORS, spelled out so that --help need not import JAX
+        choices=["simulation", "ekf"],
+        help="how the state is carried between samples: simulation (default: output "
+        "error) or ekf (an extended Kalman filter: prediction error, with process and "
+        "measurement noise estimated); overrides the model file's predictor",
+    )
+    f.add_argument(
+        "--process-noise",
+        type=_value,
+        nargs="+",
+        default=None,
+        metavar="STATE=VALUE",
+        help="with --predictor ekf: the states driven by process noise, each with the "
+        "start of its intensity (a standard deviation per square root of time); "
+        "overrides the model file's process_noise",
+    )
+    f.add_argument(
+        "--measurement-noise",
+        type=_value,
+        nargs="+",
+        default=None,
+        metavar="OUTPUT=VALUE",
+        help="with --predictor ekf: the start of an output's measurement noise (standard "
+        "deviation; default: its noise level in the data); overrides the model file's",
+    )
+    f.add_argument(
         "--validate", nargs="*", default=[], metavar="DATA", help="validation data files"
+    )
+    f.add_argument(
+        "--horizon",
+        type=_count,
+        default=None,
+        metavar="K",
+        help="score the validation records as K-step-ahead prediction (MATLAB's compare "
+        "with a prediction horizon): with --predictor ekf, the filter's state K samples "
+        "before, run ahead by the model; for output error every horizon is the simulation",
     )
     f.add_argument("--ts", type=float, default=None, help=_TS_HELP)
     f.add_argument(

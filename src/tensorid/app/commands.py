@@ -145,7 +145,12 @@ def _fit_command(args, renderer: Renderer) -> int:
     )
     spec, args.overrides = overridden(spec, dict(args.fix), args.free, dict(args.bounds))
     problem = _problem(spec, train, args)
-    if not problem.loss.squared and (args.profile is not None or args.data_sensitivity):
+    if problem.loss.likelihood and args.data_sensitivity:
+        raise ValueError(
+            "--data-sensitivity is for output error, not --predictor ekf: drop it, or fit "
+            "with --predictor simulation"
+        )
+    if problem.loss.robust and (args.profile is not None or args.data_sensitivity):
         raise ValueError(
             f"--profile and --data-sensitivity assume the squared loss, not --loss "
             f"{problem.loss.name} (its error bars are the sandwich form): drop them, or fit "

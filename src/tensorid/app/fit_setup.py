@@ -57,6 +57,7 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
             segment_length=args.segment_length,
             hessian=hessian,
             **_loss(spec, args),
+            **_predictor(spec, args),
         )
     except (ValueError, TypeError) as e:  # the settings come from the model file
         raise type(e)(f"{spec.path}: {e}") from None
@@ -70,6 +71,16 @@ def _loss(spec: ModelSpec, args) -> dict:
     if loss == "squared" and scale is not None:
         raise ValueError("--loss-scale (or loss_scale) is for a robust --loss; drop it or give one")
     return {"loss": loss, "loss_scale": scale}
+
+
+def _predictor(spec: ModelSpec, args) -> dict:
+    """predictor, process_noise and measurement_noise: the command line's over the
+    model file's."""
+    out = {"predictor": getattr(args, "predictor", None) or spec.predictor or "simulation"}
+    for key in ("process_noise", "measurement_noise"):
+        given = getattr(args, key, None)
+        out[key] = dict(given) if given else getattr(spec, key)
+    return out
 
 
 def _validation_data(args, model, columns) -> list:

@@ -172,6 +172,7 @@ def fit_json(
         "history": res.history,
         "starts": res.starts,
         "init_window": validation[0].init_window if validation else None,
+        "horizon": validation[0].horizon if validation else None,
         "validation_x0": {
             s.experiment.name or str(i): s.x0.tolist() for i, s in enumerate(validation)
         },

@@ -282,12 +282,12 @@ def noise_intensities(res, u=None) -> dict | None:
 def noise_text(noise: dict) -> str:
     """One line: each noise intensity with its interval."""
     parts = []
-    for kind, unit in (("process", "per √time"), ("measurement", "")):
+    for kind, unit, letter in (("process", "per √time", "w"), ("measurement", "", "e")):
         for name, e in noise[kind].items():
             ci = f" [{e['ci95'][0]:.3g}, {e['ci95'][1]:.3g}]" if e["ci95"] else ""
             held = " (fixed)" if e["fixed"] else ""
             tail = f" {unit}" if unit else ""
-            parts.append(f"σ_{kind[0]}({name}) = {e['sigma']:.4g}{ci}{held}{tail}")
+            parts.append(f"σ_{letter}({name}) = {e['sigma']:.4g}{ci}{held}{tail}")
     return "noise intensities (standard deviations, 95 % intervals): " + "; ".join(parts)
 
 
