@@ -145,13 +145,19 @@ def test_compare_equals_validate_on_a_bundled_record(tmp_path, capsys):
     assert "## Provenance" in report
 
 
-def test_compare_refuses_a_horizon_and_a_short_window_before_any_work(tmp_path, capsys):
+def test_compare_refuses_a_long_horizon_and_a_short_window_before_any_work(tmp_path, capsys):
     fit = tmp_path / "fit.json"
     fit.write_text(json.dumps({"params": TRUE}))
     _, path, *_ = _discrete_record(tmp_path)
     base = ["compare", str(tmp_path / "ar.py"), str(path), "--params", str(fit)]
-    assert cli.main([*base, "--horizon", "5", "--out", str(tmp_path / "c")]) == 2
-    assert "EKF predictor" in capsys.readouterr().err
+    assert cli.main([*base, "--horizon", "500", "--out", str(tmp_path / "c")]) == 2
+    assert "--horizon 500" in capsys.readouterr().err
+    # an output-error fit's predictions at every horizon are its simulation
+    assert cli.main([*base, "--horizon", "3", "--out", str(tmp_path / "h")]) == 0
+    assert cli.main([*base, "--out", str(tmp_path / "s")]) == 0
+    h, s = (json.loads((tmp_path / d / "compare.json").read_text()) for d in "hs")
+    assert h["outputs"] == s["outputs"] and h["horizon"] == 3
+    capsys.readouterr()
     assert cli.main([*base, "--init-window", "119", "--out", str(tmp_path / "c")]) == 2
     assert "--init-window" in capsys.readouterr().err
     assert not (tmp_path / "c").exists()

@@ -394,6 +394,15 @@ def test_ekf_from_the_command_line(tmp_path, capsys):
     assert "log_sigma_w_v" in d["stderr"]
     assert "## Noise model" in (out / "report.md").read_text()
     assert (out / "prediction_train_y.png").exists()
+    # tensorid compare on the saved fit scores the same 5-step predictions
+    cmp = tmp_path / "cmp"
+    argv_cmp = ["compare", str(tmp_path / "model.py"), str(tmp_path / "val.csv"), "--params",
+                str(out / "fit.json"), "--horizon", "5", "--out", str(cmp)]  # fmt: skip
+    assert cli.main(argv_cmp) == 0
+    c = json.loads((cmp / "compare.json").read_text())
+    assert c["horizon"] == 5
+    rmse = c["outputs"]["y"]["rmse"]
+    assert rmse == pytest.approx(d["rmse"]["validation"]["val"]["y"], rel=1e-9)
     # a filter refuses what it cannot serve, in one line, before any work
     assert cli.main([*argv[:3], "--data-sensitivity", "--out", str(tmp_path / "o2")]) != 0
     assert "--data-sensitivity is for output error" in capsys.readouterr().err

@@ -131,10 +131,13 @@ def register_compare(sub) -> None:
     record_options(c)
     c.add_argument(
         "--horizon",
+        type=_count,
         default=None,
         metavar="K",
-        help="k-step-ahead prediction: not available yet (it needs the EKF predictor); "
-        "without it the record is simulated (an infinite horizon)",
+        help="score K-step-ahead prediction (MATLAB's compare with a prediction horizon): "
+        "for a fit with --predictor ekf, the filter's state K samples before, run ahead "
+        "by the model; for output error every horizon is the simulation. Without it the "
+        "record is simulated (an infinite horizon)",
     )
     c.add_argument("--out", default="compare-results", help="output folder")
     c.set_defaults(func=_compare)

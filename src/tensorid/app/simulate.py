@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import sys
+from dataclasses import replace
 from functools import partial
 from pathlib import Path
 
@@ -145,6 +146,11 @@ def _record(args, spec: ModelSpec, require_outputs: bool):
             check_init_window(args.init_window, e)
         except ValueError as err:
             raise ValueError(f"--init-window: {err}") from None
+    horizon = getattr(args, "horizon", None)
+    if horizon is not None and horizon >= e.P:
+        raise ValueError(
+            f"--horizon {horizon}: {args.data} has {e.P} samples; give a horizon below that"
+        )
     return e
 
 
@@ -162,14 +168,42 @@ def _simulation_table(m, e, sim, table_only: bool) -> tuple[list[str], np.ndarra
 
 def _score(args, require_outputs: bool):
     """(spec, parameters, Score, where x0 came from, discretisation): the model
-    simulated on DATA as the options say."""
+    simulated on DATA as the options say (with ``args.horizon``, predicted that many
+    samples ahead by the fit's predictor)."""
     spec = load_model(args.model)
-    params, fitted = _parameters(spec, args.params)
     e = _record(args, spec, require_outputs)
+    spec, predictor = _filter(spec, args.params, e)
+    params, fitted = _parameters(spec, args.params)
     disc = _integration(args, fitted)
     x0, free, source = _start(spec, args, e, fitted)
-    score = score_record(spec.model, params, x0, free, e, disc, args.init_window)
+    horizon = getattr(args, "horizon", None)
+    score = score_record(
+        spec.model, params, x0, free, e, disc, args.init_window,
+        horizon=horizon, predictor=predictor,
+    )  # fmt: skip
     return spec, params, score, source, disc.for_model(spec.model)
+
+
+def _filter(spec: ModelSpec, given: list[str], record) -> tuple[ModelSpec, tuple | None]:
+    """For a fit.json of a filter (predictor "ekf"): the spec with the filter's model
+    (its noise intensities among the parameters) and (loss, predictor) to predict
+    with; otherwise ``spec`` and None."""
+    if not (len(given) == 1 and given[0].endswith(".json") and Path(given[0]).is_file()):
+        return spec, None
+    try:
+        fitted = json.loads(Path(given[0]).read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        return spec, None  # _fitted says what is wrong with it
+    noise = fitted.get("noise_intensities") if isinstance(fitted, dict) else None
+    if fitted.get("predictor") != "ekf" or not noise:
+        return spec, None
+    from ..engine.losses import GAUSSIAN
+    from ..engine.predictors import make_predictor
+
+    q = {s: v["sigma"] for s, v in noise["process"].items()}
+    r = {o: v["sigma"] for o, v in noise["measurement"].items()}
+    model, filt, _ = make_predictor(spec.model, "ekf", q, r, [record.y])
+    return replace(spec, model=model), (GAUSSIAN, filt)
 
 
 def run_simulate(args) -> int:
@@ -247,11 +281,6 @@ def effective_columns(model, columns: dict | None) -> dict:
 
 def run_compare(args) -> int:
     """`tensorid compare`: a fit.json scored on a record (compare.json, figures)."""
-    if args.horizon is not None:
-        raise ValueError(
-            f"--horizon {args.horizon}: k-step-ahead prediction needs the EKF predictor, "
-            "which tensorid does not have yet; drop --horizon to score the simulation"
-        )
     if not str(args.params).endswith(".json"):
         raise ValueError(f"--params {args.params}: give the fit.json of a fit")
     out = check_destination(args.out)
@@ -262,6 +291,7 @@ def run_compare(args) -> int:
         "record": score.experiment.name,
         "outputs": score.metrics(),
         "init_window": args.init_window,
+        "horizon": args.horizon,
         "scored_samples": score.experiment.P - score.start,
         "x0": dict(zip(m.states, score.x0.tolist(), strict=True)),
         "x0_source": source,
