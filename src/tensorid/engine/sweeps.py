@@ -12,6 +12,12 @@ the parameter transition matrix Θ (parameter columns); the blocks of d2x are Φ
     d(dx)/dt       = F_z Z                           (Φ and Θ together)
     d(d2x_jk)/dt   = F_zz[Z_j, Z_k] + F_x d2x_jk      (Φ¹, Θ¹, χ¹, χ² together)
 
+The state carried is the predictor's (predictors.py): x itself for output error; a
+filter's z = (x̂, vec P), which its measurement update z⁺ = U(z, p, y_h) corrects at
+each sample. The sensitivities go through U as through F, by the chain rule of the
+map: dz⁺ = U_z Z and d2z⁺_jk = U_zz[Z_j, Z_k] + U_z d2z_jk (``push``), and the loss
+sees the predictor's π(z, p) in place of C(x, p).
+
 d2x is symmetric in (j, k), so only the K(K+1)/2 pairs j <= k are carried. F_zz is
 never formed: F_zz[a, b] + F_z c is one nested forward-mode derivative
 (a jvp of a jvp), so the cost per pair is a small multiple of one F evaluation.
