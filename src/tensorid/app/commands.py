@@ -27,6 +27,7 @@ from ..fitting.figures import (
     save_png,
 )
 from ..fitting.methods import fit
+from ..fitting.registry import exact_derivatives
 from ..fitting.residuals import lag_limit
 from ..fitting.results import FitInterrupted
 from ..fitting.summary import coloured_residuals_line, summary_table
@@ -422,7 +423,7 @@ def _check_options(args, train, val) -> None:
             "--no-polish applies to multiple shooting (the polish follows the segments): "
             "give --segments or --segment-length, or drop --no-polish"
         )
-    if getattr(args, "hessian", "auto") != "auto" and args.method.startswith("fd-"):
+    if getattr(args, "hessian", "auto") != "auto" and not exact_derivatives(args.method):
         raise ValueError(
             f"--hessian {args.hessian}: --method {args.method} is a finite-difference "
             "baseline and computes no exact Hessian; drop --hessian or choose another method"
