@@ -43,8 +43,8 @@ def fit_many(problem, method: Method, thetas, options: FitOptions, started) -> l
         results[i] = run.result
     if batched:  # each start's time is the batch's
         seconds = time.perf_counter() - started
-        return [replace(r, seconds=seconds) for r in results]  # type: ignore[arg-type]
-    return results  # type: ignore[return-value]
+        return [replace(r, seconds=seconds) for r in results if r is not None]
+    return [r for r in results if r is not None]
 
 
 def _one(problem, runs: list[Run]) -> list[Values]:

@@ -16,7 +16,6 @@ reason its status names), or here:
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -68,7 +67,8 @@ def march(runs: list[Run], evaluate: Callable, finish: Callable | None = None) -
     except KeyboardInterrupt:
         for run in runs:
             if not run.done:
-                run.ending = Outcome(*run.method.best(run.state), Status.INTERRUPTED)
+                x, nit = run.method.best(run.state)
+                run.ending = Outcome(x, nit, Status.INTERRUPTED)
                 run.result = finish(run) if finish else None  # evaluates nothing
                 run.done = True
 
@@ -79,8 +79,9 @@ def _raises(runs: list[Run]) -> tuple:
 
 
 def _failed(run: Run, e: BaseException) -> Outcome:
+    x, nit = run.method.best(run.state)
     why = f"{run.method.name} raised {type(e).__name__}: {e}"
-    return Outcome(*run.method.best(run.state), Status.SOLVER_FAILED, why)
+    return Outcome(x, nit, Status.SOLVER_FAILED, why)
 
 
 def _evaluated(asking: list[Run], evaluate) -> dict:
@@ -188,7 +189,3 @@ def stopped(problem, method: str, theta0, stop, ranked: list[dict], best, starte
         history=best.history if best else [], evaluate=False,
         cost=best.cost if best else np.inf, starts=ranked,
     )  # fmt: skip
-
-
-def elapsed(started) -> float:
-    return time.perf_counter() - started

@@ -24,6 +24,7 @@ from .priors import weighed
 from .registry import LOCKSTEP, METHODS, listed, resolve
 from .results import FitInterrupted, FitResult
 from .robust import fit_robust
+from .solvers import Method
 from .starts import fit_task, fits, many_starts
 
 __all__ = ["LOCKSTEP", "METHODS", "fit", "fit_batch", "fit_task"]
@@ -31,7 +32,7 @@ __all__ = ["LOCKSTEP", "METHODS", "fit", "fit_batch", "fit_task"]
 
 def fit(
     problem: Problem,
-    method: str = "auto",
+    method: str | Method = "auto",
     *,
     theta0=None,
     starts: int | None = None,
@@ -51,9 +52,7 @@ def fit(
     timeout: float | None = None,
     polish: bool = True,
 ) -> FitResult:
-    """Estimate the free initial states and parameters of ``problem``.
-
-    method:
+    """Estimate the free initial states and parameters of ``problem``. method:
       "auto"          (default) Gauss-Newton while it converges fast, the exact
                       Hessian where it does not or at a saddle (see hybrid.py)
       "newton"        trust-region Newton with the exact Hessian from transition tensors
@@ -65,6 +64,7 @@ def fit(
       "fd-bfgs"       BFGS (L-BFGS-B with bounds) with a finite-difference gradient
       "fd-lsq"        scipy least_squares (trf) with a finite-difference Jacobian, as
                       MATLAB's grey-box toolbox does
+      or a method object (a ``tensorid.fitting.solvers.Method``: architecture.md)
     theta0 : start (K,), natural units; default ``problem.theta0``.
     x_scale, maxiter, gtol, ftol, xtol, callback : see :class:`FitOptions` (or options=).
     starts : with N > 1, fit from theta0 and N - 1 further starts (inside the bounds,
@@ -88,14 +88,14 @@ def fit(
     (a KeyboardInterrupt) whose ``result`` is the best point so far.
     """
     started = time.perf_counter()
-    method = _check_method(problem, method)
+    solver = _check_method(problem, method)
     options = _options(options, x_scale, maxiter, gtol, ftol, xtol, callback, polish)
     theta0 = _check_start(problem, problem.theta0 if theta0 is None else theta0, "theta0")
     if starts is not None:
         _check_count("starts", starts)
     n = 1 if starts is None else int(starts)
     if n > 1:
-        batch = _check_batch(method, batch, n, executor, workers)
+        batch = _check_batch(solver, batch, n, executor, workers)
         _check_multistart(spread, sampling, workers, timeout)
     with compile_clock() as clock:  # this process's compilations (not the workers')
         if n > 1:
@@ -104,7 +104,7 @@ def fit(
             where = (executor, workers, int(batch or 1), timeout)
         else:
             thetas, where = theta0[None, :], None
-        res = _starts(problem, method, thetas, options, where, started)
+        res = _starts(problem, solver, thetas, options, where, started)
     res = replace(res, compile_seconds=clock[0])
     if res.status is Status.INTERRUPTED:
         raise FitInterrupted(res)
@@ -126,7 +126,7 @@ def _starts(problem, method, thetas, options, where, started) -> FitResult:
     return many_starts(problem, method, thetas, options, where, started, fits)
 
 
-def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResult]:
+def fit_batch(problem: Problem, method: str | Method, thetas, **options) -> list[FitResult]:
     """Fits from every row of ``thetas`` (B, K) in lock-step: at each iteration the
     points of all unfinished starts are evaluated in one vectorised (jax.vmap) call,
     which costs far less than B separate calls on a CPU. Methods "auto", "newton"
@@ -138,11 +138,11 @@ def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResul
     :func:`fit` for those). Ctrl-C raises :class:`FitInterrupted` with every start's
     best point so far."""
     started = time.perf_counter()
-    method = _check_method(problem, method)
-    if not method.supports_batch:
+    solver = _check_method(problem, method)
+    if not solver.supports_batch:
         raise ValueError(
             f"batched starts work with {listed('supports_batch', 'and')}, not "
-            f"{method.name!r}; use batch=1"
+            f"{solver.name!r}; use batch=1"
         )
     opts = options.pop("options", None)
     if opts is None:
@@ -155,7 +155,7 @@ def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResul
     thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
     thetas = np.stack([_check_start(problem, th, "a start") for th in thetas])
     with compile_clock() as clock:
-        results = weighed(fits)(problem, method, thetas, opts, started)
+        results = weighed(fits)(problem, solver, thetas, opts, started)
     results = [replace(r, compile_seconds=clock[0]) for r in results]
     if any(r.status is Status.INTERRUPTED for r in results):
         best = min(results, key=lambda r: (not np.isfinite(r.cost), r.cost))
@@ -183,7 +183,7 @@ def _options(options, x_scale, maxiter, gtol, ftol, xtol, callback, polish=True)
     return options
 
 
-def _check_method(problem, method):
+def _check_method(problem, method) -> Method:
     """The method object named ``method`` (registry.py), checked against ``problem``."""
     if not isinstance(problem, Problem):
         raise TypeError(f"fit needs a tensorid.Problem, got {type(problem).__name__}")

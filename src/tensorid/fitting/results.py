@@ -106,7 +106,7 @@ class FitResult(Tabular):
     ``dataclasses.replace``.
     """
 
-    problem: Problem | None  # None only on its way back from a worker (see detached)
+    problem: Problem  # None only on its way back from a worker (see detached)
     method: str
     theta: np.ndarray
     params: dict[str, float]
@@ -192,7 +192,7 @@ class FitResult(Tabular):
     def detached(self) -> FitResult:
         """This result without its Problem, to travel back from a worker process (a
         Problem holds compiled code); :meth:`attached` gives it one again."""
-        return replace(self, problem=None)
+        return replace(self, problem=None)  # type: ignore[arg-type]
 
     def attached(self, problem: Problem) -> FitResult:
         return replace(self, problem=problem)

@@ -18,6 +18,7 @@ second-order terms (∇²Ĵ by its Gauss-Newton form, no ∇²ĉ): the cheaper v
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
@@ -53,7 +54,7 @@ def fit_shooting(problem, method, theta0, options: FitOptions, started) -> FitRe
         return failed(problem, method.name, theta0, started, why + " Choose another initial guess.")
     run = _Run(problem, method, z0, first.J, options)
     ran = Run(run, run)
-    march([ran], lambda runs: [run.fun(run.point)])  # the one loop: endings.py
+    march([ran], lambda runs: [run.evaluate()])  # the one loop: endings.py
     assert ran.ending is not None
     z, status = ran.ending.x, ran.ending.status
     theta = sh.to_theta(z)
@@ -119,12 +120,17 @@ class _Run:
         self.costs_seen: dict[float, float] = {}
         # the state unknowns come first in z: the banded block of the arrow
         self.subproblem = ArrowSolver(sh.nz_states) if sh.nz >= ARROW_FROM else None
-        self.fun = None
+        self.fun: Callable | None = None  # the Lagrangian of the inner solve under way
         self.outcome: Outcome | None = None
         self.steps = self.solve()
         self.point = next(self.steps)
 
     # -- as a method of endings.march
+    def evaluate(self):
+        """(L_A, ∇L_A, ∇²L_A) at the pending point."""
+        assert self.fun is not None
+        return self.fun(self.point)
+
     def step(self, state, value) -> None:
         try:
             self.point = self.steps.send(value)

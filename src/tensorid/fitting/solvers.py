@@ -68,7 +68,7 @@ class State:
     record: Callable = field(default=lambda entry: None)  # the tracker's recorder
     point: np.ndarray | None = None
     outcome: Outcome | None = None
-    steps: Generator | None = None  # a trust-region run (trust_region_steps)
+    steps: Generator[np.ndarray, tuple, TRResult] | None = None  # trust_region_steps
     hybrid: Hybrid | None = None  # method "auto"
     before: tuple[int, int] = (0, 0)  # iterations and products before a restart
 
@@ -154,7 +154,7 @@ class TrustRegion(Method):
         return Outcome(r.x, r.nit, r.status, r.detail, r.nhev)
 
 
-def _steps(state: State, phi, maxiter: int, callback) -> Generator:
+def _steps(state: State, phi, maxiter: int, callback) -> Generator[np.ndarray, tuple, TRResult]:
     tr, options = state.tr, state.options
     lo, hi = tr.box()
     kw = options.trust_region() | {"maxiter": maxiter}
@@ -210,7 +210,8 @@ class Auto(TrustRegion):
         assert hybrid is not None
         exact = hybrid.exact  # the mode the point was evaluated in
         H = tr.scaled_hessian(v.H) if exact and np.isfinite(v.J) else None
-        return hybrid.take(phi, *tr.scaled(phi, v.J, v.g, v.G), H, exact)
+        J, g, G = tr.scaled(phi, v.J, v.g, v.G)
+        return hybrid.take(phi, J, g, G, H, exact)
 
     def finished(self, state: State, r: TRResult) -> Outcome | None:
         r.nit, r.nhev = r.nit + state.before[0], r.nhev + state.before[1]
