@@ -128,8 +128,10 @@ class FitResult(Tabular):
     shooting: dict | None = None  # multiple shooting: segments, defects, its own counts
     hybrid: dict | None = None  # method "auto": evaluations of each kind, mode switches
     noise_check: NoiseCheck | None = None  # priors: their noise variance against the residuals
-    # the summary, the warnings, fit.json and report.md all read the same uncertainty
-    _uncertainty: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+    # the summary, the warnings, fit.json and report.md all read the same uncertainty;
+    # keyed on what it depends on, so a result made by replace shares it (but not
+    # across Problems: detached and attached start afresh)
+    _uncertainty: dict = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
     def at(
@@ -192,10 +194,10 @@ class FitResult(Tabular):
     def detached(self) -> FitResult:
         """This result without its Problem, to travel back from a worker process (a
         Problem holds compiled code); :meth:`attached` gives it one again."""
-        return replace(self, problem=None)  # type: ignore[arg-type]
+        return replace(self, problem=None, _uncertainty={})  # type: ignore[arg-type]
 
     def attached(self, problem: Problem) -> FitResult:
-        return replace(self, problem=problem)
+        return replace(self, problem=problem, _uncertainty={})
 
     def history_then(self, more: list[dict]) -> list[dict]:
         """This history followed by ``more`` (a run from this end point), whose
