@@ -258,6 +258,12 @@ def test_ekf_bad_input_is_one_line_before_any_work(kw, words):
         assert w in msg, (w, msg)
 
 
+def test_a_method_that_cannot_serve_a_filter_is_refused_before_any_work():
+    _, pr = ekf_problem("duffing, 2 experiments, linear")
+    with pytest.raises(ValueError, match="'fd-lsq' minimises a sum of squared residuals"):
+        ti.fit(pr, method="fd-lsq")
+
+
 def test_noise_without_the_filter_is_refused():
     m = duffing()
     data = record(m, 20, 0, [0.1, 0.0], {"k": 2.0, "c": 0.3, "a": 0.5})

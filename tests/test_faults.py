@@ -77,19 +77,19 @@ def test_ctrl_c_in_lockstep_keeps_every_starts_best_point(problem, monkeypatch):
 
 
 def test_ctrl_c_during_multistart_here_keeps_the_finished_starts(problem, monkeypatch):
-    import tensorid.fitting.driver as driver
+    import tensorid.fitting.starts as starts
 
     finished = []
-    original = driver._single
+    original = starts.fit_many
 
-    def second_start_interrupted(method, tr, options, started):
+    def second_start_interrupted(problem, method, thetas, options, started):
         if finished:
             options = options.__class__(**{**vars(options), "callback": _interrupt_at(2)})
-        res = original(method, tr, options, started)
-        finished.append(res)
+        res = original(problem, method, thetas, options, started)
+        finished.extend(res)
         return res
 
-    monkeypatch.setattr(driver, "_single", second_start_interrupted)
+    monkeypatch.setattr(starts, "fit_many", second_start_interrupted)
     with pytest.raises(ti.FitInterrupted) as info:
         ti.fit(problem, starts=4, workers=1, batch=1)
     res = info.value.result
@@ -126,7 +126,7 @@ def test_lost_workers_end_with_the_finished_starts(bad, status):
     took = time.monotonic() - started
     stop = info.value
     assert stop.status is ti.Status.WORKERS_LOST and stop.total == 4
-    assert {r["start"] for r in stop.runs} <= {0, 1, 3} and stop.runs
+    assert set(stop.runs) <= {0, 1, 3} and stop.runs
     assert ("worker process died" in stop.detail) == (status == "died")
     assert took < 45  # the sleeping worker was not waited for
     import multiprocessing
@@ -256,7 +256,7 @@ def test_ctrl_c_before_any_start_finished_leaves_the_folder_as_it_was(
     def nothing_finished(*a, **k):
         raise StartsStopped(ti.Status.INTERRUPTED, [], 8, "interrupted")
 
-    monkeypatch.setattr("tensorid.fitting.methods.run_starts", nothing_finished)
+    monkeypatch.setattr("tensorid.fitting.starts.run_starts", nothing_finished)
     capsys.readouterr()
     assert cli.main(FIT + ["--out", str(out), "--starts", "8"]) == 130
     assert "as it was" in capsys.readouterr().err

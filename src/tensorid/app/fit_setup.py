@@ -9,6 +9,7 @@ from ..engine.discretisation import Discretisation
 from ..engine.integrators import SCHEMES
 from ..engine.problem import Problem
 from ..engine.shooting import resolve_segments
+from ..fitting.registry import exact_derivatives
 from ..fitting.residuals import lag_limit
 from ..fitting.validation import check_init_window
 from .files import ModelSpec, load_data
@@ -117,7 +118,7 @@ def _check_options(args, train, val) -> None:
             "--no-polish applies to multiple shooting (the polish follows the segments): "
             "give --segments or --segment-length, or drop --no-polish"
         )
-    if getattr(args, "hessian", "auto") != "auto" and args.method.startswith("fd-"):
+    if getattr(args, "hessian", "auto") != "auto" and not exact_derivatives(args.method):
         raise ValueError(
             f"--hessian {args.hessian}: --method {args.method} is a finite-difference "
             "baseline and computes no exact Hessian; drop --hessian or choose another method"

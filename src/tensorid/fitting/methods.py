@@ -9,31 +9,30 @@ result holds the best finite point it evaluated: a fit never returns NaN.
 
 from __future__ import annotations
 
-import functools
 import os
 import time
+from dataclasses import replace
 
 import numpy as np
 
 from ..engine.compilation import compile_clock
 from ..engine.problem import Problem
 from ..engine.status import Status
-from .baselines import BASELINES
-from .driver import failed, fit_many
-from .multistart import SAMPLINGS, StartsStopped, draw_starts, ranked_starts, run_starts
+from .multistart import SAMPLINGS, draw_starts
 from .options import FitOptions
-from .priors import weigh_priors, weighed
+from .priors import weighed
+from .registry import LOCKSTEP, METHODS, listed, resolve
 from .results import FitInterrupted, FitResult
 from .robust import fit_robust
-from .shooting import fit_shooting
+from .solvers import Method
+from .starts import fit_task, fits, many_starts
 
-METHODS = ("auto", "newton", "newton-cg", "gauss-newton", *BASELINES)
-LOCKSTEP = ("auto", "newton", "gauss-newton")  # methods whose starts can share vmapped calls
+__all__ = ["LOCKSTEP", "METHODS", "fit", "fit_batch", "fit_task"]
 
 
 def fit(
     problem: Problem,
-    method: str = "auto",
+    method: str | Method = "auto",
     *,
     theta0=None,
     starts: int | None = None,
@@ -53,9 +52,7 @@ def fit(
     timeout: float | None = None,
     polish: bool = True,
 ) -> FitResult:
-    """Estimate the free initial states and parameters of ``problem``.
-
-    method:
+    """Estimate the free initial states and parameters of ``problem``. method:
       "auto"          (default) Gauss-Newton while it converges fast, the exact
                       Hessian where it does not or at a saddle (see hybrid.py)
       "newton"        trust-region Newton with the exact Hessian from transition tensors
@@ -67,6 +64,7 @@ def fit(
       "fd-bfgs"       BFGS (L-BFGS-B with bounds) with a finite-difference gradient
       "fd-lsq"        scipy least_squares (trf) with a finite-difference Jacobian, as
                       MATLAB's grey-box toolbox does
+      or a method object (a ``tensorid.fitting.solvers.Method``: architecture.md)
     theta0 : start (K,), natural units; default ``problem.theta0``.
     x_scale, maxiter, gtol, ftol, xtol, callback : see :class:`FitOptions` (or options=).
     starts : with N > 1, fit from theta0 and N - 1 further starts (inside the bounds,
@@ -90,14 +88,14 @@ def fit(
     (a KeyboardInterrupt) whose ``result`` is the best point so far.
     """
     started = time.perf_counter()
-    _check_method(problem, method)
+    solver = _check_method(problem, method)
     options = _options(options, x_scale, maxiter, gtol, ftol, xtol, callback, polish)
     theta0 = _check_start(problem, problem.theta0 if theta0 is None else theta0, "theta0")
     if starts is not None:
         _check_count("starts", starts)
     n = 1 if starts is None else int(starts)
     if n > 1:
-        batch = _check_batch(method, batch, n, executor, workers)
+        batch = _check_batch(solver, batch, n, executor, workers)
         _check_multistart(spread, sampling, workers, timeout)
     with compile_clock() as clock:  # this process's compilations (not the workers')
         if n > 1:
@@ -106,8 +104,8 @@ def fit(
             where = (executor, workers, int(batch or 1), timeout)
         else:
             thetas, where = theta0[None, :], None
-        res = _starts(problem, method, thetas, options, where, started)
-    res.compile_seconds = clock[0]
+        res = _starts(problem, solver, thetas, options, where, started)
+    res = replace(res, compile_seconds=clock[0])
     if res.status is Status.INTERRUPTED:
         raise FitInterrupted(res)
     return res
@@ -121,14 +119,14 @@ def _starts(problem, method, thetas, options, where, started) -> FitResult:
         return fit_robust(
             problem,
             first,
-            lambda p, th: weighed(_fits)(p, method, th[None, :], options, time.perf_counter())[0],
+            lambda p, th: weighed(fits)(p, method, th[None, :], options, time.perf_counter())[0],
         )
     if where is None:
-        return weighed(_fits)(problem, method, thetas, options, started)[0]
-    return _many_starts(problem, method, thetas, options, where, started)
+        return weighed(fits)(problem, method, thetas, options, started)[0]
+    return many_starts(problem, method, thetas, options, where, started, fits)
 
 
-def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResult]:
+def fit_batch(problem: Problem, method: str | Method, thetas, **options) -> list[FitResult]:
     """Fits from every row of ``thetas`` (B, K) in lock-step: at each iteration the
     points of all unfinished starts are evaluated in one vectorised (jax.vmap) call,
     which costs far less than B separate calls on a CPU. Methods "auto", "newton"
@@ -140,10 +138,11 @@ def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResul
     :func:`fit` for those). Ctrl-C raises :class:`FitInterrupted` with every start's
     best point so far."""
     started = time.perf_counter()
-    if method not in LOCKSTEP:
+    solver = _check_method(problem, method)
+    if not solver.supports_batch:
         raise ValueError(
-            f"batched starts work with 'auto', 'newton' and 'gauss-newton', not {method!r}; "
-            "use batch=1"
+            f"batched starts work with {listed('supports_batch', 'and')}, not "
+            f"{solver.name!r}; use batch=1"
         )
     opts = options.pop("options", None)
     if opts is None:
@@ -156,9 +155,8 @@ def fit_batch(problem: Problem, method: str, thetas, **options) -> list[FitResul
     thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
     thetas = np.stack([_check_start(problem, th, "a start") for th in thetas])
     with compile_clock() as clock:
-        results = weighed(_fits)(problem, method, thetas, opts, started)
-    for r in results:
-        r.compile_seconds = clock[0]
+        results = weighed(fits)(problem, solver, thetas, opts, started)
+    results = [replace(r, compile_seconds=clock[0]) for r in results]
     if any(r.status is Status.INTERRUPTED for r in results):
         best = min(results, key=lambda r: (not np.isfinite(r.cost), r.cost))
         raise FitInterrupted(best, results)
@@ -185,33 +183,23 @@ def _options(options, x_scale, maxiter, gtol, ftol, xtol, callback, polish=True)
     return options
 
 
-def _check_method(problem, method) -> None:
+def _check_method(problem, method) -> Method:
+    """The method object named ``method`` (registry.py), checked against ``problem``."""
     if not isinstance(problem, Problem):
         raise TypeError(f"fit needs a tensorid.Problem, got {type(problem).__name__}")
-    if method not in METHODS:
-        raise ValueError(f"unknown method {method!r}; choose one of {list(METHODS)}")
-    if problem.shooting is not None and method in BASELINES:
+    method = resolve(method)
+    if problem.shooting is not None and not method.supports_segments:
         raise ValueError(
-            f"method {method!r} is single shooting only; with segments (multiple "
-            "shooting) use 'auto', 'newton' or 'gauss-newton', or drop the segments"
+            f"method {method.name!r} is single shooting only; with segments (multiple "
+            f"shooting) use {listed('supports_segments')}, or drop the segments"
         )
-
-
-def _fits(problem, method, thetas, options: FitOptions, started) -> list[FitResult]:
-    """Fits from every row of ``thetas``: by multiple shooting (one after another) when
-    the problem has segments, else by the driver (lock-step for several)."""
-    if problem.shooting is None:
-        return fit_many(problem, method, thetas, options, started)
-    out: list[FitResult] = []
-    for th in thetas:
-        if out and out[-1].status is Status.INTERRUPTED:  # Ctrl-C ends the batch
-            out.append(
-                FitResult.at(problem, method, th, np.ones(problem.K), Status.INTERRUPTED,
-                             started=started, evaluate=False, cost=problem.cost(th))
-            )  # fmt: skip
-        else:
-            out.append(fit_shooting(problem, method, th, options, started))
-    return out
+    if problem.loss.likelihood and not method.supports_likelihood:
+        raise ValueError(
+            f"method {method.name!r} minimises a sum of squared residuals, and a filter's "
+            f"cost (predictor='ekf') is −2 log L, which is not one: use "
+            f"{listed('supports_likelihood')}"
+        )
+    return method
 
 
 def _check_start(problem: Problem, theta, what: str) -> np.ndarray:
@@ -243,123 +231,13 @@ def _check_multistart(spread, sampling, workers, timeout) -> None:
 
 def _check_batch(method, batch, starts, executor, workers) -> int:
     if batch is None:
-        if method in LOCKSTEP and executor is None:
+        if method.supports_batch and executor is None:
             return min(16, -(-starts // (workers or os.cpu_count() or 1)))
         return 1
     _check_count("batch", batch)
-    if batch > 1 and method not in LOCKSTEP:
+    if batch > 1 and not method.supports_batch:
         raise ValueError(
-            f"batch > 1 works with 'auto', 'newton' and 'gauss-newton', not {method!r}; use batch=1"
+            f"batch > 1 works with {listed('supports_batch', 'and')}, not {method.name!r}; "
+            "use batch=1"
         )
     return int(batch)
-
-
-# -- many starts --------------------------------------------------------------------------
-def fit_task(method: str, options: FitOptions):
-    """The task that multistart.run_starts sends to workers: fit each start of a
-    chunk with ``method`` (the caller's callback stays behind)."""
-    return functools.partial(_fit_chunk, method=method, options=options.without_callback())
-
-
-def _many_starts(problem, method, thetas, options: FitOptions, where: tuple, started):
-    """Fits from every row of ``thetas`` on workers (``where``: executor, workers,
-    batch, timeout), the best refined; or, if they cannot all finish, the best of
-    those that did."""
-    try:
-        runs = run_starts(problem, fit_task(method, options), thetas, *where)
-    except StartsStopped as stop:
-        return _stopped(problem, method, thetas[0], stop, started)
-    res = _best_of(problem, method, thetas[0], runs, options, started)
-    return weigh_priors(res, _fits, method, options, started)
-
-
-def _fit_chunk(problem, thetas, *, method: str, options: FitOptions) -> list[dict]:
-    """Worker side: fit from each row of ``thetas`` (in lock-step when several)."""
-    thetas = np.asarray(thetas, dtype=float)
-    results = _fits(problem, method, thetas, options, time.perf_counter())
-    return [
-        {
-            "theta0": list(map(float, th)),
-            "theta": res.theta.tolist(),
-            "cost": float(res.cost),
-            "success": res.success,
-            "status": str(res.status),
-            "nit": res.nit,
-            "nfev": res.nfev,
-            "seconds": res.seconds,
-            "message": res.message,
-            "history": res.history,
-            "shooting": res.shooting,
-        }
-        for th, res in zip(thetas, results, strict=True)
-    ]
-
-
-def _best_of(problem, method, theta0, runs: list[dict], options: FitOptions, started):
-    """Rank the starts, refine the best here (where the caller's callback can watch
-    it), and report the best start's own run (nit, nfev_best, history) beside the
-    totals of all of them (nit_total, nfev)."""
-    for i, r in enumerate(runs):
-        r["start"] = i
-    ranked = ranked_starts(runs)
-    best = ranked[0]
-    histories = {r["start"]: r.pop("history") for r in runs}
-    nit_all, nfev_all = sum(r["nit"] for r in runs), sum(r["nfev"] for r in runs)
-    if not np.isfinite(best["cost"]):
-        status = Status.ALL_STARTS_FAILED
-        res = failed(problem, method, theta0, started, status.message, status)
-        res.nit, res.nit_total, res.nfev, res.nfev_best = 0, nit_all, nfev_all, 0
-    else:
-        res = _refined(problem, method, best, options, started)
-        own = histories[best["start"]]
-        # the refinement restarts its count (the trust region records an iteration 0)
-        offset = own[-1]["iteration"] if own else best["nit"]
-        more = [h for h in res.history if not (h["iteration"] == 0 and own)]
-        res.history = own + [dict(h, iteration=h["iteration"] + offset) for h in more]
-        res.nit_total, res.nfev = nit_all + res.nit, nfev_all + res.nfev
-        res.nfev_best = best["nfev"] + res.nfev_best
-        res.nit += best["nit"]
-    res.starts = ranked
-    res.seconds = time.perf_counter() - started
-    return res
-
-
-def _refined(problem, method, best: dict, options: FitOptions, started) -> FitResult:
-    """The best start refined by single shooting; with segments and no polish, the
-    best start's own multiple-shooting solution as it is (refining it would polish)."""
-    theta = np.asarray(best["theta"])
-    if problem.shooting is not None and not options.polish:
-        status = Status[best["status"].upper()]
-        res = FitResult.at(problem, method, theta, np.ones(problem.K), status,
-                           message=best["message"], started=started)  # fmt: skip
-        res.nit = res.nfev = res.nfev_best = 0
-    else:
-        res = fit_many(problem, method, theta[None, :], options, started)[0]
-    res.shooting = best.get("shooting")
-    return res
-
-
-def _stopped(problem, method, theta0, stop: StartsStopped, started) -> FitResult:
-    """The result when the starts could not all finish: the best of those that did,
-    not refined (the user is waiting, or the workers are gone)."""
-    runs = ranked_starts(stop.runs)
-    which = ", ".join(str(i) for i in sorted(r["start"] for r in runs))
-    finished = f"{len(runs)} of {stop.total} starts finished" + (f": {which}" if runs else "")
-    best = runs[0] if runs and np.isfinite(runs[0]["cost"]) else None
-    res = FitResult.at(
-        problem,
-        method,
-        np.asarray(best["theta"]) if best else theta0,
-        np.ones(problem.K),
-        stop.status,
-        message=stop.status.describe(f"{stop.detail}; {finished}"),
-        nit=best["nit"] if best else 0,
-        nfev=sum(r["nfev"] for r in runs),
-        started=started,
-        history=best["history"] if best else [],
-        evaluate=False,
-        cost=best["cost"] if best else np.inf,
-    )
-    res.nit_total = sum(r["nit"] for r in runs)
-    res.starts = [{k: v for k, v in r.items() if k != "history"} for r in runs]
-    return res

@@ -5,8 +5,8 @@ cluster via ``client.get_executor()``), ranked by cost, the best refined.
 Problems are sent as cloudpickle bytes, so models written as lambdas, in scripts,
 notebooks or model files reach the workers; each worker compiles a problem once
 and reuses it for every start it receives. What a worker does with its starts is a
-task passed in by the caller (fit's, in methods.py), so this module knows nothing
-of the fitting methods.
+task passed in by the caller (fit's, in starts.py: it returns a FitResult per
+start), so this module knows nothing of the fitting methods.
 """
 
 from __future__ import annotations
@@ -136,7 +136,7 @@ def _worker_init(cache: str | None) -> None:
 _WORKER_PROBLEMS: dict[str, Any] = {}
 
 
-def _run_payload(payload: tuple) -> list[dict]:
+def _run_payload(payload: tuple) -> list:
     """Worker side: ``task(problem, thetas)`` for one chunk of starts."""
     import cloudpickle
 
@@ -158,26 +158,27 @@ def _run_payload(payload: tuple) -> list[dict]:
 class StartsStopped(Exception):
     """Raised by :func:`run_starts` when the starts cannot all finish: Ctrl-C
     (``status`` INTERRUPTED) or workers that stopped answering (WORKERS_LOST).
-    ``runs`` holds the results of the starts that did finish, each with its index
-    ``start``; ``total`` is the number of starts."""
+    ``runs`` holds the results of the starts that did finish, by the index of their
+    start; ``total`` is the number of starts."""
 
-    def __init__(self, status, runs: list[dict], total: int, detail: str):
+    def __init__(self, status, runs, total: int, detail: str):
         super().__init__(detail)
-        self.status, self.runs, self.total, self.detail = status, runs, total, detail
+        self.status, self.runs, self.total, self.detail = status, dict(runs), total, detail
 
 
 def run_starts(
     problem,
-    task: Callable[[Any, list], list[dict]],
+    task: Callable[[Any, list], list],
     thetas: np.ndarray,
     executor: Executor | None = None,
     workers: int | None = None,
     batch: int = 1,
     timeout: float | None = None,
-) -> list[dict]:
+) -> list:
     """``task(problem, chunk)`` for chunks of up to ``batch`` rows of ``thetas``, on
     ``executor``, a local process pool of ``workers``, or here for one worker; the
-    task returns one dict per start. Results come back in the order of the starts.
+    task returns one result per start (a start it stopped has ``status``
+    INTERRUPTED). Results come back in the order of the starts.
     ``task`` must be picklable (a module-level function or a partial of one).
 
     When no chunk finishes for ``timeout`` seconds (lost workers), on a broken local
@@ -212,21 +213,23 @@ def run_starts(
     return [r for rs in done for r in rs]
 
 
-def _numbered(chunks_done: dict[int, list[dict]], batch: int) -> list[dict]:
-    """The finished starts, each with its index among all starts."""
+def _numbered(chunks_done: dict[int, list], batch: int) -> dict[int, Any]:
+    """The finished starts by their index among all starts."""
     ordered = sorted(chunks_done.items())
-    return [dict(r, start=c * batch + j) for c, rs in ordered for j, r in enumerate(rs)]
+    return {c * batch + j: r for c, rs in ordered for j, r in enumerate(rs)}
 
 
-def _run_here(problem, task, chunks: list, total: int) -> list[dict]:
-    done: dict[int, list[dict]] = {}
+def _run_here(problem, task, chunks: list, total: int) -> list:
+    done: dict[int, list] = {}
     for c, chunk in enumerate(chunks):
         try:
             rs = task(problem, chunk)
         except KeyboardInterrupt:
             rs = []
         done[c] = rs
-        if len(rs) < len(chunk) or any(r["status"] == str(Status.INTERRUPTED) for r in rs):
+        if len(rs) < len(chunk) or any(
+            getattr(r, "status", None) is Status.INTERRUPTED for r in rs
+        ):
             runs = _numbered(done, len(chunks[0]))
             raise StartsStopped(Status.INTERRUPTED, runs, total, "interrupted")
     return [r for c in sorted(done) for r in done[c]]

@@ -19,7 +19,7 @@ behind the rule are in docs/statistics.md.
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -209,8 +209,8 @@ def weigh_priors(res, fits, method, options, started):
     else:  # the user's word: only a clear disagreement is worth a warning
         dof = done.uncertainty().dof
         source, agree = "given", _agree(used, residual) or _chance(used, residual, dof)
-    done.noise_check = NoiseCheck(source, first, used, residual, refits, agree, _per_output(done))
-    return done
+    check = NoiseCheck(source, first, used, residual, refits, agree, _per_output(done))
+    return replace(done, noise_check=check)
 
 
 def _agree(a: float, b: float) -> bool:
@@ -241,19 +241,18 @@ def _with_noise(problem, variance: float):
 def _chained(before, after):
     """``after`` (a refit from ``before``'s optimum) counting both runs: iterations,
     evaluations, history (the refit's iterations numbered on) and the starts."""
-    offset = before.history[-1]["iteration"] if before.history else before.nit
-    more = [dict(h, iteration=h["iteration"] + offset) for h in after.history if h["iteration"]]
-    after.history = before.history + more
-    after.nit += before.nit
-    after.nfev += before.nfev
-    after.nit_total = (after.nit_total or 0) + (before.nit_total or 0)
-    after.nfev_best = (after.nfev_best or 0) + (before.nfev_best or 0)
-    after.starts = before.starts
-    after.shooting = after.shooting or before.shooting
+    hybrid = after.hybrid
     if before.hybrid and after.hybrid:
-        after.hybrid = {k: before.hybrid[k] + after.hybrid[k] for k in after.hybrid}
-    after.notes = before.notes + after.notes
-    return after
+        hybrid = {k: before.hybrid[k] + after.hybrid[k] for k in after.hybrid}
+    return replace(
+        after,
+        history=before.history_then(after.history),
+        stats=before.stats.then(after.stats),
+        starts=before.starts,
+        shooting=after.shooting or before.shooting,
+        hybrid=hybrid,
+        notes=before.notes + after.notes,
+    )
 
 
 def _per_output(res) -> dict[str, dict[str, float]]:

@@ -8,7 +8,8 @@ only when asked (``plot(folder)``).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -24,7 +25,48 @@ def _squeeze(a: np.ndarray) -> np.ndarray:
     return a[:, 0] if a.ndim == 2 and a.shape[1] == 1 else a
 
 
-@dataclass
+@dataclass(frozen=True)
+class Stats(Mapping):
+    """A fit's counters, read-only: a mapping (``res.stats["nit"]``) and attributes.
+
+    nit, nfev, nhev : iterations, cost evaluations, Hessian-vector products.
+    nit_total, nfev_best : with several starts, every start's iterations and the best
+        start's evaluations (for one start, nit and nfev: the default).
+    """
+
+    nit: int = 0
+    nfev: int = 0
+    nhev: int = 0
+    nit_total: int | None = None
+    nfev_best: int | None = None
+
+    def __post_init__(self) -> None:
+        default = {"nit_total": self.nit, "nfev_best": self.nfev}
+        for k in self:
+            v = getattr(self, k)
+            object.__setattr__(self, k, int(default[k] if v is None else v))
+
+    def __getitem__(self, key: str) -> int:
+        if key not in self.__dataclass_fields__:
+            raise KeyError(key)
+        return getattr(self, key)
+
+    def __iter__(self):
+        return iter(self.__dataclass_fields__)
+
+    def __len__(self) -> int:
+        return len(self.__dataclass_fields__)
+
+    def then(self, later: Stats) -> Stats:
+        """The counts of this run followed by ``later`` (a refit, a polish): summed."""
+        return Stats(**{k: self[k] + later[k] for k in self})
+
+    def plus(self, **more: int) -> Stats:
+        """These counts with ``more`` added to the ones named."""
+        return replace(self, **{k: self[k] + int(v) for k, v in more.items()})
+
+
+@dataclass(frozen=True)
 class FitResult(Tabular):
     """Outcome of :func:`fit`, with scipy.optimize.OptimizeResult's names where they fit.
     ``print(res)`` shows :meth:`summary`; a notebook shows the same as HTML tables.
@@ -39,6 +81,7 @@ class FitResult(Tabular):
         units (components pushing against an active bound are dropped).
     status : how the fit ended (a :class:`tensorid.Status`); ``success`` and the
         start of ``message`` derive from it.
+    stats : the counters (:class:`Stats`), also read as attributes:
     nit, nfev : iterations and cost evaluations (finite-difference ones included).
         With several starts, ``nit`` counts the best start's own iterations (and its
         refinement's) and ``nfev`` every start's evaluations; ``nit_total`` counts
@@ -57,9 +100,13 @@ class FitResult(Tabular):
         defects aside), max_defect (largest continuity defect relative to the state
         scale), defect_tol, status, seconds, polished (and polish_nit). None for
         single shooting.
+
+    A result is immutable: it is built once, where its run ends (``fitting/endings.py``);
+    a later stage (a refit, a polish, the best of many starts) makes a new one with
+    ``dataclasses.replace``.
     """
 
-    problem: Problem
+    problem: Problem  # None only on its way back from a worker (see detached)
     method: str
     theta: np.ndarray
     params: dict[str, float]
@@ -68,8 +115,6 @@ class FitResult(Tabular):
     jac: np.ndarray
     hess: np.ndarray
     grad_norm: float
-    nit: int
-    nfev: int
     status: Status
     message: str
     seconds: float
@@ -77,22 +122,16 @@ class FitResult(Tabular):
     history: list[dict] = field(default_factory=list)
     starts: list[dict] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
-    nhev: int = 0
-    nit_total: int | None = None
-    nfev_best: int | None = None
+    stats: Stats = field(default_factory=Stats)
     compile_seconds: float = 0.0
     derivatives: bool = True  # jac and hess hold the exact derivatives at theta
     shooting: dict | None = None  # multiple shooting: segments, defects, its own counts
     hybrid: dict | None = None  # method "auto": evaluations of each kind, mode switches
     noise_check: NoiseCheck | None = None  # priors: their noise variance against the residuals
-    # the summary, the warnings, fit.json and report.md all read the same uncertainty
-    _uncertainty: dict = field(default_factory=dict, init=False, repr=False, compare=False)
-
-    def __post_init__(self) -> None:
-        if self.nit_total is None:
-            self.nit_total = self.nit
-        if self.nfev_best is None:
-            self.nfev_best = self.nfev
+    # the summary, the warnings, fit.json and report.md all read the same uncertainty;
+    # keyed on what it depends on, so a result made by replace shares it (but not
+    # across Problems: detached and attached start afresh)
+    _uncertainty: dict = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
     def at(
@@ -104,19 +143,21 @@ class FitResult(Tabular):
         status: Status,
         *,
         message: str | None = None,
-        nit: int = 0,
-        nfev: int = 1,
+        stats: Stats | None = None,
         started: float | None = None,
         history: list | None = None,
         evaluate: bool = True,
         cost: float = np.inf,
         known: tuple | None = None,
+        **more,
     ) -> FitResult:
         """The result at θ, with the exact gradient and Hessian there. A point whose
         simulation is not finite gets cost inf and zero derivatives, never NaN.
         Without ``evaluate`` nothing is computed (an interrupted fit must end at
         once): the result holds the ``cost`` already known and no derivatives.
-        ``known`` = (θ, J, g, H) spares the evaluation when it was at this θ."""
+        ``known`` = (θ, J, g, H) spares the evaluation when it was at this θ;
+        ``stats`` defaults to one evaluation; ``more``: the other fields (notes,
+        hybrid, shooting, starts)."""
         K = theta.size
         if evaluate and known is not None and np.array_equal(known[0], theta):
             J, g, H = known[1:]
@@ -140,15 +181,39 @@ class FitResult(Tabular):
             jac=g,
             hess=H,
             grad_norm=grad_norm,
-            nit=int(nit),
-            nfev=int(nfev),
             status=status,
             message=status.message if message is None else message,
             seconds=0.0 if started is None else time.perf_counter() - started,
             scale=scale,
             history=history or [],
+            stats=Stats(nfev=1) if stats is None else stats,
             derivatives=evaluate,
+            **more,
         )
+
+    def detached(self) -> FitResult:
+        """This result without its Problem, to travel back from a worker process (a
+        Problem holds compiled code); :meth:`attached` gives it one again."""
+        return replace(self, problem=None, _uncertainty={})  # type: ignore[arg-type]
+
+    def attached(self, problem: Problem) -> FitResult:
+        return replace(self, problem=problem, _uncertainty={})
+
+    def history_then(self, more: list[dict]) -> list[dict]:
+        """This history followed by ``more`` (a run from this end point), whose
+        iterations are numbered on from its last (or from ``nit`` without one);
+        ``more``'s iteration 0, this end point again, is left out where it is here."""
+        own = self.history
+        offset = own[-1]["iteration"] if own else self.nit
+        return own + [dict(h, iteration=h["iteration"] + offset) for h in more
+                      if h["iteration"] or not own]  # fmt: skip
+
+    # the counters, read-only (public names since the first release)
+    nit = property(lambda self: self.stats.nit, doc="Iterations (``stats['nit']``).")
+    nfev = property(lambda self: self.stats.nfev, doc="Cost evaluations (``stats['nfev']``).")
+    nhev = property(lambda self: self.stats.nhev, doc="Hessian-vector products.")
+    nit_total = property(lambda self: self.stats.nit_total, doc="Every start's iterations.")
+    nfev_best = property(lambda self: self.stats.nfev_best, doc="The best start's evaluations.")
 
     @property
     def has_uncertainty(self) -> bool:

@@ -24,6 +24,8 @@ A scale the user gave is never changed. The result's notes say what was done.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ..engine.losses import TUNING, robust_sd
@@ -95,9 +97,12 @@ def fit_robust(problem, first, refit):
     if first.starts:
         notes.append(f"its starts were ranked by the least-squares stage ({len(first.starts)})")
     res.problem.loss_scale_estimated = estimated
-    res.notes[:0] = first.notes + notes
-    res.starts = first.starts
-    res.seconds += sum(r.seconds for r in spent)
-    res.nfev += sum(r.nfev for r in spent)
-    res.nit_total = (res.nit_total or 0) + sum(r.nit_total or 0 for r in spent)
-    return res
+    return replace(
+        res,
+        notes=first.notes + notes + res.notes,
+        starts=first.starts,
+        seconds=res.seconds + sum(r.seconds for r in spent),
+        stats=res.stats.plus(
+            nfev=sum(r.nfev for r in spent), nit_total=sum(r.nit_total for r in spent)
+        ),
+    )

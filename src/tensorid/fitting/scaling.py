@@ -104,8 +104,18 @@ class Tracker:
         return J / self.J_ref, g * s / self.J_ref, self.scaled_hessian(H)
 
     def scaled_hessian(self, H):
-        """H (natural units) in scaled units; None stays None."""
-        return None if H is None else H * np.outer(self.scale, self.scale) / self.J_ref
+        """H (natural units) in scaled units; None stays None. H may be a product
+        function v -> Hv (truncated-CG steps): then so is the result, a failed
+        product's entries zero."""
+        if H is None or not callable(H):
+            return None if H is None else H * np.outer(self.scale, self.scale) / self.J_ref
+        s, J_ref = self.scale, self.J_ref
+
+        def hessp(v):
+            Hv = H(s * v)
+            return np.where(np.isfinite(Hv), Hv, 0.0) * s / J_ref
+
+        return hessp
 
     def derivs(self, fn):
         """φ -> scaled (J, g, H) from ``fn(θ) -> (J, g, H)`` in natural units."""
@@ -114,21 +124,6 @@ class Tracker:
             return self.scaled(phi, *fn(self.theta(phi)))
 
         return wrapped
-
-    def derivs_hessp(self, phi):
-        """(J, g, v -> Hv) in scaled units, for truncated-CG steps."""
-        theta = self.theta(phi)
-        J, g = self.problem.cost_grad(theta)
-        self._seen(phi, J)
-        if not np.isfinite(J):
-            return np.inf, g, None
-        s = self.scale
-
-        def hessp(v):
-            Hv = self.problem.cost_grad_hessp(theta, s * v)[2]
-            return np.where(np.isfinite(Hv), Hv, 0.0) * s / self.J_ref
-
-        return J / self.J_ref, g * s / self.J_ref, hessp
 
     def cost(self, phi):
         J = self.problem.cost(self.theta(phi))

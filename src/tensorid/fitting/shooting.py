@@ -18,24 +18,28 @@ second-order terms (∇²Ĵ by its Gauss-Newton form, no ∇²ĉ): the cheaper v
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 
 from ..engine.status import Status
 from .arrow import ArrowSolver
-from .driver import failed, fit_many
+from .driver import fit_many
+from .endings import Outcome, Run, failed, march, segments_result
 from .options import FitOptions
-from .results import FitResult
-from .trust_region import minimize_trust_region
+from .results import FitResult, Stats
+from .trust_region import trust_region_steps
 
 MU0 = 10.0  # first penalty, in units of the starting cost per (defect / state scale)²
 MAX_OUTER = 12
 ARROW_FROM = 100  # unknowns from which the block-arrow solver beats the dense one
 
 
-def fit_shooting(problem, method: str, theta0, options: FitOptions, started) -> FitResult:
-    """Fit ``problem`` (which has segments) from θ0 by multiple shooting, then polish by
-    single shooting unless ``options.polish`` is False."""
+def fit_shooting(problem, method, theta0, options: FitOptions, started) -> FitResult:
+    """Fit ``problem`` (which has segments) from θ0 by ``method`` (a registry method)
+    by multiple shooting, then polish by single shooting unless ``options.polish`` is
+    False."""
     sh = problem.shooting
     z0 = sh.start(theta0)
     first = sh.evaluate(z0, exact=False)
@@ -47,14 +51,12 @@ def fit_shooting(problem, method: str, theta0, options: FitOptions, started) -> 
             "a segment's simulation is not finite at the start, although the whole "
             "record's is; try more segments or another initial guess"
         )
-        return failed(problem, method, theta0, started, why + " Choose another initial guess.")
+        return failed(problem, method.name, theta0, started, why + " Choose another initial guess.")
     run = _Run(problem, method, z0, first.J, options)
-    try:
-        z, status, detail = run.solve()
-    except KeyboardInterrupt:
-        z, status, detail = run.best, Status.INTERRUPTED, ""
-    except np.linalg.LinAlgError as e:  # as in driver._single: the best point is kept
-        z, status, detail = run.best, Status.SOLVER_FAILED, f"{method} raised LinAlgError: {e}"
+    ran = Run(run, run)
+    march([ran], lambda runs: [run.evaluate()])  # the one loop: endings.py
+    assert ran.ending is not None
+    z, status = ran.ending.x, ran.ending.status
     theta = sh.to_theta(z)
     if status is Status.INTERRUPTED and problem.cost(theta0) < problem.cost(theta):
         theta = np.asarray(theta0, dtype=float)  # stopped before the segments beat the start
@@ -70,50 +72,41 @@ def fit_shooting(problem, method: str, theta0, options: FitOptions, started) -> 
         seconds=time.perf_counter() - started,
         polished=False,
     )
-    if status is not Status.INTERRUPTED and options.polish:
-        res = fit_many(problem, method, theta[None, :], options, started)[0]
-        info["polished"] = True
-        info["polish_nit"] = res.nit
-        res.history = run.history + [
-            dict(h, iteration=h["iteration"] + run.nit, stage="polish") for h in res.history
-        ]
-        res.nit += run.nit
-        res.nfev += run.nfev
-        res.nit_total = res.nit
-        res.nfev_best = res.nfev
-    else:
-        message = status.describe(detail)
-        res = FitResult.at(
-            problem,
-            method,
-            theta,
-            np.ones(problem.K),
-            status,
-            message=message,
-            nit=run.nit,
-            nfev=run.nfev,
-            started=started,
-            history=run.history,
-            evaluate=status is not Status.INTERRUPTED,
-            cost=problem.cost(theta) if status is Status.INTERRUPTED else np.inf,
-        )
-    res.shooting = info
+    notes = []
     if run.defect > run.ctol and np.isfinite(run.defect):
-        res.notes.append(
+        notes.append(
             f"multiple shooting stopped with a continuity defect of {run.defect:.1e} "
             f"(relative to the state scale; tolerance {run.ctol:.0e})"
             + (": the polish started from a discontinuous trajectory" if options.polish else "")
         )
-    return res
+    if status is Status.INTERRUPTED or not options.polish:
+        stopped = status is Status.INTERRUPTED
+        return segments_result(
+            problem, method.name, theta, status, started,
+            message=status.describe(ran.ending.detail), stats=Stats(nit=run.nit, nfev=run.nfev),
+            history=run.history, cost=problem.cost(theta) if stopped else np.inf,
+            shooting=info, notes=notes,
+        )  # fmt: skip
+    res = fit_many(problem, method, theta[None, :], options, started)[0]
+    info.update(polished=True, polish_nit=res.nit)
+    history = run.history + [
+        dict(h, iteration=h["iteration"] + run.nit, stage="polish") for h in res.history
+    ]
+    stats = Stats(nit=run.nit, nfev=run.nfev).then(res.stats)
+    return replace(res, history=history, stats=stats, shooting=info, notes=res.notes + notes)
 
 
 class _Run:
-    """One augmented-Lagrangian solve in scaled units; keeps the counts and history."""
+    """One augmented-Lagrangian solve in scaled units; keeps the counts and history.
+    It is both the method and the state of a run of endings.march: ``point`` is the
+    next φ to evaluate by ``fun`` (the Lagrangian of the inner solve under way)."""
+
+    raises: tuple = ()
 
     def __init__(self, problem, method, z0, J0, options: FitOptions):
         sh = self.sh = problem.shooting
-        self.problem, self.options = problem, options
-        self.exact = method != "gauss-newton"
+        self.problem, self.options, self.name = problem, options, method.name
+        self.exact = method.needs_hessian  # the exact Lagrangian Hessian, or Gauss-Newton
         self.J_ref = J0 if J0 > 0 else 1.0
         states = sh.state_scale(z0)
         self.cscale = np.tile(states, len(sh.defect_rows))
@@ -122,11 +115,37 @@ class _Run:
         self.ctol = options.defect_tol
         self.nit = self.nfev = self.outer = 0
         self.history: list[dict] = []
-        self.best = z0
+        self.best_z = z0
         self.J, self.defect = J0, np.inf
         self.costs_seen: dict[float, float] = {}
         # the state unknowns come first in z: the banded block of the arrow
         self.subproblem = ArrowSolver(sh.nz_states) if sh.nz >= ARROW_FROM else None
+        self.fun: Callable | None = None  # the Lagrangian of the inner solve under way
+        self.outcome: Outcome | None = None
+        self.steps = self.solve()
+        self.point = next(self.steps)
+
+    # -- as a method of endings.march
+    def evaluate(self):
+        """(L_A, ∇L_A, ∇²L_A) at the pending point."""
+        assert self.fun is not None
+        return self.fun(self.point)
+
+    def step(self, state, value) -> None:
+        try:
+            self.point = self.steps.send(value)
+        except StopIteration as done:
+            self.point, self.outcome = None, done.value
+
+    def terminate(self, state) -> bool:
+        return self.outcome is not None
+
+    def result(self, state) -> Outcome:
+        assert self.outcome is not None
+        return self.outcome
+
+    def best(self, state) -> tuple:
+        return self.best_z, self.nit
 
     def _z_scale(self, z0, states) -> np.ndarray:
         sh, pr = self.sh, self.problem
@@ -174,9 +193,10 @@ class _Run:
         return fun
 
     def solve(self):
-        """(z, status, detail): outer iterations until the defects are below ctol."""
+        """Outer iterations until the defects are below ctol: a generator that yields
+        the inner solves' points and returns the Outcome (z, status)."""
         sh, opts = self.sh, self.options
-        phi = self.best / self.scale
+        phi = self.best_z / self.scale
         lam, mu = np.zeros(self.cscale.size), MU0
         status, detail, previous = Status.MAXITER, "", np.inf
         for outer in range(1, MAX_OUTER + 1):
@@ -185,8 +205,8 @@ class _Run:
                 break
             self.outer = outer
             gtol = max(opts.gtol, 1e-3 * 10.0 ** (1 - self.outer))
-            r = minimize_trust_region(
-                self.lagrangian(lam, mu),
+            self.fun = self.lagrangian(lam, mu)
+            r = yield from trust_region_steps(
                 phi,
                 self.lo,
                 self.hi,
@@ -199,10 +219,10 @@ class _Run:
             L = sh.evaluate(z, exact=False)
             with np.errstate(over="ignore"):  # an overflow is an infinite defect
                 c = L.c / self.cscale
-            self.best, self.J = z, L.J
+            self.best_z, self.J = z, L.J
             self.defect = float(np.abs(c).max()) if c.size else 0.0
             if self.defect <= self.ctol and r.status.success:
-                return z, r.status, ""
+                return Outcome(z, self.nit, r.status)
             lam = lam + mu * c
             if self.defect > 0.25 * previous:
                 mu *= 10.0
@@ -211,7 +231,7 @@ class _Run:
         if self.defect > self.ctol:
             status = Status.DEFECTS_REMAIN
             detail = f"largest defect {self.defect:.1e} after {self.outer} outer iterations"
-        return self.best, status, detail
+        return Outcome(self.best_z, self.nit, status, detail)
 
     def _record(self, lam, mu):
         """History entries in the user's units: ``cost`` is J, ``lagrangian`` the

@@ -1,0 +1,34 @@
+"""The fitting methods by name: the one place where a method's name is looked up.
+Everything else asks the method object (its markers, see solvers.py)."""
+
+from __future__ import annotations
+
+from .baselines import FdBfgs, FdLsq
+from .solvers import Auto, GaussNewton, Method, Newton, NewtonCG
+
+REGISTRY: dict[str, type[Method]] = {
+    cls.name: cls for cls in (Auto, Newton, NewtonCG, GaussNewton, FdBfgs, FdLsq)
+}
+METHODS = tuple(REGISTRY)
+LOCKSTEP = tuple(name for name, cls in REGISTRY.items() if cls.supports_batch)
+
+
+def resolve(method: str | Method) -> Method:
+    """The method called ``method`` (a method object is returned as it is)."""
+    if isinstance(method, Method):
+        return method
+    cls = REGISTRY.get(method) if isinstance(method, str) else None
+    if cls is None:
+        raise ValueError(f"unknown method {method!r}; choose one of {list(METHODS)}")
+    return cls()
+
+
+def exact_derivatives(name: str) -> bool:
+    """Whether the method called ``name`` uses exact derivatives (not finite differences)."""
+    return resolve(name).exact_derivatives
+
+
+def listed(marker: str, last: str = "or") -> str:
+    """The methods with ``marker`` set, for a message: "'auto', 'newton' or ..."."""
+    names = [repr(n) for n, cls in REGISTRY.items() if getattr(cls, marker)]
+    return ", ".join(names[:-1]) + f" {last} {names[-1]}" if len(names) > 1 else names[0]
