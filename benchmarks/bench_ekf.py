@@ -257,6 +257,7 @@ def one_draw(model, seed: int, sw: float, derivs_cache: dict) -> dict:
                       "stderr": se_ref.tolist(), "nit": int(ref.nit),
                       "covers": _covers(ref.x, se_ref, names, truth), "seconds": t_ref},
         "oe": {"theta": oe.theta.tolist(), "names": oe_names, "seconds": t_oe,
+               "status": oe.status.value[0], "success": bool(oe.success),
                "covers_white": _covers(oe.theta, oe.uncertainty().stderr, oe_names, TRUE),
                "covers_robust": _covers(oe.theta, oe.uncertainty("robust").stderr, oe_names,
                                         TRUE)},
@@ -308,6 +309,7 @@ def summarise(rows: list[dict]) -> dict:
                                for s in ("ekf", "reference", "oe")},
             "ekf_not_success": sum(not r["ekf"]["success"] for r in ok),
             "reference_not_success": sum(not r["reference"]["success"] for r in ok),
+            "oe_not_success": sum(not r["oe"].get("success", True) for r in ok),
             "max_cost_difference": float(max(dJ)),
             "ekf_cost_above_reference_by_1e-6": sum(
                 r["ekf"]["cost"] > r["reference"]["cost"] + 1e-6 * abs(r["reference"]["cost"])
