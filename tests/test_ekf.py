@@ -412,3 +412,19 @@ def test_ekf_from_the_command_line(tmp_path, capsys):
     # a filter refuses what it cannot serve, in one line, before any work
     assert cli.main([*argv[:3], "--data-sensitivity", "--out", str(tmp_path / "o2")]) != 0
     assert "--data-sensitivity is for output error" in capsys.readouterr().err
+
+
+def test_ekf_problems_of_one_model_share_their_compiled_sweeps():
+    """A filter's model (the user's, noise intensities appended) is built once per model
+    and set of noisy states, so a second Problem compiles nothing."""
+    m = duffing()
+    data = [record(m, 20, seed, [0.1, 0.0], {"k": 2.0, "c": 0.3, "a": 0.5}) for seed in (0, 1)]
+    kw = {"p0": {"k": 2.0, "c": 0.3, "a": 0.5}, "x0": [0.1, 0.0], "predictor": "ekf"}
+    a = ti.Problem(m, data[0], process_noise={"v": 0.1}, **kw)
+    b = ti.Problem(m, data[1], process_noise={"v": 0.3}, **kw)
+    assert b.model is a.model and b.sweeps is a.sweeps
+    c = ti.Problem(m, data[0], process_noise={"x": 0.1, "v": 0.1}, **kw)
+    assert c.sweeps is not a.sweeps and list(c.model.params[-3:]) == [
+        "log_sigma_w_x", "log_sigma_w_v", "log_sigma_e_y"
+    ]  # fmt: skip
+    assert ti.Problem(duffing(), data[0], process_noise={"v": 0.1}, **kw).sweeps is not a.sweeps

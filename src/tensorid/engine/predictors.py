@@ -241,17 +241,22 @@ def make_predictor(model, predictor, process_noise, measurement_noise, measured)
     if clash:
         raise ValueError(f"the model already has parameters named {clash}; rename them")
     M = model.M
-    noisy = Model(
-        _Leading(model.rhs, M),
-        _Leading(model.h, M),
-        states=model.states,
-        params=list(model.params) + wq + wr,
-        inputs=model.inputs,
-        outputs=model.outputs,
-        name=model.name,
-        input_delays=model.input_delays,
-        discrete=model.discrete,
-    )
+    # one filter model per model and set of noisy states, kept in the model's cache of
+    # compiled sweeps: its own sweeps (cached on it) are then shared by every Problem
+    noisy = model.compiled_sweeps.get(("ekf model", tuple(states)))
+    if noisy is None:
+        noisy = Model(
+            _Leading(model.rhs, M),
+            _Leading(model.h, M),
+            states=model.states,
+            params=list(model.params) + wq + wr,
+            inputs=model.inputs,
+            outputs=model.outputs,
+            name=model.name,
+            input_delays=model.input_delays,
+            discrete=model.discrete,
+        )
+        model.compiled_sweeps[("ekf model", tuple(states))] = noisy
     filt = ExtendedKalman(
         process=tuple((model.states.index(s), M + i) for i, s in enumerate(states)),
         measurement=tuple(range(M + len(states), M + len(states) + model.S)),
