@@ -53,7 +53,7 @@ def _single(method, tr: Tracker, options: FitOptions, started) -> FitResult:
     record = tr.recorder(history, options.callback)
     phi0, (lo, hi) = tr.phi(theta0), tr.box()
     nhev, detail = 0, ""
-    hybrid = Hybrid(problem.K) if method == "auto" else None
+    hybrid = Hybrid.for_method(method, problem.K)
     # what each path may raise: SciPy's baselines give up in their own ways; the
     # eigen-solver of an exact subproblem may not converge on a Hessian at the edge
     # of overflow. Anything else is a bug and is not hidden.
@@ -61,7 +61,7 @@ def _single(method, tr: Tracker, options: FitOptions, started) -> FitResult:
     try:
         if method in BASELINES:
             phi, nit, status, detail = run_baseline(method, tr, phi0, options, record)
-        elif hybrid is not None:  # method "auto"
+        elif hybrid is not None:  # methods "auto" and "newton"
             r = _auto(tr, hybrid, phi0, options, record)
             phi, nit, status, detail, nhev = r.x, r.nit, r.status, r.detail, r.nhev
         else:
@@ -185,7 +185,7 @@ def _lockstep(problem, method, trackers: dict, options, started, results) -> lis
     runs, pending = {}, {}
     for i, tr in trackers.items():
         history: list[dict] = []
-        hybrid = Hybrid(problem.K) if method == "auto" else None
+        hybrid = Hybrid.for_method(method, problem.K)
         record = tr.recorder(history, None)
         callback = record if hybrid is None else _observed(record, hybrid)
         steps = _steps(tr, tr.phi(tr.theta0), options, callback)
@@ -244,7 +244,7 @@ def _evaluate_together(problem, method, runs, pending, B) -> dict:
     any start is in exact mode (the others use its Gauss-Newton part: one sweep of B
     costs less than two), else a first-order one."""
     hybrids = [runs[i][3] for i in pending]
-    if method == "auto":
+    if hybrids[0] is not None:  # "auto" and "newton"
         kind = "both" if any(h.exact for h in hybrids) else "gn"
     else:
         kind = "exact" if method == "newton" else "gn"

@@ -13,7 +13,17 @@ by ``Hybrid`` goes in two modes:
   term is small Gauss-Newton converges quadratically, and where it matters it stalls:
   it converges only linearly, or its model mispredicts so that the trust region
   keeps its steps short. Either way its iterations stop lowering the cost: each
-  lowers it by less than STALL (1e-3) of itself, rejected steps included. After
+  lowers it by less than STALL (1e-3) of itself, rejected steps included; but a
+  step whose actual decrease was within a factor FAIR (2) of H_GN's prediction
+  neither counts nor ends a run: H_GN's curvature held along it, so the residual
+  term, all that the exact Hessian adds, did not matter there. Such slow steps are
+  a radius still doubling towards a point far off in scaled units (a Silverbox start
+  whose initial velocity is 1e-4 where the optimum's is -1.3), or steps the radius
+  keeps short where the cost is not quadratic (the two-tank problem): counting them
+  made auto 1.45x and 1.2-1.6x Gauss-Newton's time on seeded ±20 % starts there
+  (7-25 exact evaluations per fit for no fewer iterations; bench_start_panel.py),
+  where on Lotka-Volterra Gauss-Newton's predictions fail (ρ 0.2-0.6 at radii of
+  1e-3) and the exact Hessian ends a crawl of 100-200 iterations in 20-40. After
   a run of such iterations that has cost as much as one exact evaluation (the
   ski-rental rule: rent until the rent paid equals the price, then buy; an exact
   evaluation costs about (K + 2)/2 Gauss-Newton ones by the transition tensors, the
@@ -36,6 +46,13 @@ by ``Hybrid`` goes in two modes:
   mispredicts is not trusted. After three steps running where H_GN predicted
   better, back to Gauss-Newton mode and its cheaper sweeps.
 
+Method "newton" is exact mode throughout (``locked``): the exact Hessian from every
+sweep, with the same choice of model per step. The pure exact model, far from the
+optimum, follows the residual term's negative curvature to the trust region's
+boundary, where the cost does not follow: on a chain of 5 masses with cubic springs
+(benchmarks/bench_chain_cubic.py) most such steps were rejected, the radius stayed
+at 0.003-0.8 for a hundred iterations and the run ended in a worse local minimum.
+
 A run that converges in Gauss-Newton mode is checked with ∇²J (which the error bars
 need anyway); if ∇²J has negative curvature there (a saddle, invisible to H_GN,
 which is never indefinite) the fit continues in exact mode (see driver.py).
@@ -48,6 +65,7 @@ import numpy as np
 STALL = 1e-3  # an iteration lowering the cost by less than this, relative, stalls
 STALL_RUN = 5  # the shortest run of stalled iterations before exact mode
 GN_RUN = 3  # steps running where H_GN predicted better before Gauss-Newton mode
+FAIR = 2.0  # a step lowering the cost within this factor of H_GN's prediction
 
 
 class Hybrid:
@@ -58,8 +76,9 @@ class Hybrid:
     region; :meth:`observe` is given the trust region's record of the step (its
     callback entry, scaled units), which says whether the point became the iterate."""
 
-    def __init__(self, K: int, exact: bool = False):
+    def __init__(self, K: int, exact: bool = False, locked: bool = False):
         self.exact = exact
+        self.locked = locked  # method "newton": exact mode throughout
         self.cost_ratio = (K + 2) / 2  # an exact evaluation in Gauss-Newton ones
         # the iterate and the trial point: φ, J, g, the H its step uses, H_GN, ∇²J
         self.current: tuple | None = None
@@ -69,6 +88,15 @@ class Hybrid:
         self.switches = 0
         self.checked = False  # the end point was checked for negative curvature
         self.saddles = 0  # ... and had it
+
+    @classmethod
+    def for_method(cls, method: str, K: int) -> Hybrid | None:
+        """The model chooser of a method: "auto" starts in Gauss-Newton mode, "newton"
+        stays in exact mode (each step by whichever model predicted the last one
+        better); the other methods have none."""
+        if method == "auto":
+            return cls(K)
+        return cls(K, exact=True, locked=True) if method == "newton" else None
 
     def take(self, phi, J, g, H_gn, H_exact, exact: bool):
         """(J, g, H) for the trust region at ``phi``; ``exact``: the sweep run."""
@@ -101,12 +129,15 @@ class Hybrid:
             self.current = new
         self.pending = None
         if self.exact:
-            if self.gn_better >= GN_RUN:  # H_GN keeps predicting better: its sweeps suffice
+            if self.gn_better >= GN_RUN and not self.locked:  # H_GN's sweeps suffice
                 self.exact, self.gn_better = False, 0
                 self.switches += 1
             return
         decrease = (J_old - new[1]) / J_old if new is not None and J_old > 0 else 0.0
-        self.stalled = self.stalled + 1 if decrease < STALL else 0
+        if decrease >= STALL:
+            self.stalled = 0
+        elif not _as_predicted(entry):  # slow, and H_GN mispredicted it: a stall
+            self.stalled += 1
         if self.stalled >= max(STALL_RUN, self.cost_ratio):
             self.exact = True
             self.switches += 1
@@ -117,11 +148,21 @@ class Hybrid:
         self.exact, self.current, self.pending = True, None, None
         self.saddles += 1
 
-    def report(self) -> dict:
-        """What the run used: evaluations of each kind and mode switches."""
+    def report(self) -> dict | None:
+        """What the run of method "auto" used: evaluations of each kind, mode switches."""
+        if self.locked:
+            return None
         return {
             "gauss_newton_evaluations": self.evaluations["gauss-newton"],
             "exact_evaluations": self.evaluations["exact"],
             "switches": self.switches,
             "saddles_left": self.saddles,
         }
+
+
+def _as_predicted(entry: dict) -> bool:
+    """Did the step lower the cost within a factor of two of what H_GN predicted?
+    Then H_GN's curvature held along it, whatever the step's length: the exact
+    Hessian differs from H_GN by the residual term, and only where H_GN mispredicts
+    does that term matter."""
+    return entry["accepted"] and 1.0 / FAIR < entry["rho"] < FAIR
