@@ -229,7 +229,7 @@ def _candidate_step(x, g, H, lo, hi, free, radius, nhev, sub=None) -> tuple[np.n
     return steps[best], -values[best]
 
 
-RADIUS_BOUND = 0.99  # a step at least this fraction of the radius was held back by it
+RADIUS_BOUND = 0.99  # a step at least this fraction of the radius is held back by it
 
 
 def _next_radius(radius: float, rho: float, step: float, max_radius: float) -> float:
@@ -346,9 +346,10 @@ def trust_region_steps(
         nfev += 1
         actual = J - J_new if np.isfinite(J_new) else -np.inf
         rho = actual / pred
-        # a step as long as the radius was held back by it: its small decrease or
-        # length says the radius is small, not that the iterate has converged
-        held_back = step >= RADIUS_BOUND * radius
+        # a step held back by a radius that has shrunk by orders of magnitude (below
+        # √xtol): its small decrease or length says that the radius is small, not
+        # that the iterate has converged
+        held_back = step >= RADIUS_BOUND * radius and radius <= np.sqrt(xtol) * xscale
         radius = _next_radius(radius, rho, step, max_radius)
         accepted = rho > eta
         J_old = J
