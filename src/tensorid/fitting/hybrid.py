@@ -15,9 +15,10 @@ by ``Hybrid`` goes in two modes:
   keeps its steps short. Either way its iterations stop lowering the cost: each
   lowers it by less than STALL (1e-3) of itself, rejected steps included; but a
   step whose actual decrease was within a factor FAIR (2) of H_GN's prediction
-  neither counts nor ends a run: H_GN's curvature held along it, so the residual
-  term, all that the exact Hessian adds, did not matter there. Such slow steps are
-  a radius still doubling towards a point far off in scaled units (a Silverbox start
+  neither counts nor ends a run (nor does the rejected step right after one, which
+  only tried the radius that step doubled): H_GN's curvature held along it, so the
+  residual term, all that the exact Hessian adds, did not matter there. Such slow
+  steps are a radius still doubling towards a point far off in scaled units (a Silverbox start
   whose initial velocity is 1e-4 where the optimum's is -1.3), or steps the radius
   keeps short where the cost is not quadratic (the two-tank problem): counting them
   made auto 1.45x and 1.2-1.6x Gauss-Newton's time on seeded ±20 % starts there
@@ -84,6 +85,7 @@ class Hybrid:
         self.current: tuple | None = None
         self.pending: tuple | None = None
         self.stalled = self.gn_better = 0
+        self.fair = False  # the last step in Gauss-Newton mode went as H_GN predicted
         self.evaluations = {"gauss-newton": 0, "exact": 0}
         self.switches = 0
         self.checked = False  # the end point was checked for negative curvature
@@ -134,10 +136,14 @@ class Hybrid:
                 self.switches += 1
             return
         decrease = (J_old - new[1]) / J_old if new is not None and J_old > 0 else 0.0
+        # no sign that H_GN is wrong: a step as it predicted, or the rejected step
+        # right after one (it tried the radius that step doubled)
+        fair, probe = _as_predicted(entry), not entry["accepted"] and self.fair
         if decrease >= STALL:
             self.stalled = 0
-        elif not _as_predicted(entry):  # slow, and H_GN mispredicted it: a stall
+        elif not (fair or probe):
             self.stalled += 1
+        self.fair = fair
         if self.stalled >= max(STALL_RUN, self.cost_ratio):
             self.exact = True
             self.switches += 1
