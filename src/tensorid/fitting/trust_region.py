@@ -265,6 +265,24 @@ def _collapsed(J: float, pred: float, pg_norm: float, gtol: float) -> Status:
     return Status.MACHINE_PRECISION if ok else Status.RADIUS_COLLAPSED
 
 
+def _ended(accepted, held_back, actual, pred, J, d, xscale, radius, ftol, xtol):
+    """How the run ends after a step from cost J: a Status, False for "the radius
+    collapsed under rejected steps" (a rounding floor or a collapse: _collapsed), or
+    None to go on.
+    ``held_back``: the step was as long as a radius that had shrunk by orders of
+    magnitude (below √xtol); then its small decrease or length says that the radius
+    is small, not that the iterate converged."""
+    if accepted and not held_back:
+        if actual <= ftol * J and pred <= ftol * J:
+            return Status.FTOL
+        if np.linalg.norm(d, np.inf) <= xtol * xscale:
+            return Status.XTOL
+    if (held_back or not accepted) and radius <= xtol * xscale:
+        # an accepted step lowered the cost measurably: no rounding floor
+        return Status.RADIUS_COLLAPSED if accepted else False
+    return None
+
+
 def minimize_trust_region(
     fun: Callable[[np.ndarray], tuple[float, np.ndarray, np.ndarray]],
     x0: np.ndarray,
@@ -346,9 +364,6 @@ def trust_region_steps(
         nfev += 1
         actual = J - J_new if np.isfinite(J_new) else -np.inf
         rho = actual / pred
-        # a step held back by a radius that has shrunk by orders of magnitude (below
-        # √xtol): its small decrease or length says that the radius is small, not
-        # that the iterate has converged
         held_back = step >= RADIUS_BOUND * radius and radius <= np.sqrt(xtol) * xscale
         radius = _next_radius(radius, rho, step, max_radius)
         accepted = rho > eta
@@ -356,16 +371,9 @@ def trust_region_steps(
         if accepted:
             x, J, g, H = x_new, J_new, g_new, H_new
         record(it, step, rho, accepted)
-        if accepted and not held_back:
-            if actual <= ftol * J_old and pred <= ftol * J_old:
-                status = Status.FTOL
-                break
-            if np.linalg.norm(d, np.inf) <= xtol * xscale:
-                status = Status.XTOL
-                break
-        if (held_back or not accepted) and radius <= xtol * xscale:
-            # an accepted step lowered the cost measurably: no rounding floor
-            status = Status.RADIUS_COLLAPSED if accepted else _collapsed(J, pred, pg_norm, gtol)
+        ended = _ended(accepted, held_back, actual, pred, J_old, d, xscale, radius, ftol, xtol)
+        if ended is not None:
+            status = ended or _collapsed(J, pred, pg_norm, gtol)
             break
     hess = None if callable(H) else H
     detail = f"maxiter={maxiter}" if status is Status.MAXITER else ""
