@@ -79,8 +79,7 @@ def test_newton_stays_exact_and_steps_by_the_model_that_predicted_better():
         phi = np.array([2.0**-k])
         J, g = 0.5 * phi @ phi + 1.0, phi
         use = hybrid.take(phi, J, g, H_gn, H_exact, exact=True)[2]
-        if k >= 1:  # from the second point on: H_GN predicted the last step exactly
-            assert use is H_gn
+        assert use is H_gn  # first as in NL2SOL, then as it predicted the last step
         hybrid.observe({"iteration": k, "accepted": True, "rho": 1.0})
         assert hybrid.exact  # never back to Gauss-Newton sweeps
     assert hybrid.report() is None  # res.hybrid stays method "auto"'s
