@@ -18,9 +18,10 @@ by ``Hybrid`` goes in two modes:
   neither counts nor ends a run (nor does the rejected step right after one, which
   only tried the radius that step doubled): H_GN's curvature held along it, so the
   residual term, all that the exact Hessian adds, did not matter there. Such slow
-  steps are a radius still doubling towards a point far off in scaled units (a Silverbox start
-  whose initial velocity is 1e-4 where the optimum's is -1.3), or steps the radius
-  keeps short where the cost is not quadratic (the two-tank problem): counting them
+  steps are a radius still doubling towards a point far off in scaled units (a
+  Silverbox start whose initial velocity is 1e-4 where the optimum's is -1.3), or
+  steps the radius keeps short where the cost is not quadratic (the two-tank
+  problem): counting them
   made auto 1.45x and 1.2-1.6x Gauss-Newton's time on seeded ±20 % starts there
   (7-25 exact evaluations per fit for no fewer iterations; bench_start_panel.py),
   where on Lotka-Volterra Gauss-Newton's predictions fail (ρ 0.2-0.6 at radii of
