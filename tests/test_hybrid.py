@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import jax.numpy as jnp
 import numpy as np
@@ -54,6 +55,61 @@ def test_auto_switches_to_the_exact_hessian_where_gauss_newton_turns_linear():
     assert auto.hybrid["switches"] >= 1 and auto.hybrid["exact_evaluations"] > 0
     assert auto.cost == pytest.approx(min(gn.cost, newton.cost), rel=1e-9)
     assert auto.nit < gn.nit / 2, (auto.nit, gn.nit)
+
+
+def test_auto_buys_no_hessian_while_gauss_newton_only_waits_for_its_radius():
+    # a start whose initial velocity is 1e-4 where the optimum's is -1.3: in scaled
+    # units (|θ0|) it is 1e4 away, and Gauss-Newton's steps, each as predicted, only
+    # wait for the trust radius to double up to there. Their small relative decreases
+    # are no stall that an exact Hessian would end (it took 7-10 of them for nothing).
+    prob = silverbox_problem()
+    start = prob.theta0 * np.array([1.0, 0.9, 1.1, 0.95, 1.05])
+    start[0] = 1e-4
+    gn, auto = ti.fit(prob, "gauss-newton", theta0=start), ti.fit(prob, theta0=start)
+    assert gn.success and auto.success
+    assert auto.hybrid["exact_evaluations"] == 0, auto.hybrid
+    assert auto.nit <= gn.nit and auto.cost == pytest.approx(gn.cost, rel=1e-9)
+
+
+def test_newton_stays_exact_and_steps_by_the_model_that_predicted_better():
+    from tensorid.fitting.registry import resolve
+
+    state = SimpleNamespace(tr=SimpleNamespace(problem=SimpleNamespace(K=1)))
+    resolve("newton").prepare(state)  # what method "newton" steps with
+    hybrid = state.hybrid
+    assert hybrid.exact and hybrid.locked
+    H_gn, H_exact = np.eye(1), -np.eye(1)  # J = φ²/2 + 1 is H_GN's model exactly
+    for k in range(6):
+        phi = np.array([2.0**-k])
+        J, g = 0.5 * phi @ phi + 1.0, phi
+        use = hybrid.take(phi, J, g, H_gn, H_exact, exact=True)[2]
+        assert use is H_gn  # first as in NL2SOL, then as it predicted the last step
+        hybrid.observe({"iteration": k, "accepted": True, "rho": 1.0})
+        assert hybrid.exact  # never back to Gauss-Newton sweeps
+    assert hybrid.report() is None  # res.hybrid stays method "auto"'s
+
+
+@pytest.mark.slow
+def test_newton_does_not_wander_on_a_chain_with_cubic_springs():
+    # benchmarks/bench_chain_cubic.py, start 1: the exact model alone sent every step
+    # along the residual term's negative curvature to the boundary, where the cost
+    # did not follow: 150 iterations at radii 0.003-0.8, ending at cost 559.6
+    from scipy.signal import lfilter
+
+    from tensorid.benchmarks import mass_chain_model, mass_chain_truth
+    from tensorid.fitting.multistart import draw_starts
+
+    model, truth, rng = mass_chain_model(5), mass_chain_truth(5), np.random.default_rng(0)
+    t = np.arange(2000) * 0.05
+    u = (6.0 * lfilter([0.1], [1.0, -0.9], rng.standard_normal(2000)))[:, None]
+    y = ti.simulate(model, truth, np.zeros(10), ti.Experiment(t, u)).y
+    y = y + 0.01 * np.sqrt(np.mean(y**2, axis=0)) * rng.standard_normal(y.shape)
+    bounds = {n: (1e-3, None) for n in model.params}
+    prob = ti.Problem(model, ti.Experiment(t, u, y), p0=truth, bounds=bounds)
+    start = draw_starts(truth, prob.lower, prob.upper, 11, spread=0.2, sampling="uniform",
+                        seed=0)[2]  # fmt: skip
+    newton = ti.fit(prob, "newton", theta0=start)
+    assert newton.cost == pytest.approx(1.8951815, rel=1e-6) and newton.nit < 60
 
 
 def test_auto_goes_on_past_a_saddle_where_gauss_newton_stops():

@@ -2,6 +2,8 @@ import numpy as np
 import pytest
 from scipy.optimize import rosen, rosen_der, rosen_hess
 
+from tensorid.engine.status import Status
+from tensorid.fitting.projected import projected_cauchy
 from tensorid.fitting.trust_region import minimize_trust_region, solve_subproblem, steihaug_cg
 
 
@@ -140,3 +142,33 @@ def test_each_way_of_stopping_says_why():
     r = minimize_trust_region(cliff, np.ones(2), lo, hi, gtol=1e-14)
     assert not r.success and "trust region collapsed without a decrease" in r.message
     assert r.fun == 1.0 and np.isfinite(r.x).all()
+
+
+@pytest.mark.parametrize("weight", [1.0, 1e-4])
+def test_a_radius_that_collapses_under_accepted_steps_is_not_convergence(weight):
+    # the gradient overstates the slope fivefold (as a kink, a noisy cost or
+    # inconsistent derivatives do): every step is accepted at ρ = 0.2 and shrinks the
+    # radius, until the steps were so short that they passed xtol (weight 1) or ftol
+    # (weight 1e-4, a small gradient) and the fit was "converged" at x ≈ 0.09, 3
+    # short of the minimum
+    def fun(x):
+        J = 1.0 + weight * float((x - 3.0) @ (x - 3.0))
+        return J, 5.0 * weight * 2.0 * (x - 3.0), 2.0 * weight * np.eye(2)
+
+    free = np.full(2, np.inf)
+    r = minimize_trust_region(fun, np.zeros(2), -free, free)
+    assert r.status is Status.RADIUS_COLLAPSED and not r.success
+    assert r.history[-1]["accepted"] and "accepted" in r.message
+    assert np.all(np.abs(r.x - 3.0) > 2.5)
+
+
+def test_steps_bend_at_a_bound_instead_of_stopping_there():
+    # x0 starts 1e-9 above its bound, pushed onto it; the way down is along x1. A step
+    # cut off at the first bound it meets is 1e-9 long (the Cauchy and truncated
+    # Newton steps before the projected path); the projected path bends there and
+    # goes on along x1, to the radius (negative curvature)
+    x, lo, hi = np.array([1e-9, 0.0]), np.zeros(2), np.full(2, np.inf)
+    g, H = np.array([1.0, -1.0]), np.array([[1.0, 0.0], [0.0, -0.5]])
+    d, m = projected_cauchy(x, g, H, lo, hi, np.ones(2, bool), radius=1.0)
+    assert x[0] + d[0] == 0.0 and np.linalg.norm(d) == pytest.approx(1.0)
+    assert m == pytest.approx(g @ d + 0.5 * d @ H @ d) and m < -1.0

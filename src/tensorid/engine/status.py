@@ -46,8 +46,9 @@ class Status(enum.Enum):
         -1,
     )
     RADIUS_COLLAPSED = (
-        "stopped: the trust region collapsed without a decrease (the cost may be noisy "
-        "or the simulation fails near this point)",
+        "stopped: the trust region collapsed without a decrease as large as its model "
+        "predicted (the cost may be noisy, its derivatives inconsistent, or the "
+        "simulation fails near this point)",
         False,
         -1,
     )

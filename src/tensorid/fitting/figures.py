@@ -5,6 +5,7 @@ caller's choice."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -204,7 +205,7 @@ def figure_jobs(res, validation=None, training: bool = True, convergence: bool =
 def draw(kind: str, arguments: dict):
     """The figure of one of :func:`figure_jobs`' (or ``ResidualTests.figure_job``'s)
     entries."""
-    makers = {
+    makers: dict[str, Callable] = {
         "compare": compare_figure,
         "convergence": convergence_figure,
         "residual": residual_figure,

@@ -163,15 +163,6 @@ def _steps(state: State, phi, maxiter: int, callback) -> Generator[np.ndarray, t
     return trust_region_steps(phi, lo, hi, fatol=tr.fatol, callback=callback, **kw)
 
 
-class Newton(TrustRegion):
-    """Trust-region Newton with the exact Hessian from the transition tensors."""
-
-    name = "newton"
-    needs_hessian = True
-    supports_batch = True
-    sweep_kind = Sweep.EXACT
-
-
 class GaussNewton(TrustRegion):
     """Trust-region Gauss-Newton (Levenberg-Marquardt) with the exact Jacobian."""
 
@@ -232,6 +223,19 @@ class Auto(TrustRegion):
     def report(self, state: State) -> dict | None:
         assert state.hybrid is not None
         return state.hybrid.report()
+
+
+class Newton(Auto):
+    """Trust-region Newton on exact sweeps (the transition tensors') throughout, each
+    step by whichever model predicted the last step better, the exact Hessian or its
+    Gauss-Newton part from the same sweep (NL2SOL's rule; the first step by the
+    Gauss-Newton part): far from the optimum the residual term's negative curvature
+    would otherwise send every step to the boundary, where the cost does not follow."""
+
+    name = "newton"
+
+    def prepare(self, state: State) -> None:
+        state.hybrid = Hybrid(state.tr.problem.K, exact=True, locked=True)
 
 
 def _observed(record, hybrid):

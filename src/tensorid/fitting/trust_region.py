@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..engine.status import Status
+from .projected import projected_cauchy, subspace_steps
 
 
 def solve_subproblem(g: np.ndarray, H: np.ndarray, radius: float) -> tuple[np.ndarray, bool]:
@@ -196,14 +197,14 @@ def _newton_step(g, H, free, radius, nhev, subproblem=None):
 
 
 def _candidate_step(x, g, H, lo, hi, free, radius, nhev, sub=None) -> tuple[np.ndarray, float]:
-    """The best of three feasible steps by the model's prediction: the Newton (or CG)
-    step projected onto the box, truncated at the box, and the Cauchy step. Returns
-    (step, predicted decrease)."""
+    """The best feasible step by the model's prediction among: the Newton (or CG) step
+    projected onto the box, and truncated at the box; the Cauchy step; and, for a
+    matrix H, the generalised Cauchy point along the projected path and the subspace
+    Newton steps from it (projected.py). Returns (step, predicted decrease)."""
     s, Hs, curv = _newton_step(g, H, free, radius, nhev, sub)
     d_proj = np.clip(x + s, lo, hi) - x
     beta = min(1.0, _room(x, s, lo, hi))
     d_trunc = beta * s
-    d_cauchy, m_cauchy = _cauchy_step(x, g, curv, lo, hi, free, radius)
     m_s = float(g @ s + 0.5 * s @ Hs)
     if np.array_equal(d_proj, s):
         m_proj = m_s
@@ -211,9 +212,24 @@ def _candidate_step(x, g, H, lo, hi, free, radius, nhev, sub=None) -> tuple[np.n
         nhev[0] += callable(H)
         m_proj = float(g @ d_proj + 0.5 * d_proj @ (H(d_proj) if callable(H) else H @ d_proj))
     m_trunc = float(beta * (g @ s) + 0.5 * beta**2 * (s @ Hs))
-    values = [m_proj, m_trunc, m_cauchy]
+    steps, values = [d_proj, d_trunc], [m_proj, m_trunc]
+    if callable(H):
+        d_cauchy, m_cauchy = _cauchy_step(x, g, curv, lo, hi, free, radius)
+        steps.append(d_cauchy)
+        values.append(m_cauchy)
+    else:
+        d_cauchy, m_cauchy = projected_cauchy(x, g, H, lo, hi, free, radius)
+        steps.append(d_cauchy)
+        values.append(m_cauchy)
+        solve = sub or (lambda g_, H_, r_, _mask: solve_subproblem(g_, H_, r_))
+        for d in subspace_steps(x, g, H, lo, hi, free, radius, d_cauchy, solve):
+            steps.append(d)
+            values.append(float(g @ d + 0.5 * d @ H @ d))
     best = int(np.argmin(values))
-    return (d_proj, d_trunc, d_cauchy)[best], -values[best]
+    return steps[best], -values[best]
+
+
+RADIUS_BOUND = 0.99  # a step at least this fraction of the radius is held back by it
 
 
 def _next_radius(radius: float, rho: float, step: float, max_radius: float) -> float:
@@ -247,6 +263,24 @@ def _collapsed(J: float, pred: float, pg_norm: float, gtol: float) -> Status:
     tiny = max(J, np.finfo(float).tiny)
     ok = pred <= 1e-8 * tiny and pg_norm <= max(np.sqrt(gtol), 1e-3 * tiny)
     return Status.MACHINE_PRECISION if ok else Status.RADIUS_COLLAPSED
+
+
+def _ended(accepted, held_back, actual, pred, J, d, xscale, radius, ftol, xtol):
+    """How the run ends after a step from cost J: a Status, False for "the radius
+    collapsed under rejected steps" (a rounding floor or a collapse: _collapsed), or
+    None to go on.
+    ``held_back``: the step was as long as a radius that had shrunk by orders of
+    magnitude (below √xtol); then its small decrease or length says that the radius
+    is small, not that the iterate converged."""
+    if accepted and not held_back:
+        if actual <= ftol * abs(J) and pred <= ftol * abs(J):  # |J|: a likelihood's may be < 0
+            return Status.FTOL
+        if np.linalg.norm(d, np.inf) <= xtol * xscale:
+            return Status.XTOL
+    if (held_back or not accepted) and radius <= xtol * xscale:
+        # an accepted step lowered the cost measurably: no rounding floor
+        return Status.RADIUS_COLLAPSED if accepted else False
+    return None
 
 
 def minimize_trust_region(
@@ -330,21 +364,19 @@ def trust_region_steps(
         nfev += 1
         actual = J - J_new if np.isfinite(J_new) else -np.inf
         rho = actual / pred
+        held_back = step >= RADIUS_BOUND * radius and radius <= np.sqrt(xtol) * xscale
         radius = _next_radius(radius, rho, step, max_radius)
         accepted = rho > eta
         J_old = J
         if accepted:
             x, J, g, H = x_new, J_new, g_new, H_new
         record(it, step, rho, accepted)
-        if accepted and actual <= ftol * abs(J_old) and pred <= ftol * abs(J_old):
-            status = Status.FTOL
-            break
-        if accepted and np.linalg.norm(d, np.inf) <= xtol * xscale:
-            status = Status.XTOL
-            break
-        if not accepted and radius <= xtol * xscale:
-            status = _collapsed(J, pred, pg_norm, gtol)
+        ended = _ended(accepted, held_back, actual, pred, J_old, d, xscale, radius, ftol, xtol)
+        if ended is not None:
+            status = ended or _collapsed(J, pred, pg_norm, gtol)
             break
     hess = None if callable(H) else H
     detail = f"maxiter={maxiter}" if status is Status.MAXITER else ""
+    if status is Status.RADIUS_COLLAPSED and history[-1]["accepted"]:
+        detail = f"radius {radius:.1e}; its last steps were accepted, on tiny decreases"
     return TRResult(x, float(J), g, hess, it, nfev, status, history, nhev[0], detail)
