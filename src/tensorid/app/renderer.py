@@ -44,6 +44,7 @@ def serve(figures_path: str) -> None:
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the command's to handle
     spec = importlib.util.spec_from_file_location("_tensorid_figures", figures_path)
+    assert spec is not None and spec.loader is not None  # a .py file by path
     figures = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(figures)
     figures.new_figure()  # Matplotlib imported while the command still fits
@@ -116,8 +117,10 @@ class Renderer:
             fd, name = tempfile.mkstemp(prefix=f".{stem}.png.", suffix=".part", dir=out)
             os.close(fd)
             tmp = Path(name)
-            pickle.dump((stem, kind, arguments, name), self._proc.stdin)
-            self._proc.stdin.flush()
+            stdin = self._proc.stdin
+            assert stdin is not None  # started with stdin=PIPE
+            pickle.dump((stem, kind, arguments, name), stdin)
+            stdin.flush()
             return tmp
         except Exception:  # a folder it cannot write to, a job it cannot send
             if tmp is not None:
@@ -162,7 +165,8 @@ class Renderer:
             proc.wait()
             for stream in (proc.stdin, proc.stdout):
                 try:
-                    stream.close()
+                    if stream is not None:
+                        stream.close()
                 except OSError:
                     pass
 
