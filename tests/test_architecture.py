@@ -133,3 +133,18 @@ def test_modules_are_at_most_450_lines():
     sizes = {m: len(p.read_text().splitlines()) for m, p in MODULES.items()}
     long = {m: n for m, n in sizes.items() if n > 450}
     assert not long, long
+
+
+def test_the_command_lines_spelled_out_choices_are_the_registries():
+    """--method, --loss and --predictor list their choices by hand, so that --help
+    need not import JAX; they must stay the library's."""
+    from tensorid.cli import build_parser
+    from tensorid.engine.losses import LOSSES
+    from tensorid.engine.predictors import PREDICTORS
+    from tensorid.fitting.registry import METHODS
+
+    fit = build_parser()._subparsers._group_actions[0].choices["fit"]
+    choices = {a.dest: a.choices for a in fit._actions if a.choices}
+    assert list(choices["method"]) == list(METHODS)
+    assert list(choices["loss"]) == list(LOSSES)
+    assert list(choices["predictor"]) == list(PREDICTORS)
