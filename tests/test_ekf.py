@@ -250,6 +250,8 @@ def test_ekf_noise_parameters_and_defaults():
         ({"segments": 3}, ["predictor='ekf'", "segments=3"]),
         ({"hessian": "adjoint"}, ["predictor='ekf'", "hessian='adjoint'", "tensors"]),
         ({"noise": 0.1}, ["predictor='ekf'", "noise=0.1"]),
+        ({"weights": "auto"}, ["predictor='ekf'", "weights='auto'"]),
+        ({"weights": np.array([2.0])}, ["predictor='ekf'", "weights='ndarray'"]),
         ({"predictor": "kalman"}, ["predictor must be one of", "'kalman'"]),
     ],
 )
@@ -435,3 +437,22 @@ def test_ekf_problems_of_one_model_share_their_compiled_sweeps():
         "log_sigma_w_x", "log_sigma_w_v", "log_sigma_e_y"
     ]  # fmt: skip
     assert ti.Problem(duffing(), data[0], process_noise={"v": 0.1}, **kw).sweeps is not a.sweeps
+
+
+def test_a_filter_problem_at_its_rounding_floor_is_not_a_collapse():
+    """A likelihood's J is negative: the trust region's rounding-floor test uses |J|."""
+    from tensorid.engine.status import Status
+    from tensorid.fitting.trust_region import _collapsed
+
+    assert _collapsed(-1.0, 1e-20, 1e-12, 1e-10) is Status.MACHINE_PRECISION
+    assert _collapsed(-1.0, 1e-3, 1e-12, 1e-10) is Status.RADIUS_COLLAPSED
+
+
+def test_a_filters_model_without_measured_outputs_needs_every_sigma_e_given():
+    from tensorid.engine.predictors import make_predictor
+
+    m = duffing()
+    model, filt, starts = make_predictor(m, "ekf", {"v": 0.1}, {"y": 0.02}, [None])
+    assert list(starts) == ["log_sigma_w_v", "log_sigma_e_y"] and filt.update is not None
+    with pytest.raises(ValueError, match="measurement_noise"):
+        make_predictor(m, "ekf", {"v": 0.1}, None, [None])

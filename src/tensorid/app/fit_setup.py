@@ -123,6 +123,15 @@ def _check_options(args, train, val) -> None:
             f"--hessian {args.hessian}: --method {args.method} is a finite-difference "
             "baseline and computes no exact Hessian; drop --hessian or choose another method"
         )
+    horizon = getattr(args, "horizon", None)
+    if horizon is not None and not val:
+        raise ValueError("--horizon applies to validation records: give --validate FILE")
+    for e in val if horizon is not None else []:
+        if horizon >= e.P:
+            raise ValueError(
+                f"--horizon {horizon}: the validation record {e.name!r} has {e.P} samples; "
+                "give a horizon below that"
+            )
     for e in val if args.init_window is not None else []:
         try:
             check_init_window(args.init_window, e)

@@ -194,7 +194,9 @@ def _filter(spec: ModelSpec, given: list[str], record) -> tuple[ModelSpec, tuple
         fitted = json.loads(Path(given[0]).read_text())
     except (json.JSONDecodeError, UnicodeDecodeError):
         return spec, None  # _fitted says what is wrong with it
-    noise = fitted.get("noise_intensities") if isinstance(fitted, dict) else None
+    if not isinstance(fitted, dict):
+        return spec, None  # _fitted says what is wrong with it
+    noise = fitted.get("noise_intensities")
     if fitted.get("predictor") != "ekf" or not noise:
         return spec, None
     from ..engine.losses import GAUSSIAN

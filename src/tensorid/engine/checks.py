@@ -218,6 +218,9 @@ def check_filter_options(predictor: str, **options) -> None:
         "hessian": "its exact Hessian comes from the transition tensors only (use "
         "hessian='tensors' or 'auto')",
     }
+    allowed = {"loss": ("squared",), "hessian": ("auto", "tensors"), "segments": (1,)}
     for name, value in options.items():
-        if value not in (None, "squared", "auto", "tensors", 1):
-            raise ValueError(f"predictor='ekf' cannot take {name}={value!r}: {why[name]}")
+        if value is None or (isinstance(value, str | int) and value in allowed.get(name, ())):
+            continue
+        shown = value if isinstance(value, str | int | float) else type(value).__name__
+        raise ValueError(f"predictor='ekf' cannot take {name}={shown!r}: {why[name]}")

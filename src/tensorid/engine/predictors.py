@@ -225,8 +225,8 @@ def make_predictor(model, predictor, process_noise, measurement_noise, measured)
         return model, SIMULATION, {}
     q = _intensities("process_noise", process_noise, model.states, "state")
     r = _intensities("measurement_noise", measurement_noise, model.outputs, "output")
-    y = np.concatenate([np.asarray(m, dtype=float) for m in measured])
-    level = robust_noise(y)
+    records = [np.asarray(m, dtype=float) for m in measured if m is not None]
+    level = robust_noise(np.concatenate(records)) if records else np.zeros(model.S)
     for k, o in enumerate(model.outputs):
         if o not in r:
             if not level[k] > 0:

@@ -248,8 +248,9 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
         new.loss_scale_estimated = new.loss.robust and scale is None
         sw = self._sweeps
         new._sweeps = shared_sweeps(
-            self.model, sw.free_states, sw.free_params, self.discretisation, new.loss
-        )
+            self.model, sw.free_states, sw.free_params, self.discretisation, new.loss,
+            self.predictor,
+        )  # fmt: skip
         new.shooting = Shooting(new, self.shooting.counts) if self.shooting else None
         return new
 

@@ -47,6 +47,7 @@ from .discretisation import Discretisation, march
 from .losses import SQUARED, Loss
 from .model import Model
 from .packing import pair_indices, quadratic_full, quadratic_packed
+from .packing import unpack_symmetric as unpack_symmetric  # its old home, re-exported
 from .predictors import SIMULATION, Simulation
 
 
@@ -92,10 +93,7 @@ class Sweeps:
         Psel[list(self.free_params), list(range(nx, K))] = 1.0
         return dx0, Psel
 
-    @property
-    def _size(self) -> int:
-        """The length of the carried state z (the model's N for output error)."""
-        return self.predictor.size(self.model)
+    _size = property(lambda self: self.predictor.size(self.model))  # len(z); N for OE
 
     def _start(self, theta, x0, p):
         """(z0, p): the carried state at t0 and the parameters, θ written in."""

@@ -260,7 +260,7 @@ def _collapsed(J: float, pred: float, pg_norm: float, gtol: float) -> Status:
     """The radius fell below xtol with every step rejected: a genuine rounding floor
     (rejected steps of length r mean |g| r is below the cost's rounding noise, so the
     gradient must be small too), or a collapse."""
-    tiny = max(J, np.finfo(float).tiny)
+    tiny = max(abs(J), np.finfo(float).tiny)  # |J|: a likelihood's may be negative
     ok = pred <= 1e-8 * tiny and pg_norm <= max(np.sqrt(gtol), 1e-3 * tiny)
     return Status.MACHINE_PRECISION if ok else Status.RADIUS_COLLAPSED
 
