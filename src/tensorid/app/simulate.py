@@ -63,14 +63,19 @@ def _fitted(path: Path, spec: ModelSpec) -> dict:
     return fitted
 
 
-def _parameters(spec: ModelSpec, given: list[str]) -> tuple[dict, dict | None]:
-    """(parameters, the fit.json they came from or None): p0 of the model file,
-    updated by a fit.json or NAME=VALUE pairs."""
+def _fit_json(spec: ModelSpec, given: list[str]) -> dict | None:
+    """The fit.json that --params names, read and checked; None for NAME=VALUE pairs."""
+    if len(given) == 1 and given[0].endswith(".json"):
+        return _fitted(Path(given[0]), spec)
+    return None
+
+
+def _parameters(spec: ModelSpec, given: list[str], fitted: dict | None) -> dict:
+    """The parameters: p0 of the model file, updated by the ``fitted`` fit.json or
+    the NAME=VALUE pairs ``given``."""
     m = spec.model
     params = dict(spec.p0 or {})
-    fitted = None
-    if len(given) == 1 and given[0].endswith(".json"):
-        fitted = _fitted(Path(given[0]), spec)
+    if fitted is not None:
         params.update(fitted["params"])
     else:
         params.update(_assignments(given, "--params"))
@@ -86,7 +91,7 @@ def _parameters(spec: ModelSpec, given: list[str]) -> tuple[dict, dict | None]:
             f"no value for the parameters {missing}: give them with --params NAME=VALUE, "
             "a fit.json, or p0 in the model file"
         )
-    return params, fitted
+    return params
 
 
 def _integration(args, fitted: dict | None) -> Discretisation:
@@ -172,8 +177,9 @@ def _score(args, require_outputs: bool):
     samples ahead by the fit's predictor)."""
     spec = load_model(args.model)
     e = _record(args, spec, require_outputs)
-    spec, predictor = _filter(spec, args.params, e)
-    params, fitted = _parameters(spec, args.params)
+    fitted = _fit_json(spec, args.params)
+    spec, predictor = _filter(spec, fitted, e)
+    params = _parameters(spec, args.params, fitted)
     disc = _integration(args, fitted)
     x0, free, source = _start(spec, args, e, fitted)
     horizon = getattr(args, "horizon", None)
@@ -184,20 +190,12 @@ def _score(args, require_outputs: bool):
     return spec, params, score, source, disc.for_model(spec.model)
 
 
-def _filter(spec: ModelSpec, given: list[str], record) -> tuple[ModelSpec, tuple | None]:
+def _filter(spec: ModelSpec, fitted: dict | None, record) -> tuple[ModelSpec, tuple | None]:
     """For a fit.json of a filter (predictor "ekf"): the spec with the filter's model
     (its noise intensities among the parameters) and (loss, predictor) to predict
     with; otherwise ``spec`` and None."""
-    if not (len(given) == 1 and given[0].endswith(".json") and Path(given[0]).is_file()):
-        return spec, None
-    try:
-        fitted = json.loads(Path(given[0]).read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError):
-        return spec, None  # _fitted says what is wrong with it
-    if not isinstance(fitted, dict):
-        return spec, None  # _fitted says what is wrong with it
-    noise = fitted.get("noise_intensities")
-    if fitted.get("predictor") != "ekf" or not noise:
+    noise = (fitted or {}).get("noise_intensities")
+    if fitted is None or fitted.get("predictor") != "ekf" or not noise:
         return spec, None
     from ..engine.losses import GAUSSIAN
     from ..engine.predictors import make_predictor

@@ -171,31 +171,34 @@ class Gaussian(Loss):
         S = y.shape[-1]
         return y - pi[..., :S], pi[..., S:].reshape(pi.shape[:-1] + (S, S))
 
-    def value(self, y, pi, lw):
+    def _whitened(self, y, pi):
+        """(L⁻¹ ε, L) with L L ᵀ = Σ (Cholesky)."""
         eps, Sig = self._split(y, pi)
         L = jnp.linalg.cholesky(Sig)
-        z = jax.scipy.linalg.solve_triangular(L, eps[..., None], lower=True)[..., 0]
+        return jax.scipy.linalg.solve_triangular(L, eps[..., None], lower=True)[..., 0], L
+
+    def value(self, y, pi, lw):
+        z, L = self._whitened(y, pi)
         logdet = 2.0 * jnp.sum(jnp.log(jnp.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
         return jnp.sum(logdet + jnp.sum(z * z, axis=-1))
 
     def terms(self, y, pi, lw):
-        ell = self.value(y, pi, lw)
-        l1 = jax.grad(lambda q: self.value(y, q, lw))(pi)
-        l2 = jax.hessian(lambda q: self.value(y, q, lw))(pi)
+        def ell(q):
+            return self.value(y, q, lw)
+
+        value, l1 = jax.value_and_grad(ell)(pi)
         _, Sig = self._split(y, pi)
         Si = jnp.linalg.inv(Sig)
         Si = 0.5 * (Si + Si.T)
         S = y.shape[-1]
         fisher = jnp.zeros((S + S * S, S + S * S), dtype=pi.dtype)
         fisher = fisher.at[:S, :S].set(2.0 * Si).at[S:, S:].set(jnp.kron(Si, Si))
-        return ell, l1, l2, fisher
+        return value, l1, jax.hessian(ell)(pi), fisher
 
     def residual(self, y, pi, lw):
         """The standardised innovations L⁻¹ ε (L L ᵀ = Σ): white with unit variance
         where the model and its noise are right (what the whiteness tests see)."""
-        eps, Sig = self._split(y, pi)
-        L = jnp.linalg.cholesky(Sig)
-        return jax.scipy.linalg.solve_triangular(L, eps[..., None], lower=True)[..., 0]
+        return self._whitened(y, pi)[0]
 
 
 GAUSSIAN = Gaussian()

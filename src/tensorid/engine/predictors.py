@@ -32,6 +32,8 @@ import numpy as np
 from .. import _config  # noqa: F401
 
 PREDICTORS = ("simulation", "ekf")
+# a filter's noise parameters: these prefixes and the state's or output's name
+NOISE_PREFIXES = {"process": "log_sigma_w_", "measurement": "log_sigma_e_"}
 
 
 @dataclass(frozen=True)
@@ -176,7 +178,8 @@ class _Leading:
 def noise_names(model, process, measurement) -> tuple[list[str], list[str]]:
     """The filter's parameter names: log σ_w of each state with process noise
     (``log_sigma_w_<state>``) and log σ_e of each output (``log_sigma_e_<output>``)."""
-    return [f"log_sigma_w_{s}" for s in process], [f"log_sigma_e_{o}" for o in measurement]
+    w, e = NOISE_PREFIXES["process"], NOISE_PREFIXES["measurement"]
+    return [w + s for s in process], [e + o for o in measurement]
 
 
 def _intensities(what: str, given, names: tuple[str, ...], kind: str) -> dict[str, float]:
@@ -291,11 +294,19 @@ class Prediction:
     horizon: int = 1
 
 
+def check_horizon(horizon, samples: int) -> None:
+    """A prediction horizon of at least one sample and below a record's length."""
+    if not (isinstance(horizon, int | np.integer) and 1 <= horizon < samples):
+        raise ValueError(
+            f"horizon must be a whole number of samples from 1 to {samples - 1}, got {horizon!r}"
+        )
+
+
 def predictions(problem, theta, horizon: int = 1) -> list[Prediction]:
     """Per experiment of ``problem``, its :class:`Prediction` at θ (see
     :meth:`tensorid.Problem.predict`)."""
-    if not (isinstance(horizon, int | np.integer) and horizon >= 1):
-        raise ValueError(f"horizon must be a whole number of samples >= 1, got {horizon!r}")
+    for e in problem.experiments:
+        check_horizon(horizon, e.P)
     theta = problem.check_theta(theta)
     sw, out = problem.sweeps, []
     S = problem.model.S
@@ -311,10 +322,6 @@ def predictions(problem, theta, horizon: int = 1) -> list[Prediction]:
         else:
             innov = meas - yhat
         if horizon > 1:
-            if horizon >= meas.shape[0]:
-                raise ValueError(
-                    f"horizon {horizon} must be below the record's {meas.shape[0]} samples"
-                )
             yhat = np.asarray(sw.k_step(local, x0, p, t, u, y, k=int(horizon)))
         out.append(Prediction(np.asarray(t), meas, yhat, cov, innov, int(horizon)))
     return out

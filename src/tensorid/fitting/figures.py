@@ -138,13 +138,16 @@ def prediction_figure(t, measured, simulated, predicted, sd, innovations, *, tit
     return fig
 
 
-def _prediction_jobs(res) -> list:
-    """A filter fit's prediction figures, one per training record and output."""
+def _prediction_jobs(res, training: list) -> list:
+    """A filter fit's prediction figures, one per training record and output
+    (``training``: its training scores, whose simulations they show)."""
     if not res.problem.loss.likelihood:
         return []
     jobs = []
-    preds, sims = res.problem.predict(res.theta), res.simulate()
-    for e, pred, sim in zip(res.problem.experiments, preds, sims, strict=True):
+    sims = [s.simulation for s in training]
+    for e, pred, sim in zip(
+        res.problem.experiments, res.problem.predict(res.theta), sims, strict=True
+    ):
         for j, name in enumerate(res.problem.model.outputs):
             label = f"training '{e.name}'" if e.name else "training"
             sd = np.sqrt(np.maximum(pred.covariance[:, j, j], 0.0))
@@ -171,7 +174,8 @@ def figure_jobs(res, validation=None, training: bool = True, convergence: bool =
     from .validation import training_scores
 
     jobs = []
-    for s in (training_scores(res) if training else []) + list(validation or []):
+    train = training_scores(res) if training else []
+    for s in train + list(validation or []):
         e = s.experiment
         for j, name in enumerate(res.problem.model.outputs):
             stem = f"{s.kind[:5] if s.kind == 'training' else s.kind}_{e.name or 'data'}_{name}"
@@ -186,7 +190,7 @@ def figure_jobs(res, validation=None, training: bool = True, convergence: bool =
                 title=title,
             )
             jobs.append((file_name(stem), "compare", arguments))
-    jobs += _prediction_jobs(res) if training else []
+    jobs += _prediction_jobs(res, train) if training else []
     if convergence and len(res.history) > 1:
         what = f"best of {len(res.starts)} starts" if res.starts else res.method
         title = f"{what}: cost and gradient norm per iteration"

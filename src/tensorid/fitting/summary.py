@@ -263,10 +263,12 @@ def noise_intensities(res, u=None) -> dict | None:
     interval's ends, exponentiated), "fixed"}; None for output error."""
     if not res.problem.loss.likelihood:
         return None
+    from ..engine.predictors import NOISE_PREFIXES
+
     names = res.problem.theta_names
     out: dict = {"process": {}, "measurement": {}}
     for name, value in res.params.items():
-        for prefix, kind in (("log_sigma_w_", "process"), ("log_sigma_e_", "measurement")):
+        for kind, prefix in NOISE_PREFIXES.items():
             if not name.startswith(prefix):
                 continue
             entry: dict = {"sigma": float(np.exp(value)), "stderr": None, "ci95": None,

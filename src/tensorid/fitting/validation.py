@@ -11,6 +11,7 @@ import numpy as np
 
 from ..engine.data import Experiment
 from ..engine.metrics import gof, nrmse, r2, rmse
+from ..engine.predictors import check_horizon
 from ..engine.problem import Problem
 from ..engine.simulate import Simulation, run_simulation
 from ..engine.sweeps import shared_sweeps
@@ -196,10 +197,7 @@ def _predicted(sim, model, params, x0, record, disc, horizon, predictor) -> Simu
     """``sim`` with its outputs replaced by the k-step-ahead predictions."""
     if record.y is None:
         raise ValueError(f"a prediction horizon needs measured outputs; {record.name!r} has none")
-    if not (isinstance(horizon, int | np.integer) and 1 <= horizon < record.P):
-        raise ValueError(
-            f"horizon must be a whole number of samples from 1 to {record.P - 1}, got {horizon!r}"
-        )
+    check_horizon(horizon, record.P)
     import jax.numpy as jnp
 
     sw = shared_sweeps(model, (), (), disc, *(predictor or ()))
