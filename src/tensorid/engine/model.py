@@ -286,7 +286,10 @@ def _trace(what: str, fn: Callable, args: tuple, sig: str):
 def _check_indexing(what: str, fn: Callable, sizes: tuple[int, ...], model: Model) -> None:
     """JAX clamps out-of-range indices silently (p[7] of 4 parameters reads p[3]), so
     call the function once with NumPy arrays, which raise IndexError instead. Only
-    index errors are reported: anything else NumPy cannot do is JAX's business."""
+    index errors are reported: anything else NumPy cannot do is JAX's business. Text
+    equations (``fn.equations``) name their arguments and cannot index past them."""
+    if hasattr(fn, "equations"):
+        return
     args = [np.full(n, 0.5) for n in sizes]
     try:
         with np.errstate(all="ignore"):
