@@ -1,14 +1,18 @@
-"""A jit-compiled entry point declared on a class (the sweeps' list of entry points)."""
+"""A jit-compiled entry point declared on a class (the sweeps' list of entry points),
+and the one way arrays are handed to compiled programs."""
 
 from __future__ import annotations
 
 import jax
 
+from .programs import Program
+
 
 class Compiled:
     """A jit-compiled entry point of :class:`Sweeps`, compiled on first use and kept
     per instance (``batched``: vmapped over a leading axis of θ, one start per row).
-    Compiled functions are per process: pickling a Sweeps drops them."""
+    Compiled functions are per process (pickling a Sweeps drops them); their traced
+    programs are kept on disk for the next process (programs.py)."""
 
     def __init__(self, sweep: str, batched: bool = False, axes=(0,) + (None,) * 6):
         self.sweep, self.batched, self.axes = sweep, batched, axes
@@ -24,6 +28,16 @@ class Compiled:
             fn = getattr(obj, self.sweep)
             if self.batched:
                 fn = jax.vmap(fn, in_axes=self.axes)
-            fn = jax.jit(fn)
+            entry = f"{self.sweep} batched={self.batched} axes={self.axes}"
+            fn = Program(jax.jit(fn), obj, entry)  # kept across processes where it can be
             obj.__dict__[self.name] = fn
         return fn
+
+
+def on_device(a) -> jax.Array:
+    """``a`` as a float JAX array for a compiled program's argument. Not jnp.asarray:
+    that compiles a small program for every new shape (8-15 ms each in a fresh
+    process, a dozen of them in a command-line fit); device_put compiles nothing."""
+    import numpy as np
+
+    return jax.device_put(np.asarray(a, dtype=float))

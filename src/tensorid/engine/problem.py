@@ -26,6 +26,7 @@ from .checks import (
     check_x0,
     name_list,
 )
+from .compiled import on_device
 from .data import Experiment
 from .discretisation import Discretisation, DiscretisationSettings
 from .integrators import Scheme
@@ -186,8 +187,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
             self.predictor,
         )
         self._arrays = [
-            (jnp.asarray(e.t), jnp.asarray(self.inputs(e)), jnp.asarray(e.y))
-            for e in self.experiments
+            (on_device(e.t), on_device(self.inputs(e)), on_device(e.y)) for e in self.experiments
         ]
         self.threads = check_threads(threads)
         counts = resolve_segments(self.experiments, segments, segment_length)
@@ -280,11 +280,11 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
         lead, K = theta.shape[:-1], self.K
         shapes = {"J": (), "g": (K,), "H": (K, K), "P": (K, K)}
         out: list = [[] if c == "r" else np.zeros(lead + shapes[c]) for c in parts]
-        w = jnp.asarray(self.loss_weights)
+        w = on_device(self.loss_weights)
         for e, (t, u, y) in enumerate(self._arrays):
             idx = self._slices(e)
-            local = [jnp.asarray(a[..., idx]) for a in (theta, *more)]
-            values = sweep(*local, jnp.asarray(self.x0[e]), jnp.asarray(self.p0), t, u, y, w)
+            local = [on_device(a[..., idx]) for a in (theta, *more)]
+            values = sweep(*local, on_device(self.x0[e]), on_device(self.p0), t, u, y, w)
             for acc, c, v in zip(out, parts, values if len(parts) > 1 else (values,), strict=True):
                 v = np.asarray(v)
                 if c == "J":
@@ -399,8 +399,8 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
         out = []
         for e, (t, u, y) in enumerate(self._arrays):
             idx = self._slices(e)
-            x0, p = jnp.asarray(self.x0[e]), jnp.asarray(self.p0)
-            dy = np.asarray(self._sweeps.output_jacobian(jnp.asarray(theta[idx]), x0, p, t, u))
+            x0, p = on_device(self.x0[e]), on_device(self.p0)
+            dy = np.asarray(self._sweeps.output_jacobian(on_device(theta[idx]), x0, p, t, u))
             full = np.zeros(np.shape(y) + (self.K,))
             full[..., idx] = dy
             out.append(full)

@@ -5,10 +5,10 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass
 
-import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401
+from .compiled import on_device
 from .data import Experiment
 from .discretisation import Discretisation
 from .integrators import Scheme
@@ -49,9 +49,7 @@ class Simulation:
 def run_simulation(sweeps: Sweeps, data: Experiment, x0, p) -> Simulation:
     """Simulate with compiled ``sweeps`` and read the integrator's failure code."""
     u = sweeps.model.delayed(data.t, data.u, sweeps.discretisation.interpolation)
-    xs, ys, code, at = sweeps.simulate(
-        jnp.asarray(x0), jnp.asarray(p), jnp.asarray(data.t), jnp.asarray(u)
-    )
+    xs, ys, code, at = sweeps.simulate(on_device(x0), on_device(p), on_device(data.t), on_device(u))
     xs, ys = np.asarray(xs), np.asarray(ys)
     status = Status.from_code(int(code))
     failed_at: int | None = None if status is Status.OK else int(at)

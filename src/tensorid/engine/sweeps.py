@@ -46,6 +46,7 @@ from .compiled import Compiled
 from .discretisation import Discretisation, march
 from .losses import SQUARED, Loss
 from .model import Model
+from .output_sensitivity import output_jacobian
 from .packing import pair_indices, quadratic_full, quadratic_packed
 from .packing import unpack_symmetric as unpack_symmetric  # its old home, re-exported
 from .predictors import SIMULATION, Simulation
@@ -198,14 +199,7 @@ class Sweeps:
         _, (zs, pis), _ = self._march(field, observe, z0, 0.0, t, u, y, p, update=self._update())
         return zs, pis
 
-    def _output_jacobian(self, theta, x0, p, t, u):
-        """∂ŷ/∂θ (P, S, K) by forward-mode differentiation of the simulation."""
-
-        def outputs(th):
-            x0_, p_ = self.expand(th, x0, p)
-            return self._simulate(x0_, p_, t, u)[1]
-
-        return jax.jacfwd(outputs)(theta)
+    _output_jacobian = output_jacobian  # ∂ŷ/∂θ (P, S, K) of the simulation
 
     def _k_step(self, theta, x0, p, t, u, y, k: int):
         """ŷ_{h|h−k} (P, S): each sample's output predicted k intervals ahead from the

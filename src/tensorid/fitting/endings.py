@@ -126,7 +126,9 @@ def fit_result(run: Run, started) -> FitResult:
                        evaluate=False, cost=tr.best_J if seen else np.inf, notes=tr.notes(),
                        hybrid=hybrid)  # fmt: skip
     phi = tr.phi(tr.theta0) if out.x is None else out.x
-    if tr.best_phi is not None and tr.best_J < tr.problem.cost(tr.theta(phi)):
+    # (the end point is usually the best seen: then no simulation is needed to know it)
+    better = tr.best_phi is not None and not np.array_equal(tr.best_phi, phi)
+    if better and tr.best_J < tr.problem.cost(tr.theta(phi)):
         phi = tr.best_phi
     message = out.status.describe(out.detail)
     if not out.status.success and tr.nonfinite:

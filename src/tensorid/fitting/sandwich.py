@@ -29,20 +29,22 @@ correction.
 from __future__ import annotations
 
 import jax
-import jax.numpy as jnp
 import numpy as np
+
+from ..engine.compiled import on_device
 
 
 def scores(problem, theta) -> list[np.ndarray]:
     """(P, K) per experiment: each sample's share s_h = D_hᵀ ℓ_ŷ,h of ∇J (the priors
     aside), exact for the discretised model."""
     theta = problem.check_theta(theta)
-    loss, w = problem.loss, jnp.asarray(problem.loss_weights)
-    terms = jax.vmap(lambda y, yh: loss.terms(y, yh, w)[1])
+    loss, w = problem.loss, on_device(problem.loss_weights)
+    # one small program, not one per operation of the loss
+    terms = jax.jit(jax.vmap(lambda y, yh, w: loss.terms(y, yh, w)[1], in_axes=(0, 0, None)))
     out = []
     sens, sims = problem.output_sensitivities(theta), problem.simulate(theta)
     for D, e, sim in zip(sens, problem.experiments, sims, strict=True):
-        l1 = np.asarray(terms(jnp.asarray(e.y), jnp.asarray(sim.y)))  # (P, S)
+        l1 = np.asarray(terms(on_device(e.y), on_device(sim.y), w))  # (P, S)
         out.append(np.einsum("hsk,hs->hk", D, l1))
     return out
 

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..engine.compiled import on_device
 from ..engine.data import Experiment
 from ..engine.metrics import gof, nrmse, r2, rmse
 from ..engine.predictors import check_horizon
@@ -121,8 +122,10 @@ def training_scores(res) -> list[Score]:
 
 def estimate_x0(model, params, x0, free: list[str], record: Experiment, discretisation):
     """The initial state (N,) for ``record``: the states named in ``free`` estimated by
-    trust-region Newton with the parameters held (MATLAB's compare), the others as in
-    ``x0``; ``x0`` itself where the simulation from it is not finite."""
+    trust-region Gauss-Newton with the parameters held (MATLAB's compare), the others
+    as in ``x0``; ``x0`` itself where the simulation from it is not finite. (Gauss-Newton:
+    a few initial states are fitted in a few steps, and a second-order sweep would
+    cost the command line its compilation.)"""
     problem = Problem(
         model,
         record,
@@ -143,7 +146,7 @@ def _free_x0(problem: Problem) -> np.ndarray:
     tr = Tracker.start(problem, theta0, J0, H0, "auto")
     lo, hi = tr.box()
     r = minimize_trust_region(
-        tr.derivs(problem.cost_grad_hess), tr.phi(theta0), lo, hi, fatol=tr.fatol
+        tr.derivs(problem.cost_grad_gn), tr.phi(theta0), lo, hi, fatol=tr.fatol
     )
     # the tracker saw every evaluation, the end point included: its best is never worse
     return tr.theta(r.x if tr.best_phi is None else tr.best_phi)
@@ -198,12 +201,10 @@ def _predicted(sim, model, params, x0, record, disc, horizon, predictor) -> Simu
     if record.y is None:
         raise ValueError(f"a prediction horizon needs measured outputs; {record.name!r} has none")
     check_horizon(horizon, record.P)
-    import jax.numpy as jnp
-
     sw = shared_sweeps(model, (), (), disc, *(predictor or ()))
     u = model.delayed(record.t, record.u, disc.interpolation)
-    args = (jnp.asarray(a) for a in (x0, model.params_array(params), record.t, u, record.y))
-    y = np.asarray(sw.k_step(jnp.zeros(0), *args, k=int(horizon)))
+    args = (on_device(a) for a in (x0, model.params_array(params), record.t, u, record.y))
+    y = np.asarray(sw.k_step(on_device(np.zeros(0)), *args, k=int(horizon)))
     return Simulation(model, record, sim.x, y, sim.status, sim.failed_at)
 
 

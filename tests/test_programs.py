@@ -1,0 +1,136 @@
+"""Traced programs kept across processes (engine/programs.py): a second process reads
+them instead of tracing, gets the same numbers bit for bit, and a program is never
+reused for a model, layout or setting it was not traced for."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import tensorid as ti
+from tensorid.engine import programs
+
+# one process: build a problem from text equations, count how often the sweeps' Python
+# runs (a trace), print (J, g, H) to full precision
+SCRIPT = r"""
+import json, sys
+import numpy as np
+import tensorid as ti
+from tensorid.engine.sweeps import Sweeps
+
+traced = []
+for name in ("_second_order", "_first_order", "_simulate"):
+    fn = getattr(Sweeps, name)
+    def counting(self, *a, _fn=fn, _name=name, **k):
+        traced.append(_name)
+        return _fn(self, *a, **k)
+    setattr(Sweeps, name, counting)
+
+k = float(sys.argv[1])
+model = ti.model_from_equations(
+    {"x": "v", "v": f"-{k}*x - c*v + u"}, {"y": "x"}, ["u"], ["c"]
+)
+t = np.arange(200) * 0.05
+u = np.sin(t)
+y = ti.simulate(model, {"c": 0.3}, [0.1, 0.0], ti.Experiment(t, u)).y
+prob = ti.Problem(model, ti.Experiment(t, u, y + 0.01), p0={"c": 0.5}, x0=[0.1, 0.0],
+                  free_x0=["v"])
+J, g, H = prob.cost_grad_hess(prob.theta0)
+sim = prob.simulate(prob.theta0)[0].y
+print(json.dumps({"traced": traced, "J": J.hex(), "g": [v.hex() for v in g],
+                  "H": [v.hex() for v in H.ravel()], "sim": [v.hex() for v in sim.ravel()]}))
+"""
+
+
+def _run(cache: Path, k: float = 2.0, **env) -> dict:
+    environ = dict(os.environ, TENSORID_CACHE_DIR=str(cache), **env)
+    out = subprocess.run(
+        [sys.executable, "-c", SCRIPT, str(k)],
+        capture_output=True,
+        text=True,
+        env=environ,
+        check=True,
+    )
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    return tmp_path_factory.mktemp("cache") / "jax"
+
+
+def test_a_second_process_reads_the_programs_and_gets_the_same_numbers(cache):
+    first = _run(cache)
+    assert "_second_order" in first["traced"] and "_simulate" in first["traced"]
+    kept = list((cache.parent / "jax-programs").glob("*.jaxexport"))
+    assert len(kept) >= 2
+    second = _run(cache)
+    assert second["traced"] == []  # nothing traced: every program was read
+    for key in ("J", "g", "H", "sim"):
+        assert second[key] == first[key]
+    # and the numbers are those of a process that keeps nothing
+    plain = _run(cache.parent / "off", TENSORID_CACHE="0")
+    assert plain["traced"] and not (cache.parent / "off-programs").exists()
+    for key in ("J", "g", "H", "sim"):
+        assert plain[key] == first[key]
+
+
+def test_another_model_is_traced_afresh_not_read(cache):
+    _run(cache)
+    other = _run(cache, k=3.0)  # the same names and shapes, another constant in F
+    assert "_second_order" in other["traced"]
+    plain = _run(cache.parent / "off2", k=3.0, TENSORID_CACHE="0")
+    assert other["J"] == plain["J"] and other["H"] == plain["H"]
+
+
+def test_a_damaged_program_file_is_traced_again(cache):
+    _run(cache)
+    for f in (cache.parent / "jax-programs").glob("*.jaxexport"):
+        f.write_bytes(b"not a program")
+    again = _run(cache)
+    assert "_second_order" in again["traced"]
+    plain = _run(cache.parent / "off3", TENSORID_CACHE="0")
+    assert again["J"] == plain["J"] and again["H"] == plain["H"]
+
+
+def test_the_key_sees_the_model_its_constants_and_the_layout():
+    def model(scale):
+        table = np.array([1.0, scale])
+
+        def rhs(x, p, u):
+            return -p[0] * x * table[1] + u[0]
+
+        return ti.Model(rhs=rhs, states=["x"], params=["a"], inputs=["u"])
+
+    a, b, c = model(2.0), model(2.0), model(2.5)
+    assert programs.model_digest(a) == programs.model_digest(b)
+    assert programs.model_digest(a) != programs.model_digest(c)  # a closed-over array
+    t = np.arange(20) * 0.1
+    data = ti.Experiment(t, np.ones(20), np.ones(20))
+    p1 = ti.Problem(a, data, p0={"a": 1.0}, x0=[0.0])
+    p2 = ti.Problem(a, data, p0={"a": 1.0}, x0=[0.0], free_x0=["x"])
+    p3 = ti.Problem(a, data, p0={"a": 1.0}, x0=[0.0], scheme="heun")
+    leaves = [np.zeros(3)]
+    keys = {programs._key(p._sweeps, "e", leaves, "tree") for p in (p1, p2, p3)}
+    assert len(keys) == 3
+
+
+def test_a_model_with_its_own_derivative_rule_is_not_kept():
+    import jax
+
+    @jax.custom_jvp
+    def soft(x):
+        return x
+
+    @soft.defjvp
+    def _(primals, tangents):
+        return soft(primals[0]), 2.0 * tangents[0]
+
+    m = ti.Model(rhs=lambda x, p, u: -p[0] * soft(x), states=["x"], params=["a"])
+    assert programs.model_digest(m) is None
