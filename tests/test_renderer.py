@@ -58,11 +58,13 @@ def _here(tmp_path, stem, kind, arguments) -> bytes:
     return path.read_bytes()
 
 
-def test_the_renderer_draws_the_same_pngs_as_this_process(tmp_path, monkeypatch):
+@pytest.mark.parametrize("processes", [1, 2])
+def test_the_renderer_draws_the_same_pngs_as_this_process(tmp_path, monkeypatch, processes):
     out = tmp_path / "o"
     out.mkdir()
     expected = {stem: _here(tmp_path, stem, kind, a) for stem, kind, a in JOBS}
-    r = Renderer()
+    r = Renderer(processes=processes)
+    assert len(r._procs) == processes
     try:
         assert r.submit(out, JOBS) == [stem for stem, _, _ in JOBS]
 
@@ -89,7 +91,7 @@ def test_figures_are_drawn_here_when_the_renderer_fails(tmp_path, monkeypatch, h
     try:
         r.submit(out, JOBS[:2])
         if how == "dies":
-            r._proc.kill()
+            r._procs[0].kill()
         paths = [r.collect(stem) for stem, _, _ in JOBS[:2]]
     finally:
         r.close()
@@ -102,9 +104,9 @@ def test_closing_ends_the_renderer_and_removes_what_was_not_collected(tmp_path):
     out = tmp_path / "o"
     out.mkdir()
     r = Renderer()
-    proc = r._proc
+    procs = list(r._procs)
     r.submit(out, JOBS)
     assert list(out.glob(".*.part"))  # its files, until collected
     r.close()
-    assert proc.poll() is not None
+    assert procs and all(proc.poll() is not None for proc in procs)
     assert not list(out.iterdir())

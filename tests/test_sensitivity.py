@@ -82,7 +82,7 @@ def test_output_sensitivities_equal_autodiff_of_the_simulation(name, prob, theta
     import jax.numpy as jnp
 
     sens = prob.output_sensitivities(theta)
-    for e, (t, u, y) in enumerate(prob._arrays):
+    for e, (t, u, _) in enumerate(prob._arrays):
         idx = prob._slices(e)
         x0, p = jnp.asarray(prob.x0[e]), jnp.asarray(prob.p0)
         sw = prob._sweeps

@@ -72,25 +72,32 @@ def serve(figures_path: str) -> None:
 
 class Renderer:
     """The command's side: ``submit`` jobs as they become known, ``collect`` them in
-    the order the report lists them, ``close`` (always) at the end."""
+    the order the report lists them, ``close`` (always) at the end. With two cores or
+    more, two renderers take the jobs in turn: a fit's figures come in pairs (the
+    training record and the convergence, then validation and the residual tests),
+    and drawing them one after the other was the longest wait of a command-line
+    fit."""
 
-    def __init__(self) -> None:
-        self._proc: subprocess.Popen | None = None
+    def __init__(self, processes: int | None = None) -> None:
+        self._procs: list[subprocess.Popen] = []
         self._pending: dict[str, tuple[str, dict, Path, Path | None]] = {}
         self._done: dict[str, str | None] = {}
         self._replies: queue.Queue = queue.Queue()
-        try:
-            self._proc = subprocess.Popen(
-                [sys.executable, "-P", "-c", _SERVE, __file__, str(_FIGURES)],
-                stdin=subprocess.PIPE,
-                stdout=subprocess.PIPE,
-                stderr=subprocess.DEVNULL,
-                start_new_session=True,  # Ctrl-C at the terminal reaches the command only
-            )
-        except (OSError, ValueError, TypeError):  # no usable interpreter, no processes
-            self._proc = None  # then every figure is drawn here
-            return
-        threading.Thread(target=self._read, args=(self._proc.stdout,), daemon=True).start()
+        self._turn = 0
+        wanted = processes if processes is not None else min(2, os.cpu_count() or 1)
+        for _ in range(wanted):
+            try:
+                proc = subprocess.Popen(
+                    [sys.executable, "-P", "-c", _SERVE, __file__, str(_FIGURES)],
+                    stdin=subprocess.PIPE,
+                    stdout=subprocess.PIPE,
+                    stderr=subprocess.DEVNULL,
+                    start_new_session=True,  # Ctrl-C at the terminal reaches the command only
+                )
+            except (OSError, ValueError, TypeError):  # no usable interpreter, no processes
+                break  # then the figures are drawn by those that started, or here
+            self._procs.append(proc)
+            threading.Thread(target=self._read, args=(proc.stdout,), daemon=True).start()
 
     def _read(self, stream) -> None:
         """The renderer's replies into a queue; None when it is gone."""
@@ -110,14 +117,16 @@ class Renderer:
         return [stem for stem, _, _ in jobs]
 
     def _send(self, out: Path, stem: str, kind: str, arguments: dict) -> Path | None:
-        if self._proc is None:
+        if not self._procs:
             return None
+        proc = self._procs[self._turn % len(self._procs)]
+        self._turn += 1
         tmp = None
         try:
             fd, name = tempfile.mkstemp(prefix=f".{stem}.png.", suffix=".part", dir=out)
             os.close(fd)
             tmp = Path(name)
-            stdin = self._proc.stdin
+            stdin = proc.stdin
             assert stdin is not None  # started with stdin=PIPE
             pickle.dump((stem, kind, arguments, name), stdin)
             stdin.flush()
@@ -146,7 +155,7 @@ class Renderer:
         """The renderer's reply for ``stem``: None when its file is written, else why
         not (also when the renderer is gone, or silent for WAIT seconds)."""
         while stem not in self._done:
-            if self._proc is None:
+            if not self._procs:
                 return "the renderer is gone"
             try:
                 reply = self._replies.get(timeout=WAIT)
@@ -159,9 +168,12 @@ class Renderer:
         return self._done.pop(stem)
 
     def _stop(self) -> None:
-        if self._proc is not None:
-            proc, self._proc = self._proc, None
+        """End every renderer: one that is gone or hung stops them all, and what is
+        left is drawn here (one rule, however many there are)."""
+        procs, self._procs = self._procs, []
+        for proc in procs:
             proc.kill()  # first: closing its output waits for a read in progress
+        for proc in procs:
             proc.wait()
             for stream in (proc.stdin, proc.stdout):
                 try:
