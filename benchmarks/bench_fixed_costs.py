@@ -75,9 +75,14 @@ def _line(name: str, values: list[float], command: str) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument(
+        "--module",
+        action="store_true",
+        help="run the command as python -m tensorid (e.g. another checkout on PYTHONPATH)",
+    )
     args = ap.parse_args()
-    tensorid = shutil.which("tensorid") or sys.executable
-    cli = [tensorid] if tensorid != sys.executable else [sys.executable, "-m", "tensorid"]
+    tensorid = None if args.module else shutil.which("tensorid")
+    cli = [tensorid] if tensorid else [sys.executable, "-m", "tensorid"]
     out = Path(tempfile.mkdtemp(prefix="tensorid-fixed-costs-"))
     fit = [*cli, *FIT, "--out", str(out / "fit")]
     subprocess.run(fit, check=True, capture_output=True)  # fill the caches
