@@ -70,3 +70,28 @@ def test_the_direct_path_keeps_the_checks():
         ti.model_from_equations({"x": "-k*x + q"}, None, [], ["k"])
     m = ti.model_from_equations({"x": "-k*x"}, None, [], ["k"])
     assert m.rhs.equations == {"x": "-k*x"}
+
+
+def test_what_the_direct_path_cannot_bind_goes_to_sympy_and_still_works():
+    one = (np.array([1.0]), np.array([2.0]), np.array([]))
+    # a large integer is a float, as SymPy evaluates it
+    m = ti.model_from_equations({"x": "-k*x/10**20"}, None, [], ["k"])
+    np.testing.assert_allclose(m.f(*one), [-2e-20])
+    # a state called like a builtin, a keyword declared, a name that is not a string
+    m = ti.model_from_equations({"list": "-k*list"}, None, [], ["k"])
+    np.testing.assert_allclose(m.f(*one), [-2.0])
+    assert equations._direct({"x": "-k*x"}, {"x": "x"}, ["x"], [], ["k", "lambda"]) is None
+    assert equations._direct({1: "-k"}, {"x": "x"}, [1], [], ["k"]) is None
+    # an expression too long for Python's parser: SymPy reads it
+    long = " + ".join(f"{i}.5*x" for i in range(400))
+    assert equations._direct({"x": long}, {"x": "x"}, ["x"], [], ["k"]) is None
+    m = ti.model_from_equations({"x": long}, None, [], ["k"])
+    np.testing.assert_allclose(m.f(np.array([1.0]), np.array([1.0]), np.array([])), [80000.0])
+
+
+def test_integer_exponents_stay_integer_powers():
+    import jax
+
+    f, _, _ = equations._direct({"x": "x**3 - x**-1"}, {"x": "x"}, ["x"], [], [])
+    text = str(jax.make_jaxpr(f)(np.ones(1), np.ones(0), np.ones(0)))
+    assert "integer_pow[y=3]" in text and "integer_pow[y=-1]" in text

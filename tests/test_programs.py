@@ -134,3 +134,60 @@ def test_a_model_with_its_own_derivative_rule_is_not_kept():
 
     m = ti.Model(rhs=lambda x, p, u: -p[0] * soft(x), states=["x"], params=["a"])
     assert programs.model_digest(m) is None
+
+
+def test_constants_of_a_jitted_helper_are_in_the_key():
+    import jax
+
+    def model(scale):
+        table = np.array([scale])
+
+        @jax.jit
+        def gain(x):
+            return x * table[0]
+
+        return ti.Model(rhs=lambda x, p, u: -p[0] * gain(x), states=["x"], params=["k"])
+
+    assert programs.model_digest(model(1.0)) == programs.model_digest(model(1.0))
+    assert programs.model_digest(model(1.0)) != programs.model_digest(model(2.0))
+
+
+def test_a_users_scheme_object_is_not_kept():
+    from tensorid.engine.integrators import SCHEMES
+
+    class MyRK4(type(SCHEMES["rk4"])):  # a user's scheme: only its repr would be keyed
+        pass
+
+    ours = SCHEMES["rk4"]
+    mine = MyRK4(**{f: getattr(ours, f) for f in ("name", "a", "b", "c", "order")})
+    m = ti.Model(rhs=lambda x, p, u: -p[0] * x, states=["x"], params=["k"])
+    t = np.arange(20) * 0.1
+    data = ti.Experiment(t, None, np.ones(20))
+    kept = ti.Problem(m, data, p0={"k": 1.0}, x0=[1.0], scheme=ours)
+    not_kept = ti.Problem(m, data, p0={"k": 1.0}, x0=[1.0], scheme=mine)
+    leaves = [np.zeros(3)]
+    assert programs._key(kept._sweeps, "e", leaves, "tree") is not None
+    assert programs._key(not_kept._sweeps, "e", leaves, "tree") is None
+
+
+def test_nothing_is_kept_once_the_source_changed_after_import(monkeypatch):
+    assert programs._package_digest() is not None
+    changed = {p: (mtime + 1, size) for p, (mtime, size) in programs._IMPORTED.items()}
+    monkeypatch.setattr(programs, "_IMPORTED", changed)  # as if a file were edited since
+    assert programs._package_digest() is None
+
+
+def test_under_a_transformation_the_entry_is_plain_jit():
+    import jax
+    import jax.numpy as jnp
+
+    m = ti.Model(rhs=lambda x, p, u: -p[0] * x, states=["x"], params=["k"])
+    t = jnp.asarray(np.arange(30) * 0.1)
+    u = jnp.zeros((30, 0))
+    prob = ti.Problem(m, ti.Experiment(np.asarray(t), None, np.ones(30)), p0={"k": 1.0}, x0=[1.0])
+    sw = prob._sweeps
+    x0 = jnp.ones(1)
+    sw.simulate(x0, jnp.ones(1), t, u)  # the program for these shapes, read or traced
+    d = jax.jacfwd(lambda k: sw.simulate(x0, k, t, u)[1])(jnp.ones(1))
+    tt = np.asarray(t)
+    np.testing.assert_allclose(np.asarray(d)[:, 0, 0], -tt * np.exp(-tt), rtol=1e-4)

@@ -1,3 +1,7 @@
-from .cli import console
+import sys
 
-console()
+from .cli import main
+
+# `python -m tensorid` exits as Python does (runpy, profilers); the installed
+# `tensorid` command uses cli.console, which skips the interpreter's teardown
+sys.exit(main())

@@ -35,15 +35,20 @@ def console() -> None:
     teardown. Freeing JAX's compiled programs and modules one by one takes 0.3-0.5 s
     after the work is done and every file is closed; what a normal exit runs first still
     runs (joining threads, the pools' and the exit handlers: logging, Dask, temporary
-    folders), and the output is flushed."""
+    folders), and the output is flushed (a failed flush exits 120, as Python does).
+    Under a profiler or tracer it exits normally, so that they can write their output."""
     code = main()
+    if sys.getprofile() is not None or sys.gettrace() is not None:
+        sys.exit(code)
     getattr(threading, "_shutdown", lambda: None)()
     atexit._run_exitfuncs()
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
-        except (OSError, ValueError):  # a closed pipe: nothing more can be said there
+        except BrokenPipeError:  # the reader went away: nothing more can be said there
             pass
+        except (OSError, ValueError):
+            code = code or 120
     os._exit(code)
 
 

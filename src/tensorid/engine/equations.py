@@ -10,13 +10,15 @@ must be named, and every other symbol is a parameter (in alphabetical order, unl
 
 Equations in plain arithmetic (+ − × / **, numbers, the declared names, pi and the
 usual functions: sin, exp, sqrt, tanh, Abs, Min, Max, ...) with ``params`` given are
-translated directly, as written (a few milliseconds); anything else goes through
-SymPy, which costs 0.3-0.5 s to import. Both read the same text the same way.
+translated directly and evaluated as written (a few milliseconds); anything else goes
+through SymPy, which costs 0.3-0.5 s to import and simplifies before it evaluates
+(x/x is 1 there; sums may differ in the last digit). Both parse the text alike.
 """
 
 from __future__ import annotations
 
 import ast
+import keyword
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING
 
@@ -216,13 +218,24 @@ def _plain(node: ast.AST, names: set[str]) -> bool:
 
 
 class _ToJax(ast.NodeTransformer):
-    """f(a, b) → _jnp.f(a, b) (Min/Max of several: nested pairs); pi → _jnp.pi."""
+    """f(a, b) → _jnp.f(a, b) (Min/Max of several: nested pairs); pi → _jnp.pi; integer
+    numbers → floats (10**20 is a float, as SymPy evaluates it), except exponents
+    (x**3 stays an integer power, as SymPy prints it)."""
 
     def visit_Name(self, node):
         if node.id == "pi":
             return ast.copy_location(
                 ast.Attribute(ast.Name("_jnp", ast.Load()), "pi", ast.Load()), node
             )
+        return node
+
+    def visit_Constant(self, node):
+        return ast.copy_location(ast.Constant(float(node.value)), node)
+
+    def visit_BinOp(self, node):
+        node.left = self.visit(node.left)
+        if not (isinstance(node.op, ast.Pow) and _integer(node.right)):
+            node.right = self.visit(node.right)
         return node
 
     def visit_Call(self, node):
@@ -234,43 +247,65 @@ class _ToJax(ast.NodeTransformer):
         return ast.copy_location(ast.Call(fn, args, []), node)
 
 
+def _integer(node) -> bool:
+    """A literal integer exponent such as 3 or -1."""
+    if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub | ast.UAdd):
+        node = node.operand
+    return isinstance(node, ast.Constant) and type(node.value) is int and abs(node.value) < 64
+
+
 def _direct(rhs, output, states, inputs, params):
     """(f, h, params) from the text as written, or None where it is not plain arithmetic
-    on the declared names (then SymPy reads it, and says what is wrong)."""
+    on the declared names (then SymPy reads it, and says what is wrong). The text is
+    evaluated as written: SymPy simplifies first (x/x is 1 there, NaN at x = 0 here),
+    and sums may differ in the last digit."""
     declared = states + inputs + params
-    if len(set(declared)) != len(declared) or any(
-        not n.isidentifier() or n in _FUNCTIONS or n == "pi" or n.startswith("_") for n in declared
-    ):
+    if len(set(declared)) != len(declared) or not all(_usable(n) for n in declared):
         return None
-    trees = []
-    for texts, allowed in ((rhs, declared), (output, states + params)):
-        for text in texts.values():
-            if not isinstance(text, str | int | float):
-                return None
-            try:
+    try:
+        trees = []
+        for texts, allowed in ((rhs, declared), (output, states + params)):
+            for text in texts.values():
+                if not isinstance(text, str | int | float):
+                    return None
                 tree = ast.parse(str(text).strip(), mode="eval")
-            except SyntaxError:
-                return None
-            if not _plain(tree, set(allowed)):
-                return None  # SymPy reads it (or says which input an output uses)
-            trees.append(_ToJax().visit(tree))
-    source = [ast.unparse(t) for t in trees]
-    ns = len(states)
+                if not _plain(tree, set(allowed)):
+                    return None  # SymPy reads it (or says which input an output uses)
+                trees.append(_ToJax().visit(tree))
+        source = [ast.unparse(t) for t in trees]
+        ns = len(states)
 
-    def unpack(names: list[str]) -> str:
-        return f"({', '.join(names)},) = _args.pop(0)\n    " if names else "_args.pop(0)\n    "
+        def unpack(arg: str, names: list[str]) -> str:
+            return f"    ({', '.join(names)},) = {arg}\n" if names else ""
 
-    code = (
-        "def f(*_a):\n    _args = list(_a)\n    "
-        + "".join(unpack(n) for n in (states, params, inputs))
-        + f"return [{', '.join(source[:ns])}]\n"
-        "def h(*_a):\n    _args = list(_a)\n    "
-        + "".join(unpack(n) for n in (states, params))
-        + f"return [{', '.join(source[ns:])}]\n"
-    )
-    scope: dict = {"_jnp": jnp}
-    exec(compile(code, "<tensorid equations>", "exec"), scope)  # only checked arithmetic
+        code = (
+            "def f(_x, _p, _u):\n"
+            + unpack("_x", states)
+            + unpack("_p", params)
+            + unpack("_u", inputs)
+            + f"    return [{', '.join(source[:ns])}]\n"
+            "def h(_x, _p):\n"
+            + unpack("_x", states)
+            + unpack("_p", params)
+            + f"    return [{', '.join(source[ns:])}]\n"
+        )
+        scope: dict = {"_jnp": jnp}
+        exec(compile(code, "<tensorid equations>", "exec"), scope)  # only checked arithmetic
+    except (SyntaxError, ValueError, RecursionError, MemoryError):  # SymPy will say
+        return None
     f, h = _stacked(scope["f"]), _stacked(scope["h"])
     f.equations = {s: str(rhs[s]).strip() for s in states}  # type: ignore[attr-defined]
     h.equations = {o: str(output[o]).strip() for o in output}  # type: ignore[attr-defined]
     return f, h, params
+
+
+def _usable(name) -> bool:
+    """A declared name the generated function can bind as it is."""
+    return (
+        isinstance(name, str)
+        and name.isidentifier()
+        and not keyword.iskeyword(name)
+        and name not in _FUNCTIONS
+        and name != "pi"
+        and not name.startswith("_")
+    )

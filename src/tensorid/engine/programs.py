@@ -21,9 +21,14 @@ digest of everything the trace depends on:
 - this package's source code, the versions of JAX and jaxlib, the backend and the
   numerical settings of JAX (64-bit, matmul precision, promotion rules).
 
-A model whose jaxpr holds a custom derivative rule or a callback is not kept (a rule
-is not part of the printed jaxpr, so a changed rule could not be told apart), nor is
-anything when the compilation cache is off (``TENSORID_CACHE=0``). Whatever goes
+A model whose jaxpr holds a custom derivative or batching rule, a callback or any
+other function-valued parameter is not kept (a rule is not part of the printed
+jaxpr, so a changed rule could not be told apart), nor a scheme, loss or predictor
+that is not one of tensorid's own (a user's scheme object is traced but only its
+``repr`` would be keyed), nor anything once a source file of tensorid changed after
+it was imported (the running code is then not the code on disk), nor anything when
+the compilation cache is off (``TENSORID_CACHE=0``). Each file carries a digest of
+its contents, checked when it is read. Whatever goes
 wrong here (no ``flatbuffers``, a file that cannot be read or written, a program
 JAX cannot export), the sweep is traced and compiled as before: this only saves
 time, it never changes a number.
@@ -40,7 +45,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-_NOT_KEPT = ("custom_jvp", "custom_vjp", "callback", "debug_print")
+_NOT_KEPT = ("custom_jvp", "custom_vjp", "custom_vmap", "callback", "debug", "<function", "0x")
 _SETTINGS = (
     "jax_enable_x64",
     "jax_default_matmul_precision",
@@ -48,6 +53,25 @@ _SETTINGS = (
     "jax_numpy_rank_promotion",
 )
 _source_digest: str | None = None
+
+
+def _sources() -> dict[Path, tuple[int, int]]:
+    """(mtime, size) of each source file of tensorid (regular files, no editor's
+    dotfiles)."""
+    root = Path(__file__).resolve().parent.parent
+    out = {}
+    for path in sorted(root.rglob("*.py")):
+        if path.name.startswith(".") or not path.is_file():
+            continue
+        st = path.stat()
+        out[path] = (st.st_mtime_ns, st.st_size)
+    return out
+
+
+try:  # what this process imported: a program is only kept while the disk still has it
+    _IMPORTED: dict[Path, tuple[int, int]] | None = _sources()
+except OSError:
+    _IMPORTED = None
 
 
 def folder() -> Path | None:
@@ -61,21 +85,49 @@ def folder() -> Path | None:
     return Path(cache).with_name(Path(cache).name + "-programs")
 
 
-def _package_digest() -> str:
-    """Of every source file of tensorid and the JAX setup (once per process)."""
+def _package_digest() -> str | None:
+    """Of every source file of tensorid and its version, computed once per process;
+    None when the files are not there (an installation without sources) or changed
+    since this process imported them."""
     global _source_digest
+    if _IMPORTED is None or not _IMPORTED or _sources() != _IMPORTED:
+        return None
     if _source_digest is None:
-        import jaxlib.version
+        from .. import _config
 
-        h = hashlib.sha256()
+        h = hashlib.sha256(_config.__version__.encode())
         root = Path(__file__).resolve().parent.parent
-        for path in sorted(root.rglob("*.py")):
+        for path in _IMPORTED:
             h.update(str(path.relative_to(root)).encode())
             h.update(path.read_bytes())
-        h.update(f"{jax.__version__} {jaxlib.version.__version__} {jax.default_backend()}".encode())
-        h.update(repr([jax.config.values.get(k) for k in _SETTINGS]).encode())
         _source_digest = h.hexdigest()
     return _source_digest
+
+
+def _jax_digest() -> str:
+    """JAX's version, backend and numerical settings as they hold now (on this thread:
+    context managers such as jax.default_matmul_precision included)."""
+    import jaxlib.version
+
+    settings = [getattr(jax.config, k, None) for k in _SETTINGS]
+    return f"{jax.__version__} {jaxlib.version.__version__} {jax.default_backend()} {settings}"
+
+
+def _consts(jaxpr, h) -> None:
+    """Add the values of the arrays every (nested) jaxpr closes over to ``h``: a helper
+    under jax.jit keeps its constants in its own jaxpr, which printing does not show."""
+    from jax.extend import core as jcore
+
+    closed = isinstance(jaxpr, jcore.ClosedJaxpr)
+    for c in jaxpr.consts if closed else ():
+        a = np.asarray(c)
+        h.update(f"{a.dtype}{a.shape}".encode())
+        h.update(a.tobytes())
+    for eqn in (jaxpr.jaxpr if closed else jaxpr).eqns:
+        for value in eqn.params.values():
+            for v in value if isinstance(value, tuple | list) else (value,):
+                if isinstance(v, jcore.ClosedJaxpr | jcore.Jaxpr):
+                    _consts(v, h)
 
 
 def model_digest(model) -> str | None:
@@ -90,10 +142,8 @@ def model_digest(model) -> str | None:
         text = "\n".join(str(j) for j in jaxprs)
         if not any(word in text for word in _NOT_KEPT):
             h = hashlib.sha256(text.encode())
-            for c in (c for j in jaxprs for c in j.consts):
-                a = np.asarray(c)
-                h.update(f"{a.dtype}{a.shape}".encode())
-                h.update(a.tobytes())
+            for j in jaxprs:
+                _consts(j, h)
             names = (model.states, model.params, model.inputs, model.outputs)
             h.update(repr((names, model.discrete, model.input_delays)).encode())
             digest = h.hexdigest()
@@ -103,9 +153,20 @@ def model_digest(model) -> str | None:
     return digest
 
 
+def _ours(obj) -> bool:
+    """A scheme, loss or predictor of tensorid's own, whose repr says all it does."""
+    text = repr(obj)
+    return type(obj).__module__.startswith("tensorid.") and not any(
+        w in text for w in (" at 0x", "array(", "...")
+    )
+
+
 def _key(sweeps, entry: str, leaves, treedef) -> str | None:
-    model = model_digest(sweeps.model)
-    if model is None:
+    parts = (sweeps.discretisation.scheme, sweeps.discretisation, sweeps.loss, sweeps.predictor)
+    if not all(_ours(x) for x in parts):
+        return None
+    model, package = model_digest(sweeps.model), _package_digest()
+    if model is None or package is None:
         return None
     structure = (
         sweeps.free_states,
@@ -117,8 +178,8 @@ def _key(sweeps, entry: str, leaves, treedef) -> str | None:
         str(treedef),
         [(tuple(a.shape), str(a.dtype), bool(getattr(a, "weak_type", False))) for a in leaves],
     )
-    h = hashlib.sha256(f"{_package_digest()}\n{model}\n{structure!r}".encode())
-    return h.hexdigest()[:40]
+    text = f"{package}\n{_jax_digest()}\n{model}\n{structure!r}"
+    return hashlib.sha256(text.encode()).hexdigest()[:40]
 
 
 class Program:
@@ -132,38 +193,48 @@ class Program:
 
     def __call__(self, *args):
         leaves, treedef = jax.tree_util.tree_flatten(args)
-        if not all(isinstance(a, jax.Array | np.ndarray) for a in leaves):
+        plain = all(
+            isinstance(a, jax.Array | np.ndarray) and not isinstance(a, jax.core.Tracer)
+            for a in leaves
+        )
+        if not plain:  # under a transformation (or odd arguments): what jit does
             return self.jitted(*args)
         shapes = (str(treedef), tuple((a.shape, a.dtype) for a in leaves))
         run = self._runs.get(shapes)
         if run is not None:
             return run(*args)
         with self._lock:
-            run = self._runs.get(shapes) or self._prepare(args, leaves, treedef)
+            run, path = self._runs.get(shapes), None
+            if run is None:
+                run, path = self._prepare(args, leaves, treedef)
             if run is self.jitted:
                 self._runs[shapes] = run
                 return run(*args)
             try:  # the first call lowers the read program: where even that fails, jit
                 out = run(*args)
             except Exception:
+                if path is not None:
+                    path.unlink(missing_ok=True)  # so that the next process traces anew
                 run = self.jitted
                 out = run(*args)
             self._runs[shapes] = run
             return out
 
     def _prepare(self, args, leaves, treedef):
-        """The exported program for these shapes (read, or traced and written), or the
-        plain jit where it cannot be kept."""
-        where = folder()
-        key = None if where is None else _key(self.sweeps, self.entry, leaves, treedef)
+        """(the exported program for these shapes, read or traced and written, and its
+        file), or (the plain jit, None) where it cannot be kept."""
+        try:
+            where = folder()
+            key = None if where is None else _key(self.sweeps, self.entry, leaves, treedef)
+        except Exception:  # whatever keeps a key from being made: not kept
+            key = None
         if key is None:
-            return self.jitted
+            return self.jitted, None
         from jax import export
 
         path = where / f"{key}.jaxexport"
-        try:
-            exported = export.deserialize(bytearray(path.read_bytes()))
-        except Exception:  # not there yet, or unreadable: trace it now
+        exported = _read(path)
+        if exported is None:  # not there yet, or damaged: trace it now
             try:
                 specs = jax.tree_util.tree_map(
                     lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype), args
@@ -171,20 +242,39 @@ class Program:
                 exported = export.export(self.jitted)(*specs)
                 _write(path, exported.serialize())
             except Exception:
-                return self.jitted
-        return jax.jit(exported.call)
+                return self.jitted, None
+        return jax.jit(exported.call), path
+
+
+def _read(path: Path):
+    """The exported program in ``path``, or None where it is missing or its contents
+    do not match the digest written with them."""
+    from jax import export
+
+    try:
+        data = path.read_bytes()
+        digest, payload = data[:32], data[32:]
+        if hashlib.sha256(payload).digest() != digest:
+            return None
+        return export.deserialize(bytearray(payload))
+    except Exception:
+        return None
 
 
 def _write(path: Path, data: bytes) -> None:
-    """Atomically, so that a process reading it never sees half a program; a folder
-    that cannot be written only means the next process traces again."""
+    """Atomically and with a digest of the contents, so that a process reading it never
+    uses half a program; a folder that cannot be written only means the next process
+    traces again."""
     tmp = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
         with os.fdopen(fd, "wb") as f:
-            f.write(data)
+            f.write(hashlib.sha256(data).digest() + data)
         os.replace(tmp, path)
+        tmp = None
     except OSError:
+        pass
+    finally:  # also after Ctrl-C: no half-written file is left behind
         if tmp is not None:
             Path(tmp).unlink(missing_ok=True)

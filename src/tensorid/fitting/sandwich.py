@@ -28,6 +28,8 @@ correction.
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import numpy as np
 
@@ -39,14 +41,18 @@ def scores(problem, theta) -> list[np.ndarray]:
     aside), exact for the discretised model."""
     theta = problem.check_theta(theta)
     loss, w = problem.loss, on_device(problem.loss_weights)
-    # one small program, not one per operation of the loss
-    terms = jax.jit(jax.vmap(lambda y, yh, w: loss.terms(y, yh, w)[1], in_axes=(0, 0, None)))
     out = []
     sens, sims = problem.output_sensitivities(theta), problem.simulate(theta)
     for D, e, sim in zip(sens, problem.experiments, sims, strict=True):
-        l1 = np.asarray(terms(on_device(e.y), on_device(sim.y), w))  # (P, S)
+        l1 = np.asarray(_output_gradients(loss, on_device(e.y), on_device(sim.y), w))  # (P, S)
         out.append(np.einsum("hsk,hs->hk", D, l1))
     return out
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _output_gradients(loss, y, yhat, w):
+    """ℓ_ŷ at every sample (P, S): one small program per loss, not one per operation."""
+    return jax.vmap(lambda a, b: loss.terms(a, b, w)[1])(y, yhat)
 
 
 def bandwidth(parts: list[np.ndarray]) -> int:

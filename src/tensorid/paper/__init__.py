@@ -53,3 +53,7 @@ def __getattr__(name: str):
     if name in __all__:
         return getattr(importlib.import_module(".study", __name__), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
