@@ -191,3 +191,19 @@ def test_under_a_transformation_the_entry_is_plain_jit():
     d = jax.jacfwd(lambda k: sw.simulate(x0, k, t, u)[1])(jnp.ones(1))
     tt = np.asarray(t)
     np.testing.assert_allclose(np.asarray(d)[:, 0, 0], -tt * np.exp(-tt), rtol=1e-4)
+
+
+def test_other_versions_programs_unused_for_a_month_are_pruned(tmp_path, monkeypatch):
+    import time
+
+    folder = tmp_path / "jax-programs"
+    folder.mkdir()
+    old, recent, ours = (folder / f"{n}-x.jaxexport" for n in ("aaaaaaaa", "bbbbbbbb", "cccccccc"))
+    for f in (old, recent, ours):
+        f.write_bytes(b"x")
+    month = time.time() - 31 * 86400
+    os.utime(old, (month, month))
+    os.utime(ours, (month, month))
+    monkeypatch.setattr(programs, "_pruned", False)
+    programs._prune(folder, "cccccccc")
+    assert not old.exists() and recent.exists() and ours.exists()

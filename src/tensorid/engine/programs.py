@@ -40,6 +40,7 @@ import hashlib
 import os
 import tempfile
 import threading
+import time
 from pathlib import Path
 
 import jax
@@ -179,7 +180,8 @@ def _key(sweeps, entry: str, leaves, treedef) -> str | None:
         [(tuple(a.shape), str(a.dtype), bool(getattr(a, "weak_type", False))) for a in leaves],
     )
     text = f"{package}\n{_jax_digest()}\n{model}\n{structure!r}"
-    return hashlib.sha256(text.encode()).hexdigest()[:40]
+    # named by the package's version first, so that other versions' files can be told
+    return f"{package[:8]}-{hashlib.sha256(text.encode()).hexdigest()[:40]}"
 
 
 class Program:
@@ -241,6 +243,7 @@ class Program:
                 )
                 exported = export.export(self.jitted)(*specs)
                 _write(path, exported.serialize())
+                _prune(where, key[:8])
             except Exception:
                 return self.jitted, None
         return jax.jit(exported.call), path
@@ -256,9 +259,34 @@ def _read(path: Path):
         digest, payload = data[:32], data[32:]
         if hashlib.sha256(payload).digest() != digest:
             return None
-        return export.deserialize(bytearray(payload))
+        exported = export.deserialize(bytearray(payload))
     except Exception:
         return None
+    try:
+        os.utime(path)  # in use: not pruned
+    except OSError:
+        pass
+    return exported
+
+
+STALE_DAYS = 30
+_pruned = False
+
+
+def _prune(where: Path, current: str) -> None:
+    """Once per process: remove the programs of other versions of tensorid unused for
+    STALE_DAYS days, so that the folder does not grow with every upgrade."""
+    global _pruned
+    if _pruned:
+        return
+    _pruned = True
+    old = time.time() - STALE_DAYS * 86400
+    for path in where.glob("*.jaxexport"):
+        try:
+            if not path.name.startswith(current) and path.stat().st_mtime < old:
+                path.unlink()
+        except OSError:
+            pass
 
 
 def _write(path: Path, data: bytes) -> None:
