@@ -70,6 +70,14 @@ def serve(figures_path: str) -> None:
         sys.stdout.buffer.flush()
 
 
+def _cores() -> int:
+    """The cores this process may run on (its affinity, where the system says)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
 class Renderer:
     """The command's side: ``submit`` jobs as they become known, ``collect`` them in
     the order the report lists them, ``close`` (always) at the end. With two cores or
@@ -84,7 +92,7 @@ class Renderer:
         self._done: dict[str, str | None] = {}
         self._replies: queue.Queue = queue.Queue()
         self._turn = 0
-        wanted = processes if processes is not None else min(2, os.cpu_count() or 1)
+        wanted = processes if processes is not None else min(2, _cores())
         for _ in range(wanted):
             try:
                 proc = subprocess.Popen(
