@@ -207,3 +207,48 @@ def test_other_versions_programs_unused_for_a_month_are_pruned(tmp_path, monkeyp
     monkeypatch.setattr(programs, "_pruned", False)
     programs._prune(folder, "cccccccc")
     assert not old.exists() and recent.exists() and ours.exists()
+
+
+ADJOINT_SCRIPT = r"""
+import json
+import numpy as np
+import tensorid as ti
+from tensorid.engine.adjoint import SecondOrderAdjoint
+
+traced = []
+for name in ("_backward", "_stretch"):
+    fn = getattr(SecondOrderAdjoint, name)
+    def counting(self, *a, _fn=fn, _name=name, **k):
+        traced.append(_name)
+        return _fn(self, *a, **k)
+    setattr(SecondOrderAdjoint, name, counting)
+
+model = ti.model_from_equations({"x": "v", "v": "-k*x - c*v + u"}, {"y": "x"}, ["u"], ["k", "c"])
+t = np.arange(300) * 0.05
+u = np.sin(t)
+y = ti.simulate(model, {"k": 2.0, "c": 0.3}, [0.1, 0.0], ti.Experiment(t, u)).y
+prob = ti.Problem(model, ti.Experiment(t, u, y + 0.01), p0={"k": 1.5, "c": 0.5},
+                  x0=[0.1, 0.0], free_x0=["v"], hessian="adjoint")
+J, g, H = prob.cost_grad_hess(prob.theta0)
+print(json.dumps({"traced": traced, "H": [v.hex() for v in H.ravel()], "J": J.hex()}))
+"""
+
+
+def test_the_adjoints_programs_are_read_by_a_second_process(tmp_path):
+    env = dict(os.environ, TENSORID_CACHE_DIR=str(tmp_path / "jax"), TENSORID_THREADS="1")
+
+    def run(**more):
+        out = subprocess.run(
+            [sys.executable, "-c", ADJOINT_SCRIPT],
+            capture_output=True,
+            text=True,
+            env=dict(env, **more),
+            check=True,
+        )
+        return json.loads(out.stdout.strip().splitlines()[-1])
+
+    first, second = run(), run()
+    assert "_backward" in first["traced"] and "_stretch" in first["traced"]
+    assert second["traced"] == []
+    plain = run(TENSORID_CACHE="0")
+    assert second["H"] == first["H"] == plain["H"] and second["J"] == plain["J"]

@@ -43,7 +43,6 @@ import functools
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
-from functools import cached_property
 
 import jax
 import jax.numpy as jnp
@@ -52,6 +51,7 @@ import numpy as np
 from .. import _config  # noqa: F401
 from .discretisation import Discretisation, input_at
 from .integrators import DiscreteMap, ExplicitRungeKutta
+from .programs import Program
 
 # Intervals whose Hessian-vector products are one vectorised call: enough to amortise
 # the per-operation cost of a compiled loop step, few enough that a block's arrays
@@ -191,6 +191,7 @@ class SecondOrderAdjoint:
             )
         self.sweeps, self.batched = sweeps, batched
         self._compiled: set = set()
+        self._programs: dict = {}
         self._threads = _Threads()
 
     # -- the step map and the padded grid ----------------------------------------------
@@ -341,25 +342,37 @@ class SecondOrderAdjoint:
         return g, Hcurv, (Hcurv if sw.loss.squared else Hgn), Hso
 
     # -- compiled entry points and the call ------------------------------------------------
-    @cached_property
-    def _phase1(self):
-        def fn(theta, x0, p, t, u, y, w, stretches, length):
-            one = functools.partial(self._backward, stretches=stretches, length=length)
-            if self.batched:  # the grid does not depend on θ: one copy for all starts
-                one = jax.vmap(one, in_axes=(0,) + (None,) * 6, out_axes=(0, 0, 0, None, 0))
-            return one(theta, x0, p, t, u, y, w)
+    # one program per value of the static arguments, each kept across processes
+    # (programs.py) like the sweeps' own, where a second process would otherwise spend
+    # a second or more tracing the two phases again
+    def _phase1(self, theta, x0, p, t, u, y, w, stretches: int, length: int):
+        key = ("phase1", stretches, length)
+        if key not in self._programs:
 
-        return jax.jit(fn, static_argnums=(7, 8))
+            def fn(theta, x0, p, t, u, y, w):
+                one = functools.partial(self._backward, stretches=stretches, length=length)
+                if self.batched:  # the grid does not depend on θ: one copy for all starts
+                    one = jax.vmap(one, in_axes=(0,) + (None,) * 6, out_axes=(0, 0, 0, None, 0))
+                return one(theta, x0, p, t, u, y, w)
 
-    @cached_property
-    def _phase2(self):
-        def fn(block, k, starts, per, grid, p, w):
-            one = functools.partial(self._stretch, block, k)
-            if self.batched:
-                one = jax.vmap(one, in_axes=(0, 0, None, 0, None))
-            return one(starts, per, grid, p, w)
+            entry = f"adjoint phase 1 batched={self.batched} {stretches} {length}"
+            self._programs[key] = Program(jax.jit(fn), self.sweeps, entry)
+        return self._programs[key](theta, x0, p, t, u, y, w)
 
-        return jax.jit(fn, static_argnums=0)
+    def _phase2(self, block: int, k, starts, per, grid, p, w):
+        key = ("phase2", block)
+        if key not in self._programs:
+
+            def fn(k, starts, per, grid, p, w):
+                one = functools.partial(self._stretch, block, k)
+                if self.batched:
+                    one = jax.vmap(one, in_axes=(0, 0, None, 0, None))
+                return one(starts, per, grid, p, w)
+
+            entry = f"adjoint phase 2 batched={self.batched} {block}"
+            self._programs[key] = Program(jax.jit(fn), self.sweeps, entry)
+        # k as an array: one program for every stretch, read back like the others
+        return self._programs[key](np.asarray(k), starts, per, grid, p, w)
 
     def __call__(self, theta, x0, p, t, u, y, w, threads_cap: int | None = None):
         """(J, ∇J, ∇²J, Gauss-Newton part); ``threads_cap``: at most that many threads
