@@ -81,6 +81,7 @@ def test_a_second_process_reads_the_programs_and_gets_the_same_numbers(cache):
         assert plain[key] == first[key]
 
 
+@pytest.mark.slow  # fresh processes; the default run keeps the bit-for-bit check
 def test_another_model_is_traced_afresh_not_read(cache):
     _run(cache)
     other = _run(cache, k=3.0)  # the same names and shapes, another constant in F
@@ -89,6 +90,7 @@ def test_another_model_is_traced_afresh_not_read(cache):
     assert other["J"] == plain["J"] and other["H"] == plain["H"]
 
 
+@pytest.mark.slow  # fresh processes; the default run keeps the bit-for-bit check
 def test_a_damaged_program_file_is_traced_again(cache):
     _run(cache)
     for f in (cache.parent / "jax-programs").glob("*.jaxexport"):
@@ -234,6 +236,7 @@ print(json.dumps({"traced": traced, "H": [v.hex() for v in H.ravel()], "J": J.he
 """
 
 
+@pytest.mark.slow  # fresh processes; the default run keeps the bit-for-bit check
 def test_the_adjoints_programs_are_read_by_a_second_process(tmp_path):
     env = dict(os.environ, TENSORID_CACHE_DIR=str(tmp_path / "jax"), TENSORID_THREADS="1")
 
