@@ -80,12 +80,12 @@ def _cores() -> int:
 
 class Renderer:
     """The command's side: ``submit`` jobs as they become known, ``collect`` them in
-    the order the report lists them, ``close`` (always) at the end. With three cores or
-    more (one stays the command's), two renderers take the jobs in turn: a fit's figures come in pairs (the
-    training record and the convergence, then validation and the residual tests),
-    and drawing them one after the other was the longest wait of a command-line
-    fit. (On two cores a second renderer only competes with the command: measured
-    2.64 s against 2.47 s, median of 5 alternating runs at load 1.7.)"""
+    the order the report lists them, ``close`` (always) at the end. With three cores
+    or more (one stays the command's), two renderers take the jobs in turn: a fit's
+    figures come in pairs (the training record and the convergence, then validation
+    and the residual tests), and drawing them one after the other was the longest
+    wait of a command-line fit. (On two cores a second renderer only competes with
+    the command: 2.64 s against 2.47 s, median of 5 alternating runs at load 1.7.)"""
 
     def __init__(self, processes: int | None = None) -> None:
         self._procs: list[subprocess.Popen] = []
