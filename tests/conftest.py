@@ -13,6 +13,9 @@ import tensorid as ti
 
 # the CLI keeps compiled code on disk; keep the tests' copies out of the home folder
 os.environ.setdefault("TENSORID_CACHE_DIR", tempfile.mkdtemp(prefix="tensorid-test-cache-"))
+# each test compiles its programs once: writing them for a next process would only cost
+# (10-20 % more compile time); tests/test_programs.py turns them on where it checks them
+os.environ.setdefault("TENSORID_PROGRAMS", "0")
 
 SILVERBOX_P = {"m": 5.27e-6, "d": 2.15e-4, "a": 0.9675, "b": 3.975}
 TS_SILVERBOX = 2**14 / 1e7

@@ -49,7 +49,7 @@ print(json.dumps({"traced": traced, "J": J.hex(), "g": [v.hex() for v in g],
 
 
 def _run(cache: Path, k: float = 2.0, **env) -> dict:
-    environ = dict(os.environ, TENSORID_CACHE_DIR=str(cache), **env)
+    environ = dict(os.environ, TENSORID_CACHE_DIR=str(cache), TENSORID_PROGRAMS="1", **env)
     out = subprocess.run(
         [sys.executable, "-c", SCRIPT, str(k)],
         capture_output=True,
@@ -179,10 +179,12 @@ def test_nothing_is_kept_once_the_source_changed_after_import(monkeypatch):
     assert programs._package_digest() is None
 
 
-def test_under_a_transformation_the_entry_is_plain_jit():
+def test_under_a_transformation_the_entry_is_plain_jit(monkeypatch):
     import jax
     import jax.numpy as jnp
 
+    monkeypatch.setenv("TENSORID_PROGRAMS", "1")
+    assert programs.folder() is not None
     m = ti.Model(rhs=lambda x, p, u: -p[0] * x, states=["x"], params=["k"])
     t = jnp.asarray(np.arange(30) * 0.1)
     u = jnp.zeros((30, 0))
@@ -238,7 +240,12 @@ print(json.dumps({"traced": traced, "H": [v.hex() for v in H.ravel()], "J": J.he
 
 @pytest.mark.slow  # fresh processes; the default run keeps the bit-for-bit check
 def test_the_adjoints_programs_are_read_by_a_second_process(tmp_path):
-    env = dict(os.environ, TENSORID_CACHE_DIR=str(tmp_path / "jax"), TENSORID_THREADS="1")
+    env = dict(
+        os.environ,
+        TENSORID_CACHE_DIR=str(tmp_path / "jax"),
+        TENSORID_THREADS="1",
+        TENSORID_PROGRAMS="1",
+    )
 
     def run(**more):
         out = subprocess.run(

@@ -77,7 +77,12 @@ except OSError:
 
 def folder() -> Path | None:
     """Where programs are kept: beside JAX's compilation cache (``.../jax`` →
-    ``.../jax-programs``), or None when that cache is off."""
+    ``.../jax-programs``), or None when that cache is off or TENSORID_PROGRAMS is 0
+    (the compiled code is then still cached; a first process pays 10-20 % more
+    compile time for writing its programs, which the test suite, compiling hundreds
+    once each, does without)."""
+    if os.environ.get("TENSORID_PROGRAMS", "1").strip().lower() in ("0", "false", "no", "off"):
+        return None
     if not jax.config.values.get("jax_enable_compilation_cache", False):
         return None
     cache = jax.config.values.get("jax_compilation_cache_dir")
