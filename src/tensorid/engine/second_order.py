@@ -74,26 +74,25 @@ def second_order(sw, theta, x0, p, t, u, y, w, v=None, end=False, both=False):
     else:
         Ap, Bp = jnp.asarray(Psel.T), jnp.broadcast_to(jnp.asarray(Psel) @ v, (K, M))
         ncols = K
-    Cp = jnp.zeros((ncols, M))
     lay = layout(sw)
 
     def directions(dxT, d2T):
-        """(a, b, c) per carried column, split into state and parameter parts: its d2x
-        (or d2x_v) column obeys F_zz[a, b] + F_z c (c has no parameter part)."""
+        """(a, b, c) per carried column, a and b split into state and parameter parts:
+        its d2x (or d2x_v) column obeys F_zz[a, b] + F_z c (c has no parameter part)."""
         if v is None:
-            return (dxT[jj], Ap), (dxT[kk], Bp), (d2T, Cp)
-        return (dxT, Ap), (jnp.broadcast_to(v @ dxT, dxT.shape), Bp), (d2T, Cp)
+            return (dxT[jj], Ap), (dxT[kk], Bp), d2T
+        return (dxT, Ap), (jnp.broadcast_to(v @ dxT, dxT.shape), Bp), d2T
 
     def pairs(fn, x, A, B, Cc):
         """(fn_z a, fn_zz[a, b] + fn_z c) for every column, by one nested jvp."""
 
-        def first(x_, p_, ax, ap):
-            return jax.jvp(fn, (x_, p_), (ax, ap))[1]
+        def one(ax, ap, bx, bp, cx):
+            def first(x_, p_, ax_):  # ap is a constant of the outer derivative
+                return jax.jvp(fn, (x_, p_), (ax_, ap))[1]
 
-        def one(ax, ap, bx, bp, cx, cp):
-            return jax.jvp(first, (x, p, ax, ap), (bx, bp, cx, cp))
+            return jax.jvp(first, (x, p, ax), (bx, bp, cx))
 
-        return jax.vmap(one)(*A, *B, *Cc)
+        return jax.vmap(one)(*A, *B, Cc)
 
     def push(fn, state):
         """(fn, fn_z Z, fn_zz[Z, Z] + fn_z d2x) of z ↦ fn(z, p): the field's
