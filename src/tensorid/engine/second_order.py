@@ -3,13 +3,12 @@ first-order sensitivities dx and its second-order sensitivities d2x (packed pair
 or one direction's d2x_v) marched together, with J, ∇J and ∇²J (or ∇²J v) summed
 sample by sample (the equations are in sweeps.py).
 
-The carried state's layout (``Layout``): for the explicit and discrete schemes, one
-flat vector [x; dxᵀ; d2xᵀ] (row k of dxᵀ is column k of dx). A Runge-Kutta stage of
-one flat vector compiles to a few fused loops where the tuple (x, dx, d2x) compiled
-to about one and a half times as many (the sweep is bound by the number of
-operations per step, not by arithmetic: Silverbox's (J, g, H) went from 6.3 to
-4.9 ms). The implicit and adaptive schemes keep the tuple: their Newton solves and
-error control act on x alone.
+The carried state's layout (``Layout``): for the explicit and discrete schemes and a
+small state (at most FLAT_MAX numbers), one flat vector [x; dxᵀ; d2xᵀ] (row k of dxᵀ
+is column k of dx). A Runge-Kutta stage of one flat vector compiles to fewer fused
+loops than the tuple (x, dx, d2x) does, and a small sweep is bound by the number of
+operations per step, not by arithmetic. Larger states, and the implicit and adaptive
+schemes (whose Newton solves and error control act on x alone), keep the tuple.
 """
 
 from __future__ import annotations
@@ -54,9 +53,22 @@ class Layout:
         return (x, dxT.T) if d2T is None else (x, dxT.T, d2T.T)
 
 
+# The flat vector wins while the carried state is small, where the sweep is bound by
+# the operations per step; beyond, its reshapes and gathers cost more than they save.
+# Measured (one core, ms, tuple -> flat): (J, g, H) Silverbox (42 numbers) 5.7 -> 4.2,
+# Lotka-Volterra (56) 3.5 -> 2.8, chain of 2 masses (84) 32 -> 45, Chebyshev K = 10
+# (132) 37 -> 38, chain of 5 masses (780) 252 -> 294. One Sweeps' sweeps share the
+# layout, chosen by the full Hessian's state, so that their trajectories x agree
+# bit for bit (multiple shooting compares the two sweeps' end states).
+FLAT_MAX = 64
+
+
 def layout(sweeps, second: bool = True) -> Layout:
-    flat = isinstance(sweeps.discretisation.scheme, ExplicitRungeKutta | DiscreteMap)
-    return Layout(sweeps._size, sweeps.K, flat, second)
+    """The layout of ``sweeps``' carried state (``second``: with d2x): flat for explicit
+    and discrete schemes whose full second-order state has at most FLAT_MAX numbers."""
+    N, K = sweeps._size, sweeps.K
+    explicit = isinstance(sweeps.discretisation.scheme, ExplicitRungeKutta | DiscreteMap)
+    return Layout(N, K, explicit and N * (1 + K + K * (K + 1) // 2) <= FLAT_MAX, second)
 
 
 def second_order(sw, theta, x0, p, t, u, y, w, v=None, end=False, both=False):

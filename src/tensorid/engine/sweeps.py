@@ -246,7 +246,7 @@ class Sweeps:
         K = self.K
         dx0, Psel = self.seeds()
         Pt = jnp.asarray(Psel.T)
-        lay = layout(self, second=False)  # one flat vector where the scheme allows
+        lay = layout(self, second=False)  # one flat vector where small (second_order.py)
 
         def columns(fn, x, dxT):
             """(fn_z Z)ᵀ, one row per column of Z = [dx; Psel], by forward mode."""
