@@ -79,7 +79,7 @@ ROWS = [
 def _hessian_call(prob: ti.Problem):
     """One experiment's (J, g, H, H_gn) by the problem's own path, no assembly."""
     sw, (t, u, y) = prob._sweeps, prob._arrays[0]
-    x0, p, w = jnp.asarray(prob.x0[0]), jnp.asarray(prob.p0), jnp.asarray(prob.weights)
+    x0, p, w = jnp.asarray(prob.x0[0]), jnp.asarray(prob.p0), jnp.asarray(prob.loss_weights)
     th = jnp.asarray(prob.theta0 * 1.02)
     sweep = sw.adjoint if prob.hessian == "adjoint" else sw.second_order_both
     return lambda: sweep(th, x0, p, t, u, y, w)
@@ -108,7 +108,7 @@ def row(name: str, make, repeats: int) -> None:
     t_adj, _ = time_call(_hessian_call(adj), repeats)
     t_one, _ = _one_thread(lambda: time_call(_hessian_call(adj), repeats)[0])
     sw, (t, u, y) = adj._sweeps, adj._arrays[0]
-    x0, p, w = jnp.asarray(adj.x0[0]), jnp.asarray(adj.p0), jnp.asarray(adj.weights)
+    x0, p, w = jnp.asarray(adj.x0[0]), jnp.asarray(adj.p0), jnp.asarray(adj.loss_weights)
     th0 = jnp.asarray(theta)
     t_gn, _ = time_call(lambda: sw.first_order(th0, x0, p, t, u, y, w), repeats)
     hess = jax.jit(jax.hessian(ten.jax_cost))

@@ -70,7 +70,7 @@ def main() -> None:
     prob = silverbox_problem(substeps=args.substeps)
     theta = prob.theta0
     sens, (t, u, y) = prob._sweeps, prob._arrays[0]
-    x0, p, w = jnp.asarray(prob.x0[0]), jnp.asarray(prob.p0), jnp.asarray(prob.weights)
+    x0, p, w = jnp.asarray(prob.x0[0]), jnp.asarray(prob.p0), jnp.asarray(prob.loss_weights)
     th = jnp.asarray(theta)
     K = theta.size
 

@@ -304,22 +304,26 @@ class SecondOrderAdjoint:
             Sn = self._tangent_step(x, S, p, Pt, dt_, a, b)[1]
             return jnp.where(lv, Sn, S), S
 
-        def quadratic(L, x, S):
-            """Z_hᵀ ∇²L Z_h by K Hessian-vector products."""
-            _, hvp = jax.linearize(jax.grad(L, argnums=(0, 1)), x, p)
-            Wx, Wp = jax.vmap(hvp)(S.T, Pt)  # (K, N), (K, M): (∇²L Z)ᵀ
-            return S.T @ Wx.T + Pt @ Wp.T
+        nx, fp = len(sw.free_states), np.asarray(sw.free_params, dtype=int)
 
         def second(x, S, yv, s, lam, dt_, a, b, lv):
             """(D_h (K, outputs), ℓ_ŷ, ℓ_ŷŷ, Gauss-Newton weights, Z_hᵀ ∇²L_h Z_h) of one
-            interval. Each part is dropped (not multiplied by 0) past the record: a
-            step the record never takes may not be finite there, and 0·inf is NaN."""
+            interval, L_h = ℓ_ŷᵀ C + λᵀ Φ_h, by K Hessian-vector products. Past the
+            record each part is dropped (not multiplied by 0: 0·inf is NaN), and an
+            interval the record never takes is a step of length 0, whose λ is 0."""
             seen = s > 0
             D = _kept(seen, jax.vmap(lambda sx, sp: jax.jvp(m.h, (x, p), (sx, sp))[1])(S.T, Pt))
             _, l1, l2, gamma = (_kept(seen, q) for q in sw.loss.terms(yv, m.h(x, p), w))
-            out = quadratic(lambda x_, p_: l1 @ m.h(x_, p_), x, S)
-            dyn = quadratic(lambda x_, p_: lam @ self._phi(x_, p_, dt_, a, b), x, S)
-            return D, l1, l2, gamma, _kept(seen, out) + _kept(lv, dyn)
+            dt_ = jnp.where(lv, dt_, 0.0)
+
+            def L(x_, p_):
+                return l1 @ m.h(x_, p_) + lam @ self._phi(x_, p_, dt_, a, b)
+
+            _, hvp = jax.linearize(jax.grad(L, argnums=(0, 1)), x, p)
+            Wx, Wp = jax.vmap(hvp)(S.T, Pt)  # (K, N), (K, M): (∇²L Z)ᵀ
+            Q = S.T @ Wx.T  # + Pselᵀ (∇²L Z)_p: the free parameters' rows
+            Q = Q.at[nx:].add(Wp[:, fp].T) if fp.size else Q
+            return D, l1, l2, gamma, _kept(seen, Q)
 
         def one_block(carry, d):
             S, g, Hcurv, Hgn, Hso = carry

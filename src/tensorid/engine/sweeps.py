@@ -47,9 +47,10 @@ from .discretisation import Discretisation, march
 from .losses import SQUARED, Loss
 from .model import Model
 from .output_sensitivity import output_jacobian
-from .packing import pair_indices, quadratic_full, quadratic_packed
+from .packing import quadratic_full
 from .packing import unpack_symmetric as unpack_symmetric  # its old home, re-exported
 from .predictors import SIMULATION, Simulation
+from .second_order import layout, second_order
 
 
 @dataclass(frozen=True, eq=False)
@@ -239,34 +240,35 @@ class Sweeps:
         K = self.K
         dx0, Psel = self.seeds()
         Pt = jnp.asarray(Psel.T)
+        lay = layout(self, second=False)  # one flat vector where small (second_order.py)
 
-        def columns(fn, x, dx):
+        def columns(fn, x, dxT):
             """(fn_z Z)ᵀ, one row per column of Z = [dx; Psel], by forward mode."""
-            return jax.vmap(lambda sx, sp: jax.jvp(fn, (x, p), (sx, sp))[1])(dx.T, Pt)
+            return jax.vmap(lambda sx, sp: jax.jvp(fn, (x, p), (sx, sp))[1])(dxT, Pt)
 
         def push(fn, state):  # (fn, fn_z Z) of z ↦ fn(z, p)
-            x, dx = state
-            return fn(x, p), columns(fn, x, dx).T
+            x, dxT, _ = lay.split(state)
+            return lay.pack(fn(x, p), columns(fn, x, dxT))
 
         def field(state, uu):
             return push(self._f(p, uu), state)
 
         def observe(acc, state, obs_h):
             J, g, H = acc
-            x, dx = state
+            x, dxT, _ = lay.split(state)
             y_h, w = _weighted(obs_h, w_all)
             ell, l1, _, gamma = self.loss.terms(y_h, self._pi(x, p), w)
-            D = columns(self._pi, x, dx)  # (K, outputs) = (C_z Z)ᵀ
+            D = columns(self._pi, x, dxT)  # (K, outputs) = (C_z Z)ᵀ
             if gauss_newton:
                 H = H + quadratic_full(D, gamma)
             return (J + ell, g + D @ l1, H), None
 
         acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros((K, K)) if gauss_newton else None)
         w_all = w
-        state0 = (x0, jnp.asarray(dx0))
+        state0 = lay.pack(x0, jnp.asarray(dx0.T))
         update = self._update(push)
         acc, _, _ = self._march(field, observe, state0, acc0, t, u, y, p, end, update)
-        return (*acc[0], acc[1]) if end else acc
+        return (*acc[0], lay.tuple(acc[1])) if end else acc
 
     # -- second order: (J, ∇J, ∇²J) or (J, ∇J, ∇²J v) by transition tensors ------------
     def _second_order(self, theta, x0, p, t, u, y, w, v=None, end=False, both=False):
@@ -276,78 +278,8 @@ class Sweeps:
         copies of the state instead of 1 + K + K(K+1)/2. With ``end``, also
         (x, dx, d2x) at the last sample (see _weighted for y and w). With ``both``
         (v None), also the packed Gauss-Newton part: it is a term of the sum anyway,
-        and the hybrid method compares the two models."""
-        x0, p = self._start(theta, x0, p)
-        N, M, K = self._size, self.model.M, self.K
-        dx0, Psel = self.seeds()
-        # the parameter parts of the directions are constants (or Psel v): keeping them
-        # apart from the state parts, rather than in z = (x, p), spares the compiled
-        # sweep the concatenations, which costs ~30 % of its time on Silverbox
-        if v is None:
-            jj, kk = pair_indices(K)
-            Ap, Bp = jnp.asarray(Psel[:, jj].T), jnp.asarray(Psel[:, kk].T)
-            ncols = jj.size
-        else:
-            Ap, Bp = jnp.asarray(Psel.T), jnp.broadcast_to(jnp.asarray(Psel) @ v, (K, M))
-            ncols = K
-        Cp = jnp.zeros((ncols, M))
-
-        def directions(dx, d2x_v):
-            """(a, b, c) per carried column, split into state and parameter parts: its d2x
-            (or d2x_v) column obeys F_zz[a, b] + F_z c (c has no parameter part)."""
-            if v is None:
-                return (dx[:, jj].T, Ap), (dx[:, kk].T, Bp), (d2x_v.T, Cp)
-            return (dx.T, Ap), (jnp.broadcast_to(dx @ v, (K, N)), Bp), (d2x_v.T, Cp)
-
-        def pairs(fn, x, A, B, Cc):
-            """(fn_z a, fn_zz[a, b] + fn_z c) for every column, by one nested jvp."""
-
-            def first(x_, p_, ax, ap):
-                return jax.jvp(fn, (x_, p_), (ax, ap))[1]
-
-            def one(ax, ap, bx, bp, cx, cp):
-                return jax.jvp(first, (x, p, ax, ap), (bx, bp, cx, cp))
-
-            return jax.vmap(one)(*A, *B, *Cc)
-
-        def push(fn, state):
-            """(fn, fn_z Z, fn_zz[Z, Z] + fn_z d2x) of z ↦ fn(z, p): the field's
-            right-hand side, or a filter's update map."""
-            x, dx, d2x_v = state
-            A, B, Cc = directions(dx, d2x_v)
-            Fa, d2 = pairs(fn, x, A, B, Cc)
-            # the first K columns of A are Z itself (diagonal pairs come first)
-            return fn(x, p), Fa[:K].T, d2.T
-
-        def field(state, uu):
-            # ẋ, d(dx)/dt = F_z Z, d(d2x)/dt = F_zz[Z,Z] + F_x d2x
-            return push(self._f(p, uu), state)
-
-        def observe(acc, state, obs_h):
-            J, g, H = acc[:3]
-            x, dx, d2x_v = state
-            y_h, w = _weighted(obs_h, w_all)
-            A, B, Cc = directions(dx, d2x_v)
-            Ca, e2 = pairs(self._pi, x, A, B, Cc)
-            D = Ca[:K]  # (K, outputs) = (C_z Z)ᵀ
-            ell, l1, l2, gamma = self.loss.terms(y_h, self._pi(x, p), w)
-
-            def quadratic(c):
-                return quadratic_packed(D, c, (jj, kk) if v is None else None, v)
-
-            curv = quadratic(l2)
-            out = (J + ell, g + D @ l1, H + curv + e2 @ l1)
-            if both:  # the Gauss-Newton part: the same term with the loss's own weights
-                out = out + (acc[3] + (curv if self.loss.squared else quadratic(gamma)),)
-            return out, None
-
-        state0 = (x0, jnp.asarray(dx0), jnp.zeros((N, ncols)))
-        acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros(ncols))
-        acc0 = acc0 + (jnp.zeros(ncols),) if both else acc0
-        w_all = w
-        update = self._update(push)
-        acc, _, _ = self._march(field, observe, state0, acc0, t, u, y, p, end, update)
-        return (*acc[0], acc[1]) if end else acc
+        and the hybrid method compares the two models. (second_order.py)"""
+        return second_order(self, theta, x0, p, t, u, y, w, v, end, both)
 
     def _second_order_both(self, theta, x0, p, t, u, y, w):
         """(J, ∇J, packed ∇²J, packed Gauss-Newton Hessian)."""

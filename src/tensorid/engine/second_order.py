@@ -1,0 +1,143 @@
+"""The second-order sweep of :class:`~tensorid.engine.sweeps.Sweeps`: the state, its
+first-order sensitivities dx and its second-order sensitivities d2x (packed pairs,
+or one direction's d2x_v) marched together, with J, ∇J and ∇²J (or ∇²J v) summed
+sample by sample (the equations are in sweeps.py).
+
+The carried state's layout (``Layout``): for the explicit and discrete schemes and a
+small state (at most FLAT_MAX numbers), one flat vector [x; dxᵀ; d2xᵀ] (row k of dxᵀ
+is column k of dx). A Runge-Kutta stage of one flat vector compiles to fewer fused
+loops than the tuple (x, dx, d2x) does, and a small sweep is bound by the number of
+operations per step, not by arithmetic. Larger states, and the implicit and adaptive
+schemes (whose Newton solves and error control act on x alone), keep the tuple.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+
+from .integrators import DiscreteMap, ExplicitRungeKutta
+from .packing import pair_indices, quadratic_packed
+
+
+@dataclass(frozen=True)
+class Layout:
+    """How (x (N,), dxᵀ (K, N)[, d2xᵀ (L, N)]) are carried: one flat vector, or the
+    tuple (x, dx (N, K)[, d2x (N, L)]) that implicit and adaptive schemes need.
+    ``second``: whether d2x is carried (False: the first-order sweep)."""
+
+    N: int
+    K: int
+    flat: bool
+    second: bool = True
+
+    def pack(self, x, dxT, d2T=None):
+        parts = (x, dxT) if d2T is None else (x, dxT, d2T)
+        if self.flat:
+            return jnp.concatenate([a.reshape(-1) for a in parts])
+        return (x, *(a.T for a in parts[1:]))
+
+    def split(self, state):
+        """(x, dxᵀ, d2xᵀ or None) of a carried state."""
+        if not self.flat:
+            return state[0], state[1].T, (state[2].T if self.second else None)
+        N, nK = self.N, self.N * self.K
+        d2T = state[N + nK :].reshape(-1, N) if self.second else None
+        return state[:N], state[N : N + nK].reshape(self.K, N), d2T
+
+    def tuple(self, state):
+        """(x, dx (N, K)[, d2x (N, L)]): the end state as the segment sweeps return it."""
+        x, dxT, d2T = self.split(state)
+        return (x, dxT.T) if d2T is None else (x, dxT.T, d2T.T)
+
+
+# The flat vector wins while the carried state is small, where the sweep is bound by
+# the operations per step; beyond, its reshapes and gathers cost more than they save.
+# Measured (one core, ms, tuple -> flat): (J, g, H) Silverbox (42 numbers) 5.7 -> 4.2,
+# Lotka-Volterra (56) 3.5 -> 2.8, chain of 2 masses (84) 32 -> 45, Chebyshev K = 10
+# (132) 37 -> 38, chain of 5 masses (780) 252 -> 294. One Sweeps' sweeps share the
+# layout, chosen by the full Hessian's state, so that their trajectories x agree
+# bit for bit (multiple shooting compares the two sweeps' end states).
+FLAT_MAX = 64
+
+
+def layout(sweeps, second: bool = True) -> Layout:
+    """The layout of ``sweeps``' carried state (``second``: with d2x): flat for explicit
+    and discrete schemes whose full second-order state has at most FLAT_MAX numbers."""
+    N, K = sweeps._size, sweeps.K
+    explicit = isinstance(sweeps.discretisation.scheme, ExplicitRungeKutta | DiscreteMap)
+    return Layout(N, K, explicit and N * (1 + K + K * (K + 1) // 2) <= FLAT_MAX, second)
+
+
+def second_order(sw, theta, x0, p, t, u, y, w, v=None, end=False, both=False):
+    """See :meth:`Sweeps._second_order`."""
+    x0, p = sw._start(theta, x0, p)
+    M, K = sw.model.M, sw.K
+    dx0, Psel = sw.seeds()
+    # the parameter parts of the directions are constants (or Psel v): keeping them
+    # apart from the state parts, rather than in z = (x, p), spares the compiled
+    # sweep the concatenations, which costs ~30 % of its time on Silverbox
+    if v is None:
+        jj, kk = pair_indices(K)
+        Ap, Bp = jnp.asarray(Psel[:, jj].T), jnp.asarray(Psel[:, kk].T)
+        ncols = jj.size
+    else:
+        Ap, Bp = jnp.asarray(Psel.T), jnp.broadcast_to(jnp.asarray(Psel) @ v, (K, M))
+        ncols = K
+    lay = layout(sw)
+
+    def directions(dxT, d2T):
+        """(a, b, c) per carried column, a and b split into state and parameter parts:
+        its d2x (or d2x_v) column obeys F_zz[a, b] + F_z c (c has no parameter part)."""
+        if v is None:
+            return (dxT[jj], Ap), (dxT[kk], Bp), d2T
+        return (dxT, Ap), (jnp.broadcast_to(v @ dxT, dxT.shape), Bp), d2T
+
+    def pairs(fn, x, A, B, Cc):
+        """(fn_z a, fn_zz[a, b] + fn_z c) for every column, by one nested jvp."""
+
+        def one(ax, ap, bx, bp, cx):
+            def first(x_, p_, ax_):  # ap is a constant of the outer derivative
+                return jax.jvp(fn, (x_, p_), (ax_, ap))[1]
+
+            return jax.jvp(first, (x, p, ax), (bx, bp, cx))
+
+        return jax.vmap(one)(*A, *B, Cc)
+
+    def push(fn, state):
+        """(fn, fn_z Z, fn_zz[Z, Z] + fn_z d2x) of z ↦ fn(z, p): the field's
+        right-hand side, or a filter's update map."""
+        x, dxT, d2T = lay.split(state)
+        Fa, d2 = pairs(fn, x, *directions(dxT, d2T))
+        # the first K columns of A are Z itself (diagonal pairs come first)
+        return lay.pack(fn(x, p), Fa[:K], d2)
+
+    def field(state, uu):
+        # ẋ, d(dx)/dt = F_z Z, d(d2x)/dt = F_zz[Z,Z] + F_x d2x
+        return push(sw._f(p, uu), state)
+
+    def observe(acc, state, obs_h):
+        J, g, H = acc[:3]
+        x, dxT, d2T = lay.split(state)
+        y_h, w_h = obs_h if isinstance(obs_h, tuple) else (obs_h, w)
+        Ca, e2 = pairs(sw._pi, x, *directions(dxT, d2T))
+        D = Ca[:K]  # (K, outputs) = (C_z Z)ᵀ
+        ell, l1, l2, gamma = sw.loss.terms(y_h, sw._pi(x, p), w_h)
+
+        def quadratic(c):
+            return quadratic_packed(D, c, (jj, kk) if v is None else None, v)
+
+        curv = quadratic(l2)
+        out = (J + ell, g + D @ l1, H + curv + e2 @ l1)
+        if both:  # the Gauss-Newton part: the same term with the loss's own weights
+            out = out + (acc[3] + (curv if sw.loss.squared else quadratic(gamma)),)
+        return out, None
+
+    state0 = lay.pack(x0, jnp.asarray(dx0.T), jnp.zeros((ncols, lay.N)))
+    acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros(ncols))
+    acc0 = acc0 + (jnp.zeros(ncols),) if both else acc0
+    update = sw._update(push)
+    acc, _, _ = sw._march(field, observe, state0, acc0, t, u, y, p, end, update)
+    return (*acc[0], lay.tuple(acc[1])) if end else acc
