@@ -36,7 +36,7 @@ from tensorid import benchmarks, datasets
 def _sweeps(prob: ti.Problem):
     """Compiled single-experiment calls (no Python-side assembly in the timings)."""
     sens, (t, u, y) = prob._sweeps, prob._arrays[0]
-    x0, p, w = jnp.asarray(prob.x0[0]), jnp.asarray(prob.p0), jnp.asarray(prob.weights)
+    x0, p, w = jnp.asarray(prob.x0[0]), jnp.asarray(prob.p0), jnp.asarray(prob.loss_weights)
     th = jnp.asarray(prob.theta0)
     v = jnp.ones_like(th)
     return {
