@@ -39,7 +39,14 @@ def test_silverbox_is_flat_and_a_chain_of_two_masses_is_not():
     assert not second_order.layout(implicit).flat
 
 
-@pytest.mark.parametrize("make", [benchmarks.silverbox_problem, benchmarks.two_tank_problem])
+@pytest.mark.parametrize(
+    "make",
+    [
+        benchmarks.silverbox_problem,
+        # the same layout again (N = 2): the slow run keeps it
+        pytest.param(benchmarks.two_tank_problem, marks=pytest.mark.slow),
+    ],
+)
 def test_flat_and_tuple_layouts_give_the_same_derivatives(make, monkeypatch):
     prob = make()
     (t, u, y), sw = prob._arrays[0], prob._sweeps
