@@ -78,9 +78,15 @@ class Model:
         output: callable ``h(x, p) -> y``, optional
             Must return shape (S,) (a scalar is accepted when S = 1). May be
             nonlinear and depend on ``p``. Default: every state is an output.
-        states, params, inputs, outputs: lists of names
-            Names of x, p, u and y entries, in order. Names must be unique across
-            states and params, because bounds and fixed lists refer to both.
+        states: list of names
+            Names of the x entries, in order. Names must be unique across states and
+            params, because bounds and fixed lists refer to both.
+        params: list of names
+            Names of the p entries, in order.
+        inputs: list of names
+            Names of the u entries, in order.
+        outputs: list of names
+            Names of the y entries, in order.
         discrete: bool
             A discrete-time model: ``rhs`` returns x[k+1] = f(x[k], p, u[k]) on the
             experiment's sampling grid (uniform) instead of dx/dt; the derivatives are

@@ -63,7 +63,8 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
         scheme: explicit fixed-step "rk4" (default), "rk38", "heun", "euler"; implicit
             (L-stable, for stiff models) "sdirk3", "sdirk2", "implicit-euler"; adaptive
             (error-controlled) "dopri5", "bosh3".
-        rtol, atol: error tolerances of an adaptive scheme (defaults 1e-6, 1e-9).
+        rtol: relative error tolerance of an adaptive scheme (default 1e-6).
+        atol: absolute error tolerance of an adaptive scheme (default 1e-9).
         priors: dict {parameter: (mean, sd)}: Gaussian priors on free parameters (MAP
             estimation). J gains σ² Σ ((θ_i − mean)/sd)², σ² the variance of a unit-weight
             residual (``noise``² when given, else estimated from the measured outputs' second
@@ -123,15 +124,15 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
         self,
         model: Model,
         data: Experiment | Sequence[Experiment],
-        p0=None,
-        x0=None,
+        p0: Mapping[str, float] | Sequence[float] | np.ndarray | None = None,
+        x0: Mapping[str, float] | Sequence | np.ndarray | None = None,
         free_x0: Sequence[str] | None = None,
         fixed: Sequence[str] | None = None,
         bounds: Mapping[str, tuple[float, float]] | None = None,
         substeps: int = 4,
         interpolation: str = "linear",
         scheme: str | Scheme = "rk4",
-        weights=None,
+        weights: Mapping[str, float] | Sequence[float] | np.ndarray | str | None = None,
         rtol: float | None = None,
         atol: float | None = None,
         discretisation: Discretisation | None = None,

@@ -116,15 +116,15 @@ def _criterion(F: np.ndarray, theta: np.ndarray, kind: str, pick: np.ndarray) ->
 def design_input(
     model,
     params: dict,
-    t,
+    t: np.ndarray,
     family: Callable[[np.ndarray], np.ndarray],
-    a0,
+    a0: Sequence[float] | np.ndarray,
     *,
     bounds: Sequence[tuple[float, float]] | None = None,
-    x0=None,
+    x0: Sequence[float] | np.ndarray | None = None,
     free_x0: Sequence[str] = (),
     fixed: Sequence[str] = (),
-    noise=1.0,
+    noise: float | Sequence[float] = 1.0,
     criterion: str = "D",
     names: Sequence[str] | None = None,
     starts: int = 4,
@@ -134,19 +134,24 @@ def design_input(
     """The input within ``family`` that best identifies the unknowns at ``params``.
 
     Arguments:
-      model, params : the model and nominal parameter values {name: value}.
-      t : (P,) sample times of the planned experiment.
-      family : a ↦ u, the input (P,) or (P, U) for design variables a; e.g. step
-        levels, or multisine amplitudes per frequency band.
-      a0, bounds : the starting design and box limits [(lo, hi), ...] per variable
-        (amplitude limits; a family can also clip its output to the actuator's range).
-      x0, free_x0, fixed : initial state, and which initial states are unknown and
-        which parameters are known, as for :class:`tensorid.Problem`.
-      noise : output noise standard deviation (scalar, or one per output).
-      criterion : "D" (maximise log det F) or "max-variance" (minimise the largest
-        relative variance among ``names``, default all unknowns).
-      starts : optimisation starts (a0 and random points within the bounds).
-      problem_options : integration settings passed to the Problem (scheme, ...).
+        model (Model): the model.
+        params: nominal parameter values {name: value}.
+        t: (P,) sample times of the planned experiment.
+        family: a ↦ u, the input (P,) or (P, U) for design variables a; e.g. step
+            levels, or multisine amplitudes per frequency band.
+        a0: the starting design.
+        bounds: box limits [(lo, hi), ...] per design variable (amplitude limits; a
+            family can also clip its output to the actuator's range).
+        x0: the initial state, as for :class:`tensorid.Problem`.
+        free_x0: which initial states are unknown.
+        fixed: which parameters are known.
+        noise: output noise standard deviation (scalar, or one per output).
+        criterion: "D" (maximise log det F) or "max-variance" (minimise the largest
+            relative variance among ``names``, default all unknowns).
+        names: the unknowns the "max-variance" criterion looks at.
+        starts: optimisation starts (a0 and random points within the bounds).
+        seed: for the random starts.
+        **problem_options (Any): integration settings passed to the Problem (scheme, ...).
 
     Returns:
       :class:`InputDesign`, with predicted standard errors before and after.

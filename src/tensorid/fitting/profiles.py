@@ -26,6 +26,7 @@ interval ends to the same precision; they differ in how they get near them.
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -262,21 +263,27 @@ def _end(held: _Held, bracket, J_hat: float, dJ: float, method: str) -> float:
 
 
 def profile(
-    res, names=None, level: float = 0.95, *, method: str = "integrate", max_steps: int = 60
+    res,
+    names: Sequence[str] | None = None,
+    level: float = 0.95,
+    *,
+    method: str = "integrate",
+    max_steps: int = 60,
 ) -> dict[str, Profile]:
     """Profile likelihood of each unknown in ``names`` (default: every free parameter)
     at the fit ``res``, and its likelihood-ratio interval at ``level``.
 
     Arguments:
-      res : a converged :class:`FitResult` (its θ is the optimum the profiles start
-        from).
-      names : unknowns of ``res.problem.theta_names`` (initial states included).
-      method : "integrate" (exact-Hessian predictor–corrector, the default: a
-        loose corrector along the way, a tight one at the interval ends) or "refit"
-        (a full re-fit from the last point at every trial value: optimisation-based
-        profiles, for comparison).
-      max_steps : steps per side before a side that stays below the threshold is
-        called flat.
+        res (FitResult): a converged fit (its θ is the optimum the profiles start
+            from).
+        names: unknowns of ``res.problem.theta_names`` (initial states included).
+        level: the confidence level of the intervals.
+        method: "integrate" (exact-Hessian predictor–corrector, the default: a
+            loose corrector along the way, a tight one at the interval ends) or "refit"
+            (a full re-fit from the last point at every trial value: optimisation-based
+            profiles, for comparison).
+        max_steps: steps per side before a side that stays below the threshold is
+            called flat.
 
     Returns:
       {name: :class:`Profile`}.
