@@ -137,18 +137,16 @@ def design_input(
         model (Model): the model.
         params: nominal parameter values {name: value}.
         t: (P,) sample times of the planned experiment.
-        family: a ↦ u, the input (P,) or (P, U) for design variables a; e.g. step
-            levels, or multisine amplitudes per frequency band.
+        family: a ↦ u (P,) or (P, U) for design variables a (step levels, amplitudes).
         a0: the starting design.
-        bounds: box limits [(lo, hi), ...] per design variable (amplitude limits; a
-            family can also clip its output to the actuator's range).
+        bounds: box limits [(lo, hi), ...] per design variable (amplitude limits).
         x0: the initial state, as for :class:`tensorid.Problem`.
         free_x0: which initial states are unknown.
         fixed: which parameters are known.
         noise: output noise standard deviation (scalar, or one per output).
         criterion: "D" (maximise log det F) or "max-variance" (minimise the largest
-            relative variance among ``names``, default all unknowns).
-        names: the unknowns the "max-variance" criterion looks at.
+            relative variance among ``names``).
+        names: the unknowns "max-variance" looks at (default all).
         starts: optimisation starts (a0 and random points within the bounds).
         seed: for the random starts.
         **problem_options (Any): integration settings passed to the Problem (scheme, ...).
