@@ -140,15 +140,14 @@ def design_input(
         family: a ↦ u (P,) or (P, U) for design variables a (step levels, amplitudes).
         a0: the starting design.
         bounds: box limits [(lo, hi), ...] per design variable (amplitude limits).
-        x0: the initial state, as for :class:`tensorid.Problem`.
-        free_x0: which initial states are unknown.
-        fixed: which parameters are known.
+        x0: the initial state; ``free_x0`` (unknown initial states) and ``fixed``
+            (known parameters) as for :class:`tensorid.Problem`.
         noise: output noise standard deviation (scalar, or one per output).
         criterion: "D" (maximise log det F) or "max-variance" (minimise the largest
             relative variance among ``names``).
         names: the unknowns "max-variance" looks at (default all).
-        starts: optimisation starts (a0 and random points within the bounds).
-        seed: for the random starts.
+        starts: optimisation starts (a0 and random points within the bounds, drawn
+            with ``seed``).
         **problem_options (Any): integration settings passed to the Problem (scheme, ...).
 
     Returns:
