@@ -134,8 +134,7 @@ def design_input(
     """The input within ``family`` that best identifies the unknowns at ``params``.
 
     Arguments:
-        model (Model): the model.
-        params: nominal parameter values {name: value}.
+        model (Model): the model, ``params`` its nominal parameter values {name: value}.
         t: (P,) sample times of the planned experiment.
         family: a ↦ u (P,) or (P, U) for design variables a (step levels, amplitudes).
         a0: the starting design.
@@ -143,8 +142,8 @@ def design_input(
         x0: the initial state; ``free_x0`` (unknown initial states) and ``fixed``
             (known parameters) as for :class:`tensorid.Problem`.
         noise: output noise standard deviation (scalar, or one per output).
-        criterion: "D" (maximise log det F) or "max-variance" (minimise the largest
-            relative variance among ``names``).
+        criterion: "D" (maximise log det F) or "max-variance" (the largest relative
+            variance among ``names``).
         names: the unknowns "max-variance" looks at (default all).
         starts: optimisation starts (a0 and random points within the bounds, drawn
             with ``seed``).
