@@ -80,7 +80,8 @@ def main() -> None:
     print("| way | wall s | fits / s | speed-up | best cost | starts at best |")
     print("|---|---:|---:|---:|---:|---:|")
     for label, sec, runs in rows:
-        costs = np.array([r["cost"] for r in runs])
+        # run_starts gives FitResults, fit's .starts dicts
+        costs = np.array([r["cost"] if isinstance(r, dict) else r.cost for r in runs])
         best = costs.min()
         hits = int(np.sum(costs <= best * (1 + 1e-6)))
         print(

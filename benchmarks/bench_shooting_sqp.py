@@ -25,6 +25,7 @@ from scipy.linalg import null_space
 import tensorid as ti
 from tensorid.benchmarks import lotka_volterra_problem
 from tensorid.fitting.options import FitOptions
+from tensorid.fitting.registry import resolve
 from tensorid.fitting.shooting import _Run
 
 
@@ -37,7 +38,7 @@ def sqp(problem, theta0, maxiter=200):
     if not first.finite:  # as fit() does: start the segments from the simulation
         z = sh.start(theta0, from_data=False)
         first = sh.evaluate(z, exact=False)
-    run = _Run(problem, "newton", z, first.J, FitOptions())
+    run = _Run(problem, resolve("newton"), z, first.J, FitOptions())
     s, cs, Jr = run.scale, run.cscale, run.J_ref
     lam, nu = np.zeros(cs.size), 1.0
 

@@ -62,7 +62,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="short forms, a few minutes in all")
     ap.add_argument("--out", type=Path, default=HERE / "results" / "run_all.md")
-    ap.add_argument("--only", nargs="+", help="scripts to run (names without .py)")
+    ap.add_argument("--only", nargs="+", help="scripts to run (names without .py), added to --out")
     args = ap.parse_args()
     q = args.quick
     runs = [
@@ -85,7 +85,7 @@ def main() -> None:
     if args.only:
         runs = [(s, e) for s, e in runs if s.removesuffix(".py") in args.only]
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    with open(args.out, "w") as log:
+    with open(args.out, "a" if args.only else "w") as log:  # --only adds to the run
 
         def say(text: str) -> None:
             print(text, flush=True)
