@@ -33,6 +33,7 @@ r = y_obs − ŷ, with ℓ_ŷ = −2 w r and ℓ_ŷŷ = 2 w):
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -50,6 +51,7 @@ from .output_sensitivity import output_jacobian
 from .packing import quadratic_full
 from .packing import unpack_symmetric as unpack_symmetric  # its old home, re-exported
 from .predictors import SIMULATION, Simulation
+from .programs import Program
 from .second_order import layout, second_order
 
 
@@ -321,8 +323,17 @@ class Sweeps:
 
     @cached_property
     def k_step(self):
-        """Compiled :meth:`_k_step` (one program per horizon k)."""
-        return jax.jit(self._k_step, static_argnames=("k",))
+        """Compiled :meth:`_k_step`: one program per horizon k, each kept across
+        processes (programs.py); called as ``k_step(theta, x0, p, t, u, y, k=k)``."""
+        programs: dict = {}
+
+        def run(theta, x0, p, t, u, y, k: int):
+            if k not in programs:
+                fn = jax.jit(functools.partial(self._k_step, k=k))
+                programs[k] = Program(fn, self, f"_k_step k={k}")
+            return programs[k](theta, x0, p, t, u, y)
+
+        return run
 
     # (J, ∇J, ∇²J, Gauss-Newton part) by second-order adjoints (see adjoint.py)
     @cached_property
