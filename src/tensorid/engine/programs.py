@@ -206,7 +206,7 @@ class Program:
         )
         if not plain:  # under a transformation (or odd arguments): what jit does
             return self.jitted(*args)
-        shapes = (str(treedef), tuple((a.shape, a.dtype) for a in leaves))
+        shapes = (treedef, tuple((a.shape, a.dtype) for a in leaves))
         run = self._runs.get(shapes)
         if run is not None:
             return run(*args)
