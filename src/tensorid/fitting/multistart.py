@@ -118,14 +118,13 @@ def _worker_init(cache: str | None) -> None:
     # Ctrl-C in a terminal reaches the whole process group: the parent alone
     # decides (it stops the workers and keeps what finished)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    from .._config import add_xla_flags, disable_compilation_cache, enable_compilation_cache
+
     # one XLA thread per worker, set in the worker (not in the parent's environment):
     # read when JAX first computes, which comes after this
-    os.environ.setdefault(
-        "XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
-    )
+    add_xla_flags("--xla_cpu_multi_thread_eigen=false", "intra_op_parallelism_threads=1")
     global _LOCAL_WORKER
     _LOCAL_WORKER = True
-    from .._config import disable_compilation_cache, enable_compilation_cache
 
     if cache:
         enable_compilation_cache(cache)

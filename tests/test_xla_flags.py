@@ -1,0 +1,74 @@
+"""``import tensorid`` asks XLA to compile each small loop (a sweep over a record) as
+one function, leaves a user's own XLA settings alone, and gives its process-pool
+workers one thread each on top of whatever the parent set."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+from tensorid._config import SMALL_LOOP_BYTES, add_xla_flags
+
+_OPTION = "xla_cpu_small_while_loop_byte_threshold"
+
+# what a fresh process sees: its XLA_FLAGS, and whether the simulation's loop over the
+# record was compiled as one function (XLA then calls it from the program's entry,
+# where otherwise the loop itself stands)
+_PROBE = """
+import json, os, sys
+pre = sys.argv[1] == "jax-first"
+if pre:
+    import jax.numpy as jnp
+    jnp.ones(1).block_until_ready()  # JAX started before tensorid: too late to change
+import jax, tensorid  # noqa: F401 (its import sets the flags)
+from tensorid.paper.problems import silverbox_problem
+prob = silverbox_problem()  # the paper's record: 1024 samples, 2 states
+sw, (t, u, y) = prob._sweeps, prob._arrays[0]
+x0, p = jax.numpy.asarray(prob.x0[0]), jax.numpy.asarray(prob.p0)
+hlo = jax.jit(sw._simulate).lower(x0, p, t, u).compile()
+entry = hlo.as_text().split("ENTRY", 1)[1].split(chr(10) + "}", 1)[0]
+print(json.dumps({"flags": os.environ.get("XLA_FLAGS", ""),
+                  "one_function": " while(" not in entry and "xla_cpu_small_call" in entry}))
+"""
+
+
+def _probe(order: str, flags: str | None) -> dict:
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    if flags is not None:
+        env["XLA_FLAGS"] = flags
+    out = subprocess.run(
+        [sys.executable, "-c", _PROBE, order], env=env, capture_output=True, text=True
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_a_sweep_over_a_record_compiles_as_one_function():
+    got = _probe("tensorid-first", None)
+    assert f"{_OPTION}={SMALL_LOOP_BYTES}" in got["flags"]
+    assert got["one_function"]
+
+
+def test_the_users_own_xla_options_win():
+    # the user's threshold (XLA's default) is kept: the same loop runs op by op
+    got = _probe("tensorid-first", f"--xla_backend_extra_options={_OPTION}=1024")
+    assert got["flags"] == f"--xla_backend_extra_options={_OPTION}=1024"
+    assert not got["one_function"]
+
+
+def test_after_jax_has_started_nothing_changes_in_this_process():
+    got = _probe("jax-first", None)
+    assert not got["one_function"]  # XLA read its flags when JAX started
+
+
+def test_flags_are_added_only_where_not_named(monkeypatch):
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true --other=1")
+    add_xla_flags("--xla_cpu_multi_thread_eigen=false", "intra_op_parallelism_threads=1")
+    assert os.environ["XLA_FLAGS"] == (
+        "--xla_cpu_multi_thread_eigen=true --other=1 intra_op_parallelism_threads=1"
+    )
+    monkeypatch.delenv("XLA_FLAGS")
+    add_xla_flags("--a=1")
+    assert os.environ["XLA_FLAGS"] == "--a=1"
