@@ -83,17 +83,19 @@ HESSIANS = ("auto", "tensors", "adjoint")
 
 # The cost model behind hessian="auto", fitted to the rows of benchmarks/bench_adjoint.py
 # on a 2-core machine (fourteen problems from N = 2, K = 3 to N = 64, K = 65, and
-# K = 5 up to N = 32; within 30 % on the runs it was fitted to, 56 % on a later run,
-# about the run-to-run spread of the times): per sample interval, the
-# transition tensors cost about TENSOR_SECONDS (L N)^0.96 with L = (K+1)(K+2)/2
-# directions, and take RATIO (L/K)^1.29 N^0.39 times as long as the adjoint's K
-# Hessian-vector products (plus ADJOINT_CALL seconds of fixed cost per call). With
-# one thread the adjoint takes SINGLE_THREAD times longer. MARGIN keeps the tensors
-# near the crossover, where the two are within the model's error.
-TENSOR_SECONDS = 0.28e-6
-RATIO = 0.0965
+# K = 5 up to N = 32; run of 2026-11-25 with XLA compiling small loops as one function,
+# _config.py; within a factor 1.6 of every row, about the run-to-run spread of the
+# small rows): per sample interval, the transition tensors cost about TENSOR_SECONDS
+# (L N)^1.14 with L = (K+1)(K+2)/2 directions, and take RATIO (L/K)^0.97 N^0.53 times
+# as long as the adjoint's K Hessian-vector products (plus ADJOINT_CALL seconds of
+# fixed cost per call). With one thread the adjoint takes SINGLE_THREAD times longer.
+# MARGIN keeps the tensors near the crossover, where the two are within the model's
+# error.
+TENSOR_SECONDS = 5.3e-8
+TENSOR_POWER = 1.14
+RATIO = 0.211
 ADJOINT_CALL = 2e-3
-SINGLE_THREAD = 1.3
+SINGLE_THREAD = 1.5
 MARGIN = 1.3
 
 
@@ -102,8 +104,8 @@ def predicted_seconds(N: int, K: int, samples, n_threads: int | None = None) -> 
     for N states, K unknowns per experiment and ``samples`` (one count per experiment)."""
     samples = [samples] if isinstance(samples, int | np.integer) else list(samples)
     lanes = (K + 1) * (K + 2) / 2
-    tensors = sum(samples) * TENSOR_SECONDS * (lanes * N) ** 0.96
-    ratio = RATIO * (lanes / K) ** 1.29 * N**0.39
+    tensors = sum(samples) * TENSOR_SECONDS * (lanes * N) ** TENSOR_POWER
+    ratio = RATIO * (lanes / K) ** 0.97 * N**0.53
     if (threads() if n_threads is None else n_threads) < 2:
         ratio /= SINGLE_THREAD
     return {"tensors": tensors, "adjoint": len(samples) * ADJOINT_CALL + tensors / ratio}
