@@ -193,6 +193,19 @@ def test_a_given_noise_that_the_residuals_contradict_is_a_warning():
     assert right.noise_check.agree and not any(w.startswith("priors:") for w in right.warnings)
 
 
+def test_too_few_samples_to_check_a_given_noise_says_so_not_an_exact_fit():
+    # two samples, two unknowns: no residual variance exists (it is not zero), and the
+    # given noise= needs no fix: the warning says why the check could not be made
+    t = np.linspace(0, 1, 2)
+    e = ti.Experiment(t, np.stack([np.cos(3 * t), np.sin(5 * t)], 1), np.array([0.0, 0.5]))
+    priors = {"a": (1.5, 0.1), "b": (0.0, 1.0)}
+    res = ti.fit(ti.Problem(LINEAR, e, p0={"a": 1.0, "b": 0.0}, priors=priors, noise=0.05))
+    line = next(w for w in res.warnings if w.startswith("priors:"))
+    assert "cannot be checked against the residuals: 2 samples for 2 unknowns" in line
+    assert "matches the data exactly" not in line and "give noise=" not in line
+    assert res.noise_check.as_dict()["too_few"].startswith("not available: 2 samples")
+
+
 def test_a_prior_that_moves_an_estimate_says_so_in_summary_fit_json_and_report(tmp_path):
     from tensorid.app.reports import fit_json, fit_report
     from tensorid.fitting.validation import training_scores

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..engine.status import Status
+from .residuals import residual_count, too_few
 from .robust import residual_noise
 from .summary import Table, Tabular, significant
 from .uncertainty import FLAT, _directions, _variances, negative_directions
@@ -45,6 +46,8 @@ class NoiseCheck(Tabular):
     refits : fits repeated with σ² re-estimated from the residuals (empirical Bayes).
     agree : whether ``used`` and ``residual`` agree within TOLERANCE (for a given σ²:
         or within the residual variance's chance scatter, 99 %).
+    too_few : why there is no residual variance to check against (no more residuals
+        than unknowns), else None.
     outputs : per output, the second-difference variance, the residual variance and
         the second differences' lag-1 correlation (white noise gives −2/3; near +1
         the signal dominates them and the estimate is too large).
@@ -57,6 +60,7 @@ class NoiseCheck(Tabular):
     refits: int
     agree: bool
     outputs: dict[str, dict[str, float]] = field(default_factory=dict)
+    too_few: str | None = None
 
     def as_dict(self) -> dict:
         return {
@@ -68,6 +72,7 @@ class NoiseCheck(Tabular):
             "agree": self.agree,
             "tolerance": TOLERANCE,
             "outputs": self.outputs,
+            "too_few": self.too_few,
         }
 
     def blocks(self) -> list:
@@ -106,12 +111,18 @@ class NoiseCheck(Tabular):
         """A line for the warnings where σ² and the residuals disagreed, else None."""
         if self.refits == 0 and self.agree:
             return None
+        how = "given as noise=" if self.source == "given" else "from the second differences"
+        if self.too_few:  # not "matches exactly": there is no residual variance at all
+            fix = "" if self.source == "given" else f"; give {FIX}"
+            return (
+                f"priors: the noise variance {how}, {self.first:.3g}, cannot be checked "
+                f"against the residuals: {self.too_few.removeprefix('not available: ')}{fix}"
+            )
         if not self.residual > 0:
             return (
                 "priors: the fit matches the data exactly, so no noise level can be read "
                 f"from its residuals to weigh the priors; give {FIX}"
             )
-        how = "given as noise=" if self.source == "given" else "from the second differences"
         ratio = _times(self.first / self.residual)
         head = (
             f"priors: the noise variance {how}, {self.first:.3g}, is {ratio} the residual "
@@ -209,7 +220,8 @@ def weigh_priors(res, fits, method, options, started):
     else:  # the user's word: only a clear disagreement is worth a warning
         dof = done.uncertainty().dof
         source, agree = "given", _agree(used, residual) or _chance(used, residual, dof)
-    check = NoiseCheck(source, first, used, residual, refits, agree, _per_output(done))
+    few = too_few(residual_count(problem), done.theta.size, what="a residual variance")
+    check = NoiseCheck(source, first, used, residual, refits, agree, _per_output(done), few)
     return replace(done, noise_check=check)
 
 
