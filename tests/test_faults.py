@@ -239,6 +239,8 @@ def test_ctrl_c_in_the_cli_saves_the_best_point_and_removes_older_results(
     assert len(err) == 1 and "interrupted" in err[0] and "fit.json" in err[0]
     saved = json.loads((out / "fit.json").read_text())
     assert saved["status"] == "interrupted" and saved["cost"] > 0
+    # what it was fitted from, as a complete fit.json has it
+    assert saved["provenance"]["model"]["sha256"] and "overrides" in saved
     assert not list(out.glob("*.png")) and not (out / "report.md").exists()
     assert not (out / ".tensorid.lock").exists()
 
@@ -308,6 +310,7 @@ def test_sigint_at_the_first_statistic_keeps_fit_json(more, tmp_path, capsys, mo
     data = json.loads((out / "fit.json").read_text())
     assert data["success"] and data["estimates"] and data["status"] != "interrupted"
     assert data["statistics_missing"].startswith("interrupted after the fit")
+    assert data["provenance"]["data"] and "overrides" in data
     assert "stderr" not in data and len(data["starts"]) == (2 if more else 0)
     assert not (out / ".tensorid.lock").exists()
 

@@ -168,13 +168,19 @@ def _fit_command(args, renderer: Renderer) -> int:
             res = _run(problem, args, console, executor, timeout)
         except FitInterrupted as stop:
             with _no_interrupt():  # a second Ctrl-C while saving would lose it
-                return _save_interrupted(stop.result, out, old)
+                return _save_interrupted(stop.result, out, old, _recorded(args))
         kept: dict = {}  # where the complete fit.json went, once it is written
         try:
             return _report(res, val, args, out, old, kept, renderer)
         except KeyboardInterrupt:  # Ctrl-C after the fit: the estimates are kept
             with _no_interrupt():
-                return _save_after_interrupt(res, out, old, kept)
+                return _save_after_interrupt(res, out, old, kept, _recorded(args))
+
+
+def _recorded(args) -> dict:
+    """What fit.json records of the command itself: the files' provenance and the
+    command line's overrides of the model file."""
+    return {"provenance": args.provenance, "overrides": args.overrides}
 
 
 def _report(res, val, args, out: Path, old: set[Path], kept: dict, renderer) -> int:
@@ -199,7 +205,7 @@ def _report(res, val, args, out: Path, old: set[Path], kept: dict, renderer) -> 
         print(line)
     if residual is not None and res.has_uncertainty and False in residual.whiteness_passed:
         print(f"residuals: {coloured_residuals_line(res)}")
-    extras.update(provenance=args.provenance, overrides=args.overrides)
+    extras.update(_recorded(args))
     figures, failures = _write_results(res, out, scores, old, extras, kept, (renderer, stems))
     failures = missing + failures
     if failures or stopped:

@@ -31,10 +31,11 @@ def _keep(out: Path, data: dict, kept: dict) -> list[str]:
     return [f"{why}; the results are in {where}"] if why else []
 
 
-def _save_after_interrupt(res, out: Path, old: set[Path], kept: dict) -> int:
+def _save_after_interrupt(res, out: Path, old: set[Path], kept: dict, extras=None) -> int:
     """Ctrl-C while the statistics, the console or the files of a finished fit were
     being made: a complete fit.json already written stays; otherwise the estimates
-    go to fit.json without the statistics (no further computation). Exit status 130."""
+    go to fit.json without the statistics (no further computation), with ``extras``
+    (provenance, overrides) as a complete one has them. Exit status 130."""
     if kept.get("fit.json"):
         _tidy(out, old, kept, [])
         print(f"tensorid: interrupted; {kept['fit.json']} was written", file=sys.stderr)
@@ -42,7 +43,7 @@ def _save_after_interrupt(res, out: Path, old: set[Path], kept: dict) -> int:
     why = "interrupted after the fit, before its statistics were written: run it again for them"
     for name, value in res.params.items():  # the estimates on the console first
         print(f"{name} = {value!r}")
-    where = _save_now(out, old, lambda: fit_json(res, [], missing=why))
+    where = _save_now(out, old, lambda: {**fit_json(res, [], missing=why), **(extras or {})})
     print(f"tensorid: interrupted after the fit; the estimates are in {where}", file=sys.stderr)
     return 130
 
@@ -88,17 +89,18 @@ def _replace_quietly(out: Path, old: set[Path], written: list[Path], failures: l
         failures.append(f"could not remove the earlier results in {out}: {e.strerror or e}")
 
 
-def _save_interrupted(res, out: Path, old: set[Path]) -> int:
-    """Ctrl-C: the best point so far goes to fit.json (status "interrupted") at once;
-    no figures or report (the user is waiting); older results are removed, not
-    mixed in. Exit status 130, as for any interrupted command."""
+def _save_interrupted(res, out: Path, old: set[Path], extras=None) -> int:
+    """Ctrl-C: the best point so far goes to fit.json (status "interrupted") at once,
+    with ``extras`` (provenance, overrides); no figures or report (the user is
+    waiting); older results are removed, not mixed in. Exit status 130, as for any
+    interrupted command."""
     if not np.isfinite(res.cost):  # nothing worth more than what the folder holds
         print(
             f"tensorid: interrupted before any start finished; {out} is as it was", file=sys.stderr
         )
         return 130
     print(summary_table(res, []))
-    where = _save_now(out, old, lambda: fit_json(res, []))
+    where = _save_now(out, old, lambda: {**fit_json(res, []), **(extras or {})})
     print(
         f"tensorid: interrupted; the best point so far (cost {res.cost:.6g}) is in {where}",
         file=sys.stderr,
