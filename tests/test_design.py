@@ -39,6 +39,9 @@ def test_the_designed_input_beats_the_start_within_its_limits(design):
         assert design.stderr_after[n] < 0.5 * design.stderr_before[n]
     assert design.u.min() >= 0.0 and design.u.max() <= 1.0
     assert "before -> after" in design.describe()
+    text = str(design)  # printed: the criterion and a row per unknown, no arrays
+    assert text.startswith("input design (D, lower is better)") and "a " in text
+    assert len(repr(design)) < 200 and "array" not in repr(design)
 
 
 def test_predicted_standard_errors_are_what_simulated_experiments_give(design):

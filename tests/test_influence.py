@@ -45,3 +45,7 @@ def test_the_sample_that_pulled_an_estimate_most_is_the_outlier(record):
         assert (rec, k, output) == ("rec", 100, "y")
     fig = sens.figure(["a", "b"])
     assert len(fig.axes) == 2
+    # printed: one row per unknown naming that sample, not a dump of the arrays
+    text = str(sens)
+    assert "rec, y[100]" in text and text.count("\n") < 12
+    assert repr(sens).startswith("DataSensitivity(") and len(repr(sens)) < 200

@@ -30,12 +30,13 @@ import numpy as np
 from ..engine.data import Experiment
 from ..engine.problem import Problem
 from ..engine.simulate import simulate
+from .summary import Table, Tabular
 
 CRITERIA = ("D", "max-variance")
 
 
-@dataclass
-class InputDesign:
+@dataclass(repr=False)
+class InputDesign(Tabular):
     """The designed input and what it predicts.
 
     a, u : the design variables and the input they give, (P, U); a0, u0 the start.
@@ -66,6 +67,27 @@ class InputDesign:
             for n, v in zip(self.names, self.theta, strict=True)
         ]
         return "predicted relative standard errors, before -> after:\n" + "\n".join(rows)
+
+    def blocks(self) -> list:
+        """The criterion before and after, and each unknown's predicted standard error
+        (absolute and relative to its value) at the start and with the design."""
+        head = (
+            f"input design ({self.criterion}, lower is better): {self.value_before:.4g} -> "
+            f"{self.value_after:.4g} over {self.u.shape[0]} samples"
+        )
+        header = ["unknown", "value", "std. error at start", "designed", "relative", "designed"]
+        rows = []
+        for n, v in zip(self.names, self.theta, strict=True):
+            b, a = self.stderr_before[n], self.stderr_after[n]
+            rel = [f"{se / abs(v):.2%}" if v != 0 else "–" for se in (b, a)]
+            rows.append([n, f"{v:.6g}", f"{b:.3g}", f"{a:.3g}", *rel])
+        return [head, Table(None, header, rows)]
+
+    def __repr__(self) -> str:
+        return (
+            f"InputDesign(criterion={self.criterion!r}, value {self.value_before:.4g} -> "
+            f"{self.value_after:.4g}, u {self.u.shape}, unknowns {self.names})"
+        )
 
     def predict(self, u) -> dict[str, float]:
         """Predicted standard errors for any input u (P,) or (P, U), e.g. a recorded one."""

@@ -18,11 +18,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .summary import Table, Tabular
 from .uncertainty import jacobi_scale
 
 
-@dataclass
-class DataSensitivity:
+@dataclass(repr=False)
+class DataSensitivity(Tabular):
     """dθ̂/dy for every sample of every record.
 
     values : one array per experiment, shape (P, S, K): the change of each estimate
@@ -75,6 +76,27 @@ class DataSensitivity:
             ):
                 rows.append((self.records[e], int(k), self.outputs[s], float(a[k, s])))
         return sorted(rows, key=lambda r: -r[3])[:n]
+
+    def blocks(self) -> list:
+        """Per unknown, the sample that has pulled its estimate furthest (outliers) and
+        the one where a change of one noise level would move it most (leverage)."""
+        samples = sum(v.shape[0] for v in self.values)
+        head = (
+            f"data sensitivity dθ̂/dy: {len(self.names)} unknowns, {samples} samples of "
+            f"{', '.join(self.outputs)} in {len(self.records)} record(s), σ {self.sigma:.4g}"
+        )
+        header = ["unknown", "pulled most by", "pull", "most leverage at", "per σ"]
+        rows = []
+        for name in self.names:
+            (r1, k1, o1, v1), (r2, k2, o2, v2) = (
+                self.most_influential(name, 1, by)[0] for by in ("pull", "scaled")
+            )
+            rows.append([name, f"{r1}, {o1}[{k1}]", f"{v1:.3g}", f"{r2}, {o2}[{k2}]", f"{v2:.3g}"])
+        return [head, Table(None, header, rows)]
+
+    def __repr__(self) -> str:
+        shapes = [v.shape for v in self.values]
+        return f"DataSensitivity(names={self.names}, values (P, S, K) {shapes})"
 
     def figure(self, names=None):
         """One panel per unknown: |dθ̂/dy|·σ against time, per record and output."""
