@@ -84,8 +84,8 @@ HESSIANS = ("auto", "tensors", "adjoint")
 # The cost model behind hessian="auto", fitted to the rows of benchmarks/bench_adjoint.py
 # on a 2-core machine (fourteen problems from N = 2, K = 3 to N = 64, K = 65, and
 # K = 5 up to N = 32; run of 2026-11-25 with XLA compiling small loops as one function,
-# _config.py; within a factor 1.6 of every row, about the run-to-run spread of the
-# small rows): per sample interval, the transition tensors cost about TENSOR_SECONDS
+# _config.py; within a factor 1.9 of every row and 1.4 of most, the run-to-run spread of
+# the small rows): per sample interval, the transition tensors cost about TENSOR_SECONDS
 # (L N)^1.14 with L = (K+1)(K+2)/2 directions, and take RATIO (L/K)^0.97 N^0.53 times
 # as long as the adjoint's K Hessian-vector products (plus ADJOINT_CALL seconds of
 # fixed cost per call). With one thread the adjoint takes SINGLE_THREAD times longer.
