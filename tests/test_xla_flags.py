@@ -36,6 +36,7 @@ print(json.dumps({"flags": os.environ.get("XLA_FLAGS", ""),
 
 def _probe(order: str, flags: str | None) -> dict:
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    env["JAX_PLATFORMS"] = "cpu"  # the option and the probe are XLA's CPU compiler's
     if flags is not None:
         env["XLA_FLAGS"] = flags
     out = subprocess.run(
@@ -72,3 +73,15 @@ def test_flags_are_added_only_where_not_named(monkeypatch):
     monkeypatch.delenv("XLA_FLAGS")
     add_xla_flags("--a=1")
     assert os.environ["XLA_FLAGS"] == "--a=1"
+
+
+def test_a_flag_file_is_left_alone(monkeypatch, tmp_path):
+    # XLA_FLAGS without a leading "-" names a file of flags: anything appended would
+    # become part of the file's name, and XLA would abort at the first computation
+    flagfile = tmp_path / "flags"
+    flagfile.write_text("--xla_cpu_multi_thread_eigen=false\n")
+    monkeypatch.setenv("XLA_FLAGS", str(flagfile))
+    assert add_xla_flags("--a=1") is False
+    assert os.environ["XLA_FLAGS"] == str(flagfile)
+    got = _probe("tensorid-first", str(flagfile))  # and a process with it computes
+    assert got["flags"] == str(flagfile) and not got["one_function"]

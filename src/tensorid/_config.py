@@ -33,15 +33,21 @@ def add_xla_flags(*flags: str) -> bool:
     """Append ``flags`` (``--name=value``) to $XLA_FLAGS, each unless the variable
     already names it (the user's or an earlier setting wins). XLA reads the variable
     once, when JAX starts its first backend: after that nothing changes in this
-    process, and it returns False (child processes still inherit the variable)."""
-    from jax._src import xla_bridge
-
+    process, and it returns False (child processes still inherit the variable). A
+    variable that names a file of flags (it does not start with "-") is left alone:
+    XLA would read the appended flags as part of the file's name."""
     have = os.environ.get("XLA_FLAGS", "")
+    if have.strip() and not have.lstrip().startswith("-"):
+        return False
     names = {f.split("=")[0].lstrip("-") for f in have.split()}
     new = [f for f in flags if f.split("=")[0].lstrip("-") not in names]
     if new:
         os.environ["XLA_FLAGS"] = " ".join([have, *new]).strip()
-    return not xla_bridge.backends_are_initialized()
+    try:  # JAX's own, private: where it is gone, assume JAX has not started
+        from jax._src.xla_bridge import backends_are_initialized
+    except ImportError:
+        return True
+    return not backends_are_initialized()
 
 
 add_xla_flags(
