@@ -204,6 +204,17 @@ def test_too_few_samples_to_check_a_given_noise_says_so_not_an_exact_fit():
     assert "cannot be checked against the residuals: 2 samples for 2 unknowns" in line
     assert "matches the data exactly" not in line and "give noise=" not in line
     assert res.noise_check.as_dict()["too_few"].startswith("not available: 2 samples")
+    assert "residual variance at the fit none (2 samples" in str(res.noise_check)
+    # a robust loss's residual spread is a number even then: it must not be used to
+    # re-estimate the noise (no refits), and the check is not passed as agreement
+    t3 = np.linspace(0, 1, 3)  # three samples for a, b and x(t0): the noise estimated
+    e3 = ti.Experiment(t3, np.stack([np.cos(3 * t3), np.sin(5 * t3)], 1), [0.3, -1.2, 0.4])
+    robust = ti.fit(
+        ti.Problem(LINEAR, e3, p0={"a": 1.0, "b": 0.0}, x0=[0.0], free_x0=["x"],
+                   priors=priors, loss="huber", loss_scale=1.0)
+    )  # fmt: skip
+    assert robust.noise_check.refits == 0 and not robust.noise_check.agree
+    assert any("cannot be checked" in w and "give noise=" in w for w in robust.warnings)
 
 
 def test_a_prior_that_moves_an_estimate_says_so_in_summary_fit_json_and_report(tmp_path):

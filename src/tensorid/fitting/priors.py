@@ -80,9 +80,14 @@ class NoiseCheck(Tabular):
         refits = f"refitted {_count(self.refits)}" if self.refits else "no refits"
         head = (
             f"noise variance weighing the priors: {self.used:.4g} ({_SOURCE[self.source]}; first "
-            f"{self.first:.4g}, {refits}); residual variance at the fit {self.residual:.4g}: "
-            + ("they agree" if self.agree else "they disagree")
-            + f" (tolerance {TOLERANCE:g}×)"
+            f"{self.first:.4g}, {refits}); residual variance at the fit "
+            + (
+                f"none ({self.too_few.removeprefix('not available: ')})"
+                if self.too_few
+                else f"{self.residual:.4g}: "
+                + ("they agree" if self.agree else "they disagree")
+                + f" (tolerance {TOLERANCE:g}×)"
+            )
         )
         header = ["output", "second-difference variance", "residual variance", "lag-1 correlation"]
         keys = ("second_difference_variance", "residual_variance", "second_difference_lag1")
@@ -194,8 +199,12 @@ def weigh_priors(res, fits, method, options, started):
     first, done, refits = problem.noise_variance, res, 0
     residual = _residual_variance(done)
     floor = problem.rounding_floor / max(done.uncertainty().dof, 1)
+    # no more residuals than unknowns: the residuals say nothing of the noise (a
+    # robust loss's spread of them is a number all the same), so no refit and no check
+    few = too_few(residual_count(problem), done.theta.size, what="a residual variance")
     while (
         problem.noise_estimated
+        and not few
         and not _agree(done.problem.noise_variance, residual)
         and refits < MAX_REFITS
         and residual > 0
@@ -220,7 +229,7 @@ def weigh_priors(res, fits, method, options, started):
     else:  # the user's word: only a clear disagreement is worth a warning
         dof = done.uncertainty().dof
         source, agree = "given", _agree(used, residual) or _chance(used, residual, dof)
-    few = too_few(residual_count(problem), done.theta.size, what="a residual variance")
+    agree = agree and not few  # nothing to agree with: said, never passed as agreement
     check = NoiseCheck(source, first, used, residual, refits, agree, _per_output(done), few)
     return replace(done, noise_check=check)
 
