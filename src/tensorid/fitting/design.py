@@ -75,7 +75,8 @@ class InputDesign(Tabular):
             f"input design ({self.criterion}, lower is better): {self.value_before:.4g} -> "
             f"{self.value_after:.4g} over {self.u.shape[0]} samples"
         )
-        header = ["unknown", "value", "std. error at start", "designed", "relative", "designed"]
+        header = ["unknown", "value", "std. error at start", "std. error designed"]
+        header += ["relative at start", "relative designed"]
         rows = []
         for n, v in zip(self.names, self.theta, strict=True):
             b, a = self.stderr_before[n], self.stderr_after[n]

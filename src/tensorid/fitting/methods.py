@@ -76,11 +76,10 @@ def fit(
         re-import the calling script: guard a script's top level with
         ``if __name__ == "__main__":``.
     batch : with starts, fit this many starts per task in lock-step, evaluated in one
-        jax.vmap call (see fit_batch; auto, newton, gauss-newton; 16 Silverbox starts
-        on a fresh pool of 2 workers: 1.71 s in batches of 8 against 2.09 s one start
-        per task, docs/benchmarks.md). Default: the starts shared evenly over the
-        local workers (at most 16 per task) for those methods, one start per task
-        otherwise.
+        jax.vmap call (see fit_batch; auto, newton, gauss-newton; 16 Silverbox starts,
+        fresh pool of 2 workers: 1.71 s in batches of 8, 2.09 s one start per task).
+        Default: the starts shared evenly over the local workers (at most 16 per
+        task) for those methods, one start per task otherwise.
     timeout : seconds to wait for the next start to finish on workers; then the best
         finished start is returned, status ``WORKERS_LOST``. Default: wait.
     polish : with segments (multiple shooting: "auto", "newton" and "newton-cg" by
