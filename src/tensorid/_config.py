@@ -16,7 +16,8 @@ JAX has not started yet (:func:`add_xla_flags`): the Silverbox simulation then t
 0.29 ms instead of 1.1, its (J, ∇J, ∇²J) 2.6 ms instead of 4.3 (2-core machine;
 benchmarks/bench_derivatives.py). Loops with matrix products are never compiled so
 (XLA keeps those for its threaded library), so large models are not slowed. An
-XLA_FLAGS of the user's own with --xla_backend_extra_options is left as it is.
+XLA_FLAGS of the user's own with --xla_backend_extra_options, or naming a file of
+flags, is left as it is.
 """
 
 import os
