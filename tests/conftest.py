@@ -2,20 +2,27 @@
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
 import tempfile
 
-import jax.numpy as jnp
-import numpy as np
-import pytest
-
-import tensorid as ti
-
-# the CLI keeps compiled code on disk; keep the tests' copies out of the home folder
-os.environ.setdefault("TENSORID_CACHE_DIR", tempfile.mkdtemp(prefix="tensorid-test-cache-"))
+# the CLI keeps compiled code on disk; keep the tests' copies out of the home folder.
+# Set before tensorid is imported: its import turns the cache on in the folder named
+# then. The folder goes when the run ends.
+if "TENSORID_CACHE_DIR" not in os.environ:
+    _CACHE = tempfile.mkdtemp(prefix="tensorid-test-cache-")
+    os.environ["TENSORID_CACHE_DIR"] = _CACHE
+    atexit.register(shutil.rmtree, _CACHE, ignore_errors=True)
 # each test compiles its programs once: writing them for a next process would only cost
 # (10-20 % more compile time); tests/test_programs.py turns them on where it checks them
 os.environ.setdefault("TENSORID_PROGRAMS", "0")
+
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+import tensorid as ti  # noqa: E402
 
 SILVERBOX_P = {"m": 5.27e-6, "d": 2.15e-4, "a": 0.9675, "b": 3.975}
 TS_SILVERBOX = 2**14 / 1e7

@@ -65,3 +65,14 @@ def test_a_model_that_is_gone_takes_its_compiled_sweeps_with_it():
     del model, prob
     gc.collect()
     assert gone() is None
+
+
+def test_the_suite_compiles_into_the_folder_conftest_names():
+    # conftest names a temporary folder before tensorid is imported; imported first,
+    # tensorid would already have put the cache in the home folder
+    import os
+
+    import jax
+
+    folder = jax.config.values.get("jax_compilation_cache_dir")
+    assert folder == os.environ["TENSORID_CACHE_DIR"]

@@ -62,7 +62,9 @@ def _check_lagrangian(sh, z, rtol=1e-9, forward=False):
     # the Gauss-Newton variant: same cost, gradient and constraints
     gn = sh.evaluate(z, exact=False)
     np.testing.assert_allclose(gn.g, L.g, rtol=1e-12, atol=1e-14 * np.abs(L.g).max())
-    np.testing.assert_array_equal(gn.c, L.c)
+    # two compiled programs integrate the same states: equal to rounding, not to the
+    # bit (XLA fuses each loop its own way once it compiles it as one function)
+    np.testing.assert_allclose(gn.c, L.c, rtol=1e-13, atol=1e-14 * np.abs(L.c).max())
 
 
 # the autodiff reference compiles every segment unrolled (8-40 s a model): all of them
