@@ -2,18 +2,17 @@
 
 from __future__ import annotations
 
-import atexit
 import os
-import shutil
 import tempfile
 
-# the CLI keeps compiled code on disk; keep the tests' copies out of the home folder.
-# Set before tensorid is imported: its import turns the cache on in the folder named
-# then. The folder goes when the run ends.
-if "TENSORID_CACHE_DIR" not in os.environ:
-    _CACHE = tempfile.mkdtemp(prefix="tensorid-test-cache-")
-    os.environ["TENSORID_CACHE_DIR"] = _CACHE
-    atexit.register(shutil.rmtree, _CACHE, ignore_errors=True)
+# the CLI keeps compiled code on disk; keep the tests' copies out of the home folder, in
+# one folder of the system's temporary space that the next run reuses (CI's slow run
+# reuses what its default run compiled). Set before tensorid is imported: its import
+# turns the cache on in the folder named then.
+_USER = os.getuid() if hasattr(os, "getuid") else "user"
+os.environ.setdefault(
+    "TENSORID_CACHE_DIR", os.path.join(tempfile.gettempdir(), f"tensorid-test-cache-{_USER}")
+)
 # each test compiles its programs once: writing them for a next process would only cost
 # (10-20 % more compile time); tests/test_programs.py turns them on where it checks them
 os.environ.setdefault("TENSORID_PROGRAMS", "0")
