@@ -70,14 +70,6 @@ def serve(figures_path: str) -> None:
         sys.stdout.buffer.flush()
 
 
-def _cores() -> int:
-    """The cores this process may run on (its affinity, where the system says)."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        return os.cpu_count() or 1
-
-
 class Renderer:
     """The command's side: ``submit`` jobs as they become known, ``collect`` them in
     the order the report lists them, ``close`` (always) at the end. With three cores
@@ -93,8 +85,10 @@ class Renderer:
         self._done: dict[str, str | None] = {}
         self._replies: queue.Queue = queue.Queue()
         self._turn = 0
+        from .._config import cores  # here: at module level this file is the renderer's
+
         # the command itself keeps a core: two renderers from three cores on
-        wanted = processes if processes is not None else min(2, max(1, _cores() - 1))
+        wanted = processes if processes is not None else min(2, max(1, cores() - 1))
         for _ in range(wanted):
             try:
                 proc = subprocess.Popen(

@@ -48,7 +48,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _config  # noqa: F401
+from .. import _config
 from .discretisation import Discretisation, input_at
 from .integrators import DiscreteMap, ExplicitRungeKutta
 from .programs import Program
@@ -139,10 +139,7 @@ def threads(cap: int | None = None) -> int:
     MAX_STRETCHES and ``cap`` (``Problem(threads=)``; 1 turns the parallel stretches
     off, as the workers of a multi-start pool do, which have a core each).
     $TENSORID_THREADS, where a user sets it, caps it too."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        cores = os.cpu_count() or 1
+    cores = _config.cores()
     env = os.environ.get("TENSORID_THREADS")
     n = min(cores, int(env)) if env and env.isdigit() else cores
     n = n if cap is None else min(n, cap)
