@@ -167,16 +167,17 @@ def test_ctrl_c_among_many_starts_never_hangs_the_pool(tmp_path):
         )
         for d in delays
     ]
-    for proc in procs:
-        try:
-            out, err = proc.communicate(timeout=60)
-        finally:
+    try:
+        said = [proc.communicate(timeout=60) for proc in procs]
+    finally:
+        for proc in procs:  # a hung one is killed with its workers' parent
             proc.kill()
+    for proc, (out, err) in zip(procs, said, strict=True):
         assert proc.returncode == 0, err.decode()[-2000:]
-        said = out.decode().split()
-        assert said[:2] == ["stopped", "INTERRUPTED"], out
-        assert int(said[3]) == 300000 and int(said[2]) < 300000
-        assert float(said[4]) < 3.0, f"stopped {said[4]} s after Ctrl-C"
+        words = out.decode().split()
+        assert words[:2] == ["stopped", "INTERRUPTED"], out
+        assert int(words[3]) == 300000 and int(words[2]) < 300000
+        assert float(words[4]) < 3.0, f"stopped {words[4]} s after Ctrl-C"
 
 
 def test_a_bad_scheduler_address_is_one_line(capsys, tmp_path):
