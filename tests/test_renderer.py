@@ -4,6 +4,9 @@ process fails or the command ends early."""
 
 from __future__ import annotations
 
+import os
+import time
+
 import numpy as np
 import pytest
 
@@ -58,12 +61,19 @@ def _here(tmp_path, stem, kind, arguments) -> bytes:
     return path.read_bytes()
 
 
-@pytest.mark.parametrize("processes", [1, 2])
-def test_the_renderer_draws_the_same_pngs_as_this_process(tmp_path, monkeypatch, processes):
+@pytest.mark.parametrize(
+    "processes, forks",
+    [
+        (1, 0),
+        (2, 0),
+        pytest.param(1, 2, marks=pytest.mark.skipif(not hasattr(os, "fork"), reason="fork")),
+    ],
+)
+def test_the_renderer_draws_the_same_pngs_as_this_process(tmp_path, monkeypatch, processes, forks):
     out = tmp_path / "o"
     out.mkdir()
     expected = {stem: _here(tmp_path, stem, kind, a) for stem, kind, a in JOBS}
-    r = Renderer(processes=processes)
+    r = Renderer(processes=processes, forks=forks)
     assert len(r._procs) == processes
     try:
         assert r.submit(out, JOBS) == [stem for stem, _, _ in JOBS]
@@ -100,13 +110,17 @@ def test_figures_are_drawn_here_when_the_renderer_fails(tmp_path, monkeypatch, h
     assert not list(out.glob(".*.part"))
 
 
-def test_closing_ends_the_renderer_and_removes_what_was_not_collected(tmp_path):
+@pytest.mark.parametrize("forks", [0, 2])
+def test_closing_ends_the_renderer_and_removes_what_was_not_collected(tmp_path, forks):
     out = tmp_path / "o"
     out.mkdir()
-    r = Renderer()
+    r = Renderer(forks=forks)
     procs = list(r._procs)
     r.submit(out, JOBS)
     assert list(out.glob(".*.part"))  # its files, until collected
+    time.sleep(1.0)  # forks drawing, when there are
     r.close()
     assert procs and all(proc.poll() is not None for proc in procs)
     assert not list(out.iterdir())
+    # nothing of its process group still runs (a fork killed drawing included)
+    assert not any(renderer_module.running(proc.pid) for proc in procs)
