@@ -66,10 +66,8 @@ def test_after_jax_has_started_nothing_changes_in_this_process():
 
 def test_flags_are_added_only_where_not_named(monkeypatch):
     monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true --other=1")
-    add_xla_flags("--xla_cpu_multi_thread_eigen=false", "intra_op_parallelism_threads=1")
-    assert os.environ["XLA_FLAGS"] == (
-        "--xla_cpu_multi_thread_eigen=true --other=1 intra_op_parallelism_threads=1"
-    )
+    add_xla_flags("--xla_cpu_multi_thread_eigen=false", "--xla_new=2")
+    assert os.environ["XLA_FLAGS"] == "--xla_cpu_multi_thread_eigen=true --other=1 --xla_new=2"
     monkeypatch.delenv("XLA_FLAGS")
     add_xla_flags("--a=1")
     assert os.environ["XLA_FLAGS"] == "--a=1"

@@ -124,7 +124,7 @@ def _worker_init(cache: str | None) -> None:
 
     # one XLA thread per worker, set in the worker (not in the parent's environment):
     # read when JAX first computes, which comes after this
-    add_xla_flags("--xla_cpu_multi_thread_eigen=false", "intra_op_parallelism_threads=1")
+    add_xla_flags("--xla_cpu_multi_thread_eigen=false")
     global _LOCAL_WORKER
     _LOCAL_WORKER = True
 
