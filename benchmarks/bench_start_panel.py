@@ -1,7 +1,7 @@
 """auto against newton and gauss-newton on a seeded panel of perturbed starts: how
 often each reaches the best cost, and its median time per fit (compilation excluded).
 
-    python benchmarks/bench_start_panel.py [--rows NAME ...] [--repeats R]
+    python benchmarks/bench_start_panel.py [--rows NAME ...] [--repeats R] [--starts N] [--seed S]
 
 Each start scales every parameter by 1 + U(-s, s) and moves every free initial
 state by U(-s, s) times its value, or, where that value is 0, by U(-a, a) absolute
@@ -66,9 +66,9 @@ def rows() -> dict:
     }
 
 
-def run_row(make_problem, n: int, spread: float, repeats: int) -> dict:
+def run_row(make_problem, n: int, spread: float, repeats: int, seed: int = 0) -> dict:
     problem = make_problem()
-    thetas = perturbed_starts(problem, n, spread)
+    thetas = perturbed_starts(problem, n, spread, seed=seed)
     for method in METHODS:  # compile every sweep a method uses
         ti.fit(problem, method, theta0=thetas[0], maxiter=2)
     problem.cost_grad_hess_gn(thetas[0])  # auto's exact mode
@@ -98,6 +98,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rows", nargs="+", help="row names (substrings) to run")
     ap.add_argument("--repeats", type=int, help="fits per start and method (default per row)")
+    ap.add_argument("--starts", type=int, help="starts per row (default per row)")
+    ap.add_argument("--seed", type=int, default=0, help="the starts' seed (default 0)")
     args = ap.parse_args()
     ti.enable_compilation_cache()
     load = os.getloadavg()[0]
@@ -110,7 +112,7 @@ def main() -> None:
     for name, (make_problem, n, spread, repeats) in rows().items():
         if args.rows and not any(r.lower() in name.lower() for r in args.rows):
             continue
-        out = run_row(make_problem, n, spread, args.repeats or repeats)
+        out = run_row(make_problem, args.starts or n, spread, args.repeats or repeats, args.seed)
         for line in report(name, out):
             print(line, flush=True)
     print(f"\nload {load:.1f} at the start, {os.getloadavg()[0]:.1f} at the end")
