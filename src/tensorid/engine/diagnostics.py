@@ -83,15 +83,53 @@ def describe_failure(sim: Simulation, scheme, where: str) -> str:
 
 
 def diagnose(problem, theta: np.ndarray) -> str | None:
-    """None when every experiment of ``problem`` simulates finitely at θ; otherwise
-    where the simulation first fails and what to try."""
+    """None when every experiment of ``problem`` simulates finitely at θ (and, with
+    the extended Kalman filter, its innovation covariances stay positive definite);
+    otherwise where it first fails and what to try."""
     values = ", ".join(f"{n}={v:.4g}" for n, v in zip(problem.theta_names, theta, strict=True))
     for e, sim in enumerate(problem.simulate(theta)):
         if sim.status is Status.OK:
             continue
-        name = sim.experiment.name
-        where = f"experiment {e}" + (f" ({name})" if name else "")
         return f"the simulation is not finite at {values}: " + describe_failure(
-            sim, problem.scheme, where
+            sim, problem.scheme, _where(problem, e)
+        )
+    if problem.sweeps.predictor.update is not None:
+        why = _filter_failure(problem, theta)
+        return None if why is None else f"the filter fails at {values}: {why}"
+    return None
+
+
+def _where(problem, e: int) -> str:
+    name = problem.experiments[e].name
+    return f"experiment {e}" + (f" ({name})" if name else "")
+
+
+def _filter_failure(problem, theta: np.ndarray) -> str | None:
+    """Where the extended Kalman filter's innovation covariance S first stops being
+    positive definite (the likelihood's log det S and S⁻¹ then mean nothing), with
+    the state estimates there; None where it never does."""
+    import jax.numpy as jnp
+
+    m, sw = problem.model, problem.sweeps
+    for e, (t, u, y) in enumerate(problem.arrays):
+        local = jnp.asarray(theta[problem._slices(e)])
+        x0, p = jnp.asarray(problem.x0[e]), jnp.asarray(problem.p0)
+        z, pis = (np.asarray(a) for a in sw.predictions(local, x0, p, t, u, y))
+        S = pis[:, m.S :].reshape(-1, m.S, m.S)
+        with np.errstate(invalid="ignore"):
+            ok = np.isfinite(S).all(axis=(1, 2))
+            ok[ok] = np.linalg.eigvalsh(S[ok]).min(axis=1) > 0
+        if ok.all():
+            continue
+        h = int(np.argmin(ok))
+        states = ", ".join(f"{n}={v:.4g}" for n, v in zip(m.states, z[h, : m.N], strict=True))
+        return (
+            f"in {_where(problem, e)}, its innovation covariance is not positive definite "
+            f"at t = {float(t[h]):.6g} (sample {h} of {len(t)}), with the state estimates "
+            f"at {states}. The filter's covariance lost positive-definiteness, most often "
+            "where its state estimates left the region the model was written for (a level "
+            "below zero). Likely causes: process noise only on states the outputs barely "
+            "observe (give the measured states process noise too, or start it smaller); "
+            "a step too large for the linearised covariance (raise substeps)."
         )
     return None
