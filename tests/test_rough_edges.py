@@ -108,6 +108,19 @@ def test_simulate_writes_a_folder_like_fit_and_says_which_x0(tmp_path, capsys, s
     )
 
 
+def test_simulate_says_which_parameters_came_from_the_model_file(tmp_path, capsys):
+    # a partial NAME=VALUE list took the rest from p0 without a word (a new user's GOF
+    # dropped to 0.84 and nothing said why)
+    args = ["simulate", str(EXAMPLE / "model.py"), str(EXAMPLE / "validate.csv")]
+    assert cli.main(args + ["--params", "m=5.17e-6", "d=2.18e-4", "--out", str(tmp_path)]) == 0
+    text = capsys.readouterr().out
+    line = next(t for t in text.splitlines() if t.startswith("parameters "))
+    assert "a=" in line and "b=" in line and "u0=" in line and "m=" not in line
+    assert line.endswith("(the model file's p0, not in --params)")
+    assert cli.main(args + ["--out", str(tmp_path / "all")]) == 0
+    assert "(the model file's p0)" in capsys.readouterr().out
+
+
 def test_no_label_is_repeated(silverbox_fit, capsys):
     report = (silverbox_fit / "report.md").read_text()
     for bad in ("train train", "converged (converged", " 1 iterations", "validate validate"):

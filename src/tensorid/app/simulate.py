@@ -65,7 +65,7 @@ def _fitted(path: Path, spec: ModelSpec) -> dict:
 
 def _fit_json(spec: ModelSpec, given: list[str]) -> dict | None:
     """The fit.json that --params names, read and checked; None for NAME=VALUE pairs."""
-    if len(given) == 1 and given[0].endswith(".json"):
+    if _fit_json_named(given):
         return _fitted(Path(given[0]), spec)
     return None
 
@@ -210,7 +210,7 @@ def run_simulate(args) -> int:
     out = Path(args.out)
     table_only = out.suffix.lower() == ".csv"
     check_destination(out.parent if table_only else out)
-    spec, _, score, source, disc = _score(args, require_outputs=False)
+    spec, params, score, source, disc = _score(args, require_outputs=False)
     m, e, sim = spec.model, score.experiment, score.simulation
     header, table = _simulation_table(m, e, sim, table_only)
     target = out if table_only else out / "simulation.csv"
@@ -222,9 +222,26 @@ def run_simulate(args) -> int:
     if e.y is not None:
         for o, v in score.gof.items():
             print(f"GOF {o}: {v:.4f}" + _after(score))
+    _print_defaults(m, params, args.params)
     _print_x0(m, score.x0, source)
     print("wrote " + ", ".join(map(str, written)))
     return _finite(score, disc, args.data)
+
+
+def _print_defaults(m, params: dict, given: list[str]) -> None:
+    """The parameters that --params left to the model file's p0 (none for a fit.json),
+    said: a partial NAME=VALUE list is easy to mistake for a whole one."""
+    if _fit_json_named(given):
+        return
+    named = _assignments(given, "--params")
+    rest = [n for n in m.params if n not in named]
+    if rest:
+        values = ", ".join(f"{n}={params[n]:.6g}" for n in rest)
+        print(f"parameters {values} (the model file's p0{', not in --params' if named else ''})")
+
+
+def _fit_json_named(given: list[str]) -> bool:
+    return len(given) == 1 and given[0].endswith(".json")
 
 
 def _after(score: Score) -> str:
