@@ -5,6 +5,7 @@ process fails or the command ends early."""
 from __future__ import annotations
 
 import os
+import signal
 import time
 
 import numpy as np
@@ -110,6 +111,33 @@ def test_figures_are_drawn_here_when_the_renderer_fails(tmp_path, monkeypatch, h
     assert not list(out.glob(".*.part"))
 
 
+@pytest.mark.skipif(not hasattr(signal, "SIGCHLD") or not hasattr(os, "fork"), reason="POSIX")
+def test_forks_are_waited_for_where_the_command_ignores_sigchld(tmp_path, monkeypatch):
+    # an ignored SIGCHLD, inherited, let the kernel reap the forks: waitpid failed, the
+    # reaper thread died and the command waited the full WAIT for each figure
+    monkeypatch.setattr(renderer_module, "WAIT", 20.0)
+    out = tmp_path / "o"
+    out.mkdir()
+    before = signal.signal(signal.SIGCHLD, signal.SIG_IGN)
+    try:
+        r = Renderer(forks=2)
+    finally:
+        signal.signal(signal.SIGCHLD, before)
+    try:
+        r.submit(out, JOBS)
+
+        def not_here(*a, **k):
+            raise AssertionError("drawn in this process")
+
+        monkeypatch.setattr(figures, "draw", not_here)
+        started = time.monotonic()
+        for stem, _, _ in JOBS:
+            r.collect(stem)
+        assert time.monotonic() - started < 15.0
+    finally:
+        r.close()
+
+
 @pytest.mark.parametrize("forks", [0, 2])
 def test_closing_ends_the_renderer_and_removes_what_was_not_collected(tmp_path, forks):
     out = tmp_path / "o"
@@ -118,7 +146,8 @@ def test_closing_ends_the_renderer_and_removes_what_was_not_collected(tmp_path, 
     procs = list(r._procs)
     r.submit(out, JOBS)
     assert list(out.glob(".*.part"))  # its files, until collected
-    time.sleep(1.0)  # forks drawing, when there are
+    if forks:
+        time.sleep(1.0)  # forks drawing
     r.close()
     assert procs and all(proc.poll() is not None for proc in procs)
     assert not list(out.iterdir())

@@ -45,6 +45,8 @@ def serve(figures_path: str, forks: str = "0") -> None:
     import importlib.util
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the command's to handle
+    if hasattr(signal, "SIGCHLD"):  # inherited as ignored, the forks could not be waited for
+        signal.signal(signal.SIGCHLD, signal.SIG_DFL)
     spec = importlib.util.spec_from_file_location("_tensorid_figures", figures_path)
     assert spec is not None and spec.loader is not None  # a .py file by path
     figures = importlib.util.module_from_spec(spec)
@@ -69,8 +71,9 @@ def draw_all(figures, jobs: queue.Queue, forks: int) -> None:
     drawn in a fork of this process, that many at once: a copy with Matplotlib
     imported and warm starts in milliseconds, where a second renderer would import it
     again (4 figures after a fit: the command 1.86 s against 2.04 s drawn in turn,
-    medians of 5 on 2 cores). A job whose fork fails is reported failed: the command
-    draws it itself."""
+    medians of 5 on 2 cores). A job whose fork fails is reported failed (the command
+    then draws it itself, and sees its error); where no fork can be made, the
+    renderer draws it."""
     out = threading.Lock()
 
     def reply(key, why) -> None:
@@ -94,9 +97,12 @@ def draw_all(figures, jobs: queue.Queue, forks: int) -> None:
     waiting: list[threading.Thread] = []
 
     def reap(pid: int, key: str) -> None:
-        _, status = os.waitpid(pid, 0)
+        try:
+            _, status = os.waitpid(pid, 0)
+            code = os.waitstatus_to_exitcode(status)
+        except ChildProcessError:  # reaped by someone else: its file says nothing sure
+            code = -1
         slots.release()
-        code = os.waitstatus_to_exitcode(status)
         reply(key, None if code == 0 else f"the figure's process ended with {code}")
 
     while (job := jobs.get()) is not None:
@@ -110,6 +116,10 @@ def draw_all(figures, jobs: queue.Queue, forks: int) -> None:
         if pid == 0:  # the copy: draws one figure and ends, without Python's exit
             code = 1
             try:
+                # not holding the command's pipes open: the renderer's end is seen at once
+                null = os.open(os.devnull, os.O_RDWR)
+                os.dup2(null, 0)
+                os.dup2(null, 1)
                 code = 0 if one(job) is None else 1
             finally:
                 os._exit(code)

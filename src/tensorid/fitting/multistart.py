@@ -127,11 +127,26 @@ def _worker_init(cache: str | None) -> None:
     add_xla_flags("--xla_cpu_multi_thread_eigen=false")
     global _LOCAL_WORKER
     _LOCAL_WORKER = True
+    # a parent killed outright (kill -9, out of memory) cannot stop its pool: a worker
+    # would wait for work forever, so it ends with its parent
+    from multiprocessing import parent_process
+
+    parent = parent_process()
+    if parent is not None:
+        threading.Thread(target=_end_with, args=(parent.sentinel,), daemon=True).start()
 
     if cache:
         enable_compilation_cache(cache)
     else:
         disable_compilation_cache()
+
+
+def _end_with(sentinel) -> None:
+    """End this process once ``sentinel`` (its parent's) says the parent has ended."""
+    from multiprocessing.connection import wait
+
+    wait([sentinel])
+    os._exit(1)
 
 
 _WORKER_PROBLEMS: dict[str, Any] = {}
@@ -254,8 +269,13 @@ def _collect(pool: Executor, payloads: list, timeout: float | None, total: int, 
     queued = iter(range(len(payloads)))
 
     def top_up():
+        from concurrent.futures.process import BrokenProcessPool
+
         while len(futures) < window and (c := next(queued, None)) is not None:
-            futures[pool.submit(_run_payload, payloads[c])] = c
+            try:  # a worker that died since the last wait breaks the pool for submits too
+                futures[pool.submit(_run_payload, payloads[c])] = c
+            except BrokenProcessPool as e:
+                raise _Lost(f"a worker process died ({e})") from None
 
     def finished_so_far():
         for f, c in futures.items():
@@ -273,7 +293,8 @@ def _collect(pool: Executor, payloads: list, timeout: float | None, total: int, 
                 for f in finished:
                     done[futures.pop(f)] = _result(f)
                     last = time.monotonic()
-                top_up()
+                if not interrupted.is_set():  # (on a cluster, none to cancel at once)
+                    top_up()
                 if futures and timeout is not None and time.monotonic() - last > timeout:
                     why = f"no start finished for {timeout:g} s"
                     runs = _numbered(done, batch)
@@ -291,7 +312,10 @@ def _collect(pool: Executor, payloads: list, timeout: float | None, total: int, 
         except StartsStopped:
             _cancel(futures)
             raise
-    return [done[c] for c in range(len(payloads))]
+        results = [done[c] for c in range(len(payloads))]
+    if interrupted.is_set():  # Ctrl-C after the last look, before Python's handler was back
+        raise StartsStopped(Status.INTERRUPTED, _numbered(done, batch), total, "interrupted")
+    return results
 
 
 @contextmanager
