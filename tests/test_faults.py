@@ -485,21 +485,34 @@ def _children(pid: int) -> set[int]:
     return {k for k, c in cmd.items() if b"spawn_main" in c}
 
 
+def _multistart_command(out: Path, **popen) -> subprocess.Popen:
+    """The CLI fit with two local workers and more starts than finish in the time a
+    test allows (1,000 finished in about 20 s once the sweeps' loops compiled as one
+    function)."""
+    args = [sys.executable, "-m", "tensorid", *FIT, "--out", str(out)]
+    args += ["--starts", "20000", "--workers", "2", "--batch", "1", "--spread", "0.5"]
+    popen.setdefault("stdout", subprocess.DEVNULL)
+    popen.setdefault("stderr", subprocess.DEVNULL)
+    return subprocess.Popen(args, **popen)
+
+
+def _workers_of(proc: subprocess.Popen, wait: float = 120) -> set[int]:
+    """The two worker processes of ``proc``, once both are there (or what is)."""
+    deadline = time.monotonic() + wait
+    workers: set[int] = set()
+    while time.monotonic() < deadline and len(workers) < 2:
+        workers = _children(proc.pid)
+        time.sleep(0.2)
+    return workers
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs Linux /proc")
 def test_sigint_to_the_cli_mid_multistart_exits_promptly_with_the_best_point(tmp_path):
     out = tmp_path / "o"
-    args = [sys.executable, "-m", "tensorid", *FIT, "--out", str(out)]
-    # more starts than finish in the time allowed: the interrupt lands mid-run (1,000
-    # finished in about 20 s once the sweeps' loops compiled as one function)
-    args += ["--starts", "20000", "--workers", "2", "--batch", "1", "--spread", "0.5"]
-    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = _multistart_command(out, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        deadline = time.monotonic() + 120
-        workers: set[int] = set()
-        while time.monotonic() < deadline and len(workers) < 2:
-            workers = _children(proc.pid)
-            time.sleep(0.2)
+        _workers_of(proc)
         time.sleep(20)  # let some starts finish (the workers compile first)
         assert proc.poll() is None, proc.communicate()
         workers = _children(proc.pid)
@@ -533,15 +546,9 @@ def _running(pid: int) -> bool:
 def test_workers_end_with_a_command_killed_outright(tmp_path):
     # kill -9 (or the out-of-memory killer) gives the command no chance to stop its
     # pool: the workers, waiting for work, were left running for ever
-    args = [sys.executable, "-m", "tensorid", *FIT, "--out", str(tmp_path / "o")]
-    args += ["--starts", "20000", "--workers", "2", "--batch", "1", "--spread", "0.5"]
-    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = _multistart_command(tmp_path / "o")
     try:
-        deadline = time.monotonic() + 120
-        workers: set[int] = set()
-        while time.monotonic() < deadline and len(workers) < 2:
-            workers = _children(proc.pid)
-            time.sleep(0.2)
+        workers = _workers_of(proc)
         assert len(workers) == 2 and proc.poll() is None
     finally:
         proc.kill()
