@@ -213,6 +213,28 @@ def test_other_versions_programs_unused_for_a_month_are_pruned(tmp_path, monkeyp
     assert not old.exists() and recent.exists() and ours.exists()
 
 
+def test_a_folder_over_its_cap_loses_its_least_recently_used_programs(tmp_path, monkeypatch):
+    import time
+
+    folder = tmp_path / "jax-programs"
+    folder.mkdir()
+    now = time.time()
+    files = []
+    for k in range(10):  # 10 programs of 100 bytes, used k hours ago
+        f = folder / f"cccccccc-{k}.jaxexport"
+        f.write_bytes(b"x" * 100)
+        os.utime(f, (now - 3600 * k, now - 3600 * k))
+        files.append(f)
+    monkeypatch.setattr(programs, "MAX_BYTES", 800)
+    monkeypatch.setattr(programs, "_pruned", False)
+    programs._prune(folder, "cccccccc")
+    # over 800 bytes: the oldest go until 600 (three quarters) are left
+    assert [f.exists() for f in files] == [True] * 6 + [False] * 4
+    monkeypatch.setattr(programs, "_pruned", False)
+    programs._prune(folder, "cccccccc")  # under the cap: nothing more goes
+    assert sum(f.exists() for f in files) == 6
+
+
 ADJOINT_SCRIPT = r"""
 import json
 import numpy as np

@@ -275,21 +275,40 @@ def _read(path: Path):
 
 
 STALE_DAYS = 30
+MAX_BYTES = 512 * 2**20  # the folder's cap: beyond it the least recently used go
 _pruned = False
 
 
 def _prune(where: Path, current: str) -> None:
     """Once per process: remove the programs of other versions of tensorid unused for
-    STALE_DAYS days, so that the folder does not grow with every upgrade."""
+    STALE_DAYS days, so that the folder does not grow with every upgrade, and then,
+    while the folder holds more than MAX_BYTES, the least recently used programs
+    (reading one marks it used) down to three quarters of that: every new record
+    length or model is a new program, and nothing else would ever remove them."""
     global _pruned
     if _pruned:
         return
     _pruned = True
     old = time.time() - STALE_DAYS * 86400
+    kept = []
     for path in where.glob("*.jaxexport"):
         try:
-            if not path.name.startswith(current) and path.stat().st_mtime < old:
+            st = path.stat()
+            if not path.name.startswith(current) and st.st_mtime < old:
                 path.unlink()
+            else:
+                kept.append((st.st_mtime, st.st_size, path))
+        except OSError:
+            pass
+    total = sum(size for _, size, _ in kept)
+    if total <= MAX_BYTES:
+        return
+    for _, size, path in sorted(kept, key=lambda k: k[0]):
+        if total <= 0.75 * MAX_BYTES:
+            break
+        try:
+            path.unlink()
+            total -= size
         except OSError:
             pass
 
