@@ -210,6 +210,33 @@ def test_a_worker_dying_between_waits_keeps_the_finished_starts(monkeypatch):
     assert all(r["theta"] == [0.5] for r in stop.runs.values())
 
 
+_STUCK_LOCK = """
+import os, time
+from tensorid.fitting import multistart as ms
+if __name__ == "__main__":
+    pool = ms.process_pool(2)
+    futures = [pool.submit(time.sleep, 2.0) for _ in range(8)]
+    time.sleep(3.0)
+    held = [f for f in futures if not f.done()][0]
+    held._condition.acquire()  # as an interrupt inside concurrent.futures.wait can leave it
+    started = time.monotonic()
+    ms._stop_pool(pool, complete=False)
+    print(time.monotonic() - started, flush=True)
+    os._exit(0)  # (the manager thread, blocked for good, would hold the interpreter's exit)
+"""
+
+
+@pytest.mark.slow
+def test_stopping_a_pool_is_bounded_even_with_a_futures_lock_left_held(tmp_path):
+    # the shutdown waited for the pool's manager thread, which a held lock blocks for
+    # ever: the command, its finished starts with it, hung
+    script = tmp_path / "stuck.py"
+    script.write_text(_STUCK_LOCK)
+    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert float(proc.stdout.split()[0]) < 10.0
+
+
 def test_a_bad_scheduler_address_is_one_line(capsys, tmp_path):
     args = FIT + ["--starts", "2", "--out", str(tmp_path / "o")]
     for address in ("tcp://127.0.0.1:1", "nonsense"):

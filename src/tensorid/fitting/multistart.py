@@ -254,6 +254,7 @@ def _run_here(problem, task, chunks: list, total: int) -> list:
 # chunks in flight at once: a wait over every chunk of a 20,000-start run cost tens
 # of ms a turn; a Dask cluster gets enough to keep a large cluster busy
 LOCAL_WINDOW, CLUSTER_WINDOW = 4, 1024
+STOP_WAIT = 5.0  # seconds a stopped local pool's manager thread is waited for
 
 
 def _collect(pool: Executor, payloads: list, timeout: float | None, total: int, batch: int):
@@ -376,8 +377,14 @@ def _stop_pool(pool: ProcessPoolExecutor, complete: bool) -> None:
     procs = list(getattr(pool, "_processes", {}).values())
     for p in procs:
         p.terminate()
-    # with its workers gone the pool's manager thread ends at once and reaps them
-    pool.shutdown(wait=True, cancel_futures=True)
+    # with its workers gone the pool's manager thread ends at once and reaps them;
+    # waited for a while only: a future's lock left held (a KeyboardInterrupt inside
+    # concurrent.futures.wait under a handler other than Python's) blocks it for good,
+    # and the starts that finished are the user's all the same
+    manager = getattr(pool, "_executor_manager_thread", None)  # (shutdown forgets it)
+    pool.shutdown(wait=False, cancel_futures=True)
+    if manager is not None:
+        manager.join(STOP_WAIT)
     for p in procs:
         p.join(1.0)
         if p.is_alive():
