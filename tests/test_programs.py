@@ -235,6 +235,34 @@ def test_a_folder_over_its_cap_loses_its_least_recently_used_programs(tmp_path, 
     assert sum(f.exists() for f in files) == 6
 
 
+def test_two_processes_pruning_at_once_remove_no_more_than_one(tmp_path, monkeypatch):
+    # a file that another process removed first still counts as removed: each process
+    # went on deleting past the target (2 of 10 left where 6 should be)
+    import time
+    from pathlib import Path
+
+    folder = tmp_path / "jax-programs"
+    folder.mkdir()
+    now = time.time()
+    files = []
+    for k in range(10):
+        f = folder / f"cccccccc-{k}.jaxexport"
+        f.write_bytes(b"x" * 100)
+        os.utime(f, (now - 3600 * k, now - 3600 * k))
+        files.append(f)
+    real = Path.unlink
+
+    def raced(self, *a, **k):  # the other process got there first
+        real(self, *a, **k)
+        raise FileNotFoundError(2, "No such file or directory", str(self))
+
+    monkeypatch.setattr(Path, "unlink", raced)
+    monkeypatch.setattr(programs, "MAX_BYTES", 800)
+    monkeypatch.setattr(programs, "_pruned", False)
+    programs._prune(folder, "cccccccc")
+    assert sum(f.exists() for f in files) == 6
+
+
 ADJOINT_SCRIPT = r"""
 import json
 import numpy as np

@@ -119,6 +119,13 @@ def test_simulate_says_which_parameters_came_from_the_model_file(tmp_path, capsy
     assert line.endswith("(the model file's p0, not in --params)")
     assert cli.main(args + ["--out", str(tmp_path / "all")]) == 0
     assert "(the model file's p0)" in capsys.readouterr().out
+    # a fit.json that lacks some (another model file's): the same line
+    fitted = {"params": {"m": 5.17e-6, "d": 2.18e-4}, "x0": [0.0, 0.0]}
+    (tmp_path / "fit.json").write_text(json.dumps(fitted))
+    assert (
+        cli.main(args + ["--params", str(tmp_path / "fit.json"), "--out", str(tmp_path / "f")]) == 0
+    )
+    assert "u0=0 (the model file's p0, not in --params)" in capsys.readouterr().out
 
 
 def test_no_label_is_repeated(silverbox_fit, capsys):

@@ -222,18 +222,17 @@ def run_simulate(args) -> int:
     if e.y is not None:
         for o, v in score.gof.items():
             print(f"GOF {o}: {v:.4f}" + _after(score))
-    _print_defaults(m, params, args.params)
+    _print_defaults(m, params, args.params, _fit_json(spec, args.params))
     _print_x0(m, score.x0, source)
     print("wrote " + ", ".join(map(str, written)))
     return _finite(score, disc, args.data)
 
 
-def _print_defaults(m, params: dict, given: list[str]) -> None:
-    """The parameters that --params left to the model file's p0 (none for a fit.json),
-    said: a partial NAME=VALUE list is easy to mistake for a whole one."""
-    if _fit_json_named(given):
-        return
-    named = _assignments(given, "--params")
+def _print_defaults(m, params: dict, given: list[str], fitted: dict | None) -> None:
+    """The parameters that --params left to the model file's p0, said: a partial
+    NAME=VALUE list (or a fit.json of another model file) is easy to mistake for a
+    whole one."""
+    named = fitted["params"] if fitted is not None else _assignments(given, "--params")
     rest = [n for n in m.params if n not in named]
     if rest:
         values = ", ".join(f"{n}={params[n]:.6g}" for n in rest)

@@ -118,7 +118,10 @@ def _filter_failure(problem, theta: np.ndarray) -> str | None:
         S = pis[:, m.S :].reshape(-1, m.S, m.S)
         with np.errstate(invalid="ignore"):
             ok = np.isfinite(S).all(axis=(1, 2))
-            ok[ok] = np.linalg.eigvalsh(S[ok]).min(axis=1) > 0
+            try:
+                ok[ok] = np.linalg.eigvalsh(S[ok]).min(axis=1) > 0
+            except np.linalg.LinAlgError:  # a diagnosis never fails: then name the first
+                ok[:] = False
         if ok.all():
             continue
         h = int(np.argmin(ok))

@@ -308,9 +308,11 @@ def _prune(where: Path, current: str) -> None:
             break
         try:
             path.unlink()
-            total -= size
-        except OSError:
+        except FileNotFoundError:  # another process pruning too: gone all the same
             pass
+        except OSError:
+            continue
+        total -= size
 
 
 def _write(path: Path, data: bytes) -> None:

@@ -90,9 +90,10 @@ class Tracker:
         if not self.nonfinite or self.first_nonfinite is None:
             return []
         why = self.problem.diagnose(self.first_nonfinite) or "the simulation was not finite"
+        # a filter's failure is not the simulation's (its simulation may be finite)
+        what = "the filter failed" if why.startswith("the filter") else "the simulation blew up"
         return [
-            f"{self.nonfinite} trial point(s) were rejected because the simulation blew "
-            f"up there; the first: {why}"
+            f"{self.nonfinite} trial point(s) were rejected because {what} there; the first: {why}"
         ]
 
     def scaled(self, phi, J, g, H):
