@@ -70,15 +70,15 @@ def _fit_json(spec: ModelSpec, given: list[str]) -> dict | None:
     return None
 
 
-def _parameters(spec: ModelSpec, given: list[str], fitted: dict | None) -> dict:
+def _parameters(spec: ModelSpec, given: list[str], fitted: dict | None) -> tuple[dict, str]:
     """The parameters: p0 of the model file, updated by the ``fitted`` fit.json or
-    the NAME=VALUE pairs ``given``."""
+    the NAME=VALUE pairs ``given``; and a line naming those left to p0 ("" if none):
+    a partial NAME=VALUE list (or a fit.json of another model file) is easy to
+    mistake for a whole one."""
     m = spec.model
     params = dict(spec.p0 or {})
-    if fitted is not None:
-        params.update(fitted["params"])
-    else:
-        params.update(_assignments(given, "--params"))
+    named = fitted["params"] if fitted is not None else _assignments(given, "--params")
+    params.update(named)
     unknown = sorted(set(params) - set(m.params))
     if unknown:
         raise ValueError(
@@ -91,7 +91,9 @@ def _parameters(spec: ModelSpec, given: list[str], fitted: dict | None) -> dict:
             f"no value for the parameters {missing}: give them with --params NAME=VALUE, "
             "a fit.json, or p0 in the model file"
         )
-    return params
+    rest = ", ".join(f"{n}={params[n]:.6g}" for n in m.params if n not in named)
+    note = f"parameters {rest} (the model file's p0{', not in --params' if named else ''})"
+    return params, note if rest else ""
 
 
 def _integration(args, fitted: dict | None) -> Discretisation:
@@ -172,14 +174,15 @@ def _simulation_table(m, e, sim, table_only: bool) -> tuple[list[str], np.ndarra
 
 
 def _score(args, require_outputs: bool):
-    """(spec, parameters, Score, where x0 came from, discretisation): the model
+    """(spec, parameters, Score, where x0 came from, discretisation, the line naming
+    the parameters left to p0): the model
     simulated on DATA as the options say (with ``args.horizon``, predicted that many
     samples ahead by the fit's predictor)."""
     spec = load_model(args.model)
     e = _record(args, spec, require_outputs)
     fitted = _fit_json(spec, args.params)
     spec, predictor = _filter(spec, fitted, e)
-    params = _parameters(spec, args.params, fitted)
+    params, defaults = _parameters(spec, args.params, fitted)
     disc = _integration(args, fitted)
     x0, free, source = _start(spec, args, e, fitted)
     horizon = getattr(args, "horizon", None)
@@ -187,7 +190,7 @@ def _score(args, require_outputs: bool):
         spec.model, params, x0, free, e, disc, args.init_window,
         horizon=horizon, predictor=predictor,
     )  # fmt: skip
-    return spec, params, score, source, disc.for_model(spec.model)
+    return spec, params, score, source, disc.for_model(spec.model), defaults
 
 
 def _filter(spec: ModelSpec, fitted: dict | None, record) -> tuple[ModelSpec, tuple | None]:
@@ -210,7 +213,7 @@ def run_simulate(args) -> int:
     out = Path(args.out)
     table_only = out.suffix.lower() == ".csv"
     check_destination(out.parent if table_only else out)
-    spec, params, score, source, disc = _score(args, require_outputs=False)
+    spec, _, score, source, disc, defaults = _score(args, require_outputs=False)
     m, e, sim = spec.model, score.experiment, score.simulation
     header, table = _simulation_table(m, e, sim, table_only)
     target = out if table_only else out / "simulation.csv"
@@ -222,21 +225,11 @@ def run_simulate(args) -> int:
     if e.y is not None:
         for o, v in score.gof.items():
             print(f"GOF {o}: {v:.4f}" + _after(score))
-    _print_defaults(m, params, args.params, _fit_json(spec, args.params))
+    if defaults:
+        print(defaults)
     _print_x0(m, score.x0, source)
     print("wrote " + ", ".join(map(str, written)))
     return _finite(score, disc, args.data)
-
-
-def _print_defaults(m, params: dict, given: list[str], fitted: dict | None) -> None:
-    """The parameters that --params left to the model file's p0, said: a partial
-    NAME=VALUE list (or a fit.json of another model file) is easy to mistake for a
-    whole one."""
-    named = fitted["params"] if fitted is not None else _assignments(given, "--params")
-    rest = [n for n in m.params if n not in named]
-    if rest:
-        values = ", ".join(f"{n}={params[n]:.6g}" for n in rest)
-        print(f"parameters {values} (the model file's p0{', not in --params' if named else ''})")
 
 
 def _fit_json_named(given: list[str]) -> bool:
@@ -301,7 +294,7 @@ def run_compare(args) -> int:
         raise ValueError(f"--params {args.params}: give the fit.json of a fit")
     out = check_destination(args.out)
     args.params = [args.params]
-    spec, params, score, source, disc = _score(args, require_outputs=True)
+    spec, params, score, source, disc, _ = _score(args, require_outputs=True)
     m, sim = spec.model, score.simulation
     data = {
         "record": score.experiment.name,

@@ -213,7 +213,8 @@ def run_starts(
     pool = executor or process_pool(min(workers, len(payloads)))
     complete = False
     try:
-        done = _collect(pool, payloads, timeout, len(thetas), batch)
+        window = LOCAL_WINDOW * workers if executor is None else CLUSTER_WINDOW
+        done = _collect(pool, payloads, timeout, len(thetas), batch, window)
         complete = True
     finally:
         if executor is None:
@@ -257,14 +258,14 @@ LOCAL_WINDOW, CLUSTER_WINDOW = 4, 1024
 STOP_WAIT = 5.0  # seconds a stopped local pool's manager thread is waited for
 
 
-def _collect(pool: Executor, payloads: list, timeout: float | None, total: int, batch: int):
-    """Submit the chunks, at most a window of them in flight, and gather the results
+def _collect(
+    pool: Executor, payloads: list, timeout: float | None, total: int, batch: int, window: int
+):
+    """Submit the chunks, at most ``window`` of them in flight, and gather the results
     as they come, in the order of the chunks; stop on Ctrl-C, a broken pool or
     ``timeout`` seconds without progress."""
     from concurrent.futures import FIRST_COMPLETED, wait
 
-    local = isinstance(pool, ProcessPoolExecutor)
-    window = LOCAL_WINDOW * getattr(pool, "_max_workers", 1) if local else CLUSTER_WINDOW
     futures: dict[Any, int] = {}  # in flight: their chunk
     done: dict[int, list] = {}
     queued = iter(range(len(payloads)))
