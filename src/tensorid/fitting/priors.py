@@ -24,6 +24,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..engine.status import Status
+from . import quantiles
 from .residuals import residual_count, too_few
 from .robust import residual_noise
 from .summary import Table, Tabular, significant
@@ -242,9 +243,7 @@ def _chance(variance: float, residual: float, dof: int) -> bool:
     """Whether noise of ``variance`` leaves a residual variance like ``residual`` one
     time in a hundred or more (χ² with ``dof`` degrees of freedom): a short record's
     residual variance scatters by √(2/dof), 23 % at 40 samples."""
-    from scipy import special  # not scipy.stats: the same quantile, 0.3-1 s less import
-
-    lo, hi = 2 * special.gammaincinv(dof / 2, [0.005, 0.995]) / dof  # χ² quantiles
+    lo, hi = quantiles.chi2(dof, 0.005) / dof, quantiles.chi2(dof, 0.995) / dof
     return bool(lo <= residual / variance <= hi)
 
 

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import quantiles
 from .summary import Table, Tabular, interval, significant
 from .trust_region import minimize_trust_region
 
@@ -314,12 +315,10 @@ def profile(
     if u.not_available:
         raise ValueError(f"profiles need the residual variance, and it is {u.not_available}")
     n_data = u.dof + problem.K
-    from scipy import special  # not scipy.stats: the same quantile, 0.3-1 s less import
-
     if problem.loss.likelihood:  # J = −2 log L: Wilks' χ²(1) on the rise itself
-        dJ = float(special.chdtri(1, 1 - level))
+        dJ = quantiles.chi2(1, level)
     else:
-        dJ = u.sigma2 * special.fdtri(1, max(n_data - problem.K, 1), level)  # F quantile
+        dJ = u.sigma2 * quantiles.f1(max(n_data - problem.K, 1), level)  # F quantile
     out = {}
     # far along a profile the model may blow up: such trial points are rejected
     # steps (inf), so the overflow on the way is expected, not news for the user
