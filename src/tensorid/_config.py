@@ -87,8 +87,10 @@ def _lapack_without_scipy_linalg() -> bool:
     try:
         from jax._src.lib import lapack
 
-        spec = importlib.util.find_spec("scipy")
-        folder = os.path.join(list(spec.submodule_search_locations)[0], "linalg")
+        scipy = importlib.util.find_spec("scipy")
+        if scipy is None or not scipy.submodule_search_locations:
+            return False
+        folder = os.path.join(list(scipy.submodule_search_locations)[0], "linalg")
         for name in ("cython_blas", "cython_lapack"):
             path = next(
                 os.path.join(folder, name + suffix)
@@ -96,6 +98,8 @@ def _lapack_without_scipy_linalg() -> bool:
                 if os.path.exists(os.path.join(folder, name + suffix))
             )
             spec = importlib.util.spec_from_file_location(f"scipy.linalg.{name}", path)
+            if spec is None or spec.loader is None:
+                return False
             module = importlib.util.module_from_spec(spec)
             sys.modules[spec.name] = module
             loaded.append(spec.name)
