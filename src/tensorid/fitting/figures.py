@@ -18,6 +18,71 @@ def new_figure(**kwargs):
     return Figure(**kwargs)
 
 
+# inches, for 10 pt text: a tick label's line, an axis label's, a title's
+_LINE, _TICKS, _LABEL, _TITLE = 0.17, 0.27, 0.25, 0.3
+
+
+def fixed_layout(fig, *, top: float = _TITLE, gap: float = 0.12, wide_gap: bool = False) -> None:
+    """Margins of a figure's grid of axes, in inches, set from what its labels need
+    rather than by ``tight_layout``, which lays out every tick label's text and took
+    a third of the time of the figures a fit command writes (0.24 of 0.69 s). The
+    left margin (and between columns the gap) is made as wide as the widest y tick
+    label, its characters counted: tick labels are digits, signs and points, whose
+    widths the estimate bounds; an axis's offset text ("1e-7" above it) gets a line
+    above each row. ``top``: room above the grid (titles); ``gap``: between rows
+    (axes sharing x: only the lower one is labelled), or with ``wide_gap`` room for a
+    row's x tick labels and the next row's title."""
+    width, height = fig.get_size_inches()
+    axes = fig.axes
+    ticks = [_tick_text(a) for a in axes]
+    cols = {a.get_subplotspec().colspan.start for a in axes}
+    rows = {a.get_subplotspec().rowspan.start for a in axes}
+    y_room = max(w for w, _ in ticks) + _TICKS / 2 + _LABEL
+    offset = _LINE if any(o for _, o in ticks) else 0.0
+    left, right = y_room + 0.12, 0.2
+    bottom, top = _TICKS + _LABEL + 0.05, top + offset
+    hgap = (_TICKS + _TITLE if wide_gap else gap) + offset
+    wgap = y_room + 0.25  # the next column's y tick labels and axis label
+    # subplots_adjust's spaces are fractions of the mean axes' width and height
+    axes_w = (width - left - right - wgap * (len(cols) - 1)) / len(cols)
+    axes_h = (height - top - bottom - hgap * (len(rows) - 1)) / len(rows)
+    fig.subplots_adjust(
+        left=left / width,
+        right=1 - right / width,
+        bottom=bottom / height,
+        top=1 - top / height,
+        wspace=wgap / axes_w,
+        hspace=hgap / axes_h,
+    )
+
+
+def _tick_text(ax) -> tuple[float, bool]:
+    """Inches that the y tick labels of ``ax`` take, from their characters, and
+    whether the axis writes an offset text: what its formatter makes of the ticks
+    its locator places in the current limits (no text is laid out)."""
+    import matplotlib as mpl
+
+    axis = ax.yaxis
+    lo, hi = sorted(ax.get_ylim())
+    locs = [v for v in axis.get_major_locator()() if lo <= v <= hi]
+    formatter = axis.get_major_formatter()
+    labels = formatter.format_ticks(locs) if locs else [""]
+    chars = max(_characters(t) for t in labels)
+    size = mpl.font_manager.FontProperties(size=mpl.rcParams["ytick.labelsize"]).get_size()
+    # DejaVu Sans: digits 0.64 em, a minus 0.84, a point 0.32
+    return chars * 0.64 * size / 72, bool(formatter.get_offset())
+
+
+def _characters(label: str) -> float:
+    """A tick label's width in characters; mathtext (a log axis's 10 to a power)
+    counts its exponent at the superscript's 0.7 size."""
+    if not label.startswith("$"):
+        return len(label)
+    text = label.strip("$").replace("\\mathdefault", "").replace("{", "").replace("}", "")
+    base, _, exponent = text.partition("^")
+    return len(base.replace("\\times", "x")) + 0.7 * len(exponent) + 0.5
+
+
 def save_png(fig, path: Path) -> Path:
     """Write ``fig`` as PNG to ``path`` (whatever its suffix)."""
     # 100 dpi and light compression: a fifth less time than 120 dpi at zlib's
@@ -49,7 +114,7 @@ def compare_figure(
     axr.set_ylabel("residual")
     axr.set_xlabel(xlabel)
     axr.grid(alpha=0.3)
-    fig.tight_layout()
+    fixed_layout(fig)
     return fig
 
 
@@ -75,7 +140,7 @@ def convergence_figure(history: list[dict], title: str):
     for a in (a1, a2):
         a.grid(alpha=0.3)
     fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
+    fixed_layout(fig, top=_TITLE + 0.05)
     return fig
 
 
@@ -134,7 +199,7 @@ def prediction_figure(t, measured, simulated, predicted, sd, innovations, *, tit
     axr.set_ylabel("innovation / σ")
     axr.set_xlabel("t [s]")
     axr.grid(alpha=0.3)
-    fig.tight_layout()
+    fixed_layout(fig)
     return fig
 
 
@@ -252,5 +317,5 @@ def residual_figure(bound: float, panels: list[dict]):
         ax.set_ylabel("r(τ)")
         ax.grid(alpha=0.3)
     axes[-1].set_xlabel("lag τ (samples)")
-    fig.tight_layout()
+    fixed_layout(fig, wide_gap=True)
     return fig

@@ -1,0 +1,78 @@
+"""The figures' fixed layout (margins from the tick labels' characters, not
+tight_layout's measuring): on awkward scales every label, title and offset text is
+inside the figure and clear of the other axes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tensorid.fitting.figures import compare_figure, convergence_figure, residual_figure
+
+T = np.linspace(0.0, 10.0, 400)
+SCALES = {
+    "large, with an offset": 1e5 + 3 * np.sin(T),
+    "tiny": 1e-9 * (2 + np.sin(T)),
+    "wide and negative": -12345.6 + 3e4 * np.sin(T) ** 2,
+    "small and negative": -0.00012 * np.sin(T),
+}
+
+
+def _texts(fig):
+    """Every visible text of the figure's axes, with its box in pixels, after a draw."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()  # as savefig at the figure's dpi (100, as the files are written)
+    renderer = canvas.get_renderer()
+    out = []
+    for ax in fig.axes:
+        texts = [ax.title, ax.yaxis.label, ax.xaxis.label, ax.yaxis.get_offset_text()]
+        texts += _drawn(ax.xaxis) + _drawn(ax.yaxis)
+        out += [(ax, t, t.get_window_extent(renderer)) for t in texts if t.get_visible()]
+    return out
+
+
+def _drawn(axis):
+    """The tick labels an axis draws: those of ticks inside its view."""
+    lo, hi = sorted(axis.get_view_interval())
+    slack = 1e-9 * (hi - lo)
+    ticks = axis.get_major_ticks()
+    return [t.label1 for t in ticks if lo - slack <= t.get_loc() <= hi + slack]
+
+
+def _check(fig):
+    texts = _texts(fig)
+    width, height = fig.canvas.get_width_height()
+    boxes = [(ax, ax.get_window_extent()) for ax in fig.axes]
+    for ax, text, box in texts:
+        if not text.get_text():
+            continue
+        assert box.x0 >= 0 and box.y0 >= 0, text.get_text()
+        assert box.x1 <= width and box.y1 <= height, text.get_text()
+        for other, frame in boxes:  # no text reaches into another axes' frame
+            if other is not ax:
+                assert not box.overlaps(frame), (text.get_text(), "overlaps another axes")
+
+
+@pytest.mark.parametrize("name", SCALES)
+def test_compare_figure_labels_fit_on_any_scale(name):
+    y = SCALES[name]
+    _check(compare_figure(T, y, y * 1.001, title=f"{name} (scored after the first 10 samples)"))
+
+
+def test_convergence_figure_labels_fit_with_negative_costs_and_tiny_gradients():
+    history = [
+        {"iteration": i, "cost": -12345.67 + 100 * np.exp(-i), "grad_norm": 10.0 ** (-30 * i)}
+        for i in range(9)
+    ]
+    _check(convergence_figure(history, "newton: cost and gradient norm per iteration"))
+
+
+def test_residual_figure_panels_keep_apart():
+    lags = np.arange(26)
+    panels = [
+        dict(what="whiteness of y", passed=False, lags=lags, values=0.9**lags, feedback=None),
+        dict(what="y against u", passed=True, lags=lags, values=-1e-4 * lags, feedback=lags[1:]),
+    ]
+    _check(residual_figure(0.08, panels))
