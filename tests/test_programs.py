@@ -312,3 +312,37 @@ def test_the_adjoints_programs_are_read_by_a_second_process(tmp_path):
     assert second["traced"] == []
     plain = run(TENSORID_CACHE="0")
     assert second["H"] == first["H"] == plain["H"] and second["J"] == plain["J"]
+
+
+def test_jax_compiled_code_is_kept_under_its_cap_least_recently_used_first(
+    tmp_path, monkeypatch
+):
+    # JAX's compilation cache grew without bound (16,000 files on a developer's
+    # machine); it gets the program folder's rule, "used" being the later of a file's
+    # access and modification times
+    import time
+
+    now = time.time()
+    files = []
+    for k in range(10):  # 10 entries of 100 bytes, used k hours ago
+        f = tmp_path / f"jit_J-{k:02d}-cache"
+        f.write_bytes(b"x" * 100)
+        os.utime(f, (now - 3600 * k, now - 3600 * k - 86400))  # read after written
+        files.append(f)
+    other = tmp_path / "jit_J-00-atime"  # not an entry: never removed
+    other.write_bytes(b"x" * 1000)
+    monkeypatch.setattr(programs, "COMPILED_MAX_BYTES", 800)
+    programs._prune_compiled(str(tmp_path), 500)  # the user's own cap: JAX's job
+    assert all(f.exists() for f in files)
+    programs._prune_compiled(str(tmp_path), -1)
+    assert [f.exists() for f in files] == [True] * 6 + [False] * 4
+    assert other.exists()
+
+
+def test_the_first_program_written_prunes_the_compiled_code_too(tmp_path, monkeypatch):
+    seen = []
+    monkeypatch.setattr(programs, "_prune_compiled", lambda *a: seen.append(a))
+    monkeypatch.setattr(programs, "_pruned", False)
+    programs._prune(tmp_path, "cccccccc")
+    programs._prune(tmp_path, "cccccccc")  # once per process
+    assert len(seen) == 1

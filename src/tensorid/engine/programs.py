@@ -276,6 +276,7 @@ def _read(path: Path):
 
 STALE_DAYS = 30
 MAX_BYTES = 512 * 2**20  # the folder's cap: beyond it the least recently used go
+COMPILED_MAX_BYTES = 2**30  # the same for JAX's compiled code beside it
 _pruned = False
 
 
@@ -284,7 +285,8 @@ def _prune(where: Path, current: str) -> None:
     STALE_DAYS days, so that the folder does not grow with every upgrade, and then,
     while the folder holds more than MAX_BYTES, the least recently used programs
     (reading one marks it used) down to three quarters of that: every new record
-    length or model is a new program, and nothing else would ever remove them."""
+    length or model is a new program, and nothing else would ever remove them. JAX's
+    compilation cache gets the same cap (:func:`_prune_compiled`)."""
     global _pruned
     if _pruned:
         return
@@ -300,11 +302,42 @@ def _prune(where: Path, current: str) -> None:
                 kept.append((st.st_mtime, st.st_size, path))
         except OSError:
             pass
-    total = sum(size for _, size, _ in kept)
-    if total <= MAX_BYTES:
+    _keep_under(kept, MAX_BYTES)
+    settings = jax.config.values
+    _prune_compiled(
+        settings.get("jax_compilation_cache_dir"),
+        settings.get("jax_compilation_cache_max_size", -1),
+    )
+
+
+def _prune_compiled(folder: str | None, jax_cap: int) -> None:
+    """JAX's compilation cache, which grows with every program it compiles (16,000
+    files and 310 MB on a developer's machine): kept to COMPILED_MAX_BYTES, the least
+    recently used first. JAX reads its files itself, so "used" is the later of a
+    file's access and modification times (at the day's resolution of a relatime
+    mount). Left to JAX where the user gave it a cap of its own (``jax_cap``, its
+    jax_compilation_cache_max_size, is not -1)."""
+    if not folder or jax_cap != -1:
         return
-    for _, size, path in sorted(kept, key=lambda k: k[0]):
-        if total <= 0.75 * MAX_BYTES:
+    entries = []
+    for path in Path(folder).glob("*-cache"):
+        try:
+            st = path.stat()
+        except OSError:
+            continue
+        entries.append((max(st.st_atime, st.st_mtime), st.st_size, path))
+    _keep_under(entries, COMPILED_MAX_BYTES)
+
+
+def _keep_under(entries: list, cap: int) -> None:
+    """Where the files of ``entries`` ((last used, size, path) each) hold more than
+    ``cap`` bytes, remove the least recently used down to three quarters of it (not
+    just under it: a folder at its cap would prune at every write)."""
+    total = sum(size for _, size, _ in entries)
+    if total <= cap:
+        return
+    for _, size, path in sorted(entries, key=lambda k: k[0]):
+        if total <= 0.75 * cap:
             break
         try:
             path.unlink()
