@@ -314,9 +314,7 @@ def test_the_adjoints_programs_are_read_by_a_second_process(tmp_path):
     assert second["H"] == first["H"] == plain["H"] and second["J"] == plain["J"]
 
 
-def test_jax_compiled_code_is_kept_under_its_cap_least_recently_used_first(
-    tmp_path, monkeypatch
-):
+def test_jax_compiled_code_is_kept_under_its_cap_least_recently_used_first(tmp_path, monkeypatch):
     # JAX's compilation cache grew without bound (16,000 files on a developer's
     # machine); it gets the program folder's rule, "used" being the later of a file's
     # access and modification times
