@@ -502,6 +502,28 @@ def test_the_lock_is_released_when_its_file_cannot_be_removed(tmp_path, monkeypa
         pass
 
 
+def test_a_killed_runs_half_written_files_go_when_the_folder_is_next_held(tmp_path):
+    # a run killed outright (kill -9) while writing left its temporary files for good
+    import tempfile
+
+    from tensorid.app.output import MANIFEST, claimed
+
+    out = tmp_path / "o"
+    out.mkdir()
+    ours = [  # made as write_atomic and the renderer make them
+        Path(tempfile.mkstemp(prefix=f".{name}.", suffix=".part", dir=out)[1])
+        for name in ("fit.json", "report.md", "train_data_y.png", MANIFEST)
+    ]
+    users = [
+        out / n for n in (".notes.part", "film.part", ".fit.json.part", ".a.txt.abcd1234.part")
+    ]
+    for f in users:
+        f.write_text("the user's")
+    with claimed(out):
+        assert not any(f.exists() for f in ours)
+    assert all(f.exists() for f in users)
+
+
 def _children(pid: int) -> set[int]:
     """The worker processes of ``pid`` (multiprocessing's resource tracker aside)."""
     kids: set[int] = set()

@@ -344,3 +344,17 @@ def test_the_first_program_written_prunes_the_compiled_code_too(tmp_path, monkey
     programs._prune(tmp_path, "cccccccc")
     programs._prune(tmp_path, "cccccccc")  # once per process
     assert len(seen) == 1
+
+
+def test_half_written_programs_of_killed_processes_are_removed(tmp_path, monkeypatch):
+    import time
+
+    stale, fresh = tmp_path / ".cccccccc-1.jaxexport.abcd1234.part", tmp_path / ".x.part"
+    for f in (stale, fresh):
+        f.write_bytes(b"x")
+    hour = time.time() - 3700
+    os.utime(stale, (hour, hour))
+    monkeypatch.setattr(programs, "_prune_compiled", lambda *a: None)
+    monkeypatch.setattr(programs, "_pruned", False)
+    programs._prune(tmp_path, "cccccccc")
+    assert not stale.exists() and fresh.exists()  # a live writer's is left alone

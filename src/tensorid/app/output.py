@@ -12,6 +12,7 @@ never holds a mix of two runs' results.
 from __future__ import annotations
 
 import os
+import re
 import tempfile
 import time
 from collections.abc import Callable, Iterator
@@ -133,6 +134,7 @@ def claimed(folder, what: str = "--out") -> Iterator[Path]:
         raise ValueError(f"{what} {folder}: could not take its lock file {lock}; remove it")
     os.ftruncate(fd, 0)
     os.write(fd, f"{os.getpid()}\n".encode())
+    _remove_leftovers(folder)
     try:
         yield folder
     finally:
@@ -142,6 +144,22 @@ def claimed(folder, what: str = "--out") -> Iterator[Path]:
             pass  # a folder turned read-only keeps the file, but closing releases the lock
         finally:
             os.close(fd)
+
+
+# a temporary file of write_atomic's or the renderer's: ".NAME.XXXXXXXX.part"
+_PART = re.compile(r"^\.(.+\.(json|md|png|csv)|\.tensorid-files)\.[A-Za-z0-9_]{8}\.part$")
+
+
+def _remove_leftovers(folder: Path) -> None:
+    """The temporary files of a run that was killed outright (kill -9, out of memory,
+    power) while writing: with the folder held, no run is writing them now. Only
+    names tensorid makes go: a file of the user's is never touched."""
+    try:
+        for path in folder.glob(".*.part"):
+            if _PART.match(path.name):
+                path.unlink(missing_ok=True)
+    except OSError:  # a folder it cannot clean still takes the results
+        pass
 
 
 def _written_by_tensorid(path: Path) -> bool:

@@ -285,7 +285,8 @@ def _prune(where: Path, current: str) -> None:
     STALE_DAYS days, so that the folder does not grow with every upgrade, and then,
     while the folder holds more than MAX_BYTES, the least recently used programs
     (reading one marks it used) down to three quarters of that: every new record
-    length or model is a new program, and nothing else would ever remove them. JAX's
+    length or model is a new program, and nothing else would ever remove them. Also
+    the half-written files of processes killed while writing (an hour old), and JAX's
     compilation cache gets the same cap (:func:`_prune_compiled`)."""
     global _pruned
     if _pruned:
@@ -303,6 +304,12 @@ def _prune(where: Path, current: str) -> None:
         except OSError:
             pass
     _keep_under(kept, MAX_BYTES)
+    for path in where.glob(".*.part"):  # a killed writer's: a live one's is seconds old
+        try:
+            if path.stat().st_mtime < time.time() - 3600:
+                path.unlink()
+        except OSError:
+            pass
     settings = jax.config.values
     _prune_compiled(
         settings.get("jax_compilation_cache_dir"),
