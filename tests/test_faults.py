@@ -519,9 +519,13 @@ def test_a_killed_runs_half_written_files_go_when_the_folder_is_next_held(tmp_pa
     ]
     for f in users:
         f.write_text("the user's")
+    for f in ours + users:  # an hour ago
+        os.utime(f, (time.time() - 3600, time.time() - 3600))
+    # a `simulate` writing into the folder now (it does not hold the folder)
+    live = Path(tempfile.mkstemp(prefix=".simulation.csv.", suffix=".part", dir=out)[1])
     with claimed(out):
         assert not any(f.exists() for f in ours)
-    assert all(f.exists() for f in users)
+    assert all(f.exists() for f in users) and live.exists()
 
 
 def _children(pid: int) -> set[int]:

@@ -34,10 +34,11 @@ def _texts(fig):
 
 
 def _drawn(axis):
-    """The tick labels an axis draws: those of ticks inside its view."""
+    """The tick labels an axis draws: those of its major and minor ticks inside its
+    view (a log axis within one decade labels its minor ticks)."""
     lo, hi = sorted(axis.get_view_interval())
     slack = 1e-9 * (hi - lo)
-    ticks = axis.get_major_ticks()
+    ticks = axis.get_major_ticks() + axis.get_minor_ticks()
     return [t.label1 for t in ticks if lo - slack <= t.get_loc() <= hi + slack]
 
 
@@ -61,11 +62,17 @@ def test_compare_figure_labels_fit_on_any_scale(name):
     _check(compare_figure(T, y, y * 1.001, title=f"{name} (scored after the first 10 samples)"))
 
 
-def test_convergence_figure_labels_fit_with_negative_costs_and_tiny_gradients():
-    history = [
-        {"iteration": i, "cost": -12345.67 + 100 * np.exp(-i), "grad_norm": 10.0 ** (-30 * i)}
-        for i in range(9)
-    ]
+@pytest.mark.parametrize(
+    "cost",
+    [
+        lambda i: -12345.67 + 100 * np.exp(-i),  # a likelihood: a linear axis
+        lambda i: 1.16e-3 + 0.7e-3 * np.exp(-i),  # within one decade: minor labels
+        lambda i: 4250 + 750 * np.exp(-i),
+    ],
+    ids=["negative", "within a decade", "large, within a decade"],
+)
+def test_convergence_figure_labels_fit_on_any_scale(cost):
+    history = [{"iteration": i, "cost": cost(i), "grad_norm": 10.0 ** (-30 * i)} for i in range(9)]
     _check(convergence_figure(history, "newton: cost and gradient norm per iteration"))
 
 

@@ -339,11 +339,29 @@ def test_jax_compiled_code_is_kept_under_its_cap_least_recently_used_first(tmp_p
 
 def test_the_first_program_written_prunes_the_compiled_code_too(tmp_path, monkeypatch):
     seen = []
-    monkeypatch.setattr(programs, "_prune_compiled", lambda *a: seen.append(a))
+    monkeypatch.setattr(programs, "_prune_own_compiled", lambda: seen.append(True))
     monkeypatch.setattr(programs, "_pruned", False)
     programs._prune(tmp_path, "cccccccc")
     programs._prune(tmp_path, "cccccccc")  # once per process
     assert len(seen) == 1
+
+
+def test_only_the_compiled_code_folder_tensorid_chose_is_pruned(tmp_path, monkeypatch):
+    # a folder the user gave JAX itself (JAX_COMPILATION_CACHE_DIR) may be shared with
+    # other programs: tensorid leaves it as it is
+    import jax
+
+    from tensorid import _config
+
+    pruned = []
+    monkeypatch.setattr(programs, "_prune_compiled", lambda folder, cap: pruned.append(folder))
+    here = jax.config.values.get("jax_compilation_cache_dir")
+    monkeypatch.setattr(_config, "own_cache", None)  # not ours
+    programs._prune_own_compiled()
+    monkeypatch.setattr(_config, "own_cache", here)  # ours (tensorid set it)
+    programs._prune_own_compiled()
+    on = jax.config.values.get("jax_enable_compilation_cache")
+    assert pruned == ([here] if on and here else [])
 
 
 def test_half_written_programs_of_killed_processes_are_removed(tmp_path, monkeypatch):

@@ -116,6 +116,9 @@ def _lapack_without_scipy_linalg() -> bool:
 _lapack_without_scipy_linalg()
 
 _OFF = ("0", "false", "no", "off")
+# the compilation-cache folder tensorid chose (and keeps to a size); not one that the
+# user gave JAX itself, which other programs may share
+own_cache: str | None = None
 
 
 def enable_compilation_cache(path=None) -> str:
@@ -123,7 +126,9 @@ def enable_compilation_cache(path=None) -> str:
     (JAX's persistent compilation cache). ``path`` defaults to $TENSORID_CACHE_DIR
     or ~/.cache/tensorid/jax. ``import tensorid`` already does this unless
     $TENSORID_CACHE is 0 or JAX was given a cache folder of its own; call it to choose
-    another folder. Returns the folder used."""
+    another folder. tensorid keeps the folder to 1 GB, the least recently used code
+    going first (a folder given to JAX itself is left as it is). Returns the folder
+    used."""
     from pathlib import Path
 
     from jax.experimental.compilation_cache import compilation_cache
@@ -138,6 +143,8 @@ def enable_compilation_cache(path=None) -> str:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     compilation_cache.reset_cache()  # JAX reads the folder once, at the first compile
+    global own_cache
+    own_cache = str(folder)
     return str(folder)
 
 

@@ -150,13 +150,15 @@ def claimed(folder, what: str = "--out") -> Iterator[Path]:
 _PART = re.compile(r"^\.(.+\.(json|md|png|csv)|\.tensorid-files)\.[A-Za-z0-9_]{8}\.part$")
 
 
-def _remove_leftovers(folder: Path) -> None:
+def _remove_leftovers(folder: Path, age: float = 600.0) -> None:
     """The temporary files of a run that was killed outright (kill -9, out of memory,
-    power) while writing: with the folder held, no run is writing them now. Only
-    names tensorid makes go: a file of the user's is never touched."""
+    power) while writing, ``age`` seconds old or more: a `simulate` writing into the
+    folder does not hold it, and its file of the moment stays. Only names tensorid
+    makes go: a file of the user's is never touched."""
+    old = time.time() - age
     try:
         for path in folder.glob(".*.part"):
-            if _PART.match(path.name):
+            if _PART.match(path.name) and path.stat().st_mtime < old:
                 path.unlink(missing_ok=True)
     except OSError:  # a folder it cannot clean still takes the results
         pass

@@ -236,6 +236,10 @@ class Program:
         except Exception:  # whatever keeps a key from being made: not kept
             key = None
         if key is None:
+            global _pruned
+            if not _pruned:  # no program is kept: the compiled code is capped all the same
+                _pruned = True
+                _prune_own_compiled()
             return self.jitted, None
         from jax import export
 
@@ -310,20 +314,27 @@ def _prune(where: Path, current: str) -> None:
                 path.unlink()
         except OSError:
             pass
+    _prune_own_compiled()
+
+
+def _prune_own_compiled() -> None:
+    """:func:`_prune_compiled` on the cache folder tensorid chose, if it is on."""
+    from .. import _config
+
     settings = jax.config.values
-    _prune_compiled(
-        settings.get("jax_compilation_cache_dir"),
-        settings.get("jax_compilation_cache_max_size", -1),
-    )
+    if settings.get("jax_enable_compilation_cache") and (
+        settings.get("jax_compilation_cache_dir") == _config.own_cache
+    ):
+        _prune_compiled(_config.own_cache, settings.get("jax_compilation_cache_max_size", -1))
 
 
 def _prune_compiled(folder: str | None, jax_cap: int) -> None:
-    """JAX's compilation cache, which grows with every program it compiles (16,000
-    files and 310 MB on a developer's machine): kept to COMPILED_MAX_BYTES, the least
-    recently used first. JAX reads its files itself, so "used" is the later of a
-    file's access and modification times (at the day's resolution of a relatime
-    mount). Left to JAX where the user gave it a cap of its own (``jax_cap``, its
-    jax_compilation_cache_max_size, is not -1)."""
+    """JAX's compilation cache in ``folder``, which grows with every program it
+    compiles (16,000 files and 310 MB on a developer's machine): kept to
+    COMPILED_MAX_BYTES, the least recently used first. JAX reads its files itself,
+    so "used" is the later of a file's access and modification times (at the day's
+    resolution of a relatime mount). Left to JAX where the user gave it a cap of its
+    own (``jax_cap``, its jax_compilation_cache_max_size, is not -1)."""
     if not folder or jax_cap != -1:
         return
     entries = []

@@ -67,6 +67,9 @@ def _tick_text(ax) -> tuple[float, bool]:
     locs = [v for v in axis.get_major_locator()() if lo <= v <= hi]
     formatter = axis.get_major_formatter()
     labels = formatter.format_ticks(locs) if locs else [""]
+    # a log axis spanning less than a decade labels its minor ticks ("2×10⁻³")
+    minor = [v for v in axis.get_minor_locator()() if lo <= v <= hi]
+    labels += axis.get_minor_formatter().format_ticks(minor) if minor else []
     chars = max(_characters(t) for t in labels)
     size = mpl.font_manager.FontProperties(size=mpl.rcParams["ytick.labelsize"]).get_size()
     # DejaVu Sans: digits 0.64 em, a minus 0.84, a point 0.32
