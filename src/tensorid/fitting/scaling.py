@@ -14,24 +14,41 @@ import numpy as np
 from ..engine.problem import Problem
 
 
-def auto_scale(theta0: np.ndarray, J0: float, H_gn: np.ndarray) -> np.ndarray:
+def auto_scale(theta0: np.ndarray, J0: float, H_gn: np.ndarray, n_init: int = 0) -> np.ndarray:
     """Typical magnitudes: |θ0| where it is not zero; otherwise the step that changes
-    the cost by about its own size according to the Gauss-Newton curvature."""
+    the cost by about its own size according to the Gauss-Newton curvature.
+
+    The first ``n_init`` entries, free initial states, are floored at that step
+    rounded down to a power of two. Their guess is often 0 or a tiny number (an
+    initial velocity of 1e-4 where the fit's is -1.3): |θ0| alone put the optimum 1e4
+    scaled units away, which the trust radius took many doublings to reach
+    (Silverbox from velocities of ±1e-3: Gauss-Newton's 18-20 iterations became
+    7-11; from 1e-6, 178 became 8). Rounded down, the floor leaves |θ0| alone where
+    the two agree within a factor 2, and a power of two does not move by a rounding
+    difference in H_gn (a start fitted alone or in a batch gets the same scale).
+    Parameters keep |θ0|: their guess is usually of the right size."""
     scale = np.abs(theta0).astype(float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        curv = np.sqrt(max(abs(J0), 1e-300) / np.diag(H_gn))  # |J0|: a likelihood
+    curv = np.where(np.isfinite(curv) & (curv > 0), curv, 0.0)
     zero = scale == 0
-    if zero.any():
-        with np.errstate(divide="ignore", invalid="ignore"):
-            curv = np.sqrt(max(abs(J0), 1e-300) / np.diag(H_gn))  # |J0|: a likelihood
-        scale[zero] = np.where(np.isfinite(curv[zero]) & (curv[zero] > 0), curv[zero], 1.0)
+    scale[zero] = np.where(curv[zero] > 0, curv[zero], 1.0)
+    step = curv[:n_init]
+    with np.errstate(divide="ignore"):
+        floor = np.where(step > 0, 2.0 ** np.floor(np.log2(step)), 0.0)
+    scale[:n_init] = np.maximum(scale[:n_init], floor)
     return scale
 
 
-def resolve_scale(K: int, theta0: np.ndarray, J0: float, H_gn: np.ndarray, x_scale) -> np.ndarray:
-    """The scale of θ: from ``x_scale`` ("auto" or K positive magnitudes)."""
+def resolve_scale(
+    K: int, theta0: np.ndarray, J0: float, H_gn: np.ndarray, x_scale, n_init: int = 0
+) -> np.ndarray:
+    """The scale of θ: from ``x_scale`` ("auto" or K positive magnitudes); the first
+    ``n_init`` entries of θ are free initial states."""
     if isinstance(x_scale, str):
         if x_scale != "auto":
             raise ValueError("x_scale must be 'auto' or an array of typical magnitudes")
-        return auto_scale(theta0, J0, H_gn)
+        return auto_scale(theta0, J0, H_gn, n_init)
     scale = np.asarray(x_scale, dtype=float).reshape(-1)
     if scale.shape != (K,) or not (np.isfinite(scale) & (scale > 0)).all():
         raise ValueError(f"x_scale must hold {K} positive finite values")
@@ -54,7 +71,8 @@ class Tracker:
     @classmethod
     def start(cls, problem: Problem, theta0, J0: float, H_gn, x_scale) -> Tracker:
         """A tracker for a fit from θ0 with cost J0 and Gauss-Newton Hessian H_gn."""
-        scale = resolve_scale(problem.K, theta0, J0, H_gn, x_scale)
+        n_init = len(problem.experiments) * len(problem.free_x0)
+        scale = resolve_scale(problem.K, theta0, J0, H_gn, x_scale, n_init)
         # |J0|: a likelihood's J (predictor="ekf") may be negative
         tracker = cls(problem, scale, abs(J0) if J0 != 0 else 1.0, theta0)
         tracker.best_J, tracker.best_phi = J0, tracker.phi(theta0)  # the start counts
