@@ -159,7 +159,7 @@ def test_ctrl_c_among_many_starts_never_hangs_the_pool(tmp_path):
     # starts): CI's mid-multistart SIGINT test hung so. Tiny starts, many at a time,
     # interrupted at different moments.
     script = tmp_path / "starts.py"
-    script.write_text(_INTERRUPTED_STARTS)
+    script.write_text(_PYTHON_SIGINT + "\n" + _INTERRUPTED_STARTS)
     delays = (4.0, 5.0, 6.0, 7.0)
     procs = [
         subprocess.Popen(
@@ -399,13 +399,32 @@ def _sigint_at_the_first_statistic(monkeypatch) -> list:
     return sent
 
 
+# Python's own SIGINT handler in a child, whatever it inherited: a suite started in the
+# background (nohup, `&` in a script) passes SIGINT on ignored, and Python keeps that
+_PYTHON_SIGINT = "import signal; signal.signal(signal.SIGINT, signal.default_int_handler)"
+# `python -m tensorid ARGS`, with Python's own SIGINT handler
+_TENSORID = _PYTHON_SIGINT + (
+    "; import runpy; runpy.run_module('tensorid', run_name='__main__', alter_sys=True)"
+)
+
+
+@pytest.fixture
+def python_sigint():
+    """Python's own SIGINT handler for the test, or the signal cannot become a
+    KeyboardInterrupt at all: a suite started in the background (nohup, `&` in a
+    script) inherits SIGINT ignored."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
 @pytest.mark.parametrize(
     "more", [[], ["--starts", "2", "--workers", "1"]], ids=["single", "multistart"]
 )
-def test_sigint_at_the_first_statistic_keeps_fit_json(more, tmp_path, capsys, monkeypatch):
+def test_sigint_at_the_first_statistic_keeps_fit_json(
+    more, tmp_path, capsys, monkeypatch, python_sigint
+):
     out = tmp_path / "o"
-    # Python's own handler, or the signal cannot become a KeyboardInterrupt at all
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
     sent = _sigint_at_the_first_statistic(monkeypatch)
     code = cli.main(FIT + ["--out", str(out), *more])
     assert sent, "no error bar was computed through FitResult.uncertainty"
@@ -542,7 +561,7 @@ def _multistart_command(out: Path, **popen) -> subprocess.Popen:
     """The CLI fit with two local workers and more starts than finish in the time a
     test allows (1,000 finished in about 20 s once the sweeps' loops compiled as one
     function)."""
-    args = [sys.executable, "-m", "tensorid", *FIT, "--out", str(out)]
+    args = [sys.executable, "-c", _TENSORID, *FIT, "--out", str(out)]
     args += ["--starts", "20000", "--workers", "2", "--batch", "1", "--spread", "0.5"]
     popen.setdefault("stdout", subprocess.DEVNULL)
     popen.setdefault("stderr", subprocess.DEVNULL)
