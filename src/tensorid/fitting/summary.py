@@ -240,7 +240,7 @@ def fit_blocks(res, scores=None) -> list:
     title = f"{res.problem.model.name}: {'converged' if res.success else 'NOT converged'}"
     blocks: list = [headline(res), estimates_table(res.problem.theta_names, res.theta, u, title)]
     if scores:
-        blocks.append(Table(None, *metric_rows(scores), edge=False))
+        blocks.append(Table(None, *metric_rows(scores)))
     noise = noise_intensities(res, u)
     if noise:
         blocks.append(noise_text(noise))
