@@ -9,46 +9,91 @@ fit never returns NaN.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from ..engine.problem import Problem
 
 
-def auto_scale(theta0: np.ndarray, J0: float, H_gn: np.ndarray, n_init: int = 0) -> np.ndarray:
+def auto_scale(
+    theta0: np.ndarray,
+    J0: float,
+    H_gn: np.ndarray,
+    n_init: int = 0,
+    reach: Callable[[], np.ndarray | None] | None = None,
+) -> np.ndarray:
     """Typical magnitudes: |θ0| where it is not zero; otherwise the step that changes
     the cost by about its own size according to the Gauss-Newton curvature.
 
-    The first ``n_init`` entries, free initial states, are floored at that step
+    The first ``n_init`` entries, free initial states, are floored at that step, but
+    no higher than what the state reaches along the simulation at θ0 (``reach()``:
+    per free initial state, its largest |x|; None where that is not known), both
     rounded down to a power of two. Their guess is often 0 or a tiny number (an
     initial velocity of 1e-4 where the fit's is -1.3): |θ0| alone put the optimum 1e4
     scaled units away, which the trust radius took many doublings to reach
     (Silverbox from velocities of ±1e-3: Gauss-Newton's 18-20 iterations became
-    7-11; from 1e-6, 178 became 8). Rounded down, the floor leaves |θ0| alone where
-    the two agree within a factor 2, and a power of two does not move by a rounding
-    difference in H_gn (a start fitted alone or in a batch gets the same scale).
-    Parameters keep |θ0|: their guess is usually of the right size."""
+    7-11; from 1e-6, 178 became 8). The reach keeps the floor to the state's own
+    size where the curvature at θ0 says little: a state that enters the outputs only
+    through a cubic has almost none there, and a step of 1e6 for a state of size
+    0.05 left a fit stalled at its optimum (radius collapsed, "NOT converged").
+    Rounded down, the floor acts only where |θ0| is below it, and a power of two does
+    not move by a rounding difference in H_gn (a start fitted alone or in a batch
+    gets the same scale). Parameters keep |θ0|: their guess is usually of the right
+    size. A zero guess takes the curvature step itself, as before the floor."""
     scale = np.abs(theta0).astype(float)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         curv = np.sqrt(max(abs(J0), 1e-300) / np.diag(H_gn))  # |J0|: a likelihood
     curv = np.where(np.isfinite(curv) & (curv > 0), curv, 0.0)
     zero = scale == 0
     scale[zero] = np.where(curv[zero] > 0, curv[zero], 1.0)
-    step = curv[:n_init]
-    with np.errstate(divide="ignore"):
-        floor = np.where(step > 0, 2.0 ** np.floor(np.log2(step)), 0.0)
-    scale[:n_init] = np.maximum(scale[:n_init], floor)
+    floor = _power_of_two_below(curv[:n_init])
+    lifts = (floor > scale[:n_init]) & ~zero[:n_init]
+    if lifts.any():
+        size = reach() if reach is not None else None
+        if size is None:  # the state's size unknown: no floor
+            floor[:] = 0.0
+        else:
+            floor = np.minimum(floor, _power_of_two_below(np.asarray(size, dtype=float)))
+        scale[:n_init] = np.where(zero[:n_init], scale[:n_init], np.maximum(scale[:n_init], floor))
     return scale
 
 
+def _power_of_two_below(v: np.ndarray) -> np.ndarray:
+    """2^⌊log2 v⌋ where v is positive and finite, else 0."""
+    ok = np.isfinite(v) & (v > 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(ok, 2.0 ** np.floor(np.log2(np.where(ok, v, 1.0))), 0.0)
+
+
+def state_reach(problem: Problem, theta0) -> np.ndarray | None:
+    """Per free initial state, in θ's order (experiment by experiment), the largest
+    |x| that state reaches along the simulation at θ0; None where it fails."""
+    try:
+        sims = problem.simulate(theta0)
+        idx = [problem.model.states.index(n) for n in problem.free_x0]
+        out = [np.max(np.abs(np.asarray(s.x)[:, idx]), axis=0) for s in sims]
+    except Exception:  # noqa: BLE001 - no size known: the floor is left out
+        return None
+    size = np.concatenate(out) if out else np.zeros(0)
+    return size if np.isfinite(size).all() else None
+
+
 def resolve_scale(
-    K: int, theta0: np.ndarray, J0: float, H_gn: np.ndarray, x_scale, n_init: int = 0
+    K: int,
+    theta0: np.ndarray,
+    J0: float,
+    H_gn: np.ndarray,
+    x_scale,
+    n_init: int = 0,
+    reach: Callable[[], np.ndarray | None] | None = None,
 ) -> np.ndarray:
     """The scale of θ: from ``x_scale`` ("auto" or K positive magnitudes); the first
-    ``n_init`` entries of θ are free initial states."""
+    ``n_init`` entries of θ are free initial states (see :func:`auto_scale`)."""
     if isinstance(x_scale, str):
         if x_scale != "auto":
             raise ValueError("x_scale must be 'auto' or an array of typical magnitudes")
-        return auto_scale(theta0, J0, H_gn, n_init)
+        return auto_scale(theta0, J0, H_gn, n_init, reach)
     scale = np.asarray(x_scale, dtype=float).reshape(-1)
     if scale.shape != (K,) or not (np.isfinite(scale) & (scale > 0)).all():
         raise ValueError(f"x_scale must hold {K} positive finite values")
@@ -72,7 +117,8 @@ class Tracker:
     def start(cls, problem: Problem, theta0, J0: float, H_gn, x_scale) -> Tracker:
         """A tracker for a fit from θ0 with cost J0 and Gauss-Newton Hessian H_gn."""
         n_init = len(problem.experiments) * len(problem.free_x0)
-        scale = resolve_scale(problem.K, theta0, J0, H_gn, x_scale, n_init)
+        reach = lambda: state_reach(problem, theta0)  # noqa: E731 - only where needed
+        scale = resolve_scale(problem.K, theta0, J0, H_gn, x_scale, n_init, reach)
         # |J0|: a likelihood's J (predictor="ekf") may be negative
         tracker = cls(problem, scale, abs(J0) if J0 != 0 else 1.0, theta0)
         tracker.best_J, tracker.best_phi = J0, tracker.phi(theta0)  # the start counts
