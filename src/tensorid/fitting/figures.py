@@ -31,7 +31,7 @@ def fixed_layout(fig, *, top: float = _TITLE, gap: float = 0.12, wide_gap: bool 
     widths the estimate bounds; an axis's offset text ("1e-7" above it) gets a line
     above each row. ``top``: room above the grid (titles); ``gap``: between rows
     (axes sharing x: only the lower one is labelled), or with ``wide_gap`` room for a
-    row's x tick labels and the next row's title."""
+    row's x tick labels, its x label and the next row's title."""
     width, height = fig.get_size_inches()
     axes = fig.axes
     ticks = [_tick_text(a) for a in axes]
@@ -41,7 +41,7 @@ def fixed_layout(fig, *, top: float = _TITLE, gap: float = 0.12, wide_gap: bool 
     offset = _LINE if any(o for _, o in ticks) else 0.0
     left, right = y_room + 0.12, 0.2
     bottom, top = _TICKS + _LABEL + 0.05, top + offset
-    hgap = (_TICKS + _TITLE if wide_gap else gap) + offset
+    hgap = (_TICKS + _LABEL + _TITLE if wide_gap else gap) + offset
     wgap = y_room + 0.25  # the next column's y tick labels and axis label
     # subplots_adjust's spaces are fractions of the mean axes' width and height
     axes_w = (width - left - right - wgap * (len(cols) - 1)) / len(cols)
@@ -318,7 +318,7 @@ def residual_figure(bound: float, panels: list[dict]):
         ax.axhline(0, color="k", lw=0.6)
         ax.set_title(f"{c['what']}: {'passes' if c['passed'] else 'fails'}", fontsize=9)
         ax.set_ylabel("r(τ)")
+        ax.set_xlabel("lag τ (samples)")  # each panel has its own lags
         ax.grid(alpha=0.3)
-    axes[-1].set_xlabel("lag τ (samples)")
     fixed_layout(fig, wide_gap=True)
     return fig
