@@ -65,7 +65,7 @@ def _fitted(path: Path, spec: ModelSpec) -> dict:
 
 def _fit_json(spec: ModelSpec, given: list[str]) -> dict | None:
     """The fit.json that --params names, read and checked; None for NAME=VALUE pairs."""
-    if _fit_json_named(given):
+    if len(given) == 1 and given[0].endswith(".json"):
         return _fitted(Path(given[0]), spec)
     return None
 
@@ -230,10 +230,6 @@ def run_simulate(args) -> int:
     _print_x0(m, score.x0, source)
     print("wrote " + ", ".join(map(str, written)))
     return _finite(score, disc, args.data)
-
-
-def _fit_json_named(given: list[str]) -> bool:
-    return len(given) == 1 and given[0].endswith(".json")
 
 
 def _after(score: Score) -> str:

@@ -235,11 +235,8 @@ class Program:
             key = None if where is None else _key(self.sweeps, self.entry, leaves, treedef)
         except Exception:  # whatever keeps a key from being made: not kept
             key = None
-        if key is None:
-            global _pruned
-            if not _pruned:  # no program is kept: the compiled code is capped all the same
-                _pruned = True
-                _prune_own_compiled()
+        if key is None:  # no program is kept: the compiled code is capped all the same
+            _prune(None, "")
             return self.jitted, None
         from jax import export
 
@@ -284,18 +281,25 @@ COMPILED_MAX_BYTES = 2**30  # the same for JAX's compiled code beside it
 _pruned = False
 
 
-def _prune(where: Path, current: str) -> None:
+def _prune(where: Path | None, current: str) -> None:
     """Once per process: remove the programs of other versions of tensorid unused for
     STALE_DAYS days, so that the folder does not grow with every upgrade, and then,
     while the folder holds more than MAX_BYTES, the least recently used programs
     (reading one marks it used) down to three quarters of that: every new record
     length or model is a new program, and nothing else would ever remove them. Also
     the half-written files of processes killed while writing (an hour old), and JAX's
-    compilation cache gets the same cap (:func:`_prune_compiled`)."""
+    compilation cache gets the same cap (:func:`_prune_compiled`). ``where`` None: no
+    program is kept in this process, only the compiled code is pruned."""
     global _pruned
     if _pruned:
         return
     _pruned = True
+    if where is not None:
+        _prune_programs(where, current)
+    _prune_own_compiled()
+
+
+def _prune_programs(where: Path, current: str) -> None:
     old = time.time() - STALE_DAYS * 86400
     kept = []
     for path in where.glob("*.jaxexport"):
@@ -314,7 +318,6 @@ def _prune(where: Path, current: str) -> None:
                 path.unlink()
         except OSError:
             pass
-    _prune_own_compiled()
 
 
 def _prune_own_compiled() -> None:

@@ -47,15 +47,11 @@ def auto_scale(
     curv = np.where(np.isfinite(curv) & (curv > 0), curv, 0.0)
     zero = scale == 0
     scale[zero] = np.where(curv[zero] > 0, curv[zero], 1.0)
-    floor = _power_of_two_below(curv[:n_init])
-    lifts = (floor > scale[:n_init]) & ~zero[:n_init]
-    if lifts.any():
-        size = reach() if reach is not None else None
-        if size is None:  # the state's size unknown: no floor
-            floor[:] = 0.0
-        else:
-            floor = np.minimum(floor, _power_of_two_below(np.asarray(size, dtype=float)))
-        scale[:n_init] = np.where(zero[:n_init], scale[:n_init], np.maximum(scale[:n_init], floor))
+    floor = _power_of_two_below(curv[:n_init])  # never above a zero guess's own step
+    if (floor > scale[:n_init]).any():
+        size = reach() if reach is not None else None  # unknown: no floor
+        cap = 0.0 if size is None else _power_of_two_below(np.asarray(size, dtype=float))
+        scale[:n_init] = np.maximum(scale[:n_init], np.minimum(floor, cap))
     return scale
 
 

@@ -157,7 +157,6 @@ class Table(NamedTuple):
     title: str | None
     header: list[str]
     rows: list[list[str]]
-    edge: bool = True
 
 
 # columns of names, read left to right; every other column holds numbers
@@ -174,7 +173,7 @@ def as_text(blocks: list) -> str:
         if isinstance(b, str):
             console.print(b, soft_wrap=True, markup=False, highlight=False)
             continue
-        tab = RichTable(title=b.title, show_edge=b.edge, highlight=False)
+        tab = RichTable(title=b.title, highlight=False)
         for col in b.header:
             tab.add_column(col, justify="left" if col in LEFT else "right")
         for row in b.rows:
