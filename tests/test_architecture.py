@@ -13,6 +13,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "tensorid"
 # lowest first; a module may import its own layer or a lower one
 LAYERS = {
     "_config": 0,
+    "_early": 0,
     "engine": 1,
     "functions": 1,
     "datasets": 1,

@@ -11,6 +11,7 @@ import time
 import numpy as np
 import pytest
 
+from tensorid import _early
 from tensorid.app import renderer as renderer_module
 from tensorid.app.renderer import Renderer
 from tensorid.fitting import figures
@@ -97,7 +98,7 @@ def test_figures_are_drawn_here_when_the_renderer_fails(tmp_path, monkeypatch, h
     out = tmp_path / "o"
     out.mkdir()
     if how == "cannot start":
-        monkeypatch.setattr(renderer_module, "_SERVE", "raise SystemExit(1)")
+        monkeypatch.setattr("tensorid._early._SERVE", "raise SystemExit(1)")
     r = Renderer()
     try:
         r.submit(out, JOBS[:2])
@@ -153,3 +154,81 @@ def test_closing_ends_the_renderer_and_removes_what_was_not_collected(tmp_path, 
     assert not list(out.iterdir())
     # nothing of its process group still runs (a fork killed drawing included)
     assert not any(renderer_module.running(proc.pid) for proc in procs)
+
+
+# -- started with the command, before NumPy and JAX (tensorid/_early.py) ------------------
+
+
+@pytest.mark.parametrize(
+    "argv, orig, started",
+    [
+        (["/usr/bin/tensorid", "fit", "m.py", "d.csv"], [], True),
+        (["tensorid", "fit", "m.py", "d.csv", "--help"], [], False),
+        (["tensorid", "fit", "-h"], [], False),
+        (["tensorid", "simulate", "m.py"], [], False),
+        (["-m", "fit", "m.py"], ["python", "-m", "tensorid", "fit", "m.py"], True),
+        (["-m", "fit", "m.py"], ["python", "-m", "othertool", "fit", "m.py"], False),
+        (["myscript.py", "fit"], ["python", "myscript.py", "fit"], False),
+        (["pytest", "fit"], [], False),
+    ],
+)
+def test_only_the_fit_command_starts_early(argv, orig, started):
+    assert _early.fit_command(argv, orig) is started
+
+
+_ADOPT = """
+import os, sys
+sys.argv = {argv!r}
+import tensorid
+from tensorid import _early
+from tensorid.app import renderer
+early = _early._started
+print(os.environ.get("OPENBLAS_NUM_THREADS"))
+print(None if early is None else early[1].pid)
+if early is not None:
+    r = renderer.Renderer()
+    print(r._procs[0].pid if r._procs else None, len(r._procs), _early._started)
+    r.close()
+"""
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="the early start is for forking renderers")
+def test_the_fit_command_s_renderer_is_started_at_import_and_taken_over(monkeypatch):
+    import subprocess
+    import sys
+
+    if _early.default_forks() < 2:
+        pytest.skip("one core: the renderer draws in turn, not started early")
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    code = _ADOPT.format(argv=["tensorid", "fit", "m.py", "d.csv"])
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    blas, pid, taken = out.stdout.split("\n", 2)
+    assert blas == "1" and pid != "None"
+    # the command's Renderer is that process (no second one), and none is left waiting
+    assert taken.split() == [pid, "1", "None"]
+    # not the fit command: nothing started, the user's environment as it was
+    code = _ADOPT.format(argv=["tensorid", "fit", "--help"])
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split("\n")[:2] == ["None", "None"]
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "3")  # the user's own is kept
+    code = _ADOPT.format(argv=["tensorid", "fit", "m.py"])
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split("\n")[0] == "3"
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="the early start is for forking renderers")
+def test_an_early_renderer_nobody_takes_ends_with_the_command():
+    """A fit command that fails before it draws (bad input: one line, then out) leaves
+    no renderer behind: its input ends with the command, and so does it."""
+    import subprocess
+    import sys
+
+    if _early.default_forks() < 2:
+        pytest.skip("one core: the renderer draws in turn, not started early")
+    code = _ADOPT.format(argv=["tensorid", "fit", "m.py"]).split("if early is not")[0]
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    pid = int(out.stdout.split("\n")[1])
+    deadline = time.monotonic() + 20
+    while renderer_module.running(pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not renderer_module.running(pid)

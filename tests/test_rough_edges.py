@@ -230,7 +230,7 @@ def test_a_failing_figure_write_keeps_fit_json_and_leaves_no_partial_file(
     monkeypatch.setattr(Figure, "savefig", full_disk)
     # no renderer process (it would draw with its own savefig): every figure is drawn
     # here, as when the renderer cannot start
-    monkeypatch.setattr("tensorid.app.renderer._SERVE", "raise SystemExit(1)")
+    monkeypatch.setattr("tensorid._early._SERVE", "raise SystemExit(1)")
     out = tmp_path / "fit"
     args = ["fit", str(EXAMPLE / "model.py"), str(EXAMPLE / "train.csv"), "--no-progress"]
     assert cli.main(args + ["--out", str(out)]) == 1

@@ -25,16 +25,9 @@ import sys
 
 import jax
 
+from ._early import cores  # noqa: F401  (here for the engine, which reads _config)
+
 __version__ = "0.1.0"
-
-
-def cores() -> int:
-    """The cores this process may run on: its affinity where the system says (a
-    container or ``taskset`` may allow fewer than the machine has), else the count."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):  # not on Linux
-        return os.cpu_count() or 1
 
 
 # bytes a loop may carry and still be compiled as one function (XLA's default: 1 KB)

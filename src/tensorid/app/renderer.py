@@ -30,12 +30,7 @@ import threading
 import time
 from pathlib import Path
 
-_FIGURES = Path(__file__).resolve().parent.parent / "fitting" / "figures.py"
 WAIT = 60.0  # seconds without a reply after which the renderer counts as hung
-_SERVE = (
-    "import runpy, sys; "
-    "runpy.run_path(sys.argv[1], run_name='__tensorid_renderer__')['serve'](*sys.argv[2:])"
-)
 
 
 def serve(figures_path: str, forks: str = "0") -> None:
@@ -159,6 +154,15 @@ def running(group: int) -> bool:
     return False
 
 
+def _end(proc: subprocess.Popen) -> None:
+    """Close a renderer's input, at whose end it ends (not waited for)."""
+    try:
+        if proc.stdin is not None:
+            proc.stdin.close()
+    except OSError:
+        pass
+
+
 class Renderer:
     """The command's side: ``submit`` jobs as they become known, ``collect`` them in
     the order the report lists them, ``close`` (always) at the end. A fit's figures
@@ -171,34 +175,32 @@ class Renderer:
     command: 2.64 s against 2.47 s, median of 5 alternating runs at load 1.7)."""
 
     def __init__(self, processes: int | None = None, forks: int | None = None) -> None:
+        # here: at module level this file is the renderer's, which imports no tensorid
+        from .._early import cores, default_forks, start_renderer, take_renderer
+
         self._procs: list[subprocess.Popen] = []
         self._pending: dict[str, tuple[str, dict, Path, Path | None]] = {}
         self._done: dict[str, str | None] = {}
         self._replies: queue.Queue = queue.Queue()
         self._turn = 0
-        from .._config import cores  # here: at module level this file is the renderer's
-
         if forks is None:
-            forks = min(4, cores()) if sys.platform == "linux" else 0
+            forks = default_forks()
         # the command itself keeps a core: two renderers from three cores on
         default = 1 if forks > 1 else min(2, max(1, cores() - 1))
         wanted = processes if processes is not None else default
-        # its forks draw with one thread each (and a fork copies no BLAS threads)
-        env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+        early = take_renderer()  # started with the fit command (tensorid._early)
         for _ in range(wanted):
-            try:
-                proc = subprocess.Popen(
-                    [sys.executable, "-P", "-c", _SERVE, __file__, str(_FIGURES), str(forks)],
-                    env=env,
-                    stdin=subprocess.PIPE,
-                    stdout=subprocess.PIPE,
-                    stderr=subprocess.DEVNULL,
-                    start_new_session=True,  # Ctrl-C at the terminal reaches the command only
-                )
-            except (OSError, ValueError, TypeError):  # no usable interpreter, no processes
+            proc: subprocess.Popen | None
+            if early is not None and early[0] == forks:
+                proc, early = early[1], None
+            else:
+                proc = start_renderer(forks)
+            if proc is None:
                 break  # then the figures are drawn by those that started, or here
             self._procs.append(proc)
             threading.Thread(target=self._read, args=(proc.stdout,), daemon=True).start()
+        if early is not None:  # not the one wanted: ends at the end of its input
+            _end(early[1])
 
     def _read(self, stream) -> None:
         """The renderer's replies into a queue; None when it is gone."""

@@ -1,0 +1,104 @@
+"""What runs before anything heavy is imported: ``tensorid/__init__.py`` imports this
+module first, and it imports nothing beyond Python's own (the renderer's program it
+starts by path).
+
+On import, for the ``tensorid fit`` command (the installed script or ``python -m tensorid``),
+:func:`start` starts the figure renderer (``app/renderer.py``) at once, so that its
+import of Matplotlib overlaps this process's imports of NumPy and JAX instead of
+following them, and caps OpenBLAS at one thread: the threads OpenBLAS starts when
+NumPy (and SciPy's LAPACK) load spin for a while, a quarter of a second of the core
+the renderer needs, and the command's own matrices are parameter-sized. Together
+they took the warm fit of the bundled example from 1.49 to 1.35 s (medians of 9
+alternating runs, 2 cores; docs/benchmarks.md). An OPENBLAS_NUM_THREADS of the
+user's own is kept. Any other use of the package (the Python API, the tests calling
+``cli.main``) starts nothing.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+# the renderer's program and what it draws with, by path: neither is imported here
+RENDERER = Path(__file__).resolve().parent / "app" / "renderer.py"
+FIGURES = Path(__file__).resolve().parent / "fitting" / "figures.py"
+_SERVE = (
+    "import runpy, sys; "
+    "runpy.run_path(sys.argv[1], run_name='__tensorid_renderer__')['serve'](*sys.argv[2:])"
+)
+
+
+def cores() -> int:
+    """The cores this process may run on: its affinity where the system says (a
+    container or ``taskset`` may allow fewer than the machine has), else the count."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # not on Linux
+        return os.cpu_count() or 1
+
+
+def fit_command(argv: list[str], orig_argv: list[str]) -> bool:
+    """Whether this process is ``tensorid fit ...`` (not asking for help): the
+    installed script (argv[0] named tensorid) or ``python -m tensorid`` (while the
+    package is imported to be run, argv[0] is "-m")."""
+    if argv[1:2] != ["fit"] or any(a in ("-h", "--help") for a in argv[2:]):
+        return False
+    if Path(argv[0]).stem == "tensorid":
+        return True
+    if argv[0] != "-m":
+        return False
+    pairs = zip(orig_argv, orig_argv[1:], strict=False)
+    return any(a == "-m" and b == "tensorid" for a, b in pairs)
+
+
+def default_forks() -> int:
+    """Figures a renderer draws at once by default: one per core, at most 4, on Linux
+    (where it can fork); elsewhere none (it draws them in turn)."""
+    return min(4, cores()) if sys.platform == "linux" else 0
+
+
+def start_renderer(forks: int) -> subprocess.Popen | None:
+    """A renderer process (``app/renderer.py``'s ``serve``) drawing up to ``forks``
+    figures at once, or None where none can start (no usable interpreter, no
+    processes to spare)."""
+    # its forks draw with one thread each (and a fork copies no BLAS threads)
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+    try:
+        return subprocess.Popen(
+            [sys.executable, "-P", "-c", _SERVE, str(RENDERER), str(FIGURES), str(forks)],
+            env=env,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,  # Ctrl-C at the terminal reaches the command only
+        )
+    except (OSError, ValueError, TypeError):
+        return None
+
+
+_started: tuple[int, subprocess.Popen] | None = None  # (forks, process), not yet taken
+
+
+def take_renderer() -> tuple[int, subprocess.Popen] | None:
+    """The renderer :func:`start` started, (forks, process), once; then None."""
+    global _started
+    started, _started = _started, None
+    return started
+
+
+def start() -> None:
+    """For the fit command: OpenBLAS at one thread, and the renderer started now (where
+    it draws in forks; the command's Renderer takes it over, and without one it ends
+    with this process, whose end ends its input)."""
+    global _started
+    if not fit_command(sys.argv, getattr(sys, "orig_argv", [])):
+        return
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    forks = default_forks()
+    if _started is None and forks > 1 and (proc := start_renderer(forks)) is not None:
+        _started = (forks, proc)
+
+
+start()
