@@ -33,6 +33,24 @@ def test_another_layout_or_discretisation_gets_its_own_sweeps():
     assert _problem(silverbox_model(), data)._sweeps is not a._sweeps  # another model
 
 
+def test_every_layout_of_a_model_shares_one_simulation_program():
+    """A simulation depends on the model and the discretisation only: a fit's problem,
+    its validation's initial-state problem and a plain simulation run one program
+    (a command-line fit read it three times), while another discretisation has its own."""
+    from tensorid.engine.simulate import run_simulation
+
+    model, data = silverbox_model(), silverbox_data(P=64, seed=10)
+    a = _problem(model, data)._sweeps
+    b = _problem(model, data, fixed=list(SILVERBOX_P), free_x0=list(model.states))._sweeps
+    assert a is not b and a.simulate is b.simulate
+    p = model.params_array(SILVERBOX_P)
+    first = run_simulation(a, data, [0.0, 0.0], p)
+    with ti.engine.compilation.compile_clock() as again:
+        second = run_simulation(b, data, [0.0, 0.0], p)
+    assert again[0] == 0.0 and (first.y == second.y).all()
+    assert _problem(model, data, scheme="heun")._sweeps.simulate is not a.simulate
+
+
 def test_repeated_simulations_compile_once_and_problems_still_travel_to_workers():
     model, data = silverbox_model(), silverbox_data(P=64, seed=9)
     with ti.engine.compilation.compile_clock() as first:

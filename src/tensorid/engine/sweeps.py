@@ -303,7 +303,21 @@ class Sweeps:
         return self._first_order(theta, x0, p, t, u, y, w, gauss_newton=False)[:2]
 
     # -- compiled entry points ---------------------------------------------------------
-    simulate = Compiled("_simulate")
+    _own_simulate = Compiled("_simulate")
+
+    @property
+    def simulate(self):
+        """Compiled :meth:`_simulate`, which depends on the model and the
+        discretisation alone: every Sweeps of a model shares the one of its plain
+        Sweeps (nothing free, squared loss, simulation), so that it is compiled, or
+        read from disk, once (a command-line fit with validation read it three times,
+        0.02 s each)."""
+        try:
+            hash(self.discretisation)
+        except TypeError:  # an unhashable user scheme: not shared
+            return self._own_simulate
+        return shared_sweeps(self.model, (), (), self.discretisation)._own_simulate
+
     cost = Compiled("_cost")
     predictions = Compiled("_predictions")
     residuals = Compiled("_residuals")
