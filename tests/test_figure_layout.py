@@ -83,3 +83,29 @@ def test_residual_figure_panels_keep_apart():
         dict(what="y against u", passed=True, lags=lags, values=-1e-4 * lags, feedback=lags[1:]),
     ]
     _check(residual_figure(0.08, panels))
+
+
+def test_log_axes_are_labelled_in_plain_text():
+    """No mathtext on the convergence figure's log axes (its parser was a third of the
+    figure's time): "10⁻³" and, within a decade, "2×10⁻³", as Matplotlib would put them."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from tensorid.fitting.figures import plain_power
+
+    assert plain_power(r"$\mathdefault{10^{-3}}$") == "10⁻³"
+    assert plain_power(r"$\mathdefault{2\times10^{-3}}$") == "2×10⁻³"
+    assert plain_power(r"$\mathdefault{10^{12}}$") == "10¹²"
+    assert plain_power(r"$\mathdefault{1.5\times10^{-3}}$") == "1.5×10⁻³"
+    for other in (r"$\mathdefault{10^{-2.5}}$", "0.5", "", r"$x^2$"):
+        assert plain_power(other) == other
+    history = [
+        {"iteration": i, "cost": 1.16e-3 + 0.7e-3 * np.exp(-i), "grad_norm": 10.0**-i}
+        for i in range(6)
+    ]
+    fig = convergence_figure(history, "t")
+    FigureCanvasAgg(fig).draw()
+    for ax in fig.axes:
+        labels = [t.get_text() for t in ax.yaxis.get_ticklabels(which="both")]
+        drawn = [s for s in labels if s]
+        assert drawn and not any("$" in s for s in drawn)
+        assert any("⁻" in s for s in drawn)
