@@ -109,3 +109,25 @@ def test_log_axes_are_labelled_in_plain_text():
         drawn = [s for s in labels if s]
         assert drawn and not any("$" in s for s in drawn)
         assert any("⁻" in s for s in drawn)
+
+
+def test_the_legend_sits_between_the_title_and_the_data():
+    """Above the axes, under the title, inside the figure: inside the axes it covered
+    an oscillating record's peaks (compare and prediction figures)."""
+    from tensorid.fitting.figures import prediction_figure
+
+    y = np.sin(5 * T)
+    long = "validation 'a-record-with-a-long-name', output y: GOF 0.9811"
+    figs = [
+        compare_figure(T, y, 0.98 * y, title=f"{long} (scored after the first 10 samples)"),
+        prediction_figure(T, y, 0.98 * y, 0.99 * y, 0.02 + 0 * T, y, title=long, ylabel="y"),
+    ]
+    for fig in figs:
+        _check(fig)
+        ax = fig.axes[0]
+        width, height = fig.canvas.get_width_height()
+        frame, legend = ax.get_window_extent(), ax.get_legend().get_window_extent()
+        title = ax.title.get_window_extent()
+        assert legend.y0 >= frame.y1 - 1 and title.y0 >= legend.y1 - 2
+        assert title.y1 <= height and legend.x1 <= width and legend.x0 >= 0
+        assert not legend.overlaps(title)

@@ -143,15 +143,28 @@ def compare_figure(
     ax.plot(t, y_meas, color="0.2", lw=1.0, label=labels[0])
     ax.plot(t, y_sim, color="tab:red", lw=0.9, ls="--", label=labels[1])
     ax.set_ylabel(ylabel)
-    ax.set_title(title, fontsize=10)
-    ax.legend(loc="upper right", fontsize=8)
+    titled_with_legend(ax, title)
     ax.grid(alpha=0.3)
     axr.plot(t, y_meas - y_sim, color="tab:blue", lw=0.8)
     axr.set_ylabel("residual")
     axr.set_xlabel(xlabel)
     axr.grid(alpha=0.3)
-    fixed_layout(fig)
+    fixed_layout(fig, top=_TITLE + _LEGEND)
     return fig
+
+
+_LEGEND = 0.22  # inches: a row of legend entries at 8 pt between the title and the axes
+
+
+def titled_with_legend(ax, title: str) -> None:
+    """The legend in one row above the axes, under the title: inside them, in any
+    corner, it covered the data's peaks (an oscillating record fills every corner)."""
+    handles, _ = ax.get_legend_handles_labels()
+    ax.legend(
+        loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=len(handles), fontsize=8,
+        frameon=False, borderaxespad=0.1, handlelength=1.8, columnspacing=1.2,
+    )  # fmt: skip
+    ax.set_title(title, fontsize=10, pad=6 + 72 * _LEGEND)
 
 
 def compare_plot(path: Path, *args, **kwargs) -> Path:
@@ -228,8 +241,7 @@ def prediction_figure(t, measured, simulated, predicted, sd, innovations, *, tit
         lo, hi = predicted - 2 * sd, predicted + 2 * sd
         ax.fill_between(t, lo, hi, color="tab:green", alpha=0.15, lw=0, label="±2σ")
     ax.set_ylabel(ylabel)
-    ax.set_title(title, fontsize=10)
-    ax.legend(loc="upper right", fontsize=8)
+    titled_with_legend(ax, title)
     ax.grid(alpha=0.3)
     axr.plot(t, innovations, color="tab:blue", lw=0.6)
     for level in (-2, 2):
@@ -237,7 +249,7 @@ def prediction_figure(t, measured, simulated, predicted, sd, innovations, *, tit
     axr.set_ylabel("innovation / σ")
     axr.set_xlabel("t [s]")
     axr.grid(alpha=0.3)
-    fixed_layout(fig)
+    fixed_layout(fig, top=_TITLE + _LEGEND)
     return fig
 
 
