@@ -3,6 +3,8 @@ Runs the command line once (quick, 2 starts, 2 worker processes)."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 
 import numpy as np
@@ -18,8 +20,9 @@ pytestmark = pytest.mark.slow
 @pytest.fixture(scope="module")
 def study(tmp_path_factory):
     out = tmp_path_factory.mktemp("paper")
-    assert (
-        cli.main(
+    console = io.StringIO()
+    with contextlib.redirect_stdout(console):
+        code = cli.main(
             [
                 "paper",
                 "--quick",
@@ -32,8 +35,8 @@ def study(tmp_path_factory):
                 "--no-progress",
             ]
         )
-        == 0
-    )
+    assert code == 0
+    (out / "console.txt").write_text(console.getvalue())
     return out, json.loads((out / "results.json").read_text())
 
 
@@ -51,6 +54,16 @@ def test_outputs_written(study):
         assert (out / name).stat().st_size > 1000, name
     report = (out / "report.md").read_text()
     assert "Why the validation GOF differs" in report and "| newton |" in report
+
+
+def test_the_console_summary_names_its_columns(study):
+    out, r = study
+    text = (out / "console.txt").read_text()
+    for column in ("dataset", "accuracy", "method", "converged", "failed", "median ms"):
+        assert column in text
+    # one row per data set, accuracy level and method, as results.json has them
+    for row in r["robustness"]:
+        assert f"{row['converged']}/{row['starts']}" in text and row["method"] in text
 
 
 def test_schema(study):

@@ -161,6 +161,7 @@ class Table(NamedTuple):
 
 # columns of names, read left to right; every other column holds numbers
 LEFT = {"unknown", "record", "output", "note", "lower side", "upper side", "test", "verdict"}
+LEFT |= {"dataset", "accuracy", "method"}  # the paper study's robustness table
 
 
 def as_text(blocks: list) -> str:

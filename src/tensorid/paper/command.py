@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..fitting.summary import Table, as_text
+
 
 def _paper(args) -> int:
     from rich.console import Console
@@ -43,16 +45,28 @@ def _paper(args) -> int:
         f"{sb['offset_model']['val_gof']:.4f}"
     )
     c.print(f"[bold]Two-tank[/] GOF {tt['paper_model']['gof']:.4f}")
-    for row in res["robustness"]:
-        c.print(
-            f"  {row['dataset']:9s} {row['accuracy']:12s} {row['method']:17s} converged "
-            f"{row['converged']:3d}/{row['starts']}  optimizer said failed {row['failed']:3d}  "
-            f"median {row['median_seconds'] * 1e3:7.1f} ms"
-        )
+    rtol = res["meta"]["converged_rtol"]
+    print(as_text([_robustness_table(res["robustness"], rtol)]), end="")
     c.print(
         f"Wrote {args.out}/results.json, report.md and figures in {res['meta']['seconds']:.0f} s"
     )
     return 0
+
+
+def _robustness_table(rows: list[dict], rtol: float) -> Table:
+    """The robustness comparison as report.md has it (fewer columns): one row per data
+    set, accuracy level and method, its columns named."""
+    header = ["dataset", "accuracy", "method", "converged", "failed"]
+    body = [
+        [r["dataset"], r["accuracy"], r["method"], f"{r['converged']}/{r['starts']}",
+         str(r["failed"]), f"{r['median_seconds'] * 1e3:.1f}"]
+        for r in rows
+    ]  # fmt: skip
+    title = (
+        f"robustness: starts that converged (cost within {rtol:g} of the best found) and "
+        "that failed (the optimizer said so); report.md has the rest"
+    )
+    return Table(title, [*header, "median ms"], body)
 
 
 def register(sub) -> None:
