@@ -10,6 +10,8 @@ Prints medians (and the range) of:
 - the README's command-line fit of the bundled Silverbox example (with validation,
   report and four figures), warm: run once to fill the caches, then timed, wall and
   CPU (user + system, the figure renderers included);
+- the benchmarks' scoring of that fit on the validation record, ``tensorid compare``
+  (one figure), warm;
 - the same fit from Python in a second process against the first, with an empty
   cache folder: the seconds JAX spent compiling (``FitResult.compile_seconds``) and
   the whole wall time.
@@ -85,9 +87,13 @@ def main() -> None:
     cli = [tensorid] if tensorid else [sys.executable, "-m", "tensorid"]
     out = Path(tempfile.mkdtemp(prefix="tensorid-fixed-costs-"))
     fit = [*cli, *FIT, "--out", str(out / "fit")]
+    compare = [*cli, "compare", FIT[1], str(EXAMPLE / "validate.csv")]
+    compare += ["--params", str(out / "fit" / "fit.json"), "--out", str(out / "compare")]
     subprocess.run(fit, check=True, capture_output=True)  # fill the caches
+    subprocess.run(compare, check=True, capture_output=True)
     load0 = os.getloadavg()[0]
-    rows: dict[str, list[float]] = {k: [] for k in ("jax", "tensorid", "help", "fit", "cpu")}
+    names = ("jax", "tensorid", "help", "fit", "cpu", "compare")
+    rows: dict[str, list[float]] = {k: [] for k in names}
     for _ in range(args.repeats):
         rows["jax"].append(_timed([sys.executable, "-c", "import jax"])[0])
         rows["tensorid"].append(_timed([sys.executable, "-c", "import tensorid"])[0])
@@ -95,6 +101,7 @@ def main() -> None:
         wall, cpu = _timed(fit)
         rows["fit"].append(wall)
         rows["cpu"].append(cpu)
+        rows["compare"].append(_timed(compare)[0])
     firsts, seconds = [], []
     for _ in range(max(1, args.repeats // 2)):
         cache = Path(tempfile.mkdtemp(prefix="tensorid-cache-"))
@@ -128,6 +135,13 @@ def main() -> None:
         )
     )
     print(_line("the same, CPU (user + system, renderers included)", rows["cpu"], "(same)"))
+    print(
+        _line(
+            "warm `tensorid compare` of that fit on the validation record",
+            rows["compare"],
+            "tensorid compare examples/silverbox/model.py …/validate.csv --params fit.json",
+        )
+    )
     extra = statistics.median(rows["tensorid"]) - statistics.median(rows["jax"])
     print(f"\nimport tensorid − import jax: {extra:+.2f} s")
     ratio = [s["compile"] / f["compile"] for f, s in zip(firsts, seconds, strict=True)]

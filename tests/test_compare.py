@@ -74,6 +74,27 @@ def test_simulate_with_an_init_window_estimates_x0_on_it_only(tmp_path, capsys):
     assert float(out.splitlines()[0].split()[2]) > 0.999999  # the true model: y fits
 
 
+def test_the_command_s_figures_are_the_same_drawn_by_its_renderer_or_here(tmp_path, capsys):
+    """`tensorid simulate` as a user runs it starts its renderer before its imports
+    and draws there; called in a process (the tests, the Python API) it draws here:
+    the same files, window shading and all."""
+    import subprocess
+    import sys
+
+    _, path, *_ = _discrete_record(tmp_path)
+    argv = ["simulate", str(tmp_path / "ar.py"), str(path), "--init-window", "10"]
+    assert cli.main([*argv, "--out", str(tmp_path / "here")]) == 0
+    run = subprocess.run(
+        [sys.executable, "-m", "tensorid", *argv, "--out", str(tmp_path / "there")],
+        capture_output=True, text=True, cwd=tmp_path,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    for name in ("simulation_y.png", "simulation.csv"):
+        here, there = (tmp_path / d / name for d in ("here", "there"))
+        assert here.read_bytes() == there.read_bytes(), name
+    assert not list((tmp_path / "there").glob(".*part"))
+
+
 def _fit_silverbox(tmp_path, *extra):
     out = tmp_path / "fit"
     argv = ["fit", str(SILVERBOX / "model.py"), str(SILVERBOX / "train.csv"),

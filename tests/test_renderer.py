@@ -165,15 +165,18 @@ def test_closing_ends_the_renderer_and_removes_what_was_not_collected(tmp_path, 
         (["/usr/bin/tensorid", "fit", "m.py", "d.csv"], [], True),
         (["tensorid", "fit", "m.py", "d.csv", "--help"], [], False),
         (["tensorid", "fit", "-h"], [], False),
-        (["tensorid", "simulate", "m.py"], [], False),
+        (["tensorid", "simulate", "m.py", "d.csv"], [], True),
+        (["tensorid", "compare", "m.py", "d.csv", "--params", "fit.json"], [], True),
+        (["tensorid", "paper"], [], False),
+        (["tensorid"], [], False),
         (["-m", "fit", "m.py"], ["python", "-m", "tensorid", "fit", "m.py"], True),
         (["-m", "fit", "m.py"], ["python", "-m", "othertool", "fit", "m.py"], False),
         (["myscript.py", "fit"], ["python", "myscript.py", "fit"], False),
         (["pytest", "fit"], [], False),
     ],
 )
-def test_only_the_fit_command_starts_early(argv, orig, started):
-    assert _early.fit_command(argv, orig) is started
+def test_only_the_commands_that_draw_start_early(argv, orig, started):
+    assert _early.figure_command(argv, orig) is started
 
 
 _ADOPT = """

@@ -2,7 +2,8 @@
 module first, and it imports nothing beyond Python's own (the renderer's program it
 starts by path).
 
-On import, for the ``tensorid fit`` command (the installed script or ``python -m tensorid``),
+On import, for the commands that draw figures (``tensorid fit``, ``simulate`` and
+``compare``, the installed script or ``python -m tensorid``),
 :func:`start` starts the figure renderer (``app/renderer.py``) at once, so that its
 import of Matplotlib overlaps this process's imports of NumPy and JAX instead of
 following them, and caps OpenBLAS at one thread: the threads OpenBLAS starts when
@@ -39,11 +40,16 @@ def cores() -> int:
         return os.cpu_count() or 1
 
 
-def fit_command(argv: list[str], orig_argv: list[str]) -> bool:
-    """Whether this process is ``tensorid fit ...`` (not asking for help): the
-    installed script (argv[0] named tensorid) or ``python -m tensorid`` (while the
-    package is imported to be run, argv[0] is "-m")."""
-    if argv[1:2] != ["fit"] or any(a in ("-h", "--help") for a in argv[2:]):
+FIGURE_COMMANDS = ("fit", "simulate", "compare")  # the commands that draw figures
+
+
+def figure_command(argv: list[str], orig_argv: list[str]) -> bool:
+    """Whether this process is ``tensorid fit|simulate|compare ...`` (not asking for
+    help): the installed script (argv[0] named tensorid) or ``python -m tensorid``
+    (while the package is imported to be run, argv[0] is "-m")."""
+    if len(argv) < 2 or argv[1] not in FIGURE_COMMANDS:
+        return False
+    if any(a in ("-h", "--help") for a in argv[2:]):
         return False
     if Path(argv[0]).stem == "tensorid":
         return True
@@ -81,6 +87,11 @@ def start_renderer(forks: int) -> subprocess.Popen | None:
 _started: tuple[int, subprocess.Popen] | None = None  # (forks, process), not yet taken
 
 
+def started() -> bool:
+    """Whether :func:`start` started a renderer that no one has taken yet."""
+    return _started is not None
+
+
 def take_renderer() -> tuple[int, subprocess.Popen] | None:
     """The renderer :func:`start` started, (forks, process), once; then None."""
     global _started
@@ -89,11 +100,11 @@ def take_renderer() -> tuple[int, subprocess.Popen] | None:
 
 
 def start() -> None:
-    """For the fit command: OpenBLAS at one thread, and the renderer started now (where
-    it draws in forks; the command's Renderer takes it over, and without one it ends
-    with this process, whose end ends its input)."""
+    """For a command that draws figures: OpenBLAS at one thread, and the renderer
+    started now (where it draws in forks; the command's Renderer takes it over, and
+    without one it ends with this process, whose end ends its input)."""
     global _started
-    if not fit_command(sys.argv, getattr(sys, "orig_argv", [])):
+    if not figure_command(sys.argv, getattr(sys, "orig_argv", [])):
         return
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     forks = default_forks()

@@ -28,6 +28,7 @@ import sys
 import tempfile
 import threading
 import time
+from functools import partial
 from pathlib import Path
 
 WAIT = 60.0  # seconds without a reply after which the renderer counts as hung
@@ -161,6 +162,28 @@ def _end(proc: subprocess.Popen) -> None:
             proc.stdin.close()
     except OSError:
         pass
+
+
+def draw_files(out: Path, jobs: list) -> list[Path]:
+    """The figures of (stem, kind, arguments) ``jobs`` written to ``out``/stem.png, in
+    order: by the renderer the command started before its imports (tensorid._early)
+    where there is one, else here (a renderer started now would take longer to import
+    Matplotlib than a figure or two take to draw)."""
+    from .. import _early
+
+    if not _early.started():
+        from ..fitting.figures import draw, save_png
+        from .output import write_atomic
+
+        return [
+            write_atomic(out / f"{stem}.png", partial(save_png, draw(kind, a)))
+            for stem, kind, a in jobs
+        ]
+    renderer = Renderer()
+    try:
+        return [renderer.collect(stem) for stem in renderer.submit(out, jobs)]
+    finally:
+        renderer.close()
 
 
 class Renderer:

@@ -16,11 +16,12 @@ import numpy as np
 from ..engine.diagnostics import describe_failure
 from ..engine.discretisation import Discretisation
 from ..engine.status import Status
-from ..fitting.figures import compare_figure, file_name, save_png
+from ..fitting.figures import file_name
 from ..fitting.validation import Score, check_init_window, score_record
 from .files import ModelSpec, load_data, load_model
 from .output import check_destination, write_atomic
 from .provenance import data_entries, provenance
+from .renderer import draw_files
 from .reports import write_json
 
 
@@ -259,22 +260,19 @@ def _savetxt(table: np.ndarray, header: list[str], path: Path) -> None:
 def _figures(score: Score, out: Path, stem: str) -> list[Path]:
     """One figure per output: measured against simulated, the window shaded."""
     e, s = score.experiment, score.simulation
-    written = []
+    jobs = []
     for j, name in enumerate(s.model.outputs):
-        fig = compare_figure(
-            e.t,
-            e.measured[:, j],
-            s.y[:, j],
+        title = f"{stem} on {e.name or 'data'}, output {name}: GOF {score.gof[name]:.4f}"
+        arguments = dict(
+            t=np.asarray(e.t),
+            y_meas=np.asarray(e.measured[:, j]),
+            y_sim=np.asarray(s.y[:, j]),
             ylabel=name,
-            title=f"{stem} on {e.name or 'data'}, output {name}: GOF {score.gof[name]:.4f}"
-            + _after(score),
+            title=title + _after(score),
+            window=float(e.t[score.start]) if score.start else None,
         )
-        if score.start:
-            for ax in fig.axes:
-                ax.axvspan(e.t[0], e.t[score.start], color="0.85", zorder=0)
-        path = out / f"{stem}_{file_name(name)}.png"
-        written.append(write_atomic(path, partial(save_png, fig)))
-    return written
+        jobs.append((f"{stem}_{file_name(name)}", "compare", arguments))
+    return draw_files(out, jobs)
 
 
 def effective_columns(model, columns: dict | None) -> dict:

@@ -136,10 +136,15 @@ def compare_figure(
     ylabel: str = "y",
     xlabel: str = "t [s]",
     labels: tuple[str, str] = ("measured", "model"),
+    window: float | None = None,
 ):
-    """Measured against simulated output, with the residual below (one output)."""
+    """Measured against simulated output, with the residual below (one output);
+    ``window``: the end of an initialisation window, shaded (not scored)."""
     fig = new_figure(figsize=(9, 5.5))
     ax, axr = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
+    if window is not None:
+        for a in (ax, axr):
+            a.axvspan(t[0], window, color="0.85", zorder=0)
     ax.plot(t, y_meas, color="0.2", lw=1.0, label=labels[0])
     ax.plot(t, y_sim, color="tab:red", lw=0.9, ls="--", label=labels[1])
     ax.set_ylabel(ylabel)
@@ -303,6 +308,7 @@ def figure_jobs(res, validation=None, training: bool = True, convergence: bool =
                 y_sim=np.asarray(s.simulation.y[:, j]),
                 ylabel=name,
                 title=title,
+                window=float(e.t[s.start]) if s.start else None,
             )
             jobs.append((file_name(stem), "compare", arguments))
     jobs += _prediction_jobs(res, train) if training else []
