@@ -51,6 +51,8 @@ def figure_command(argv: list[str], orig_argv: list[str]) -> bool:
         return False
     if any(a in ("-h", "--help") for a in argv[2:]):
         return False
+    if argv[1] == "simulate" and _out(argv).lower().endswith(".csv"):
+        return False  # a table only: no figures
     if Path(argv[0]).stem == "tensorid":
         return True
     if argv[0] != "-m":
@@ -85,6 +87,16 @@ def start_renderer(forks: int) -> subprocess.Popen | None:
 
 
 _started: tuple[int, subprocess.Popen] | None = None  # (forks, process), not yet taken
+
+
+def _out(argv: list[str]) -> str:
+    """The command line's --out value ("" if none)."""
+    for i, a in enumerate(argv):
+        if a == "--out" and i + 1 < len(argv):
+            return argv[i + 1]
+        if a.startswith("--out="):
+            return a.split("=", 1)[1]
+    return ""
 
 
 def started() -> bool:
