@@ -8,7 +8,7 @@ docs/architecture.md): ``engine`` (model, data, integrators, sweeps, problem),
 a user needs is re-exported here.
 """
 
-# first, before NumPy and JAX: the fit command starts its figure process there
+# first, before NumPy and JAX: the commands that draw start their figure process there
 from . import _early  # noqa: F401
 from ._config import __version__, disable_compilation_cache, enable_compilation_cache
 from .app.files import ModelSpec, load_data, load_model

@@ -107,8 +107,8 @@ def started() -> bool:
 def take_renderer() -> tuple[int, subprocess.Popen] | None:
     """The renderer :func:`start` started, (forks, process), once; then None."""
     global _started
-    started, _started = _started, None
-    return started
+    taken, _started = _started, None
+    return taken
 
 
 def start() -> None:

@@ -211,7 +211,7 @@ class Renderer:
         # the command itself keeps a core: two renderers from three cores on
         default = 1 if forks > 1 else min(2, max(1, cores() - 1))
         wanted = processes if processes is not None else default
-        early = take_renderer()  # started with the fit command (tensorid._early)
+        early = take_renderer()  # started with the command (tensorid._early)
         for _ in range(wanted):
             proc: subprocess.Popen | None
             if early is not None and early[0] == forks:
