@@ -80,11 +80,10 @@ def test_discrete_time_models_and_input_delays():
     _same_as_tensors(*probs, probs[0].theta0)
 
 
-def test_several_stretches_and_blocks_of_one_interval(monkeypatch):
-    """Three threads over a 41-sample record, one interval per block: the stretch
-    starts, the padding and the threads give the tensors' Hessian."""
+def test_several_stretches(monkeypatch):
+    """Three threads over a 41-sample record: the stretch starts, the padding and the
+    threads give the tensors' Hessian."""
     monkeypatch.setattr(adjoint, "threads", lambda cap=None: 3)
-    monkeypatch.setattr(adjoint, "BLOCK_ELEMENTS", 1)
     t = np.linspace(0, 2, 41)
     data = ti.Experiment(t, np.sin(3 * t), np.exp(-t) + 0.05 * np.cos(5 * t))
     probs = [ti.Problem(decay_model(), data, p0={"k": 0.7}, x0=[0.9], free_x0=["x"], hessian=h)
@@ -124,13 +123,12 @@ def test_a_step_past_the_record_that_is_not_finite_changes_nothing():
 
 
 @pytest.mark.slow
-def test_threads_and_block_sizes_do_not_change_the_result(monkeypatch):
+def test_threads_do_not_change_the_result(monkeypatch):
     prob = mass_chain_problem(2, samples=77, hessian="adjoint")
     theta = prob.theta0 * 1.1
     ref = prob.cost_grad_hess_gn(theta)
-    for threads, elements in ((1, 1), (3, 10**6), (2, 50)):
+    for threads in (1, 3, 2):
         monkeypatch.setattr(adjoint, "threads", lambda cap=None, n=threads: n)
-        monkeypatch.setattr(adjoint, "BLOCK_ELEMENTS", elements)
         for a, b in zip(prob.cost_grad_hess_gn(theta), ref, strict=True):
             _close(a, b, 1e-12)
 

@@ -16,20 +16,21 @@ with ℓ_ŷ and ℓ_ŷŷ the per-sample loss's derivatives (losses.py; for the s
 Given x and λ at every sample,
 the K Hessian-vector products ∇²L_h Z_h of one interval need nothing from any other
 interval except S_h, which a forward sweep of K directions carries. So the
-expensive part runs vectorised over blocks of intervals (:func:`block_size`) and in
-parallel threads over stretches of the record, where the transition tensors and
-forward-over-reverse automatic differentiation (jax.hessian) are sequential in
-time. Work per interval: K Hessian-vector products of Φ against the tensors'
-K(K+1)/2 second-order directions. Memory: x and λ at every sample (the size of the
-simulation itself) and S (N x K) for one block per thread, so the sensitivities'
-share does not grow with the record, as reverse-mode AD's stored tangents do.
+expensive part runs in parallel threads over stretches of the record, where the
+transition tensors and forward-over-reverse automatic differentiation (jax.hessian)
+are sequential in time. Work per interval: K Hessian-vector products of Φ against
+the tensors' K(K+1)/2 second-order directions, the K forward directions of S
+sharing their pass through Φ's stages (:meth:`SecondOrderAdjoint._interval`).
+Memory: x and λ at every sample (the size of the simulation itself) and S (N x K)
+per thread, so the sensitivities' share does not grow with the record, as
+reverse-mode AD's stored tangents do.
 
 Two compiled phases:
 
 1. ``_backward``: x forward, S forward to the start of each thread's stretch,
    λ backward (one vector-Jacobian product per interval), and J.
-2. ``_stretch``: per stretch, S forward again block by block, the outputs'
-   derivatives D and the Hessian-vector products; returns (∇J, Gauss-Newton part,
+2. ``_stretch``: per stretch, interval by interval, the outputs' derivatives D, the
+   Hessian-vector products and S forward; returns (∇J, Gauss-Newton part,
    second-order part) of the stretch.
 
 Explicit Runge-Kutta schemes and discrete-time maps only: reverse-mode
@@ -52,22 +53,6 @@ from .. import _config
 from .discretisation import Discretisation, input_at
 from .integrators import DiscreteMap, ExplicitRungeKutta
 from .programs import Program
-
-# Intervals whose Hessian-vector products are one vectorised call: enough to amortise
-# the per-operation cost of a compiled loop step, few enough that a block's arrays
-# (block x K directions x N states) stay in cache. Measured on the mass chain (2 cores,
-# ms per Hessian, blocks of 1/2/4/8/32 intervals): N = 10, K = 11: 109/95/89/82/80;
-# N = 32, K = 33: 85/82/86/95/~110; N = 64, K = 65: 284/359/325/347.
-BLOCK_ELEMENTS = 3000
-MAX_BLOCK = 32
-
-
-def block_size(K: int, N: int, starts: int = 1) -> int:
-    """Intervals per vectorised block: the power of two that keeps a block near
-    BLOCK_ELEMENTS numbers (starts x block x K x N), between 1 and MAX_BLOCK."""
-    b = BLOCK_ELEMENTS // max(1, starts * K * N)
-    return int(min(MAX_BLOCK, max(1, 2 ** int(np.log2(max(b, 1))))))
-
 
 # at most this many stretches: each is its own scan in the compiled first phase, and
 # the threads were measured on 2 cores only
@@ -291,57 +276,57 @@ class SecondOrderAdjoint:
         return jnp.sum(costs), jnp.stack(starts), per, grid, p
 
     # -- phase 2: one stretch's gradient and Hessian parts ------------------------------
-    def _stretch(self, block, k, starts, per, grid, p, w):
+    def _interval(self, x, S, yv, s, lam, dt_, a, b, lv, p, w):
+        """(D_h (K, outputs), ℓ_ŷ, ℓ_ŷŷ, Gauss-Newton weights, Z_hᵀ ∇²L_h Z_h, S_{h+1})
+        of one interval, L_h = ℓ_ŷᵀ C + λᵀ Φ_h, by K Hessian-vector products. One
+        linearisation gives both ∇²L_h Z_h and S_{h+1} = Φ_z Z_h: Φ is traced once, as
+        the forward part of its own vector-Jacobian product, so that the K directions
+        pass through its stages once (as two derivatives of two traces of Φ they did so
+        twice: 94 -> 67 ms on one core at N = 32, K = 33). Past the record each part is
+        dropped (not multiplied by 0: 0·inf is NaN), and an interval the record never
+        takes is a step of length 0, whose λ is 0 and whose S is held."""
         sw = self.sweeps
+        m, Pt = sw.model, jnp.asarray(sw.seeds()[1].T)
+        nx, fp = len(sw.free_states), np.asarray(sw.free_params, dtype=int)
+        seen = s > 0
+        D = _kept(seen, jax.vmap(lambda sx, sp: jax.jvp(m.h, (x, p), (sx, sp))[1])(S.T, Pt))
+        _, l1, l2, gamma = (_kept(seen, q) for q in sw.loss.terms(yv, m.h(x, p), w))
+        dt_ = jnp.where(lv, dt_, 0.0)
+
+        def grad_and_step(x_, p_):
+            """(∇L_h, Φ_h): the next state from the same trace as the gradient."""
+            xn, back = jax.vjp(lambda xx, pp: self._phi(xx, pp, dt_, a, b), x_, p_)
+            gx, gp = back(lam)
+            hx, hp = jax.vjp(m.h, x_, p_)[1](l1)
+            return (gx + hx, gp + hp), xn
+
+        _, lin = jax.linearize(grad_and_step, x, p)
+        (Wx, Wp), Sn = jax.vmap(lin, out_axes=((0, 0), 1))(S.T, Pt)  # (∇²L Z)ᵀ, Φ_z Z
+        Q = S.T @ Wx.T  # + Pselᵀ (∇²L Z)_p: the free parameters' rows
+        Q = Q.at[nx:].add(Wp[:, fp].T) if fp.size else Q
+        return D, l1, l2, gamma, _kept(seen, Q), jnp.where(lv, Sn, S)
+
+    def _stretch(self, k, starts, per, grid, p, w):
+        """(∇J, curvature part, Gauss-Newton part, second-order part) of stretch k: one
+        pass over its intervals, carrying S."""
+        sw, K = self.sweeps, self.sweeps.K
         S0, (xs, lams) = starts[k], (a[k] for a in per)
         t_dt, ua, ub, yh, live, seen = (a[k] for a in grid)
-        m, K = sw.model, sw.K
-        Pt = jnp.asarray(sw.seeds()[1].T)
 
-        def forward(S, d):
-            x, dt_, a, b, lv = d
-            Sn = self._tangent_step(x, S, p, Pt, dt_, a, b)[1]
-            return jnp.where(lv, Sn, S), S
-
-        nx, fp = len(sw.free_states), np.asarray(sw.free_params, dtype=int)
-
-        def second(x, S, yv, s, lam, dt_, a, b, lv):
-            """(D_h (K, outputs), ℓ_ŷ, ℓ_ŷŷ, Gauss-Newton weights, Z_hᵀ ∇²L_h Z_h) of one
-            interval, L_h = ℓ_ŷᵀ C + λᵀ Φ_h, by K Hessian-vector products. Past the
-            record each part is dropped (not multiplied by 0: 0·inf is NaN), and an
-            interval the record never takes is a step of length 0, whose λ is 0."""
-            seen = s > 0
-            D = _kept(seen, jax.vmap(lambda sx, sp: jax.jvp(m.h, (x, p), (sx, sp))[1])(S.T, Pt))
-            _, l1, l2, gamma = (_kept(seen, q) for q in sw.loss.terms(yv, m.h(x, p), w))
-            dt_ = jnp.where(lv, dt_, 0.0)
-
-            def L(x_, p_):
-                return l1 @ m.h(x_, p_) + lam @ self._phi(x_, p_, dt_, a, b)
-
-            _, hvp = jax.linearize(jax.grad(L, argnums=(0, 1)), x, p)
-            Wx, Wp = jax.vmap(hvp)(S.T, Pt)  # (K, N), (K, M): (∇²L Z)ᵀ
-            Q = S.T @ Wx.T  # + Pselᵀ (∇²L Z)_p: the free parameters' rows
-            Q = Q.at[nx:].add(Wp[:, fp].T) if fp.size else Q
-            return D, l1, l2, gamma, _kept(seen, Q)
-
-        def one_block(carry, d):
+        def step(carry, d):
             S, g, Hcurv, Hgn, Hso = carry
             x, lam, dt_, a, b, yv, lv, s = d
-            S, Ss = jax.lax.scan(forward, S, (x, dt_, a, b, lv))
-            D, l1, l2, gamma, Q = jax.vmap(second)(x, Ss, yv, s, lam, dt_, a, b, lv)
-            g = g + jnp.einsum("hks,hs->k", D, l1)
-            Hcurv = Hcurv + jnp.einsum("hks,hs,hls->kl", D, l2, D)
+            D, l1, l2, gamma, Q, S = self._interval(x, S, yv, s, lam, dt_, a, b, lv, p, w)
+            g = g + jnp.einsum("ks,s->k", D, l1)
+            Hcurv = Hcurv + jnp.einsum("ks,s,ls->kl", D, l2, D)
             if not sw.loss.squared:  # else the Gauss-Newton part is the same term
-                Hgn = Hgn + jnp.einsum("hks,hs,hls->kl", D, gamma, D)
-            return (S, g, Hcurv, Hgn, Hso + Q.sum(0)), None
+                Hgn = Hgn + jnp.einsum("ks,s,ls->kl", D, gamma, D)
+            return (S, g, Hcurv, Hgn, Hso + Q), None
 
-        nb = xs.shape[0] // block
-        data = [
-            a.reshape((nb, block) + a.shape[1:]) for a in (xs, lams, t_dt, ua, ub, yh, live, seen)
-        ]
         z = jnp.zeros
         zero = (S0, z(K), z((K, K)), z((K, K)), z((K, K)))
-        (_, g, Hcurv, Hgn, Hso), _ = jax.lax.scan(one_block, zero, data)
+        data = (xs, lams, t_dt, ua, ub, yh, live, seen)
+        (_, g, Hcurv, Hgn, Hso), _ = jax.lax.scan(step, zero, data)
         return g, Hcurv, (Hcurv if sw.loss.squared else Hgn), Hso
 
     # -- compiled entry points and the call ------------------------------------------------
@@ -362,17 +347,17 @@ class SecondOrderAdjoint:
             self._programs[key] = Program(jax.jit(fn), self.sweeps, entry)
         return self._programs[key](theta, x0, p, t, u, y, w)
 
-    def _phase2(self, block: int, k, starts, per, grid, p, w):
-        key = ("phase2", block)
+    def _phase2(self, k, starts, per, grid, p, w):
+        key = ("phase2",)
         if key not in self._programs:
 
             def fn(k, starts, per, grid, p, w):
-                one = functools.partial(self._stretch, block, k)
+                one = self._stretch
                 if self.batched:
-                    one = jax.vmap(one, in_axes=(0, 0, None, 0, None))
-                return one(starts, per, grid, p, w)
+                    one = jax.vmap(one, in_axes=(None, 0, 0, None, 0, None))
+                return one(k, starts, per, grid, p, w)
 
-            entry = f"adjoint phase 2 batched={self.batched} {block}"
+            entry = f"adjoint phase 2 batched={self.batched}"
             self._programs[key] = Program(jax.jit(fn), self.sweeps, entry)
         # k as an array: one program for every stretch, read back like the others
         return self._programs[key](np.asarray(k), starts, per, grid, p, w)
@@ -380,20 +365,18 @@ class SecondOrderAdjoint:
     def __call__(self, theta, x0, p, t, u, y, w, threads_cap: int | None = None):
         """(J, ∇J, ∇²J, Gauss-Newton part); ``threads_cap``: at most that many threads
         over stretches of the record (see :func:`threads`)."""
-        P, K, N = t.shape[0], self.sweeps.K, self.sweeps.model.N
-        B = block_size(K, N, theta.shape[0] if self.batched else 1)
-        n = max(1, min(threads(threads_cap), -(-P // B)))
-        R = B * -(-P // (B * n))  # a whole number of blocks per stretch
-        length = n * R
+        P = t.shape[0]
+        n = max(1, min(threads(threads_cap), P))
+        length = n * -(-P // n)  # stretches of equal length
         J, starts, per, grid, p_full = self._phase1(theta, x0, p, t, u, y, w, n, length)
 
         phase2 = self._phase2
 
         def part(k):
-            return jax.block_until_ready(phase2(B, k, starts, per, grid, p_full, w))
+            return jax.block_until_ready(phase2(k, starts, per, grid, p_full, w))
 
         # a first call compiles on this thread (where compile_clock sees it), once
-        key = (B, n, length, theta.shape, u.shape, y.shape)
+        key = (n, length, theta.shape, u.shape, y.shape)
         first = [] if key in self._compiled else [part(0)]
         self._compiled.add(key)
         rest = range(len(first), n)
