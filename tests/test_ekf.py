@@ -65,7 +65,8 @@ def record(model, P, seed, x0, params, noise=0.02, dt=0.1):
 
 def plain_filter_cost(model, theta, problem, substeps, interpolation):
     """−2 log L (less n log 2π) of a continuous-discrete EKF written out plainly:
-    joint RK4 of (x, P) over each interval, Joseph update, scan over samples."""
+    joint RK4 of (x, P) over each interval, Joseph update, scan over samples; with an
+    estimated initial state, conditional on the first sample."""
     J = 0.0
     K_x = len(problem.free_x0)
     E = len(problem.experiments)
@@ -101,7 +102,8 @@ def plain_filter_cost(model, theta, problem, substeps, interpolation):
             C = jax.jacfwd(lambda xx: model.h(xx, p))(x)
             Sg = C @ P @ C.T + jnp.diag(R)
             eps = y[k] - model.h(x, p)
-            J = J + jnp.linalg.slogdet(Sg)[1] + eps @ jnp.linalg.solve(Sg, eps)
+            term = jnp.linalg.slogdet(Sg)[1] + eps @ jnp.linalg.solve(Sg, eps)
+            J = J + jnp.where((k > 0) | (K_x == 0), term, 0.0)  # t0 only places x0
             G = P @ C.T @ jnp.linalg.inv(Sg)
             I_GC = jnp.eye(n) - G @ C
             x, P = x + G @ eps, I_GC @ P @ I_GC.T + G @ jnp.diag(R) @ G.T
@@ -331,6 +333,55 @@ def test_ekf_fit_recovers_parameters_and_noise_where_output_error_is_pulled_off(
     assert "noise intensities" in res.summary()
 
 
+def test_a_filter_fit_with_priors_weighs_them_as_they_are():
+    """J = −2 log L: a prior adds ((θ − mean)/sd)² with weight 1, exactly. The noise
+    variance check of output error does not apply: it warned that a weight of 1 was
+    'given as noise=' and 456,598× too large, which would have made the fit wrong."""
+    from tensorid.app.reports import fit_json, fit_report
+    from tensorid.fitting.validation import training_scores
+
+    pr = ti.Problem(
+        duffing(), sde_record(0, P=200), p0={"k": 1.5, "c": 0.5, "a": 0.3}, x0=[0, 0],
+        free_x0=["x", "v"], predictor="ekf", process_noise={"v": 0.1},
+        measurement_noise={"y": 0.05}, interpolation="zoh", priors={"k": (2.0, 0.5)},
+    )  # fmt: skip
+    res = ti.fit(pr)
+    assert res.success and res.noise_check is None and pr.noise_variance == 1.0
+    assert not any("noise variance" in w for w in res.warnings)
+    report = fit_report(res, fit_json(res, []), training_scores(res), [])
+    assert "weighed as they are: the cost is −2 log L" in report and "noise=" not in report
+    # the data alone's standard errors: 2 H⁻¹ (J = −2 log L may be negative: no J/dof)
+    moves = {m["unknown"]: m for m in fit_json(res, [])["prior_moves"]}
+    assert np.isfinite(moves["k"]["data_stderr"]) and moves["k"]["data_stderr"] > 0
+
+
+def test_an_estimated_initial_state_cannot_buy_a_likelihood_without_minimum():
+    """P0 = 0: x0 can match the first sample exactly, whose term log R + 0 then fell
+    without bound as σ_e → 0; fits ended at σ_e = 1e-61 with x(t0) = y(t0). That
+    sample now only places x0: its term is left out, and σ_e comes out near the truth."""
+    rng = np.random.default_rng(1)
+    P, x, ys = 400, 0.0, []
+    u = rng.standard_normal(P)
+    for k in range(P):  # x+ = 0.8 x + 0.3 u + w, y = x + e; σ_w 0.1, σ_e 0.05
+        ys.append(x + 0.05 * rng.standard_normal())
+        x = 0.8 * x + 0.3 * u[k] + 0.1 * rng.standard_normal()
+    m = ti.model_from_equations(
+        rhs={"x": "a*x + b*u"}, output={"y": "x"}, inputs=["u"], params=["a", "b"],
+        discrete=True,
+    )  # fmt: skip
+    data = ti.Experiment(np.arange(P) * 1.0, u[:, None], np.array(ys)[:, None])
+    pr = ti.Problem(m, data, p0={"a": 0.5, "b": 0.5}, x0=[0.0], free_x0=["x"],
+                    predictor="ekf", process_noise={"x": 0.05})  # fmt: skip
+    res = ti.fit(pr)
+    sigma = dict(zip(pr.theta_names, np.exp(res.theta), strict=True))
+    assert 0.025 < sigma["log_sigma_e_y"] < 0.1 and 0.05 < sigma["log_sigma_w_x"] < 0.2
+    # the hole itself: x(t0) = y(t0) and σ_e → 0 no longer lowers the cost
+    hole = res.theta.copy()
+    hole[pr.theta_names.index("x(t0)")] = ys[0]
+    hole[pr.theta_names.index("log_sigma_e_y")] = -30.0
+    assert pr.cost(hole) > res.cost
+
+
 def test_output_error_predictions_are_the_simulation_at_every_horizon():
     m = duffing()
     data = record(m, 40, 0, [0.1, 0.0], {"k": 2.0, "c": 0.3, "a": 0.5})
@@ -342,6 +393,12 @@ def test_output_error_predictions_are_the_simulation_at_every_horizon():
         assert pred.covariance is None
     with pytest.raises(ValueError, match="horizon"):
         pr.predict(pr.theta0, horizon=0)
+    # scored on a record "as 3-step prediction": the simulation, labelled as it is
+    res = ti.fit(pr)
+    (score,) = res.validate(data, horizon=3)
+    (plain,) = res.validate(data)
+    assert score.horizon is None and "prediction" not in score.label
+    assert score.gof == plain.gof
 
 
 @pytest.mark.slow
@@ -421,6 +478,28 @@ def test_ekf_from_the_command_line(tmp_path, capsys):
     # a filter refuses what it cannot serve, in one line, before any work
     assert cli.main([*argv[:3], "--data-sensitivity", "--out", str(tmp_path / "o2")]) != 0
     assert "--data-sensitivity is for output error" in capsys.readouterr().err
+
+
+def test_the_command_line_s_predictor_overrides_the_model_file_s(tmp_path, capsys):
+    """--predictor simulation on a model file set up for the filter fits by output
+    error (the file's noise goes with its predictor: it was refused, 'add
+    predictor=ekf', which the file had); an error the flags may have caused names them."""
+    import json
+
+    from tensorid import cli
+
+    (tmp_path / "model.py").write_text(EKF_MODEL_FILE)
+    d = sde_record(0, P=200)
+    cols = zip(d.t, d.u[:, 0], d.y[:, 0], strict=True)
+    rows = ["t,u,y"] + [f"{a:.10g},{b:.10g},{c:.10g}" for a, b, c in cols]
+    (tmp_path / "d.csv").write_text("\n".join(rows) + "\n")
+    argv = ["fit", str(tmp_path / "model.py"), str(tmp_path / "d.csv"), "--no-progress"]
+    assert cli.main([*argv, "--predictor", "simulation", "--out", str(tmp_path / "oe")]) == 0
+    assert json.loads((tmp_path / "oe" / "fit.json").read_text())["predictor"] == "simulation"
+    capsys.readouterr()
+    assert cli.main([*argv, "--loss", "huber", "--out", str(tmp_path / "h")]) != 0
+    err = capsys.readouterr().err
+    assert "model.py with --loss huber:" in err and len(err.strip().splitlines()) == 1
 
 
 def test_ekf_problems_of_one_model_share_their_compiled_sweeps():

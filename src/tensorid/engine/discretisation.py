@@ -161,6 +161,7 @@ def march(
     discretisation: Discretisation,
     state_field: Callable | None = None,
     update: Callable | None = None,
+    skip_first: bool = False,
 ):
     """Integrate ``y' = field(y, u)`` over the sample grid ``t`` and fold every sample
     into an accumulator.
@@ -172,6 +173,7 @@ def march(
             schemes (for F_x) when ``y`` is augmented.
         update: ``update(y, obs_h) -> y``, applied at each sample after ``observe``:
             a filter's measurement update (None: the state is not corrected).
+        skip_first: the accumulator leaves out t_0's sample (its ``out_h`` is kept).
 
     Returns:
         (final accumulator, stacked ``out_h`` (P leading), failure) where failure is
@@ -184,6 +186,12 @@ def march(
     first = jax.tree_util.tree_map(lambda a: a[0], obs)
     rest = jax.tree_util.tree_map(lambda a: a[1:], obs)
     acc, out0 = observe(acc0, y0, first)
+    if skip_first:  # acc0 as the scan will carry it (its dtypes and shapes)
+        acc = jax.tree_util.tree_map(
+            lambda a, b: jnp.broadcast_to(jnp.asarray(b, jnp.result_type(a)), jnp.shape(a)),
+            acc,
+            acc0,
+        )
     if update is not None:
         y0 = update(y0, first)
 

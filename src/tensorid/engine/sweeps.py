@@ -158,6 +158,10 @@ class Sweeps:
             discretisation=self.discretisation,
             state_field=state_field,
             update=None if update is None else (lambda st, o: update(st, o, p)),
+            # a filter starts with P0 = 0: where the initial state is an unknown, it can
+            # match the first sample exactly, whose term log det R + 0 then has no
+            # minimum in σ_e (→ −∞); that sample only places the initial state
+            skip_first=update is not None and bool(self.free_states),
         )
 
     # -- plain simulation --------------------------------------------------------------
