@@ -246,7 +246,6 @@ def _prior_lines(res) -> list[str]:
         "its std. error",
         "moved by (std. errors)",
     ]
-    nc = res.noise_check
     nc, weighed = res.noise_check, f"σ² = {res.problem.noise_variance:.3g}"
     if nc is not None and nc.source == "given":
         weighed += f" (given as noise=; residual variance at the fit {nc.residual:.3g})"
@@ -259,9 +258,14 @@ def _prior_lines(res) -> list[str]:
     return [
         "## Priors",
         "",
-        f"The priors are weighed by the noise variance {weighed}. 'Data alone' is where "
-        "the data without the priors put each unknown, with its standard error from the "
-        "data alone.",
+        (
+            "The priors are weighed as they are: the cost is −2 log L, to which each adds "
+            "((θ − mean)/sd)²."
+            if res.problem.loss.likelihood
+            else f"The priors are weighed by the noise variance {weighed}."
+        )
+        + " 'Data alone' is where the data without the priors put each unknown, with its "
+        "standard error from the data alone.",
         "",
         md_table(header, rows),
         "",

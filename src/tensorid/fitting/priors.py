@@ -197,6 +197,8 @@ def weigh_priors(res, fits, method, options, started):
     problem = res.problem
     if not problem.priors or not res.success or not res.has_uncertainty:
         return res
+    if problem.loss.likelihood:  # J is −2 log L: the priors' weight 1 is exact, no σ²
+        return res
     first, done, refits = problem.noise_variance, res, 0
     residual = _residual_variance(done)
     floor = problem.rounding_floor / max(done.uncertainty().dof, 1)
@@ -338,17 +340,21 @@ def data_only(res) -> tuple[np.ndarray, np.ndarray]:
     J, g, H = _data_part(problem, theta, res.cost, res.jac, res.hess)
     if negative_directions(H, names):  # far from the data's optimum: its convex form
         H = _data_part(problem, theta, *problem.cost_grad_gn(theta))[2]
+
+    def sigma2(J):  # J = −2 log L has no residual variance: the covariance is 2 H⁻¹
+        return 1.0 if problem.loss.likelihood else J / dof
+
     for _ in range(STEPS):
         inv, var = _pseudo_inverse(H, names)
         step = -inv @ g
-        if not (np.abs(step) > 1e-3 * np.sqrt(2 * J / dof * var)).any():
+        if not (np.abs(step) > 1e-3 * np.sqrt(2 * sigma2(J) * var)).any():
             break
         trial = np.clip(theta + step, problem.lower, problem.upper)
         J1, g1, H1 = _data_part(problem, trial, *problem.cost_grad_gn(trial))
         if not J1 < J:
             break
         theta, J, g, H = trial, J1, g1, H1
-    return theta, np.sqrt(2 * J / dof * _pseudo_inverse(H, names)[1])
+    return theta, np.sqrt(2 * sigma2(J) * _pseudo_inverse(H, names)[1])
 
 
 def _data_part(problem, theta, J, g, H):
