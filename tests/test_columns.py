@@ -85,7 +85,12 @@ def test_inputs_and_outputs_in_separate_files_are_joined(tmp_path):
 
 @pytest.mark.parametrize(
     "columns, match",
-    [({"u": "uX", "y": "yEst"}, "does not have"), ({"q": "uEst"}, "not one of the model")],
+    [
+        ({"u": "uX", "y": "yEst"}, "does not have"),
+        ({"q": "uEst"}, "not one of the model"),
+        # fitted against zeros before: GOF -inf after 200 iterations
+        ({"u": "uEst", "y": 0}, "'y' is an output, which is measured"),
+    ],
 )
 def test_bad_column_mappings_name_the_column(tmp_path, columns, match):
     model, data, *_ = _records(tmp_path)

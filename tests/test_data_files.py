@@ -271,3 +271,26 @@ def test_fit_on_a_bad_file_exits_2_with_one_line(tmp_path, capsys, name):
     assert rc == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("tensorid:") and name in err[0], err
+
+
+def test_records_of_one_name_get_names_of_their_own(tmp_path, capsys):
+    """Two val.csv in two folders, or one file given twice: fit.json, the report and
+    the figures are keyed by the record's name, and a repeated name crashed the fit
+    command after the fit (a figure's key lost) and kept one record's scores."""
+    for d in ("A", "B"):
+        (tmp_path / d).mkdir()
+        (tmp_path / d / "val.csv").write_text(_text())
+    a, b = tmp_path / "A" / "val.csv", tmp_path / "B" / "val.csv"
+    assert [e.name for e in ti.load_data([a, b], MODEL)] == ["A/val", "B/val"]
+    assert [e.name for e in ti.load_data([a, a, b], MODEL)] == ["A/val", "A/val#2", "B/val"]
+    assert [e.name for e in ti.load_data([a, a], MODEL)] == ["val", "val#2"]
+    (tmp_path / "m.py").write_text(MODEL_FILE)
+    out = tmp_path / "fit"
+    argv = ["fit", str(tmp_path / "m.py"), str(a), str(a), "--validate", str(a), str(b)]
+    assert cli.main([*argv, "--out", str(out), "--no-progress"]) == 0
+    import json
+
+    fit = json.loads((out / "fit.json").read_text())
+    assert set(fit["gof"]["train"]) == {"val", "val#2"}
+    assert set(fit["gof"]["validation"]) == {"A/val", "B/val"}
+    assert not list(out.glob(".*part"))

@@ -101,9 +101,10 @@ def _constant(source) -> float | None:
 
 def _mapped(p, cols: _Columns, columns: dict | None, model: Model, strict=True) -> _Columns:
     """The file's signals under the model's names: ``columns`` maps a model input,
-    output or "t" to the file's column (variable, array) name, or an input or output
-    to a number: a constant signal the record lacks (the file's own column of that
-    name, should it have one, wins)."""
+    output or "t" to the file's column (variable, array) name, or an input to a
+    number: a constant signal the record lacks (the file's own column of that name,
+    should it have one, wins). An output mapped to a number is refused: it is a
+    measurement."""
     if not columns:
         return cols
     known = ["t", *model.inputs, *model.outputs]
@@ -115,6 +116,12 @@ def _mapped(p, cols: _Columns, columns: dict | None, model: Model, strict=True) 
                 f"columns: {name!r} is not one of the model's inputs, outputs or 't' {known}"
             )
         value = None if str(source) in cols.values else _constant(source)
+        if value is not None and name in model.outputs:
+            raise ValueError(
+                f"columns: {name}={source}: a number holds an input constant, but {name!r} "
+                "is an output, which is measured: map it to the file's column, or leave it "
+                "out to simulate without scores"
+            )
         if value is not None and name != "t":
             if not np.isfinite(value):
                 raise ValueError(f"columns: {name}={source} is not a finite number")
@@ -307,7 +314,7 @@ def load_data(
 
     ``columns`` maps model names to the file's names, e.g. ``{"u": "uEst", "y":
     "yEst"}`` (CSV headers, .mat variables, .npz keys; "t" for the time column), or
-    an input or output to a number, held constant (``{"pulses": 0}``: an input the
+    an input to a number, held constant (``{"pulses": 0}``: an input the
     record lacks). A list of maps gives each file its own, in the order of
     ``paths``; so one file holding several records (u1/y1, u2/y2) is read once per
     record, each named ``file:map``. Inputs and outputs in separate files are joined
@@ -326,7 +333,7 @@ def load_data(
         _one_or_joined(p, c, model, ts, samples, require_outputs)
         for p, c in zip(paths, maps, strict=True)
     ]
-    return _told_apart(exps, maps)
+    return _told_apart(exps, maps, paths)
 
 
 def _maps(columns, n: int) -> list:
@@ -351,13 +358,29 @@ def map_text(columns: dict | None) -> str:
     return ",".join(f"{k}={v}" for k, v in (columns or {}).items())
 
 
-def _told_apart(exps: list[Experiment], maps: list) -> list[Experiment]:
-    """Records read from one file with different maps are named ``file:map``."""
+def _told_apart(exps: list[Experiment], maps: list, paths: list) -> list[Experiment]:
+    """Records that would share a name get names of their own (fit.json, the report
+    and the figures' files are keyed by it): read from one file with different maps,
+    ``file:map``; files of one name in different folders, ``folder/file``; the same
+    file twice, ``file#2`` for the second."""
     names = [e.name for e in exps]
-    return [
+    exps = [
         replace(e, name=f"{e.name}:{map_text(c)}") if names.count(e.name) > 1 and c else e
         for e, c in zip(exps, maps, strict=True)
     ]
+    names = [e.name for e in exps]
+    folders = [Path(str(p).split("+")[0]).resolve().parent.name for p in paths]
+    group = {n: {d for e, d in zip(exps, folders, strict=True) if e.name == n} for n in names}
+    exps = [  # in different folders: named by them too
+        replace(e, name=f"{d}/{e.name}") if len(group[e.name]) > 1 and d else e
+        for e, d in zip(exps, folders, strict=True)
+    ]
+    seen: dict[str, int] = {}
+    out = []
+    for e in exps:
+        seen[e.name] = seen.get(e.name, 0) + 1
+        out.append(e if seen[e.name] == 1 else replace(e, name=f"{e.name}#{seen[e.name]}"))
+    return out
 
 
 def _complementary(paths, columns, model, require_outputs) -> bool:
