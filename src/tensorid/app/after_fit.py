@@ -24,6 +24,13 @@ def _gof_lines(scores: list[Score]) -> list[str]:
     return out
 
 
+# --horizon on an output-error fit (fit --validate, compare)
+SIMULATED_HORIZON = (
+    "tensorid: note: --horizon {horizon}: by output error (not a --predictor ekf fit) "
+    "every horizon's prediction is the simulation: scored as the simulation"
+)
+
+
 def _after_fit(res, val, args) -> tuple[list, dict, list[str], bool]:
     """Validation, profiles and data sensitivity: (scores, extras, what could not be
     computed, whether Ctrl-C stopped them). Neither Ctrl-C nor a failure here loses
@@ -31,6 +38,8 @@ def _after_fit(res, val, args) -> tuple[list, dict, list[str], bool]:
     scores: list = []
     extras: dict = {}
     horizon = getattr(args, "horizon", None)
+    if horizon is not None and val and not res.problem.loss.likelihood:
+        print(SIMULATED_HORIZON.format(horizon=horizon), file=sys.stderr)
     steps = [("validation", lambda: res.validate(val, args.init_window, horizon) if val else [])]
     steps += [("profiles", lambda: _profiles(res, args))]
     steps += [("data sensitivity", lambda: _influence(res, args))]

@@ -60,8 +60,32 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
             **_loss(spec, args),
             **_predictor(spec, args),
         )
-    except (ValueError, TypeError) as e:  # the settings come from the model file
-        raise type(e)(f"{spec.path}: {e}") from None
+    except (ValueError, TypeError) as e:  # the model file's settings, or the flags'
+        raise type(e)(f"{spec.path}{_flags_given(args)}: {e}") from None
+
+
+_FLAGS = {
+    "loss": "--loss", "loss_scale": "--loss-scale", "predictor": "--predictor",
+    "process_noise": "--process-noise", "measurement_noise": "--measurement-noise",
+}  # fmt: skip
+
+
+def _flags_given(args) -> str:
+    """ " with --loss huber ..." for the flags given that override the model file's
+    settings (an error may come from either), or ""."""
+    given = [
+        f"{flag} {_text(getattr(args, key))}"
+        for key, flag in _FLAGS.items()
+        if getattr(args, key, None) not in (None, [], {})
+    ]
+    return f" with {' '.join(given)}" if given else ""
+
+
+def _text(value) -> str:
+    if isinstance(value, list | tuple | dict):
+        pairs = value.items() if isinstance(value, dict) else value
+        return ",".join(f"{k}={v:g}" for k, v in pairs)
+    return f"{value:g}" if isinstance(value, float) else str(value)
 
 
 def _loss(spec: ModelSpec, args) -> dict:
@@ -81,6 +105,8 @@ def _predictor(spec: ModelSpec, args) -> dict:
     for key in ("process_noise", "measurement_noise"):
         given = getattr(args, key, None)
         out[key] = dict(given) if given else getattr(spec, key)
+        if not given and getattr(args, "predictor", None) == "simulation":
+            out[key] = None  # the file's filter noise goes with the file's predictor
     return out
 
 

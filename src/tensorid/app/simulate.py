@@ -18,6 +18,7 @@ from ..engine.discretisation import Discretisation
 from ..engine.status import Status
 from ..fitting.figures import file_name
 from ..fitting.validation import Score, check_init_window, score_record
+from .after_fit import SIMULATED_HORIZON
 from .files import ModelSpec, load_data, load_model
 from .output import check_destination, write_atomic
 from .provenance import data_entries, provenance
@@ -187,6 +188,8 @@ def _score(args, require_outputs: bool):
     disc = _integration(args, fitted)
     x0, free, source = _start(spec, args, e, fitted)
     horizon = getattr(args, "horizon", None)
+    if horizon is not None and predictor is None:
+        print(SIMULATED_HORIZON.format(horizon=horizon), file=sys.stderr)
     score = score_record(
         spec.model, params, x0, free, e, disc, args.init_window,
         horizon=horizon, predictor=predictor,

@@ -179,8 +179,9 @@ def score_record(
     initial states named in ``free_x0`` estimated on the first ``init_window`` samples
     (the whole record when None; not at all without measured outputs), the others as
     in ``x0``; scored after the window. With ``horizon`` k, scored as k-step-ahead
-    prediction by ``predictor`` (a Sweeps' predictor and loss, (loss, predictor);
-    default output error, whose predictions at every horizon are the simulation).
+    prediction by ``predictor`` (a Sweeps' predictor and loss, (loss, predictor));
+    by output error (the default), whose prediction at every horizon is the
+    simulation, scored and labelled as the simulation.
     The one routine behind ``FitResult.validate``, ``tensorid simulate`` and
     ``tensorid compare``."""
     check_init_window(init_window, record)
@@ -190,6 +191,8 @@ def score_record(
         window = record if init_window is None else record.window(0, int(init_window))
         x0 = estimate_x0(model, params, x0, list(free_x0), window, disc)
     sim = run_simulation(shared_sweeps(model, (), (), disc), record, x0, model.params_array(params))
+    if horizon is not None and (predictor is None or predictor[1].update is None):
+        horizon = None  # output error: every horizon's prediction is the simulation
     if horizon is not None:
         sim = _predicted(sim, model, params, x0, record, disc, horizon, predictor)
     start = 0 if init_window is None else int(init_window)
