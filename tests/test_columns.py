@@ -81,6 +81,15 @@ def test_inputs_and_outputs_in_separate_files_are_joined(tmp_path):
     data = f"{tmp_path / 'u.mat'}+{tmp_path / 'y.mat'}"
     args = ["fit", str(_model_file(tmp_path)), data, "--columns", "u=uEst,y=yEst"]
     assert cli.main(args + ["--out", str(out), "--no-progress"]) == 0
+    # the same times in both: one record; other times: said so (not "keep it in one")
+    scipy.io.savemat(tmp_path / "u.mat", {"uEst": u[:, None], "t": t})
+    (e,) = ti.load_data(data, model, columns=columns)
+    scipy.io.savemat(tmp_path / "u.mat", {"uEst": u[:, None], "t": t + 0.5})
+    with pytest.raises(ValueError, match="time column 't' differs from .*u.mat"):
+        ti.load_data(data, model, columns=columns)
+    scipy.io.savemat(tmp_path / "u.mat", {"uEst": u[:, None], "yEst": y})
+    with pytest.raises(ValueError, match="'yEst' is in more than one of the joined files"):
+        ti.load_data(data, model, columns=columns)
 
 
 @pytest.mark.parametrize(

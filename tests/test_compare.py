@@ -164,6 +164,17 @@ def test_compare_equals_validate_on_a_bundled_record(tmp_path, capsys):
     report = (out / "report.md").read_text()
     assert report.startswith("# Fit of `") and "model.py`" in report.splitlines()[0]
     assert "## Provenance" in report
+    # simulate the saved fit with one parameter changed: the fit.json, then NAME=VALUE
+    capsys.readouterr()
+    argv = ["simulate", str(SILVERBOX / "model.py"), str(SILVERBOX / "validate.csv"),
+            "--init-window", "50", "--out", str(tmp_path / "sim"), "--params"]  # fmt: skip
+    assert cli.main([*argv, str(out / "fit.json")]) == 0
+    same = float(capsys.readouterr().out.split()[2])
+    assert same == pytest.approx(y["gof"], abs=1e-4)
+    assert cli.main([*argv, str(out / "fit.json"), "a=0.9"]) == 0
+    assert float(capsys.readouterr().out.split()[2]) < same - 0.01
+    assert cli.main([*argv, "a=0.9", str(out / "fit.json")]) != 0
+    assert "give one fit.json, first" in capsys.readouterr().err
 
 
 def test_compare_refuses_a_long_horizon_and_a_short_window_before_any_work(tmp_path, capsys):

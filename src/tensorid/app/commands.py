@@ -16,7 +16,7 @@ from rich.live import Live
 from ..engine.problem import Problem
 from ..engine.status import Status
 from ..fitting.figures import figure_jobs, save_png
-from ..fitting.methods import fit
+from ..fitting.methods import check_method, fit
 from ..fitting.results import FitInterrupted
 from ..fitting.summary import coloured_residuals_line, summary_table
 from ..fitting.validation import Score, training_scores
@@ -156,6 +156,7 @@ def _fit_command(args, renderer: Renderer) -> int:
             f"{problem.loss.name} (its error bars are the sandwich form): drop them, or fit "
             "with --loss squared"
         )
+    check_method(problem, args.method)  # one that cannot serve it: before the folder
     unknown = [n for n in args.profile or [] if n not in problem.theta_names]
     if unknown:
         raise ValueError(

@@ -151,11 +151,19 @@ def _joined(paths: list[Path], parts: list[_Columns]) -> _Columns:
                     f"({np.size(values[name])} and {np.size(v)} samples in {p}); join records of "
                     "the same length"
                 )
-            if name in values and not (
-                name in ("t", *_TS)
+            same = (
+                name in values
                 and isinstance(v, np.ndarray)
                 and np.array_equal(np.ravel(v), np.ravel(values[name]))
-            ):
+            )
+            if name in values and name in ("t", *_TS) and not same:
+                first = next(q for q, c in zip(paths, parts, strict=True) if name in c.values)
+                raise ValueError(
+                    f"{p}: its time column {name!r} differs from {first}'s (joined files are "
+                    "samples of one record, side by side): give files of the same times, or "
+                    "keep the time in one of them"
+                )
+            if name in values and name not in ("t", *_TS):
                 raise ValueError(
                     f"{p}: column {name!r} is in more than one of the joined files "
                     f"{[str(q) for q in paths]}; keep it in one"

@@ -139,6 +139,8 @@ def _check_options(args, train, val) -> None:
         )
     if args.validate_columns and not val:
         raise ValueError("--validate-columns applies to validation files: give --validate FILE")
+    if getattr(args, "validate_samples", None) is not None and not val:
+        raise ValueError("--validate-samples applies to validation files: give --validate FILE")
     if args.no_polish and args.segments is None and args.segment_length is None:
         raise ValueError(
             "--no-polish applies to multiple shooting (the polish follows the segments): "

@@ -94,7 +94,8 @@ def register_simulate(sub) -> None:
         nargs="*",
         default=[],
         metavar="NAME=VALUE",
-        help="parameter values (default: p0 of the model file), or a fit.json",
+        help="parameter values (default: p0 of the model file), or a fit.json and after it "
+        "any NAME=VALUE to change",
     )
     s.add_argument(
         "--x0", nargs="*", default=[], metavar="STATE=VALUE", help="initial state values"

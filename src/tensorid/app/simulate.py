@@ -66,20 +66,28 @@ def _fitted(path: Path, spec: ModelSpec) -> dict:
 
 
 def _fit_json(spec: ModelSpec, given: list[str]) -> dict | None:
-    """The fit.json that --params names, read and checked; None for NAME=VALUE pairs."""
-    if len(given) == 1 and given[0].endswith(".json"):
-        return _fitted(Path(given[0]), spec)
-    return None
+    """The fit.json that --params names (first, NAME=VALUE pairs after it changing
+    some of its parameters), read and checked; None for NAME=VALUE pairs alone."""
+    files = [g for g in given if g.endswith(".json")]
+    if files and (len(files) > 1 or given[0] != files[0]):
+        raise ValueError(
+            f"--params {' '.join(given)}: give one fit.json, first, and after it any "
+            "NAME=VALUE to change"
+        )
+    return _fitted(Path(given[0]), spec) if files else None
 
 
 def _parameters(spec: ModelSpec, given: list[str], fitted: dict | None) -> tuple[dict, str]:
-    """The parameters: p0 of the model file, updated by the ``fitted`` fit.json or
+    """The parameters: p0 of the model file, updated by the ``fitted`` fit.json and
     the NAME=VALUE pairs ``given``; and a line naming those left to p0 ("" if none):
     a partial NAME=VALUE list (or a fit.json of another model file) is easy to
     mistake for a whole one."""
     m = spec.model
     params = dict(spec.p0 or {})
-    named = fitted["params"] if fitted is not None else _assignments(given, "--params")
+    if fitted is not None:  # the fit's, then the pairs after the file
+        named = {**fitted["params"], **_assignments(given[1:], "--params")}
+    else:
+        named = _assignments(given, "--params")
     params.update(named)
     unknown = sorted(set(params) - set(m.params))
     if unknown:
@@ -237,7 +245,9 @@ def run_simulate(args) -> int:
 
 
 def _after(score: Score) -> str:
-    return f" (scored after the first {score.start} samples)" if score.start else ""
+    ahead = f", {score.horizon}-step prediction" if score.horizon else ""
+    after = f" (scored after the first {score.start} samples)" if score.start else ""
+    return ahead + after
 
 
 def _print_x0(m, x0, source: str) -> None:
@@ -323,6 +333,7 @@ def run_compare(args) -> int:
 def _print_scores(score: Score) -> None:
     n = score.experiment.P - score.start
     scored = f"{n} samples" + (f" after the first {score.start}" if score.start else "")
+    scored += f", {score.horizon}-step prediction" if score.horizon else ""
     for o, v in score.metrics().items():
         print(
             f"{o}: RMSE {v['rmse']:.6g}, NRMSE {v['nrmse']:.6g}, R² {v['r2']:.9g}, "

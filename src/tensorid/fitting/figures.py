@@ -224,7 +224,8 @@ def profile_figure(prof, sigma2: float, stderr: float):
         if np.isfinite(end):
             ax.axvline(end, color="C3", lw=0.8)
     ax.set_xlabel(prof.name)
-    ax.set_ylabel("(PL − Ĵ) / σ²")
+    # a likelihood's cost is −2 log L, σ² = 1: its rise is read as it is
+    ax.set_ylabel("PL − Ĵ  (−2 log L)" if sigma2 == 1.0 else "(PL − Ĵ) / σ²")
     ax.set_title(prof.describe(), fontsize=8)
     ax.set_ylim(bottom=0, top=max(2 * prof.threshold / sigma2, 1.0))
     ax.grid(alpha=0.3)

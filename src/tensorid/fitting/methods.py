@@ -89,7 +89,7 @@ def fit(
     (a KeyboardInterrupt) whose ``result`` is the best point so far.
     """
     started = time.perf_counter()
-    solver = _check_method(problem, method)
+    solver = check_method(problem, method)
     options = _options(options, x_scale, maxiter, gtol, ftol, xtol, callback, polish)
     theta0 = _check_start(problem, problem.theta0 if theta0 is None else theta0, "theta0")
     if starts is not None:
@@ -139,7 +139,7 @@ def fit_batch(problem: Problem, method: str | Method, thetas, **options) -> list
     :func:`fit` for those). Ctrl-C raises :class:`FitInterrupted` with every start's
     best point so far."""
     started = time.perf_counter()
-    solver = _check_method(problem, method)
+    solver = check_method(problem, method)
     if not solver.supports_batch:
         raise ValueError(
             f"batched starts work with {listed('supports_batch', 'and')}, not "
@@ -184,7 +184,7 @@ def _options(options, x_scale, maxiter, gtol, ftol, xtol, callback, polish=True)
     return options
 
 
-def _check_method(problem, method) -> Method:
+def check_method(problem, method) -> Method:
     """The method object named ``method`` (registry.py), checked against ``problem``."""
     if not isinstance(problem, Problem):
         raise TypeError(f"fit needs a tensorid.Problem, got {type(problem).__name__}")
