@@ -559,3 +559,28 @@ def test_a_filter_that_diverges_at_the_start_is_named_not_blamed_on_the_data():
                       x0=datasets.two_tank_levels(501)[0], predictor="ekf",
                       process_noise={"x1": 0.01, "x2": 0.01})  # fmt: skip
     assert good.diagnose(good.theta0) is None
+
+
+def test_a_noise_intensity_at_zero_is_reported_without_nan_or_warnings():
+    """σ_w → 0 (log σ = −800) with an unbounded standard error: σ's is unbounded too
+    (0 × inf was NaN with a RuntimeWarning), its interval [0, inf] (exp overflowed)."""
+    import types
+    import warnings
+
+    from tensorid.fitting.summary import noise_intensities
+
+    names = ["log_sigma_w_v", "log_sigma_e_y"]
+    res = types.SimpleNamespace(
+        problem=types.SimpleNamespace(loss=types.SimpleNamespace(likelihood=True),
+                                      theta_names=names),
+        params={"log_sigma_w_v": -800.0, "log_sigma_e_y": -3.0},
+    )  # fmt: skip
+    u = types.SimpleNamespace(
+        stderr=np.array([np.inf, 0.1]), ci95=np.array([[-np.inf, 1e4], [-3.2, -2.8]])
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        noise = noise_intensities(res, u)
+    w, e = noise["process"]["v"], noise["measurement"]["y"]
+    assert w["sigma"] == 0.0 and w["stderr"] == np.inf and w["ci95"] == [0.0, np.inf]
+    assert e["stderr"] == pytest.approx(np.exp(-3.0) * 0.1)

@@ -275,8 +275,10 @@ def noise_intensities(res, u=None) -> dict | None:
                      "fixed": name not in names}  # fmt: skip
             if u is not None and name in names:
                 i = names.index(name)
-                entry["stderr"] = float(np.exp(value) * u.stderr[i])
-                entry["ci95"] = [float(np.exp(c)) for c in u.ci95[i]]
+                se = u.stderr[i]  # σ = 0 (log σ → −∞) with an unbounded se: unbounded
+                entry["stderr"] = float(np.exp(value) * se) if np.isfinite(se) else float(se)
+                with np.errstate(over="ignore"):  # an unbounded interval: its end is inf
+                    entry["ci95"] = [float(np.exp(c)) for c in u.ci95[i]]
             out[kind][name[len(prefix) :]] = entry
     return out
 
