@@ -294,3 +294,23 @@ def test_records_of_one_name_get_names_of_their_own(tmp_path, capsys):
     assert set(fit["gof"]["train"]) == {"val", "val#2"}
     assert set(fit["gof"]["validation"]) == {"A/val", "B/val"}
     assert not list(out.glob(".*part"))
+
+
+@pytest.mark.parametrize("kind", ["mat", "npz", "mat73"])
+def test_a_matrix_variable_offers_its_rows_as_signals(tmp_path, kind):
+    """The two-tank record's y is a 2×2500 matrix: read end to end as one signal it
+    was 'differ in length (u 2500, y 5000)', with no way to pick a row; now the matrix
+    says what it is, and y[0], y[1] are its signals (samples along the longer side)."""
+    both = np.stack([Y, -Y])  # 2 x P
+    path = tmp_path / f"m.{'mat' if kind.startswith('mat') else kind}"
+    if kind == "mat":
+        scipy.io.savemat(path, {"t": T, "u": U, "y": both})
+    elif kind == "npz":
+        np.savez(path, t=T, u=U, y=both.T)  # P x 2: the longer side is still the samples
+    else:
+        _write_v73(path, {"t": T, "u": U, "y": both})
+    message = _error(path)
+    assert "'y' is a " in message and "matrix, 2 signals of 50 samples" in message
+    assert "y[0]" in message
+    (e,) = ti.load_data(path, MODEL, columns={"y": "y[1]"})
+    np.testing.assert_array_equal(e.measured[:, 0], -Y)

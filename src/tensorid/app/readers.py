@@ -199,8 +199,28 @@ def _columns_mat(path: Path) -> _Columns:
     for k, v in d.items():
         a = np.asarray(v.toarray() if scipy.sparse.issparse(v) else v)
         if not k.startswith("__") and (a.size > 1 or k in _TS):
-            values[k] = a.ravel()
+            values.update(signals_of(k, a, "variable"))
     return _Columns(values, "variable")
+
+
+def signals_of(name: str, a: np.ndarray, what: str) -> dict[str, np.ndarray | str]:
+    """A variable as the signals it holds: a vector as itself; a matrix (two sides
+    longer than 1) as one signal per row or column along its longer side, named
+    ``name[0]``, ``name[1]``, ..., the matrix itself as the line that says so (it was
+    read as one signal of rows end to end)."""
+    a = np.asarray(a)
+    if sum(d > 1 for d in a.shape) <= 1:
+        return {name: a.ravel()}
+    if a.ndim != 2:
+        return {name: f"{what} {name!r} has the shape {a.shape}; save each signal as a vector"}
+    rows = a if a.shape[1] >= a.shape[0] else a.T  # samples along the longer side
+    out: dict[str, np.ndarray | str] = {f"{name}[{i}]": r for i, r in enumerate(rows)}
+    out[name] = (
+        f"{what} {name!r} is a {a.shape[0]}×{a.shape[1]} matrix, {rows.shape[0]} signals of "
+        f"{rows.shape[1]} samples: map the one you mean, e.g. --columns NAME={name}[0] "
+        f"(columns={{'NAME': '{name}[0]'}} in Python)"
+    )
+    return out
 
 
 def _mat73_array(name: str, dataset) -> np.ndarray | str:
@@ -217,7 +237,7 @@ def _mat73_array(name: str, dataset) -> np.ndarray | str:
     a = np.asarray(dataset[()])
     if a.dtype.names and {"real", "imag"} <= set(a.dtype.names):
         a = a["real"] + 1j * a["imag"]
-    return a.T.ravel()
+    return a.T
 
 
 def _columns_mat73(path: Path) -> _Columns:
@@ -235,7 +255,11 @@ def _columns_mat73(path: Path) -> _Columns:
                 if name.startswith("#"):
                     continue  # "#refs#", "#subsystem#": MATLAB's own storage
                 if isinstance(obj, h5py.Dataset):
-                    values[name] = _mat73_array(name, obj)
+                    a = _mat73_array(name, obj)
+                    if isinstance(a, str):
+                        values[name] = a
+                    else:
+                        values.update(signals_of(name, a, "variable"))
                 else:  # a struct, sparse matrix or object: a group of datasets
                     kind = obj.attrs.get("MATLAB_class", b"struct")
                     kind = kind.decode() if isinstance(kind, bytes) else str(kind)
@@ -268,16 +292,16 @@ _NPZ_ERRORS = (
 )
 
 
-def _npz_member(z, key: str) -> np.ndarray | str:
+def _npz_member(z, key: str) -> dict[str, np.ndarray | str]:
     try:
-        return np.asarray(z[key]).ravel()
+        return signals_of(key, np.asarray(z[key]), "array")
     except ValueError as e:
         if "allow_pickle" not in str(e):
             raise
-        return (
-            f"array {key!r} holds Python objects (dtype object), which tensorid does not "
-            f"unpickle; save numeric arrays, e.g. np.savez(file, {key}=np.asarray(x, float))"
-        )
+        return {
+            key: f"array {key!r} holds Python objects (dtype object), which tensorid does "
+            f"not unpickle; save numeric arrays, e.g. np.savez(file, {key}=np.asarray(x, float))"
+        }
 
 
 def _columns_npz(path: Path) -> _Columns:
@@ -290,7 +314,7 @@ def _columns_npz(path: Path) -> _Columns:
         raise ValueError(f"{path} is not a NumPy .npz file (not a zip archive); {how}")
     try:
         with np.load(path) as z:
-            return _Columns({k: _npz_member(z, k) for k in z.files}, "array")
+            return _Columns({n: v for k in z.files for n, v in _npz_member(z, k).items()}, "array")
     except _NPZ_ERRORS as e:
         raise ValueError(
             f"{path} is not a readable NumPy .npz file, truncated or damaged ({_reason(e)}); " + how
