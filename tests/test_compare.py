@@ -175,6 +175,12 @@ def test_compare_equals_validate_on_a_bundled_record(tmp_path, capsys):
     assert float(capsys.readouterr().out.split()[2]) < same - 0.01
     assert cli.main([*argv, "a=0.9", str(out / "fit.json")]) != 0
     assert "give one fit.json, first" in capsys.readouterr().err
+    # a slice of the record, as fit's --validate-samples takes one
+    sliced = ["compare", str(SILVERBOX / "model.py"), str(SILVERBOX / "validate.csv"),
+              "--params", str(out / "fit.json"), "--out", str(tmp_path / "c2")]  # fmt: skip
+    assert cli.main([*sliced, "--samples", "100:1100"]) == 0
+    c2 = json.loads((tmp_path / "c2" / "compare.json").read_text())
+    assert c2["scored_samples"] == 1000 and c2["samples"] == [100, 1100]
 
 
 def test_compare_refuses_a_long_horizon_and_a_short_window_before_any_work(tmp_path, capsys):

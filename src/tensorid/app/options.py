@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from .argtypes import _count, _mapping
+from .argtypes import _count, _mapping, _samples
 
 _TS_HELP = (
     "sampling time TS: the samples are taken at k·TS, whatever time column the files "
@@ -26,6 +26,14 @@ def record_options(p: argparse.ArgumentParser) -> None:
         "a number holds an input the record lacks constant (pulses=0)",
     )
     p.add_argument("--ts", type=float, default=None, help=_TS_HELP)
+    p.add_argument(
+        "--samples",
+        type=_samples,
+        default=None,
+        metavar="START:STOP",
+        help="use samples START:STOP of DATA (as fit's --validate-samples: a record "
+        "that holds training and test data in one file)",
+    )
     p.add_argument(
         "--init-window",
         type=_count,

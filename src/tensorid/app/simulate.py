@@ -154,8 +154,9 @@ def _start(spec: ModelSpec, args, e, fitted) -> tuple[np.ndarray, list[str], str
 def _record(args, spec: ModelSpec, require_outputs: bool):
     """The one record of DATA, with the init window checked before any work."""
     e = load_data(
-        [args.data], spec.model, ts=args.ts, require_outputs=require_outputs, columns=args.columns
-    )[0]
+        [args.data], spec.model, ts=args.ts, samples=getattr(args, "samples", None),
+        require_outputs=require_outputs, columns=args.columns,
+    )[0]  # fmt: skip
     if args.init_window is not None:
         if e.y is None:
             raise ValueError(f"--init-window: {args.data} has no measured outputs to score")
@@ -307,6 +308,7 @@ def run_compare(args) -> int:
         "record": score.experiment.name,
         "outputs": score.metrics(),
         "init_window": args.init_window,
+        "samples": list(args.samples) if getattr(args, "samples", None) else None,
         "horizon": args.horizon,
         "scored_samples": score.experiment.P - score.start,
         "x0": dict(zip(m.states, score.x0.tolist(), strict=True)),
