@@ -500,6 +500,21 @@ def test_the_command_line_s_predictor_overrides_the_model_file_s(tmp_path, capsy
     assert cli.main([*argv, "--loss", "huber", "--out", str(tmp_path / "h")]) != 0
     err = capsys.readouterr().err
     assert "model.py with --loss huber:" in err and len(err.strip().splitlines()) == 1
+    # the noise intensities fixed, bounded and freed from the command line, as in the file
+    assert cli.main([*argv, "--fix", "log_sigma_e_y=-4", "--out", str(tmp_path / "f")]) == 0
+    noise = json.loads((tmp_path / "f" / "fit.json").read_text())["noise_intensities"]
+    assert noise["measurement"]["y"]["fixed"]
+    assert noise["measurement"]["y"]["sigma"] == pytest.approx(np.exp(-4.0), rel=1e-12)
+    bounded = [*argv, "--bounds", "log_sigma_w_v=-4:-2", "--out", str(tmp_path / "b")]
+    assert cli.main(bounded) == 0
+    noise = json.loads((tmp_path / "b" / "fit.json").read_text())["noise_intensities"]
+    assert noise["process"]["v"]["sigma"] <= np.exp(-2.0) * (1 + 1e-12)  # the truth: 0.3
+    held = EKF_MODEL_FILE + 'measurement_noise = {"y": 0.02}\nfixed = ["log_sigma_e_y"]\n'
+    (tmp_path / "held.py").write_text(held)
+    freed = [argv[0], str(tmp_path / "held.py"), *argv[2:], "--free", "log_sigma_e_y"]
+    assert cli.main([*freed, "--out", str(tmp_path / "fr")]) == 0
+    noise = json.loads((tmp_path / "fr" / "fit.json").read_text())["noise_intensities"]
+    assert not noise["measurement"]["y"]["fixed"]
 
 
 def test_ekf_problems_of_one_model_share_their_compiled_sweeps():

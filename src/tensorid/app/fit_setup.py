@@ -4,6 +4,8 @@ of options that depend on the records. Every mistake is one line (a ValueError).
 
 from __future__ import annotations
 
+import numpy as np
+
 from ..engine.adjoint import supports as adjoint_supports
 from ..engine.discretisation import Discretisation
 from ..engine.integrators import SCHEMES
@@ -101,12 +103,17 @@ def _loss(spec: ModelSpec, args) -> dict:
 def _predictor(spec: ModelSpec, args) -> dict:
     """predictor, process_noise and measurement_noise: the command line's over the
     model file's."""
-    out = {"predictor": getattr(args, "predictor", None) or spec.predictor or "simulation"}
+    out: dict = {"predictor": getattr(args, "predictor", None) or spec.predictor or "simulation"}
     for key in ("process_noise", "measurement_noise"):
         given = getattr(args, key, None)
         out[key] = dict(given) if given else getattr(spec, key)
         if not given and getattr(args, "predictor", None) == "simulation":
             out[key] = None  # the file's filter noise goes with the file's predictor
+    prefixes = {"process_noise": "log_sigma_w_", "measurement_noise": "log_sigma_e_"}
+    for name, value in dict(getattr(args, "fix", None) or []).items():
+        for key, prefix in prefixes.items():  # --fix log_sigma_e_y=-7: σ_e(y) = e^-7
+            if name.startswith(prefix):
+                out[key] = {**(out[key] or {}), name[len(prefix) :]: float(np.exp(value))}
     return out
 
 

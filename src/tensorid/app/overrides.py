@@ -1,5 +1,6 @@
-"""`fit --fix NAME=VALUE --free NAME --bounds NAME=LO:HI`: trying a parameter fixed,
-free or bounded without editing the model file. The command line wins over the
+"""`fit --fix NAME=VALUE --free NAME --bounds NAME=LO:HI`: trying a parameter (or, with
+a filter, a noise intensity: log σ) fixed, free or bounded without editing the
+model file. The command line wins over the
 file; what it changed is recorded in fit.json ("overrides")."""
 
 from __future__ import annotations
@@ -9,15 +10,23 @@ from dataclasses import replace
 from .files import ModelSpec
 
 
+def noise_names(spec: ModelSpec) -> list[str]:
+    """The filter's noise intensities a model could have (with --predictor ekf):
+    log σ_w of each state, log σ_e of each output."""
+    m = spec.model
+    return [f"log_sigma_w_{s}" for s in m.states] + [f"log_sigma_e_{o}" for o in m.outputs]
+
+
 def _check_names(spec: ModelSpec, fix: dict, free: list, bounds: dict) -> None:
     m = spec.model
-    known = list(m.params) + list(m.states)
+    known = list(m.params) + list(m.states) + noise_names(spec)
     for option, names in (("--fix", fix), ("--free", free), ("--bounds", bounds)):
         unknown = [n for n in names if n not in known]
         if unknown:
             raise ValueError(
                 f"{option} names {unknown}, which {spec.path} does not have; its parameters "
-                f"are {list(m.params)} and its states {list(m.states)}"
+                f"are {list(m.params)}, its states {list(m.states)} and, with a filter, "
+                "its noise intensities log_sigma_w_STATE and log_sigma_e_OUTPUT"
             )
     both = sorted(set(fix) & set(free))
     if both:
@@ -39,8 +48,12 @@ def overridden(spec: ModelSpec, fix: dict, free: list, bounds: dict) -> tuple[Mo
     p0 = None if spec.p0 is None and not set(fix) & set(m.params) else dict(spec.p0 or {})
     x0 = dict(spec.x0 or {})
     fixed, free_x0, box = list(spec.fixed), list(spec.free_x0), dict(spec.bounds)
+    noise = noise_names(spec)
     for name, value in fix.items():
-        if name in m.params and p0 is not None:
+        if name in noise:  # held at exp(value) (fit_setup puts it in the filter's noise)
+            fixed += [name] if name not in fixed else []
+            box.pop(name, None)
+        elif name in m.params and p0 is not None:
             p0[name] = value
             fixed += [name] if name not in fixed else []
             box.pop(name, None)
@@ -48,7 +61,7 @@ def overridden(spec: ModelSpec, fix: dict, free: list, bounds: dict) -> tuple[Mo
             x0[name] = value
             free_x0 = [n for n in free_x0 if n != name]
     for name in free:
-        if name in m.params:
+        if name in m.params or name in noise:
             fixed = [n for n in fixed if n != name]
         elif name not in free_x0:
             free_x0.append(name)
