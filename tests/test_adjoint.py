@@ -134,6 +134,25 @@ def test_threads_do_not_change_the_result(monkeypatch):
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("loss", ["huber", "cauchy"])
+def test_robust_losses_give_the_tensors_hessian_in_stretches_and_batches(monkeypatch, loss):
+    """A robust loss's Gauss-Newton part differs from its curvature part (the squared
+    loss's do not), and the adjoint carries both: against the tensors, with stretches
+    that do not divide the record evenly, one start and a batch."""
+    probs = [
+        mass_chain_problem(2, samples=53, loss=loss, hessian=h) for h in ("adjoint", "tensors")
+    ]
+    theta = probs[0].theta0 * (1 + 0.1 * np.random.default_rng(0).standard_normal(probs[0].K))
+    thetas = np.stack([theta, probs[0].theta0, 0.95 * theta])
+    for threads in (1, 3):
+        monkeypatch.setattr(adjoint, "threads", lambda cap=None, n=threads: n)
+        one = [p.cost_grad_hess_gn(theta) for p in probs]
+        batch = [p.cost_grad_hess_batch(thetas, both=True) for p in probs]
+        for a, b in zip(one[0] + batch[0], one[1] + batch[1], strict=True):
+            _close(a, b, 1e-11)
+
+
+@pytest.mark.slow
 def test_a_batch_of_starts_equals_one_start_at_a_time():
     prob = mass_chain_problem(2, samples=60, hessian="adjoint")
     thetas = prob.theta0 * np.array([[1.0], [1.2], [0.7]])

@@ -66,7 +66,7 @@ def record(model, P, seed, x0, params, noise=0.02, dt=0.1):
 def plain_filter_cost(model, theta, problem, substeps, interpolation):
     """−2 log L (less n log 2π) of a continuous-discrete EKF written out plainly:
     joint RK4 of (x, P) over each interval, Joseph update, scan over samples; with an
-    estimated initial state, conditional on the first sample."""
+    estimated initial state, the first sample left out."""
     J = 0.0
     K_x = len(problem.free_x0)
     E = len(problem.experiments)
@@ -103,7 +103,7 @@ def plain_filter_cost(model, theta, problem, substeps, interpolation):
             Sg = C @ P @ C.T + jnp.diag(R)
             eps = y[k] - model.h(x, p)
             term = jnp.linalg.slogdet(Sg)[1] + eps @ jnp.linalg.solve(Sg, eps)
-            J = J + jnp.where((k > 0) | (K_x == 0), term, 0.0)  # t0 only places x0
+            J = J + jnp.where((k > 0) | (K_x == 0), term, 0.0)  # t0 left out
             G = P @ C.T @ jnp.linalg.inv(Sg)
             I_GC = jnp.eye(n) - G @ C
             x, P = x + G @ eps, I_GC @ P @ I_GC.T + G @ jnp.diag(R) @ G.T
@@ -358,7 +358,7 @@ def test_a_filter_fit_with_priors_weighs_them_as_they_are():
 def test_an_estimated_initial_state_cannot_buy_a_likelihood_without_minimum():
     """P0 = 0: x0 can match the first sample exactly, whose term log R + 0 then fell
     without bound as σ_e → 0; fits ended at σ_e = 1e-61 with x(t0) = y(t0). That
-    sample now only places x0: its term is left out, and σ_e comes out near the truth."""
+    sample's term is left out, and σ_e comes out near the truth."""
     rng = np.random.default_rng(1)
     P, x, ys = 400, 0.0, []
     u = rng.standard_normal(P)
@@ -375,6 +375,21 @@ def test_an_estimated_initial_state_cannot_buy_a_likelihood_without_minimum():
     res = ti.fit(pr)
     sigma = dict(zip(pr.theta_names, np.exp(res.theta), strict=True))
     assert 0.025 < sigma["log_sigma_e_y"] < 0.1 and 0.05 < sigma["log_sigma_w_x"] < 0.2
+    # −2 log L and the criteria against a plain Kalman filter over samples 1..P−1
+    th = dict(zip(pr.theta_names, res.theta, strict=True))
+    a, b, x = th["a"], th["b"], th["x(t0)"]
+    q, r = np.exp(2 * th["log_sigma_w_x"]), np.exp(2 * th["log_sigma_e_y"])
+    cov, m2logL = 0.0, 0.0
+    for k in range(P):
+        S, e = cov + r, ys[k] - x
+        m2logL += (np.log(2 * np.pi * S) + e * e / S) if k > 0 else 0.0
+        G = cov / S
+        x, cov = a * (x + G * e) + b * u[k], a * a * (1 - G) * cov + q
+    from tensorid.fitting.residuals import information_criteria
+
+    crit = information_criteria(res)
+    assert crit["n"] == P - 1
+    assert crit["aic"] - 2 * pr.K == pytest.approx(m2logL, rel=1e-9, abs=1e-9)
     # the hole itself: x(t0) = y(t0) and σ_e → 0 no longer lowers the cost
     hole = res.theta.copy()
     hole[pr.theta_names.index("x(t0)")] = ys[0]
@@ -399,6 +414,9 @@ def test_output_error_predictions_are_the_simulation_at_every_horizon():
     (plain,) = res.validate(data)
     assert score.horizon is None and "prediction" not in score.label
     assert score.gof == plain.gof
+    for bad in (0, -3, 10**6):
+        with pytest.raises(ValueError, match="horizon"):
+            res.validate(data, horizon=bad)
 
 
 @pytest.mark.slow

@@ -175,6 +175,17 @@ def test_closing_ends_the_renderer_and_removes_what_was_not_collected(tmp_path, 
         (["-m", "fit", "m.py"], ["python", "-m", "othertool", "fit", "m.py"], False),
         (["myscript.py", "fit"], ["python", "myscript.py", "fit"], False),
         (["pytest", "fit"], [], False),
+        # a worker the fit spawns is given the command's argv before it imports tensorid
+        (
+            ["/usr/bin/tensorid", "fit", "m.py"],
+            [
+                "python",
+                "-c",
+                "from multiprocessing.spawn import spawn_main; spawn_main()",
+                "--multiprocessing-fork",
+            ],
+            False,
+        ),
     ],
 )
 def test_only_the_commands_that_draw_start_early(argv, orig, started):
@@ -219,6 +230,10 @@ def test_the_fit_command_s_renderer_is_started_at_import_and_taken_over(monkeypa
     code = _ADOPT.format(argv=["tensorid", "fit", "m.py"])
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split("\n")[0] == "3"
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS")  # OpenBLAS would read OMP's: not overridden
+    monkeypatch.setenv("OMP_NUM_THREADS", "2")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split("\n")[0] == "None"
 
 
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="the early start is for forking renderers")

@@ -10,9 +10,10 @@ following them, and caps OpenBLAS at one thread: the threads OpenBLAS starts whe
 NumPy (and SciPy's LAPACK) load spin for a while, a quarter of a second of the core
 the renderer needs, and the command's own matrices are parameter-sized. Together
 they took the warm fit of the bundled example from 1.49 to 1.35 s (medians of 9
-alternating runs, 2 cores; docs/benchmarks.md). An OPENBLAS_NUM_THREADS of the
-user's own is kept. Any other use of the package (the Python API, the tests calling
-``cli.main``) starts nothing.
+alternating runs, 2 cores; docs/benchmarks.md). A thread count the user gave
+OpenBLAS (OPENBLAS_NUM_THREADS, GOTO_NUM_THREADS or OMP_NUM_THREADS) is kept. Any
+other use of the package (the Python API, the tests calling ``cli.main``, the
+workers a command spawns) starts nothing.
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ def cores() -> int:
 
 
 FIGURE_COMMANDS = ("fit", "simulate", "compare")  # the commands that draw figures
+_THREADS = ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS")
 
 
 def figure_command(argv: list[str], orig_argv: list[str]) -> bool:
@@ -49,6 +51,8 @@ def figure_command(argv: list[str], orig_argv: list[str]) -> bool:
     (while the package is imported to be run, argv[0] is "-m")."""
     if len(argv) < 2 or argv[1] not in FIGURE_COMMANDS:
         return False
+    if "--multiprocessing-fork" in orig_argv:  # a worker spawned by the command
+        return False  # (it is given the command's argv before it imports tensorid)
     if any(a in ("-h", "--help") for a in argv[2:]):
         return False
     if argv[1] == "simulate" and _out(argv).lower().endswith(".csv"):
@@ -118,7 +122,8 @@ def start() -> None:
     global _started
     if not figure_command(sys.argv, getattr(sys, "orig_argv", [])):
         return
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    if not any(os.environ.get(k) for k in _THREADS):  # OpenBLAS reads them in this order
+        os.environ["OPENBLAS_NUM_THREADS"] = "1"
     forks = default_forks()
     if _started is None and forks > 1 and (proc := start_renderer(forks)) is not None:
         _started = (forks, proc)

@@ -160,7 +160,7 @@ class Sweeps:
             update=None if update is None else (lambda st, o: update(st, o, p)),
             # a filter starts with P0 = 0: where the initial state is an unknown, it can
             # match the first sample exactly, whose term log det R + 0 then has no
-            # minimum in σ_e (→ −∞); that sample only places the initial state
+            # minimum in σ_e (→ −∞): it is left out (its gain is zero: it had no other use)
             skip_first=update is not None and bool(self.free_states),
         )
 

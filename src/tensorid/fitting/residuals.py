@@ -250,8 +250,11 @@ def lag_limit(samples: int) -> int:
 
 
 def residual_count(problem) -> int:
-    """n: the weighted residuals, samples times the outputs that carry weight."""
-    return sum(e.P for e in problem.experiments) * int((problem.weights > 0).sum())
+    """n: the weighted residuals, samples times the outputs that carry weight; a
+    filter with estimated initial states leaves each record's first sample out of its
+    likelihood (tensorid.engine.sweeps, Sweeps._march)."""
+    first = 1 if problem.loss.likelihood and len(problem.free_x0) else 0
+    return sum(e.P - first for e in problem.experiments) * int((problem.weights > 0).sum())
 
 
 def too_few(n: int, K: int, need: int = 1, what: str = "error bars") -> str | None:

@@ -192,6 +192,7 @@ def score_record(
         x0 = estimate_x0(model, params, x0, list(free_x0), window, disc)
     sim = run_simulation(shared_sweeps(model, (), (), disc), record, x0, model.params_array(params))
     if horizon is not None and (predictor is None or predictor[1].update is None):
+        check_horizon(horizon, record.P)  # a bad one is refused all the same
         horizon = None  # output error: every horizon's prediction is the simulation
     if horizon is not None:
         sim = _predicted(sim, model, params, x0, record, disc, horizon, predictor)
