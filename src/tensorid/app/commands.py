@@ -63,11 +63,16 @@ def _run(problem: Problem, args, console: Console, executor, timeout):
     rows: list[dict] = []
     if args.no_progress:
         return fit(problem, args.method, **options)
+    if args.starts > 1:  # the starts' own iterations run in the workers, unseen here
+        where = "on " + args.scheduler if args.scheduler else "locally"
+        console.print(
+            f"running {args.starts} starts {where}; the best is then refined here, its "
+            "iterations below",
+            soft_wrap=True,
+            highlight=False,
+        )
     if not console.is_terminal:  # a log: one plain line per iteration, no live table
         return fit(problem, args.method, callback=_log_line(console), **options)
-    if args.starts > 1:
-        where = "on " + args.scheduler if args.scheduler else "locally"
-        console.log(f"running {args.starts} starts {where}...")
     with Live(_progress_table(rows), console=console, refresh_per_second=8) as live:
 
         def show(entry):
