@@ -226,7 +226,8 @@ def register(sub) -> None:
         default=[],
         metavar="NAME=VALUE",
         help="hold parameter NAME at VALUE (overrides the model file's p0 and fixed; "
-        "repeat for more)",
+        "repeat for more; with --predictor ekf also a noise intensity's log, e.g. "
+        "log_sigma_e_y=-7)",
     )
     f.add_argument(
         "--free",

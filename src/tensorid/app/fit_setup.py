@@ -69,6 +69,7 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
 _FLAGS = {
     "loss": "--loss", "loss_scale": "--loss-scale", "predictor": "--predictor",
     "process_noise": "--process-noise", "measurement_noise": "--measurement-noise",
+    "fix": "--fix",
 }  # fmt: skip
 
 
