@@ -9,6 +9,7 @@ import numpy as np
 from ..engine.adjoint import supports as adjoint_supports
 from ..engine.discretisation import Discretisation
 from ..engine.integrators import SCHEMES
+from ..engine.predictors import NOISE_PREFIXES
 from ..engine.problem import Problem
 from ..engine.shooting import resolve_segments
 from ..fitting.registry import exact_derivatives
@@ -110,9 +111,9 @@ def _predictor(spec: ModelSpec, args) -> dict:
         out[key] = dict(given) if given else getattr(spec, key)
         if not given and getattr(args, "predictor", None) == "simulation":
             out[key] = None  # the file's filter noise goes with the file's predictor
-    prefixes = {"process_noise": "log_sigma_w_", "measurement_noise": "log_sigma_e_"}
     for name, value in dict(getattr(args, "fix", None) or []).items():
-        for key, prefix in prefixes.items():  # --fix log_sigma_e_y=-7: σ_e(y) = e^-7
+        for kind, prefix in NOISE_PREFIXES.items():  # --fix log_sigma_e_y=-7: σ_e = e^-7
+            key = f"{kind}_noise"
             if name.startswith(prefix):
                 out[key] = {**(out[key] or {}), name[len(prefix) :]: float(np.exp(value))}
     return out

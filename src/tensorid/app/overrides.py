@@ -7,14 +7,15 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+from ..engine.predictors import noise_names as predictor_noise_names
 from .files import ModelSpec
 
 
 def noise_names(spec: ModelSpec) -> list[str]:
     """The filter's noise intensities a model could have (with --predictor ekf):
     log σ_w of each state, log σ_e of each output."""
-    m = spec.model
-    return [f"log_sigma_w_{s}" for s in m.states] + [f"log_sigma_e_{o}" for o in m.outputs]
+    process, measurement = predictor_noise_names(spec.model, spec.model.states, spec.model.outputs)
+    return process + measurement
 
 
 def _check_names(spec: ModelSpec, fix: dict, free: list, bounds: dict) -> None:

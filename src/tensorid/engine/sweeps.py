@@ -309,13 +309,13 @@ class Sweeps:
     # -- compiled entry points ---------------------------------------------------------
     _own_simulate = Compiled("_simulate")
 
-    @property
+    @cached_property
     def simulate(self):
         """Compiled :meth:`_simulate`, which depends on the model and the
         discretisation alone: every Sweeps of a model shares the one of its plain
         Sweeps (nothing free, squared loss, simulation), so that it is compiled, or
         read from disk, once (a command-line fit with validation read it three times,
-        0.02 s each)."""
+        0.02 s each). Looked up once per Sweeps (not kept when pickled)."""
         try:
             hash(self.discretisation)
         except TypeError:  # an unhashable user scheme: not shared
