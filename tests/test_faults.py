@@ -210,6 +210,57 @@ def test_a_worker_dying_between_waits_keeps_the_finished_starts(monkeypatch):
     assert all(r["theta"] == [0.5] for r in stop.runs.values())
 
 
+_SLOW_SHUTDOWN = """
+import os, signal, sys, threading, time
+from concurrent.futures import ProcessPoolExecutor
+import numpy as np
+from tensorid.fitting.multistart import StartsStopped, run_starts
+real = ProcessPoolExecutor.shutdown
+def slow(self, wait=True, **kw):  # the parent descheduled between terminate and shutdown
+    if not wait:
+        time.sleep(0.3)
+    return real(self, wait, **kw)
+ProcessPoolExecutor.shutdown = slow
+def task(problem, chunk):  # results of the size asked for
+    return [problem[: int(sys.argv[1])] for _ in chunk]
+if __name__ == "__main__":
+    threading.Timer(4.0, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+    try:  # a problem larger than a pipe holds: the queue's feeder is mid-write
+        run_starts(np.ones(200_000), task, np.zeros((20000, 1)), workers=2)
+    except StartsStopped as e:
+        print("stopped", e.status.name, flush=True)
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("size", [1, 100_000])
+def test_an_interrupted_pool_lets_the_command_exit_on_a_loaded_machine(tmp_path, size):
+    # CI hung after an interrupted 20,000-start fit had printed its result: the pool's
+    # manager thread saw a terminated worker before the shutdown, failed on a future
+    # cancelled by us (InvalidStateError) and left the queue's feeder blocked writing
+    # a problem to workers that were gone, which Python's exit waits for; 3 of 3
+    # runs hung with 0.3 s between the two. With results larger than a pipe holds, a
+    # worker terminated mid-send left the manager thread waiting for the rest.
+    script = tmp_path / "slow_shutdown.py"
+    script.write_text(_PYTHON_SIGINT + "\n" + _SLOW_SHUTDOWN)
+    proc = subprocess.Popen(
+        [sys.executable, str(script), str(size)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,  # its own group: a hung one goes with its workers
+    )
+    try:
+        out, err = proc.communicate(timeout=60)
+    finally:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except OSError:  # done and gone
+            pass
+    assert proc.returncode == 0 and out.split() == ["stopped", "INTERRUPTED"], err[-2000:]
+    assert "Traceback" not in err, err[-2000:]
+
+
 _STUCK_LOCK = """
 import os, time
 from tensorid.fitting import multistart as ms

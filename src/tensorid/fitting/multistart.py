@@ -305,14 +305,14 @@ def _collect(
                 raise KeyboardInterrupt
         except KeyboardInterrupt:
             runs = finished_so_far()
-            _cancel(futures)
+            _cancel(pool, futures)
             raise StartsStopped(Status.INTERRUPTED, runs, total, "interrupted") from None
         except _Lost as e:
             runs = finished_so_far()
-            _cancel(futures)
+            _cancel(pool, futures)
             raise StartsStopped(Status.WORKERS_LOST, runs, total, str(e)) from None
         except StartsStopped:
-            _cancel(futures)
+            _cancel(pool, futures)
             raise
         results = [done[c] for c in range(len(payloads))]
     if interrupted.is_set():  # Ctrl-C after the last look, before Python's handler was back
@@ -363,7 +363,16 @@ def _result(future):
         raise
 
 
-def _cancel(pending) -> None:
+def _cancel(pool: Executor, pending) -> None:
+    """Cancel the chunks not yet started, on a cluster. Not on a local pool, which
+    :func:`_stop_pool` shuts down with ``cancel_futures``: a future cancelled here
+    stays in the pool's books, and where its manager thread then sees a terminated
+    worker before the shutdown it marks every future broken, fails on the cancelled
+    one (CPython 3.11: InvalidStateError) and dies before it unblocks the queue's
+    feeder thread, which Python's exit then waits for forever (1 of 2 CI runs of an
+    interrupted 20,000-start fit hung so; every run with 0.3 s between the two)."""
+    if isinstance(pool, ProcessPoolExecutor):
+        return
     for f in pending:
         f.cancel()
 
@@ -371,23 +380,33 @@ def _cancel(pending) -> None:
 def _stop_pool(pool: ProcessPoolExecutor, complete: bool) -> None:
     """Shut a local pool down; when starts are still running (Ctrl-C, a lost
     worker), without waiting for them: the workers are terminated (then killed if
-    they linger), so none is left behind."""
+    they linger), so none is left behind, and nothing the pool leaves blocked holds
+    this process's exit."""
     if complete:
         pool.shutdown(wait=True)
         return
     procs = list(getattr(pool, "_processes", {}).values())
     for p in procs:
         p.terminate()
-    # with its workers gone the pool's manager thread ends at once and reaps them;
-    # waited for a while only: a future's lock left held (a KeyboardInterrupt inside
-    # concurrent.futures.wait under a handler other than Python's) blocks it for good,
-    # and the starts that finished are the user's all the same
-    manager = getattr(pool, "_executor_manager_thread", None)  # (shutdown forgets it)
+    # (shutdown forgets them)
+    manager = getattr(pool, "_executor_manager_thread", None)
+    calls, results = getattr(pool, "_call_queue", None), getattr(pool, "_result_queue", None)
     pool.shutdown(wait=False, cancel_futures=True)
-    if manager is not None:
-        manager.join(STOP_WAIT)
     for p in procs:
         p.join(1.0)
         if p.is_alive():
             p.kill()
             p.join(1.0)
+    if results is not None:
+        # a worker terminated halfway through sending a result leaves the pool's
+        # manager thread waiting for the rest for ever, since this process holds the
+        # pipe's other end too: closed, the manager reads the end of input instead
+        results._writer.close()
+    # with its workers gone the manager thread ends at once; waited for a while
+    # only: a future's lock left held (a KeyboardInterrupt inside
+    # concurrent.futures.wait under a handler other than Python's) blocks it for
+    # good, and the starts that finished are the user's all the same
+    if manager is not None:
+        manager.join(STOP_WAIT)
+    if calls is not None:  # its feeder may be stuck writing to workers now gone: Python's
+        calls.cancel_join_thread()  # exit would wait for it (it is a daemon thread)
