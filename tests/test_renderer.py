@@ -215,7 +215,8 @@ def test_the_fit_command_s_renderer_is_started_at_import_and_taken_over(monkeypa
 
     if _early.default_forks() < 2:
         pytest.skip("one core: the renderer draws in turn, not started early")
-    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    for name in _early._THREADS:  # (Dask's workers, started by earlier tests, set OMP's)
+        monkeypatch.delenv(name, raising=False)
     code = _ADOPT.format(argv=["tensorid", "fit", "m.py", "d.csv"])
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     blas, pid, taken = out.stdout.split("\n", 2)
