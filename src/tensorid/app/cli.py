@@ -12,6 +12,7 @@ import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 
+from .. import _early
 from .argtypes import (
     _count,
     _level,
@@ -351,6 +352,7 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     from .._config import default_compilation_cache
 
     default_compilation_cache()  # on unless TENSORID_CACHE=0
+    _early.settle()  # the command's imports are done: the garbage collector runs again
     try:
         with _notes():
             return args.func(args)

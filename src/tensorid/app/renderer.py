@@ -48,6 +48,12 @@ def serve(figures_path: str, forks: str = "0") -> None:
     figures = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(figures)
     figures.new_figure()  # Matplotlib imported while the command still fits
+    # what the imports made lives as long as the process: set aside, so that no
+    # collection here or in a fork walks it (the collector was paused meanwhile)
+    import gc
+
+    gc.freeze()
+    gc.enable()
     jobs: queue.Queue = queue.Queue()
 
     def read() -> None:  # at once, so that the command never blocks on a full pipe
