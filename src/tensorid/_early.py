@@ -135,8 +135,9 @@ def settle() -> None:
     the process, so a full collection need not walk them). Each full collection had
     walked JAX's and tensorid's objects, 20-25 ms each; with the imports' young ones,
     the collector took 0.08-0.09 s of a warm fit of the bundled example, and now
-    0.01 s: the fit 1.35 -> 1.23 s (medians of 7 alternating runs, 2 cores). Only in
-    the command's own process, never on a user's import of the package."""
+    0.01 s: the fit 1.43 -> 1.24 s with the figure process's alike (``python -m``,
+    medians of 9 alternating runs, 2 cores). Only in the command's own process,
+    never on a user's import of the package."""
     global _collector_paused
     if _collector_paused:
         _collector_paused = False
