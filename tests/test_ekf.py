@@ -518,6 +518,8 @@ def test_the_command_line_s_predictor_overrides_the_model_file_s(tmp_path, capsy
     assert cli.main([*argv, "--loss", "huber", "--out", str(tmp_path / "h")]) != 0
     err = capsys.readouterr().err
     assert "model.py with --loss huber:" in err and len(err.strip().splitlines()) == 1
+    # the flag's setting named as the flag, the model file's by its name in the file
+    assert "predictor='ekf' cannot take --loss huber" in err and "(drop --loss)" in err
     # the noise intensities fixed, bounded and freed from the command line, as in the file
     assert cli.main([*argv, "--fix", "log_sigma_e_y=-4", "--out", str(tmp_path / "f")]) == 0
     noise = json.loads((tmp_path / "f" / "fit.json").read_text())["noise_intensities"]

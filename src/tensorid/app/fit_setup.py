@@ -4,6 +4,8 @@ of options that depend on the records. Every mistake is one line (a ValueError).
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from ..engine.adjoint import supports as adjoint_supports
@@ -64,14 +66,16 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
             **_predictor(spec, args),
         )
     except (ValueError, TypeError) as e:  # the model file's settings, or the flags'
-        raise type(e)(f"{spec.path}{_flags_given(args)}: {e}") from None
+        raise type(e)(f"{spec.path}{_flags_given(args)}: {_as_flags(str(e), args)}") from None
 
 
 _FLAGS = {
     "loss": "--loss", "loss_scale": "--loss-scale", "predictor": "--predictor",
     "process_noise": "--process-noise", "measurement_noise": "--measurement-noise",
-    "fix": "--fix",
+    "fix": "--fix", "segments": "--segments", "segment_length": "--segment-length",
+    "hessian": "--hessian",
 }  # fmt: skip
+_UNSET: tuple = (None, [], {}, "auto")  # a flag left at its default
 
 
 def _flags_given(args) -> str:
@@ -80,9 +84,23 @@ def _flags_given(args) -> str:
     given = [
         f"{flag} {_text(getattr(args, key))}"
         for key, flag in _FLAGS.items()
-        if getattr(args, key, None) not in (None, [], {})
+        if getattr(args, key, None) not in _UNSET
     ]
     return f" with {' '.join(given)}" if given else ""
+
+
+def _as_flags(message: str, args) -> str:
+    """``message`` with the Python names of the settings that the command line gave
+    spelled as its flags ("loss='huber'" as "--loss huber", "drop loss=" as "drop
+    --loss"); a setting from the model file keeps the name the file gives it."""
+    for key, flag in _FLAGS.items():
+        if getattr(args, key, None) in _UNSET:
+            continue
+        name = rf"(?<![\w-]){key}="
+        message = re.sub(name + r"'([^']*)'", rf"{flag} \1", message)  # key='value'
+        message = re.sub(name + r"([^\s'():,;]+)", rf"{flag} \1", message)  # key=4
+        message = re.sub(name + r"(?=[)\s,;]|$)", flag, message)  # drop key=
+    return message
 
 
 def _text(value) -> str:
