@@ -92,7 +92,7 @@ def main() -> None:
     compare += ["--params", str(out / "fit" / "fit.json"), "--out", str(out / "compare")]
     # fill the caches, Python's bytecode of tensorid's modules among them: where the
     # environment says not to write it (PYTHONDONTWRITEBYTECODE, as on our machines),
-    # every timed run would compile tensorid's sources again (0.07 s of the import),
+    # every timed run would compile tensorid's sources again (0.1 s of a fit),
     # which a user's installation does once
     warm = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
     subprocess.run(fit, check=True, capture_output=True, env=warm)

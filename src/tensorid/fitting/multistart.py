@@ -214,7 +214,9 @@ def run_starts(
     complete = False
     try:
         window = LOCAL_WINDOW * workers if executor is None else CLUSTER_WINDOW
-        done = _collect(pool, payloads, timeout, len(thetas), batch, window)
+        # a pool of ours is stopped whole (_stop_pool); a user's, only by cancelling
+        cancel = executor is not None
+        done = _collect(pool, payloads, timeout, len(thetas), batch, window, cancel)
         complete = True
     finally:
         if executor is None:
@@ -259,11 +261,18 @@ STOP_WAIT = 5.0  # seconds a stopped local pool's manager thread is waited for
 
 
 def _collect(
-    pool: Executor, payloads: list, timeout: float | None, total: int, batch: int, window: int
+    pool: Executor,
+    payloads: list,
+    timeout: float | None,
+    total: int,
+    batch: int,
+    window: int,
+    cancel: bool = True,
 ):
     """Submit the chunks, at most ``window`` of them in flight, and gather the results
     as they come, in the order of the chunks; stop on Ctrl-C, a broken pool or
-    ``timeout`` seconds without progress."""
+    ``timeout`` seconds without progress, cancelling the chunks not yet started where
+    ``cancel`` (not for a local pool of ours: see :func:`_cancel`)."""
     from concurrent.futures import FIRST_COMPLETED, wait
 
     futures: dict[Any, int] = {}  # in flight: their chunk
@@ -305,14 +314,14 @@ def _collect(
                 raise KeyboardInterrupt
         except KeyboardInterrupt:
             runs = finished_so_far()
-            _cancel(pool, futures)
+            _cancel(futures, cancel)
             raise StartsStopped(Status.INTERRUPTED, runs, total, "interrupted") from None
         except _Lost as e:
             runs = finished_so_far()
-            _cancel(pool, futures)
+            _cancel(futures, cancel)
             raise StartsStopped(Status.WORKERS_LOST, runs, total, str(e)) from None
         except StartsStopped:
-            _cancel(pool, futures)
+            _cancel(futures, cancel)
             raise
         results = [done[c] for c in range(len(payloads))]
     if interrupted.is_set():  # Ctrl-C after the last look, before Python's handler was back
@@ -363,50 +372,62 @@ def _result(future):
         raise
 
 
-def _cancel(pool: Executor, pending) -> None:
-    """Cancel the chunks not yet started, on a cluster. Not on a local pool, which
+def _cancel(pending, cancel: bool) -> None:
+    """Cancel the chunks not yet started where ``cancel``: on a cluster or a user's
+    executor, which only that stops. Not on a local pool of ours, which
     :func:`_stop_pool` shuts down with ``cancel_futures``: a future cancelled here
     stays in the pool's books, and where its manager thread then sees a terminated
     worker before the shutdown it marks every future broken, fails on the cancelled
-    one (CPython 3.11: InvalidStateError) and dies before it unblocks the queue's
-    feeder thread, which Python's exit then waits for forever (1 of 2 CI runs of an
-    interrupted 20,000-start fit hung so; every run with 0.3 s between the two)."""
-    if isinstance(pool, ProcessPoolExecutor):
-        return
-    for f in pending:
-        f.cancel()
+    one (CPython 3.11: InvalidStateError, gh-107219) and dies before it unblocks the
+    queue's feeder thread, which Python's exit then waits for forever (1 of 2 CI runs
+    of an interrupted 20,000-start fit hung so; every run with 0.3 s between the
+    two)."""
+    if cancel:
+        for f in pending:
+            f.cancel()
 
 
 def _stop_pool(pool: ProcessPoolExecutor, complete: bool) -> None:
     """Shut a local pool down; when starts are still running (Ctrl-C, a lost
     worker), without waiting for them: the workers are terminated (then killed if
     they linger), so none is left behind, and nothing the pool leaves blocked holds
-    this process's exit."""
+    this process's exit. A second Ctrl-C meanwhile does not break off the stop,
+    which is bounded (a few seconds at most)."""
     if complete:
         pool.shutdown(wait=True)
         return
-    procs = list(getattr(pool, "_processes", {}).values())
+    with _interrupt_as_flag():
+        _terminate(pool)
+
+
+def _terminate(pool: ProcessPoolExecutor) -> None:
+    """Stop a local pool now (see :func:`_stop_pool`); also after a shutdown already
+    began, whose attributes it then finds gone."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    calls = getattr(pool, "_call_queue", None)
+    if calls is not None:  # its feeder may be stuck writing to the workers about to go:
+        calls.cancel_join_thread()  # Python's exit, and the manager, would wait for it
     for p in procs:
         p.terminate()
     # (shutdown forgets them)
     manager = getattr(pool, "_executor_manager_thread", None)
-    calls, results = getattr(pool, "_call_queue", None), getattr(pool, "_result_queue", None)
+    results = getattr(pool, "_result_queue", None)
     pool.shutdown(wait=False, cancel_futures=True)
     for p in procs:
         p.join(1.0)
         if p.is_alive():
             p.kill()
             p.join(1.0)
-    if results is not None:
+    writer = getattr(results, "_writer", None)
+    if writer is not None:
         # a worker terminated halfway through sending a result leaves the pool's
         # manager thread waiting for the rest for ever, since this process holds the
         # pipe's other end too: closed, the manager reads the end of input instead
-        results._writer.close()
-    # with its workers gone the manager thread ends at once; waited for a while
-    # only: a future's lock left held (a KeyboardInterrupt inside
-    # concurrent.futures.wait under a handler other than Python's) blocks it for
-    # good, and the starts that finished are the user's all the same
+        writer.close()
+    # with its workers gone the manager thread ends at once; waited for a while only.
+    # One blocked for good (a future's lock left held by a KeyboardInterrupt inside
+    # concurrent.futures.wait under a handler other than Python's; _interrupt_as_flag
+    # keeps Python's own from doing so) still holds this process's exit, which joins
+    # it: the finished starts are returned and written all the same
     if manager is not None:
         manager.join(STOP_WAIT)
-    if calls is not None:  # its feeder may be stuck writing to workers now gone: Python's
-        calls.cancel_join_thread()  # exit would wait for it (it is a daemon thread)
