@@ -11,7 +11,11 @@ TRON, L-BFGS-B):
   and goes on in the others (Conn, Gould and Toint), within the radius;
 - **subspace Newton steps** hold at their bounds the variables that the Cauchy point
   put there, solve the trust-region subproblem in the others, and project the result
-  onto the box; repeated while the projection puts more variables on a bound.
+  onto the box; repeated while the projection puts more variables on a bound;
+- **held Newton steps** do the same with the variables that the Newton step takes
+  out of the box held at their bounds: where the gradient points into the box but
+  the curvature out (a damping at its bound on a cubic chain, exact Newton), the
+  Cauchy point holds nothing and crept 1e-4 at a radius of 0.07 for 150 iterations.
 
 The trust region takes whichever candidate the model rates best, so each step
 decreases the model at least as much as the Cauchy point (the convergence theory's
@@ -80,7 +84,28 @@ def subspace_steps(x, g, H, lo, hi, free, radius, d_cauchy, solve) -> list[np.nd
     held = ~free | ((end <= lo + tol) & (g > 0)) | ((end >= hi - tol) & (g < 0))
     if not (held & free).any():
         return []
-    steps, d = [], np.where(held, d_cauchy, 0.0)
+    return _rounds(x, g, H, lo, hi, radius, held, np.where(held, d_cauchy, 0.0), solve)
+
+
+def held_newton_steps(x, g, H, lo, hi, free, radius, s, solve) -> list[np.ndarray]:
+    """Newton steps with the variables that the Newton step ``s`` takes out of the box
+    held at the bound it crosses, the subproblem solved in the rest (as in
+    subspace_steps). The Cauchy point cannot find these where the gradient points
+    into the box but the model's curvature points out: there it moves the variable
+    off its bound, so subspace_steps holds nothing, while projecting ``s`` (the other
+    variables' coupled moves kept) or cutting it at that bound (a variable a hair
+    from its bound) is no step. Empty when ``s`` stays in the box."""
+    out = free & ((x + s < lo) | (x + s > hi))
+    if not out.any():
+        return []
+    d = np.where(out, np.clip(x + s, lo, hi) - x, 0.0)
+    return _rounds(x, g, H, lo, hi, radius, ~free | out, d, solve)
+
+
+def _rounds(x, g, H, lo, hi, radius, held, d, solve) -> list[np.ndarray]:
+    """Subspace Newton steps: ``held`` variables moved by ``d``, the subproblem in the
+    rest, projected; again with the variables that projection puts on a bound."""
+    steps = []
     for _ in range(SUBSPACE_ROUNDS):
         rest = ~held
         room = radius**2 - float(d @ d)

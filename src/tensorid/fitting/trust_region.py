@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..engine.status import Status
-from .projected import projected_cauchy, subspace_steps
+from .projected import held_newton_steps, projected_cauchy, subspace_steps
 
 
 def solve_subproblem(g: np.ndarray, H: np.ndarray, radius: float) -> tuple[np.ndarray, bool]:
@@ -222,7 +222,9 @@ def _candidate_step(x, g, H, lo, hi, free, radius, nhev, sub=None) -> tuple[np.n
         steps.append(d_cauchy)
         values.append(m_cauchy)
         solve = sub or (lambda g_, H_, r_, _mask: solve_subproblem(g_, H_, r_))
-        for d in subspace_steps(x, g, H, lo, hi, free, radius, d_cauchy, solve):
+        for d in subspace_steps(x, g, H, lo, hi, free, radius, d_cauchy, solve) + (
+            held_newton_steps(x, g, H, lo, hi, free, radius, s, solve)
+        ):
             steps.append(d)
             values.append(float(g @ d + 0.5 * d @ H @ d))
     best = int(np.argmin(values))
