@@ -134,6 +134,30 @@ def test_lost_workers_end_with_the_finished_starts(bad, status):
     assert not multiprocessing.active_children()
 
 
+def _run_at_once(script: Path, argvs: list[list[str]], timeout: float) -> list:
+    """(exit code, stdout, stderr) of ``script`` run with each of ``argvs``, all at once,
+    each in its own process group: one that hangs is killed with its workers."""
+    procs = [
+        subprocess.Popen(
+            [sys.executable, str(script), *argv],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            start_new_session=True,
+        )
+        for argv in argvs
+    ]
+    try:
+        said = [proc.communicate(timeout=timeout) for proc in procs]
+    finally:
+        for proc in procs:
+            try:
+                os.killpg(proc.pid, signal.SIGKILL)
+            except OSError:  # done and gone
+                pass
+    return [(proc.returncode, out, err) for proc, (out, err) in zip(procs, said, strict=True)]
+
+
 _INTERRUPTED_STARTS = """
 import operator, os, signal, sys, threading, time
 import numpy as np
@@ -161,26 +185,9 @@ def test_ctrl_c_among_many_starts_never_hangs_the_pool(tmp_path):
     script = tmp_path / "starts.py"
     script.write_text(_PYTHON_SIGINT + "\n" + _INTERRUPTED_STARTS)
     delays = (4.0, 5.0, 6.0, 7.0)
-    procs = [
-        subprocess.Popen(
-            [sys.executable, str(script), str(d)],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            start_new_session=True,  # its own group: a hung one goes with its workers
-        )
-        for d in delays
-    ]
-    try:
-        said = [proc.communicate(timeout=60) for proc in procs]
-    finally:
-        for proc in procs:
-            try:
-                os.killpg(proc.pid, signal.SIGKILL)
-            except OSError:  # done and gone
-                pass
-    for proc, (out, err) in zip(procs, said, strict=True):
-        assert proc.returncode == 0, err.decode()[-2000:]
-        words = out.decode().split()
+    for code, out, err in _run_at_once(script, [[str(d)] for d in delays], timeout=60):
+        assert code == 0, err[-2000:]
+        words = out.split()
         assert words[:2] == ["stopped", "INTERRUPTED"], out
         assert int(words[3]) == 300000 and int(words[2]) < 300000
         assert float(words[4]) < 3.0, f"stopped {words[4]} s after Ctrl-C"
@@ -249,26 +256,8 @@ def test_an_interrupted_pool_lets_the_command_exit_on_a_loaded_machine(tmp_path,
     # off the stop with a traceback, losing the finished starts.
     script = tmp_path / "slow_shutdown.py"
     script.write_text(_PYTHON_SIGINT + "\n" + _SLOW_SHUTDOWN)
-    procs = [
-        subprocess.Popen(
-            [sys.executable, str(script), str(size), how],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            start_new_session=True,  # its own group: a hung one goes with its workers
-        )
-        for _ in range(runs)
-    ]
-    try:
-        said = [proc.communicate(timeout=90) for proc in procs]
-    finally:
-        for proc in procs:
-            try:
-                os.killpg(proc.pid, signal.SIGKILL)
-            except OSError:  # done and gone
-                pass
-    for proc, (out, err) in zip(procs, said, strict=True):
-        assert proc.returncode == 0, err[-2000:]
+    for code, out, err in _run_at_once(script, [[str(size), how]] * runs, timeout=90):
+        assert code == 0, err[-2000:]
         assert out.split() == ["stopped", "INTERRUPTED", "True"], err[-2000:]
         assert "Traceback" not in err, err[-2000:]
 
