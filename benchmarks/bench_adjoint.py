@@ -22,6 +22,10 @@ With the optional casadi package (pip install casadi, the [bench] extra), the ma
 chain of 5 masses (N = 10, K = 11, 2,000 samples) is also timed in CasADi: the same
 RK4 scheme, its exact Hessian interpreted and as generated C code compiled by gcc -O1.
 --quick leaves out the chain of 32 masses and CasADi.
+
+--one-core times the chain of 16 masses (N = 32, K = 33) alone in a process held to
+one core (CPU 0, as ``taskset -c 0``; so one thread everywhere) with the persistent
+compilation cache off: the speed issue's "adjoint ≤ 0.5× jax.hessian on one core".
 """
 
 from __future__ import annotations
@@ -219,13 +223,33 @@ def casadi_rows(repeats: int) -> None:
     )
 
 
+def one_core(repeats: int, index: int = 10) -> None:
+    """ROWS[index] in a child held to CPU 0, compiled afresh (TENSORID_CACHE=0)."""
+    cmd = [sys.executable, __file__, "--row", str(index), "--repeats", str(repeats)]
+    env = {**os.environ, "TENSORID_CACHE": "0"}
+    print(f"# {ROWS[index][0]} on one core (CPU 0 only, one thread), median of {repeats}\n")
+    print("| problem | N | K | P | tensors ms | adjoint ms | adjoint, 1 thread ms | "
+          "jax.hessian ms | auto picks | tensors / auto | jax.hessian / auto | "
+          "tensors / adjoint (predicted) | adjoint ÷ GN | diff |")  # fmt: skip
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|", flush=True)
+    out = subprocess.run(cmd, env=env, preexec_fn=lambda: os.sched_setaffinity(0, {0}),
+                         check=True, capture_output=True, text=True).stdout  # fmt: skip
+    print(out.rstrip())
+    cells = [c.strip() for c in out.strip().splitlines()[-1].split("|")]
+    print(f"\nadjoint / jax.hessian on one core = {float(cells[6]) / float(cells[8]):.2f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="no 32-mass chain, no CasADi")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--no-casadi", action="store_true")
+    ap.add_argument("--one-core", action="store_true", help="the 16-mass chain on CPU 0")
     ap.add_argument("--row", type=int, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.one_core:
+        one_core(args.repeats)
+        return
     if args.row is not None:  # one row, in a process of its own
         row(*ROWS[args.row], args.repeats)
         return

@@ -18,7 +18,8 @@
    from seeded perturbed starts, and the chain with cubic springs where newton
    stalled;
 9. bench_adjoint: exact Hessians of large models, tensors against adjoints,
-   jax.hessian and CasADi's generated C code;
+   jax.hessian and CasADi's generated C code; then the chain of 16 masses alone on
+   one core (--one-core);
 10. bench_fixed_costs: imports, the command line, compilation in a second process.
 
 Each runs in its own process (so one's compilation cache or memory does not
@@ -62,7 +63,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="short forms, a few minutes in all")
     ap.add_argument("--out", type=Path, default=HERE / "results" / "run_all.md")
-    ap.add_argument("--only", nargs="+", help="scripts to run (names without .py), added to --out")
+    ap.add_argument(
+        "--only",
+        nargs="+",
+        help="scripts (names without .py) or steps (their headings) to run, added to --out",
+    )
     args = ap.parse_args()
     q = args.quick
     runs = [
@@ -80,10 +85,17 @@ def main() -> None:
         ("bench_start_panel.py", ["--repeats", "1"] if q else []),
         ("bench_chain_cubic.py", ["--starts", "1", "6"] if q else []),
         ("bench_adjoint.py", ["--quick"] if q else []),
+        ("bench_adjoint.py", ["--one-core", "--repeats", "3" if q else "5"]),
         ("bench_fixed_costs.py", ["--repeats", "3"] if q else []),
     ]
     if args.only:
-        runs = [(s, e) for s, e in runs if s.removesuffix(".py") in args.only]
+        # a name runs every step of that script; a step's heading ("bench_adjoint.py
+        # --one-core --repeats 5") runs that step alone
+        runs = [
+            (s, e)
+            for s, e in runs
+            if s.removesuffix(".py") in args.only or " ".join([s, *e]) in args.only
+        ]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with open(args.out, "a" if args.only else "w") as log:  # --only adds to the run
 
