@@ -619,3 +619,21 @@ def test_a_noise_intensity_at_zero_is_reported_without_nan_or_warnings():
     w, e = noise["process"]["v"], noise["measurement"]["y"]
     assert w["sigma"] == 0.0 and w["stderr"] == np.inf and w["ci95"] == [0.0, np.inf]
     assert e["stderr"] == pytest.approx(np.exp(-3.0) * 0.1)
+
+
+def test_noise_intensities_without_error_bars_print_no_nan():
+    """Too few samples for error bars: the noise line said "[nan, nan]" (console and
+    report.md); it says the interval is not available, from fit.json's nulls too."""
+    from tensorid.fitting.summary import noise_text
+
+    nan = float("nan")
+    noise = {
+        "process": {"v": {"sigma": 1e-7, "stderr": nan, "ci95": [nan, nan], "fixed": False}},
+        "measurement": {"y": {"sigma": 0.005, "stderr": None, "ci95": [None, None],
+                              "fixed": False}},
+    }  # fmt: skip
+    line = noise_text(noise)
+    assert "nan" not in line.lower()
+    assert line.count("[interval not available]") == 2
+    noise["measurement"]["y"]["ci95"] = [0.004, 0.006]
+    assert "σ_e(y) = 0.005 [0.004, 0.006]" in noise_text(noise)

@@ -288,11 +288,21 @@ def noise_text(noise: dict) -> str:
     parts = []
     for kind, unit, letter in (("process", "per √time", "w"), ("measurement", "", "e")):
         for name, e in noise[kind].items():
-            ci = f" [{e['ci95'][0]:.3g}, {e['ci95'][1]:.3g}]" if e["ci95"] else ""
+            ci = _noise_interval(e["ci95"])
             held = " (fixed)" if e["fixed"] else ""
             tail = f" {unit}" if unit else ""
             parts.append(f"σ_{letter}({name}) = {e['sigma']:.4g}{ci}{held}{tail}")
     return "noise intensities (standard deviations, 95 % intervals): " + "; ".join(parts)
+
+
+def _noise_interval(ci) -> str:
+    """" [lo, hi]", "" for a fixed intensity, or a note where the error bars are not
+    available (too few samples: NaN ends, None once read back from fit.json)."""
+    if not ci:
+        return ""
+    if any(c is None or np.isnan(c) for c in ci):
+        return " [interval not available]"
+    return f" [{ci[0]:.3g}, {ci[1]:.3g}]"
 
 
 def summary_table(res, scores=None) -> str:
