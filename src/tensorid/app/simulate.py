@@ -159,7 +159,10 @@ def _record(args, spec: ModelSpec, require_outputs: bool):
     )[0]  # fmt: skip
     if args.init_window is not None:
         if e.y is None:
-            raise ValueError(f"--init-window: {args.data} has no measured outputs to score")
+            raise ValueError(
+                f"--init-window: {args.data} has no measured outputs to score (a record is "
+                f"scored only with a column for each of {list(spec.model.outputs)})"
+            )
         try:
             check_init_window(args.init_window, e)
         except ValueError as err:
