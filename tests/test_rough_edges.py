@@ -126,6 +126,12 @@ def test_simulate_says_which_parameters_came_from_the_model_file(tmp_path, capsy
         cli.main(args + ["--params", str(tmp_path / "fit.json"), "--out", str(tmp_path / "f")]) == 0
     )
     assert "u0=0 (the model file's p0, not in --params)" in capsys.readouterr().out
+    # compare said nothing of it: scored with u0 from p0 without a word
+    args[0] = "compare"
+    assert (
+        cli.main(args + ["--params", str(tmp_path / "fit.json"), "--out", str(tmp_path / "c")]) == 0
+    )
+    assert "u0=0 (the model file's p0, not in --params)" in capsys.readouterr().out
 
 
 def test_no_label_is_repeated(silverbox_fit, capsys):

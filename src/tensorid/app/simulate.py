@@ -305,7 +305,7 @@ def run_compare(args) -> int:
         raise ValueError(f"--params {args.params}: give the fit.json of a fit")
     out = check_destination(args.out)
     args.params = [args.params]
-    spec, params, score, source, disc, _ = _score(args, require_outputs=True)
+    spec, params, score, source, disc, defaults = _score(args, require_outputs=True)
     m, sim = spec.model, score.simulation
     data = {
         "record": score.experiment.name,
@@ -330,6 +330,8 @@ def run_compare(args) -> int:
     if sim.status is Status.OK:
         written += _figures(score, out, "compare")
     _print_scores(score)
+    if defaults:  # a fit.json of another model file: say what it did not give
+        print(defaults)
     _print_x0(m, score.x0, source)
     print("wrote " + ", ".join(map(str, written)))
     return _finite(score, disc, args.data)
