@@ -637,3 +637,29 @@ def test_noise_intensities_without_error_bars_print_no_nan():
     assert line.count("[interval not available]") == 2
     noise["measurement"]["y"]["ci95"] = [0.004, 0.006]
     assert "σ_e(y) = 0.005 [0.004, 0.006]" in noise_text(noise)
+
+
+def test_noise_flags_without_the_filter_name_the_flags(tmp_path, capsys):
+    """Noise flags on an output-error model file were refused with the Problem's
+    keywords ("process_noise is for predictor='ekf'; add predictor='ekf'"), and a
+    record with no noise to start from asked for measurement_noise={'y': σ}."""
+    from tensorid import cli
+
+    (tmp_path / "oe.py").write_text(EKF_MODEL_FILE.replace('predictor = "ekf"', ""))
+    (tmp_path / "d.csv").write_text("t,u,y\n" + "".join(f"{k},1,{k % 3}\n" for k in range(20)))
+    argv = ["fit", str(tmp_path / "oe.py"), str(tmp_path / "d.csv"), "--out", str(tmp_path / "o")]
+    for flags, named in [
+        (["--process-noise", "v=0.1"], "--process-noise:"),
+        (["--measurement-noise", "y=0.1"], "--measurement-noise:"),
+        (["--fix", "log_sigma_e_y=-4"], "--fix log_sigma_e_y:"),
+    ]:
+        assert cli.main([*argv, *flags]) == 2
+        err = capsys.readouterr().err
+        assert named in err and "add --predictor ekf" in err, err
+        assert "predictor='ekf'" not in err and len(err.strip().splitlines()) == 1
+    (tmp_path / "c.csv").write_text("t,u,y\n" + "".join(f"{k},1,0.5\n" for k in range(20)))
+    argv[2] = str(tmp_path / "c.csv")
+    assert cli.main([*argv, "--predictor", "ekf", "--process-noise", "v=0.1"]) == 2
+    err = capsys.readouterr().err
+    assert "give --measurement-noise y=σ" in err and "measurement_noise=" not in err
+    assert not (tmp_path / "o").exists()  # refused before any work

@@ -100,7 +100,8 @@ def _as_flags(message: str, args) -> str:
         message = re.sub(name + r"'([^']*)'", rf"{flag} \1", message)  # key='value'
         message = re.sub(name + r"([^\s'():,;]+)", rf"{flag} \1", message)  # key=4
         message = re.sub(name + r"(?=[)\s,;]|$)", flag, message)  # drop key=
-    return message
+    # a hint to give a noise: on the command line, its flag (given or not)
+    return re.sub(r"measurement_noise=\{'([^']*)': σ\}", r"--measurement-noise \1=σ", message)
 
 
 def _text(value) -> str:
@@ -134,7 +135,23 @@ def _predictor(spec: ModelSpec, args) -> dict:
             key = f"{kind}_noise"
             if name.startswith(prefix):
                 out[key] = {**(out[key] or {}), name[len(prefix) :]: float(np.exp(value))}
+    if out["predictor"] == "simulation":
+        _no_noise_flags(args)
     return out
+
+
+def _no_noise_flags(args) -> None:
+    """Noise given on the command line for an output-error fit: one line naming the
+    flag and ``--predictor ekf`` (the Problem's own error spoke of keywords)."""
+    flags = [("process_noise", "--process-noise"), ("measurement_noise", "--measurement-noise")]
+    given = [flag for key, flag in flags if getattr(args, key, None)]
+    noise = tuple(NOISE_PREFIXES.values())
+    given += [f"--fix {n}" for n in dict(getattr(args, "fix", None) or []) if n.startswith(noise)]
+    if given:
+        raise ValueError(
+            f"{' and '.join(given)}: a noise intensity is for --predictor ekf (output error "
+            'has no noise model): add --predictor ekf, or predictor = "ekf" in the model file'
+        )
 
 
 def _validation_data(args, model, columns) -> list:
