@@ -303,3 +303,24 @@ def test_a_warning_during_a_command_is_one_line_of_the_tool(monkeypatch, capsys,
     err = capsys.readouterr().err.splitlines()
     assert err[0] == "tensorid: warning: overflow encountered in matmul", err
     assert not any(".py:" in line or "warnings.warn" in line for line in err)
+
+
+def test_a_filter_fit_json_of_another_model_names_the_fit_json(tmp_path, capsys):
+    """A filter fit's noise naming an output the model lacks was refused without naming
+    the fit.json it came from ("measurement_noise names ['w'], which the model lacks")."""
+    sigma = {"sigma": 0.01}
+    fitted = {
+        "params": {"m": 5.17e-6, "d": 2.18e-4, "a": 0.96, "b": 3.65, "u0": 0.005,
+                   "log_sigma_w_ydot": -2.0, "log_sigma_e_y": -7.0, "log_sigma_e_w": -7.0},
+        "x0": [0.0, 0.0], "predictor": "ekf",
+        "noise_intensities": {"process": {"ydot": sigma},
+                              "measurement": {"y": sigma, "w": sigma}},
+    }  # fmt: skip
+    (tmp_path / "fit.json").write_text(json.dumps(fitted))
+    args = ["compare", str(EXAMPLE / "model.py"), str(EXAMPLE / "validate.csv")]
+    assert (
+        cli.main(args + ["--params", str(tmp_path / "fit.json"), "--out", str(tmp_path / "c")]) == 2
+    )
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"tensorid: error: --params {tmp_path / 'fit.json'}") and "'w'" in err
+    assert len(err.splitlines()) == 1 and not (tmp_path / "c").exists()

@@ -195,7 +195,10 @@ def _score(args, require_outputs: bool):
     spec = load_model(args.model)
     e = _record(args, spec, require_outputs)
     fitted = _fit_json(spec, args.params)
-    spec, predictor = _filter(spec, fitted, e)
+    try:
+        spec, predictor = _filter(spec, fitted, e)
+    except ValueError as err:  # a fit.json of another model: say which file
+        raise ValueError(f"--params {args.params[0]}, a filter fit's noise: {err}") from None
     params, defaults = _parameters(spec, args.params, fitted)
     disc = _integration(args, fitted)
     x0, free, source = _start(spec, args, e, fitted)
