@@ -663,3 +663,18 @@ def test_noise_flags_without_the_filter_name_the_flags(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "give --measurement-noise y=σ" in err and "measurement_noise=" not in err
     assert not (tmp_path / "o").exists()  # refused before any work
+
+
+def test_a_discrete_model_s_process_noise_is_labelled_per_step():
+    """P⁺ = A P Aᵀ + Q: a discrete-time model's σ_w is per step, not per √time."""
+    from tensorid.fitting.summary import noise_text
+
+    noise = {"process": {"x": {"sigma": 0.05, "ci95": [0.04, 0.06], "fixed": False}},
+             "measurement": {}}  # fmt: skip
+    assert noise_text(noise).endswith("σ_w(x) = 0.05 [0.04, 0.06] per √time")
+    assert noise_text(noise, discrete=True).endswith("σ_w(x) = 0.05 [0.04, 0.06] per step")
+    m = first_order_discrete()
+    e = record(m, 60, 0, [0.5], {"a": 0.8, "b": 0.5}, dt=1.0)
+    res = ti.fit(ti.Problem(m, e, p0={"a": 0.7, "b": 0.4}, x0=[0.5], predictor="ekf",
+                            process_noise={"x": 0.05}))  # fmt: skip
+    assert "per step" in res.summary() and "per √time" not in res.summary()

@@ -243,7 +243,7 @@ def fit_blocks(res, scores=None) -> list:
         blocks.append(Table(None, *metric_rows(scores)))
     noise = noise_intensities(res, u)
     if noise:
-        blocks.append(noise_text(noise))
+        blocks.append(noise_text(noise, res.problem.model.discrete))
     if u is not None:
         blocks.append("information: " + res.information().describe())
         c = res.criteria()
@@ -283,10 +283,12 @@ def noise_intensities(res, u=None) -> dict | None:
     return out
 
 
-def noise_text(noise: dict) -> str:
-    """One line: each noise intensity with its interval."""
+def noise_text(noise: dict, discrete: bool = False) -> str:
+    """One line: each noise intensity with its interval; a discrete-time model's
+    process noise is per step (P⁺ = A P Aᵀ + Q), a continuous one's per √time."""
     parts = []
-    for kind, unit, letter in (("process", "per √time", "w"), ("measurement", "", "e")):
+    per = "per step" if discrete else "per √time"
+    for kind, unit, letter in (("process", per, "w"), ("measurement", "", "e")):
         for name, e in noise[kind].items():
             ci = _noise_interval(e["ci95"])
             held = " (fixed)" if e["fixed"] else ""
@@ -296,7 +298,7 @@ def noise_text(noise: dict) -> str:
 
 
 def _noise_interval(ci) -> str:
-    """" [lo, hi]", "" for a fixed intensity, or a note where the error bars are not
+    """The interval " [lo, hi]", "" for a fixed intensity, or a note where the error bars are not
     available (too few samples: NaN ends, None once read back from fit.json)."""
     if not ci:
         return ""
