@@ -324,3 +324,27 @@ def test_a_filter_fit_json_of_another_model_names_the_fit_json(tmp_path, capsys)
     err = capsys.readouterr().err.strip()
     assert err.startswith(f"tensorid: error: --params {tmp_path / 'fit.json'}") and "'w'" in err
     assert len(err.splitlines()) == 1 and not (tmp_path / "c").exists()
+
+
+def test_a_validation_record_that_blows_up_is_said_not_finite(tmp_path, capsys):
+    """A validation simulation that blew up showed GOF -inf, RMSE nan and NRMSE nan
+    without a word why; it is "not finite" with a warning saying where and why."""
+    (tmp_path / "m.py").write_text(
+        'rhs = {"x": "-k*x + a*x**3 + u"}\noutput = {"y": "x"}\ninputs = ["u"]\n'
+        'params = ["k", "a"]\np0 = {"k": 1.2, "a": 1.0}\nfixed = ["a"]\n'
+    )
+    t = np.arange(60) * 0.1
+    for name, u in (("train", 0.1 * np.sin(t)), ("validate", 5.0 + 0 * t)):
+        y = 0.1 * np.sin(t - 0.5) if name == "train" else np.cos(t)
+        rows = "".join(f"{a:.6g},{b:.6g},{c:.6g}\n" for a, b, c in zip(t, u, y, strict=True))
+        (tmp_path / f"{name}.csv").write_text("t,u,y\n" + rows)
+    args = ["fit", str(tmp_path / "m.py"), str(tmp_path / "train.csv"), "--validate",
+            str(tmp_path / "validate.csv"), "--no-progress", "--out", str(tmp_path / "f")]  # fmt: skip
+    cli.main(args)
+    out, err = capsys.readouterr()
+    assert "GOF validation: y not finite" in out and "-inf" not in out and " nan" not in out
+    assert "tensorid: warning: validation: not scored, the simulation is not finite" in err
+    assert (
+        "| validation | y | not finite | not finite | not finite |"
+        in (tmp_path / "f" / "report.md").read_text()
+    )

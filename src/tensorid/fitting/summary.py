@@ -81,10 +81,15 @@ def metric_rows(scores) -> tuple[list[str], list[list[str]]]:
         n = s.experiment.P - s.start
         scored = f"{n}" if not s.start else f"{n} (after {s.start})"
         for o in s.simulation.model.outputs:
-            rows.append(
-                [s.label, o, f"{s.gof[o]:.4f}", f"{s.rmse[o]:.4g}", f"{s.nrmse[o]:.4g}", scored]
-            )
+            cells = [finite(s.gof[o], ".4f"), finite(s.rmse[o], ".4g"), finite(s.nrmse[o], ".4g")]
+            rows.append([s.label, o, *cells, scored])
     return header, rows
+
+
+def finite(value: float, spec: str) -> str:
+    """``value`` formatted, or "not finite" (a record whose simulation blew up was
+    shown as GOF -inf, RMSE nan)."""
+    return format(value, spec) if math.isfinite(value) else "not finite"
 
 
 _CRITERIA = (("AIC", "aic"), ("AICc", "aicc"), ("BIC", "bic"))
