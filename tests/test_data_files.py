@@ -336,3 +336,13 @@ def test_a_record_with_some_outputs_read_for_simulation_says_they_go_unused(tmp_
         warnings.simplefilter("error")  # a file with no output at all: nothing to say
         (tmp_path / "u.csv").write_text("t,u\n0,1\n0.1,2\n0.2,3\n")
         ti.load_data(tmp_path / "u.csv", two, require_outputs=False)
+
+
+def test_a_time_column_of_another_name_is_pointed_to(tmp_path):
+    """A file whose times are in 'time' (or 'Time [s]') was told only of 't', 'Ts' and
+    --ts; the error names the column and the map that reads it."""
+    (tmp_path / "d.csv").write_text(_text().replace("t,u,y", "Time [s],u,y", 1))
+    message = _error(tmp_path / "d.csv")
+    assert "no time column 't'" in message and "--columns t=Time [s]" in message
+    (tmp_path / "e.csv").write_text("u,y\n1,2\n3,4\n")
+    assert "--columns t=" not in _error(tmp_path / "e.csv")

@@ -229,9 +229,11 @@ def _time(p, cols: _Columns, ts, P: int, data: dict) -> np.ndarray:
         return _on_grid(p, data["t"])
     ts = _sampling_time(p, cols) if ts is None else ts
     if ts is None:
+        named = [n for n in cols.values if str(n).lower().startswith("time")]
+        hint = f"; if {named[0]!r} holds the times: --columns t={named[0]}" if named else ""
         raise ValueError(
             f"{p} has no time column 't' and no sampling time 'Ts'; add one or give the "
-            "sampling time (--ts on the command line, ts= in Python)"
+            f"sampling time (--ts on the command line, ts= in Python){hint}"
         )
     return np.arange(P) * float(ts)
 
