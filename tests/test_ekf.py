@@ -490,7 +490,7 @@ def test_ekf_from_the_command_line(tmp_path, capsys):
                 str(out / "fit.json"), "--horizon", "5", "--out", str(cmp)]  # fmt: skip
     assert cli.main(argv_cmp) == 0
     c = json.loads((cmp / "compare.json").read_text())
-    assert c["horizon"] == 5
+    assert c["horizon"] == 5 and c["scored_as"] == "5-step prediction"
     rmse = c["outputs"]["y"]["rmse"]
     assert rmse == pytest.approx(d["rmse"]["validation"]["val"]["y"], rel=1e-9)
     # a filter refuses what it cannot serve, in one line, before any work

@@ -316,6 +316,9 @@ def run_compare(args) -> int:
         "init_window": args.init_window,
         "samples": list(args.samples) if getattr(args, "samples", None) else None,
         "horizon": args.horizon,
+        # what the outputs were scored as: an output-error fit's every horizon is its
+        # simulation, so "horizon" (the one asked for) alone did not say
+        "scored_as": f"{score.horizon}-step prediction" if score.horizon else "simulation",
         "scored_samples": score.experiment.P - score.start,
         "x0": dict(zip(m.states, score.x0.tolist(), strict=True)),
         "x0_source": source,
