@@ -652,6 +652,8 @@ def test_noise_flags_without_the_filter_name_the_flags(tmp_path, capsys):
         (["--process-noise", "v=0.1"], "--process-noise:"),
         (["--measurement-noise", "y=0.1"], "--measurement-noise:"),
         (["--fix", "log_sigma_e_y=-4"], "--fix log_sigma_e_y:"),
+        (["--free", "log_sigma_e_y"], "--free log_sigma_e_y:"),  # was ignored: fitted OE
+        (["--bounds", "log_sigma_w_v=-5:-1"], "--bounds log_sigma_w_v:"),
     ]:
         assert cli.main([*argv, *flags]) == 2
         err = capsys.readouterr().err

@@ -146,7 +146,9 @@ def _no_noise_flags(args) -> None:
     flags = [("process_noise", "--process-noise"), ("measurement_noise", "--measurement-noise")]
     given = [flag for key, flag in flags if getattr(args, key, None)]
     noise = tuple(NOISE_PREFIXES.values())
-    given += [f"--fix {n}" for n in dict(getattr(args, "fix", None) or []) if n.startswith(noise)]
+    for flag in ("fix", "free", "bounds"):  # --free NAME; --fix, --bounds NAME=...
+        names = [n if isinstance(n, str) else n[0] for n in getattr(args, flag, None) or []]
+        given += [f"--{flag} {n}" for n in names if n.startswith(noise)]
     if given:
         raise ValueError(
             f"{' and '.join(given)}: a noise intensity is for --predictor ekf (output error "
