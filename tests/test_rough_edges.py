@@ -339,7 +339,8 @@ def test_a_validation_record_that_blows_up_is_said_not_finite(tmp_path, capsys):
         rows = "".join(f"{a:.6g},{b:.6g},{c:.6g}\n" for a, b, c in zip(t, u, y, strict=True))
         (tmp_path / f"{name}.csv").write_text("t,u,y\n" + rows)
     args = ["fit", str(tmp_path / "m.py"), str(tmp_path / "train.csv"), "--validate",
-            str(tmp_path / "validate.csv"), "--no-progress", "--out", str(tmp_path / "f")]  # fmt: skip
+            str(tmp_path / "validate.csv"), "--no-progress",
+            "--out", str(tmp_path / "f")]  # fmt: skip
     cli.main(args)
     out, err = capsys.readouterr()
     assert "GOF validation: y not finite" in out and "-inf" not in out and " nan" not in out
