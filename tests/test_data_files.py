@@ -346,3 +346,10 @@ def test_a_time_column_of_another_name_is_pointed_to(tmp_path):
     assert "no time column 't'" in message and "--columns t=Time [s]" in message
     (tmp_path / "e.csv").write_text("u,y\n1,2\n3,4\n")
     assert "--columns t=" not in _error(tmp_path / "e.csv")
+
+
+def test_a_folder_given_as_a_data_file_is_called_a_folder(tmp_path):
+    """A folder was reported as a data file that "does not exist"."""
+    (tmp_path / "records").mkdir()
+    message = _error(tmp_path / "records")
+    assert "is a folder" in message and "does not exist" not in message
