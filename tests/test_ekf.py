@@ -680,3 +680,19 @@ def test_a_discrete_model_s_process_noise_is_labelled_per_step():
     res = ti.fit(ti.Problem(m, e, p0={"a": 0.7, "b": 0.4}, x0=[0.5], predictor="ekf",
                             process_noise={"x": 0.05}))  # fmt: skip
     assert "per step" in res.summary() and "per √time" not in res.summary()
+
+
+def test_a_method_the_filter_cannot_use_is_refused_in_flags(tmp_path, capsys):
+    """--method fd-lsq with --predictor ekf was refused as "method 'fd-lsq' ...
+    (predictor='ekf') ... use 'auto', ...": the command line's own words now."""
+    from tensorid import cli
+
+    (tmp_path / "m.py").write_text(EKF_MODEL_FILE)
+    (tmp_path / "d.csv").write_text("t,u,y\n" + "".join(f"{k},1,{k % 3}\n" for k in range(20)))
+    argv = ["fit", str(tmp_path / "m.py"), str(tmp_path / "d.csv"), "--out", str(tmp_path / "o"),
+            "--process-noise", "v=0.1", "--method", "fd-lsq"]  # fmt: skip
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert "--method fd-lsq minimises a sum of squared residuals" in err
+    assert "(--predictor ekf)" in err and "use --method auto, newton," in err
+    assert "'fd" not in err and "='" not in err and not (tmp_path / "o").exists()

@@ -14,6 +14,7 @@ from ..engine.integrators import SCHEMES
 from ..engine.predictors import NOISE_PREFIXES
 from ..engine.problem import Problem
 from ..engine.shooting import resolve_segments
+from ..fitting.methods import check_method
 from ..fitting.registry import exact_derivatives
 from ..fitting.residuals import lag_limit
 from ..fitting.validation import check_init_window
@@ -102,6 +103,21 @@ def _as_flags(message: str, args) -> str:
         message = re.sub(name + r"(?=[)\s,;]|$)", flag, message)  # drop key=
     # a hint to give a noise: on the command line, its flag (given or not)
     return re.sub(r"measurement_noise=\{'([^']*)': σ\}", r"--measurement-noise \1=σ", message)
+
+
+def checked_method(problem, method: str) -> None:
+    """``check_method`` before any work, its refusal spelled in the command line's
+    flags ("method 'fd-lsq' ... (predictor='ekf')" as "--method fd-lsq ... (--predictor
+    ekf)")."""
+    try:
+        check_method(problem, method)
+    except ValueError as e:
+        message = re.sub(r"^method '([\w-]+)'", r"--method \1", str(e))
+        message = message.replace("predictor='ekf'", "--predictor ekf")
+        message = message.replace("drop the segments", "drop --segments or --segment-length")
+        names = r"use ('[\w-]+'(?:(?:, | or )'[\w-]+')*)"
+        message = re.sub(names, lambda m: "use --method " + m[1].replace("'", ""), message)
+        raise ValueError(message) from None
 
 
 def _text(value) -> str:
