@@ -183,6 +183,8 @@ MAKERS: dict[str, Callable[[Path], None]] = {
     "noise_text.py": _written(FIRST + 'priors = {"a": (1.0, 0.5)}\nnoise = "0.1"\n'),
     "noise_alone.py": _written(FIRST + "noise = 0.1\n"),
     "noise_given.py": _written(FIRST + 'priors = {"a": (1.0, 0.5)}\nnoise = 0.01\n'),
+    "interp_file.py": _written(FIRST + 'interpolation = "zoh"\n'),
+    "bound_typo.py": _written(FIRST + 'bound = {"a": (0.0, 5.0)}\n'),
     "endless.py": _written("while True:\n    pass\n"),
     "model_bad_rhs.py": _written(
         "import tensorid as ti\nimport jax.numpy as jnp\n"

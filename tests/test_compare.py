@@ -195,6 +195,7 @@ def test_compare_refuses_a_long_horizon_and_a_short_window_before_any_work(tmp_p
     assert cli.main([*base, "--out", str(tmp_path / "s")]) == 0
     h, s = (json.loads((tmp_path / d / "compare.json").read_text()) for d in "hs")
     assert h["outputs"] == s["outputs"] and h["horizon"] == 3
+    assert h["scored_as"] == s["scored_as"] == "simulation"  # horizon 3 alone misled
     capsys.readouterr()
     assert cli.main([*base, "--init-window", "119", "--out", str(tmp_path / "c")]) == 2
     assert "--init-window" in capsys.readouterr().err

@@ -4,7 +4,9 @@ a bad one gets one line that names the file, the problem and the fix."""
 from __future__ import annotations
 
 import sys
+import warnings
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.io
@@ -314,3 +316,40 @@ def test_a_matrix_variable_offers_its_rows_as_signals(tmp_path, kind):
     assert "y[0]" in message
     (e,) = ti.load_data(path, MODEL, columns={"y": "y[1]"})
     np.testing.assert_array_equal(e.measured[:, 0], -Y)
+
+
+def test_a_record_with_some_outputs_read_for_simulation_says_they_go_unused(tmp_path):
+    """Read without outputs (simulate), a file holding y but not w was simulated as if
+    it had no outputs, without a word; now a DataNote names what it has and lacks."""
+    from tensorid.app.datafiles import DataNote
+
+    two = ti.Model(
+        rhs=lambda x, p, u: -p[0] * x + u[0],
+        output=lambda x, p: jnp.concatenate([x, 2 * x]),
+        states=["x"], params=["k"], inputs=["u"], outputs=["y", "w"],
+    )  # fmt: skip
+    (tmp_path / "d.csv").write_text(_text())  # t, u, y: no w
+    with pytest.warns(DataNote, match=r"has the output\(s\) \['y'\] but lacks \['w'\]"):
+        (e,) = ti.load_data(tmp_path / "d.csv", two, require_outputs=False)
+    assert e.y is None
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a file with no output at all: nothing to say
+        (tmp_path / "u.csv").write_text("t,u\n0,1\n0.1,2\n0.2,3\n")
+        ti.load_data(tmp_path / "u.csv", two, require_outputs=False)
+
+
+def test_a_time_column_of_another_name_is_pointed_to(tmp_path):
+    """A file whose times are in 'time' (or 'Time [s]') was told only of 't', 'Ts' and
+    --ts; the error names the column and the map that reads it."""
+    (tmp_path / "d.csv").write_text(_text().replace("t,u,y", "Time [s],u,y", 1))
+    message = _error(tmp_path / "d.csv")
+    assert "no time column 't'" in message and "--columns t=Time [s]" in message
+    (tmp_path / "e.csv").write_text("u,y\n1,2\n3,4\n")
+    assert "--columns t=" not in _error(tmp_path / "e.csv")
+
+
+def test_a_folder_given_as_a_data_file_is_called_a_folder(tmp_path):
+    """A folder was reported as a data file that "does not exist"."""
+    (tmp_path / "records").mkdir()
+    message = _error(tmp_path / "records")
+    assert "is a folder" in message and "does not exist" not in message

@@ -490,7 +490,7 @@ def test_ekf_from_the_command_line(tmp_path, capsys):
                 str(out / "fit.json"), "--horizon", "5", "--out", str(cmp)]  # fmt: skip
     assert cli.main(argv_cmp) == 0
     c = json.loads((cmp / "compare.json").read_text())
-    assert c["horizon"] == 5
+    assert c["horizon"] == 5 and c["scored_as"] == "5-step prediction"
     rmse = c["outputs"]["y"]["rmse"]
     assert rmse == pytest.approx(d["rmse"]["validation"]["val"]["y"], rel=1e-9)
     # a filter refuses what it cannot serve, in one line, before any work
@@ -619,3 +619,80 @@ def test_a_noise_intensity_at_zero_is_reported_without_nan_or_warnings():
     w, e = noise["process"]["v"], noise["measurement"]["y"]
     assert w["sigma"] == 0.0 and w["stderr"] == np.inf and w["ci95"] == [0.0, np.inf]
     assert e["stderr"] == pytest.approx(np.exp(-3.0) * 0.1)
+
+
+def test_noise_intensities_without_error_bars_print_no_nan():
+    """Too few samples for error bars: the noise line said "[nan, nan]" (console and
+    report.md); it says the interval is not available, from fit.json's nulls too."""
+    from tensorid.fitting.summary import noise_text
+
+    nan = float("nan")
+    noise = {
+        "process": {"v": {"sigma": 1e-7, "stderr": nan, "ci95": [nan, nan], "fixed": False}},
+        "measurement": {"y": {"sigma": 0.005, "stderr": None, "ci95": [None, None],
+                              "fixed": False}},
+    }  # fmt: skip
+    line = noise_text(noise)
+    assert "nan" not in line.lower()
+    assert line.count("[interval not available]") == 2
+    noise["measurement"]["y"]["ci95"] = [0.004, 0.006]
+    assert "σ_e(y) = 0.005 [0.004, 0.006]" in noise_text(noise)
+
+
+def test_noise_flags_without_the_filter_name_the_flags(tmp_path, capsys):
+    """Noise flags on an output-error model file were refused with the Problem's
+    keywords ("process_noise is for predictor='ekf'; add predictor='ekf'"), and a
+    record with no noise to start from asked for measurement_noise={'y': σ}."""
+    from tensorid import cli
+
+    (tmp_path / "oe.py").write_text(EKF_MODEL_FILE.replace('predictor = "ekf"', ""))
+    (tmp_path / "d.csv").write_text("t,u,y\n" + "".join(f"{k},1,{k % 3}\n" for k in range(20)))
+    argv = ["fit", str(tmp_path / "oe.py"), str(tmp_path / "d.csv"), "--out", str(tmp_path / "o")]
+    for flags, named in [
+        (["--process-noise", "v=0.1"], "--process-noise:"),
+        (["--measurement-noise", "y=0.1"], "--measurement-noise:"),
+        (["--fix", "log_sigma_e_y=-4"], "--fix log_sigma_e_y:"),
+        (["--free", "log_sigma_e_y"], "--free log_sigma_e_y:"),  # was ignored: fitted OE
+        (["--bounds", "log_sigma_w_v=-5:-1"], "--bounds log_sigma_w_v:"),
+    ]:
+        assert cli.main([*argv, *flags]) == 2
+        err = capsys.readouterr().err
+        assert named in err and "add --predictor ekf" in err, err
+        assert "predictor='ekf'" not in err and len(err.strip().splitlines()) == 1
+    (tmp_path / "c.csv").write_text("t,u,y\n" + "".join(f"{k},1,0.5\n" for k in range(20)))
+    argv[2] = str(tmp_path / "c.csv")
+    assert cli.main([*argv, "--predictor", "ekf", "--process-noise", "v=0.1"]) == 2
+    err = capsys.readouterr().err
+    assert "give --measurement-noise y=σ" in err and "measurement_noise=" not in err
+    assert not (tmp_path / "o").exists()  # refused before any work
+
+
+def test_a_discrete_model_s_process_noise_is_labelled_per_step():
+    """P⁺ = A P Aᵀ + Q: a discrete-time model's σ_w is per step, not per √time."""
+    from tensorid.fitting.summary import noise_text
+
+    noise = {"process": {"x": {"sigma": 0.05, "ci95": [0.04, 0.06], "fixed": False}},
+             "measurement": {}}  # fmt: skip
+    assert noise_text(noise).endswith("σ_w(x) = 0.05 [0.04, 0.06] per √time")
+    assert noise_text(noise, discrete=True).endswith("σ_w(x) = 0.05 [0.04, 0.06] per step")
+    m = first_order_discrete()
+    e = record(m, 60, 0, [0.5], {"a": 0.8, "b": 0.5}, dt=1.0)
+    res = ti.fit(ti.Problem(m, e, p0={"a": 0.7, "b": 0.4}, x0=[0.5], predictor="ekf",
+                            process_noise={"x": 0.05}))  # fmt: skip
+    assert "per step" in res.summary() and "per √time" not in res.summary()
+
+
+def test_a_method_the_filter_cannot_use_is_refused_in_flags(tmp_path, capsys):
+    """--method fd-lsq with --predictor ekf was refused as "method 'fd-lsq' ...
+    (predictor='ekf') ... use 'auto', ...": the command line's own words now."""
+    from tensorid import cli
+
+    (tmp_path / "m.py").write_text(EKF_MODEL_FILE)
+    (tmp_path / "d.csv").write_text("t,u,y\n" + "".join(f"{k},1,{k % 3}\n" for k in range(20)))
+    argv = ["fit", str(tmp_path / "m.py"), str(tmp_path / "d.csv"), "--out", str(tmp_path / "o"),
+            "--process-noise", "v=0.1", "--method", "fd-lsq"]  # fmt: skip
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert "--method fd-lsq minimises a sum of squared residuals" in err
+    assert "(--predictor ekf)" in err and "use --method auto, newton," in err
+    assert "'fd" not in err and "='" not in err and not (tmp_path / "o").exists()

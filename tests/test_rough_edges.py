@@ -126,6 +126,12 @@ def test_simulate_says_which_parameters_came_from_the_model_file(tmp_path, capsy
         cli.main(args + ["--params", str(tmp_path / "fit.json"), "--out", str(tmp_path / "f")]) == 0
     )
     assert "u0=0 (the model file's p0, not in --params)" in capsys.readouterr().out
+    # compare said nothing of it: scored with u0 from p0 without a word
+    args[0] = "compare"
+    assert (
+        cli.main(args + ["--params", str(tmp_path / "fit.json"), "--out", str(tmp_path / "c")]) == 0
+    )
+    assert "u0=0 (the model file's p0, not in --params)" in capsys.readouterr().out
 
 
 def test_no_label_is_repeated(silverbox_fit, capsys):
@@ -297,3 +303,49 @@ def test_a_warning_during_a_command_is_one_line_of_the_tool(monkeypatch, capsys,
     err = capsys.readouterr().err.splitlines()
     assert err[0] == "tensorid: warning: overflow encountered in matmul", err
     assert not any(".py:" in line or "warnings.warn" in line for line in err)
+
+
+def test_a_filter_fit_json_of_another_model_names_the_fit_json(tmp_path, capsys):
+    """A filter fit's noise naming an output the model lacks was refused without naming
+    the fit.json it came from ("measurement_noise names ['w'], which the model lacks")."""
+    sigma = {"sigma": 0.01}
+    fitted = {
+        "params": {"m": 5.17e-6, "d": 2.18e-4, "a": 0.96, "b": 3.65, "u0": 0.005,
+                   "log_sigma_w_ydot": -2.0, "log_sigma_e_y": -7.0, "log_sigma_e_w": -7.0},
+        "x0": [0.0, 0.0], "predictor": "ekf",
+        "noise_intensities": {"process": {"ydot": sigma},
+                              "measurement": {"y": sigma, "w": sigma}},
+    }  # fmt: skip
+    (tmp_path / "fit.json").write_text(json.dumps(fitted))
+    args = ["compare", str(EXAMPLE / "model.py"), str(EXAMPLE / "validate.csv")]
+    assert (
+        cli.main(args + ["--params", str(tmp_path / "fit.json"), "--out", str(tmp_path / "c")]) == 2
+    )
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"tensorid: error: --params {tmp_path / 'fit.json'}") and "'w'" in err
+    assert len(err.splitlines()) == 1 and not (tmp_path / "c").exists()
+
+
+def test_a_validation_record_that_blows_up_is_said_not_finite(tmp_path, capsys):
+    """A validation simulation that blew up showed GOF -inf, RMSE nan and NRMSE nan
+    without a word why; it is "not finite" with a warning saying where and why."""
+    (tmp_path / "m.py").write_text(
+        'rhs = {"x": "-k*x + a*x**3 + u"}\noutput = {"y": "x"}\ninputs = ["u"]\n'
+        'params = ["k", "a"]\np0 = {"k": 1.2, "a": 1.0}\nfixed = ["a"]\n'
+    )
+    t = np.arange(60) * 0.1
+    for name, u in (("train", 0.1 * np.sin(t)), ("validate", 5.0 + 0 * t)):
+        y = 0.1 * np.sin(t - 0.5) if name == "train" else np.cos(t)
+        rows = "".join(f"{a:.6g},{b:.6g},{c:.6g}\n" for a, b, c in zip(t, u, y, strict=True))
+        (tmp_path / f"{name}.csv").write_text("t,u,y\n" + rows)
+    args = ["fit", str(tmp_path / "m.py"), str(tmp_path / "train.csv"), "--validate",
+            str(tmp_path / "validate.csv"), "--no-progress",
+            "--out", str(tmp_path / "f")]  # fmt: skip
+    cli.main(args)
+    out, err = capsys.readouterr()
+    assert "GOF validation: y not finite" in out and "-inf" not in out and " nan" not in out
+    assert "tensorid: warning: validation: not scored, the simulation is not finite" in err
+    assert (
+        "| validation | y | not finite | not finite | not finite |"
+        in (tmp_path / "f" / "report.md").read_text()
+    )

@@ -8,8 +8,11 @@ import sys
 
 import numpy as np
 
+from ..engine.diagnostics import describe_failure
+from ..engine.status import Status
 from ..fitting.figures import file_name, profile_figure
 from ..fitting.residuals import lag_limit
+from ..fitting.summary import finite
 from ..fitting.validation import Score
 
 
@@ -19,7 +22,7 @@ def _gof_lines(scores: list[Score]) -> list[str]:
     for s in scores:
         label = s.label.replace(s.kind, kinds[s.kind], 1)
         label = label.replace("'", "")
-        per = ", ".join(f"{o} {v:.4f}" for o, v in s.gof.items())
+        per = ", ".join(f"{o} {finite(v, '.4f')}" for o, v in s.gof.items())
         out.append(f"GOF {label}: {per}")
     return out
 
@@ -55,10 +58,22 @@ def _after_fit(res, val, args) -> tuple[list, dict, list[str], bool]:
             continue
         if name == "validation":
             scores = value
+            _blown_up(res, scores)
         else:
             keys = {"profiles": "profiles", "data sensitivity": "influence"}
             extras[keys.get(name, "residual")] = value
     return scores, extras, missing, False
+
+
+def _blown_up(res, scores: list[Score]) -> None:
+    """A warning line for each validation record whose simulation is not finite (its
+    scores are not available; the table said GOF -inf without a word why)."""
+    for s in scores:
+        if s.simulation.status is not Status.OK:
+            name = s.experiment.name or "validation"
+            why = describe_failure(s.simulation, res.problem.discretisation.scheme, name)
+            print(f"tensorid: warning: {s.label}: not scored, the simulation is not finite: "
+                  f"{why}", file=sys.stderr)  # fmt: skip
 
 
 DEFAULT_LAGS = 25  # MATLAB resid's

@@ -147,7 +147,7 @@ def register(sub) -> None:
         "deviation; default: its noise level in the data); overrides the model file's",
     )
     f.add_argument(
-        "--validate", nargs="*", default=[], metavar="DATA", help="validation data files"
+        "--validate", nargs="+", default=[], metavar="DATA", help="validation data files"
     )
     f.add_argument(
         "--horizon",

@@ -16,7 +16,7 @@ from rich.live import Live
 from ..engine.problem import Problem
 from ..engine.status import Status
 from ..fitting.figures import figure_jobs, save_png
-from ..fitting.methods import check_method, fit
+from ..fitting.methods import fit
 from ..fitting.results import FitInterrupted
 from ..fitting.summary import coloured_residuals_line, summary_table
 from ..fitting.validation import Score, training_scores
@@ -30,6 +30,7 @@ from .fit_setup import (  # _problem and _data_entries are also patched and read
     _one,
     _problem,
     _validation_data,
+    checked_method,
     discretisation,
 )
 from .keeping import (
@@ -161,7 +162,7 @@ def _fit_command(args, renderer: Renderer) -> int:
             f"{problem.loss.name} (its error bars are the sandwich form): drop them, or fit "
             "with --loss squared"
         )
-    check_method(problem, args.method)  # one that cannot serve it: before the folder
+    checked_method(problem, args.method)  # one that cannot serve it: before the folder
     unknown = [n for n in args.profile or [] if n not in problem.theta_names]
     if unknown:
         raise ValueError(

@@ -229,9 +229,11 @@ def _time(p, cols: _Columns, ts, P: int, data: dict) -> np.ndarray:
         return _on_grid(p, data["t"])
     ts = _sampling_time(p, cols) if ts is None else ts
     if ts is None:
+        named = [n for n in cols.values if str(n).lower().startswith("time")]
+        hint = f"; if {named[0]!r} holds the times: --columns t={named[0]}" if named else ""
         raise ValueError(
             f"{p} has no time column 't' and no sampling time 'Ts'; add one or give the "
-            "sampling time (--ts on the command line, ts= in Python)"
+            f"sampling time (--ts on the command line, ts= in Python){hint}"
         )
     return np.arange(P) * float(ts)
 
@@ -262,6 +264,7 @@ def _experiment(p, cols: _Columns, model: Model, ts, samples, require_outputs: b
     has_outputs = all(cols.has(n) for n in model.outputs)
     if not require_outputs and not has_outputs:
         need = list(model.inputs)
+        _some_outputs(p, cols, model)
     _lacking(p, cols, model, need, ts)
     use_t = "t" in cols.values and ts is None
     read = [n for n in need if n not in cols.constants]
@@ -279,6 +282,24 @@ def _experiment(p, cols: _Columns, model: Model, ts, samples, require_outputs: b
     except ValueError as err:  # time not increasing, too short: name the file
         raise ValueError(f"{p}: {err}") from None
     return e if samples is None else _window(p, e, samples)
+
+
+def _some_outputs(p, cols: _Columns, model: Model) -> None:
+    """A DataNote where a file read without outputs (for simulation) holds some of
+    them: a record is scored only with every output, and the ones it has were left
+    unused without a word."""
+    have = [n for n in model.outputs if cols.has(n)]
+    if not have:
+        return
+    import warnings
+
+    lacks = [n for n in model.outputs if n not in have]
+    warnings.warn(
+        f"{p} has the output(s) {have} but lacks {lacks}: simulated without scores and "
+        "without estimating initial states (give every output's column to score it)",
+        DataNote,
+        stacklevel=3,
+    )
 
 
 def _stem(p) -> str:

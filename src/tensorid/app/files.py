@@ -233,4 +233,45 @@ def _spec(ns: dict, path: Path) -> ModelSpec:
         if value is not None and not isinstance(value, dict):
             raise TypeError(f"{key} must be a dict {{name: standard deviation}}, got {value!r}")
         setattr(out, key, value)
+    _stray_settings(ns)
     return out
+
+
+# settings a model file does not take (the command line's and the Problem's), and
+# those it does: a file that sets the former, or misspells the latter, was fitted
+# without them and without a word (interpolation = "zoh" fitted linear)
+_ELSEWHERE = {"interpolation": "--interpolation", "scheme": "--scheme",
+              "substeps": "--substeps", "rtol": "--rtol", "atol": "--atol"}  # fmt: skip
+_SETTINGS = ("model", "rhs", "output", "inputs", "params", "input_delays", "discrete", "p0",
+             "x0", "free_x0", "fixed", "bounds", "weights", "priors", "noise", "loss",
+             "loss_scale", "predictor", "process_noise", "measurement_noise")  # fmt: skip
+
+
+def _stray_settings(ns: dict) -> None:
+    """One line for an integration setting set in the file (refused: it would be
+    ignored), a warning for a name one letter or so from a setting's (``bound``)."""
+    import difflib
+    import warnings
+
+    for name, flag in _ELSEWHERE.items():
+        value = ns.get(name)
+        if isinstance(value, str | int | float) and not isinstance(value, bool):
+            raise ValueError(
+                f"{name} = {value!r} is not a model-file setting and would be ignored: "
+                f"give it on the command line ({flag} {value}) or to ti.Problem({name}=...); "
+                "rename the variable if it is one of your own"
+            )
+    for name, value in ns.items():
+        if (
+            name.startswith("_")
+            or name in _SETTINGS
+            or not isinstance(value, dict | list | tuple | str | int | float)
+        ):
+            continue
+        close = difflib.get_close_matches(name.lower(), _SETTINGS, n=1, cutoff=0.85)
+        if close:
+            warnings.warn(
+                f"{name} is not a model-file setting and is ignored: did you mean "
+                f"{close[0]}? (rename it if it is a variable of your own)",
+                stacklevel=4,
+            )

@@ -14,6 +14,7 @@ from ..engine.integrators import SCHEMES
 from ..engine.predictors import NOISE_PREFIXES
 from ..engine.problem import Problem
 from ..engine.shooting import resolve_segments
+from ..fitting.methods import check_method
 from ..fitting.registry import exact_derivatives
 from ..fitting.residuals import lag_limit
 from ..fitting.validation import check_init_window
@@ -100,7 +101,23 @@ def _as_flags(message: str, args) -> str:
         message = re.sub(name + r"'([^']*)'", rf"{flag} \1", message)  # key='value'
         message = re.sub(name + r"([^\s'():,;]+)", rf"{flag} \1", message)  # key=4
         message = re.sub(name + r"(?=[)\s,;]|$)", flag, message)  # drop key=
-    return message
+    # a hint to give a noise: on the command line, its flag (given or not)
+    return re.sub(r"measurement_noise=\{'([^']*)': σ\}", r"--measurement-noise \1=σ", message)
+
+
+def checked_method(problem, method: str) -> None:
+    """``check_method`` before any work, its refusal spelled in the command line's
+    flags ("method 'fd-lsq' ... (predictor='ekf')" as "--method fd-lsq ... (--predictor
+    ekf)")."""
+    try:
+        check_method(problem, method)
+    except ValueError as e:
+        message = re.sub(r"^method '([\w-]+)'", r"--method \1", str(e))
+        message = message.replace("predictor='ekf'", "--predictor ekf")
+        message = message.replace("drop the segments", "drop --segments or --segment-length")
+        names = r"use ('[\w-]+'(?:(?:, | or )'[\w-]+')*)"
+        message = re.sub(names, lambda m: "use --method " + m[1].replace("'", ""), message)
+        raise ValueError(message) from None
 
 
 def _text(value) -> str:
@@ -134,7 +151,25 @@ def _predictor(spec: ModelSpec, args) -> dict:
             key = f"{kind}_noise"
             if name.startswith(prefix):
                 out[key] = {**(out[key] or {}), name[len(prefix) :]: float(np.exp(value))}
+    if out["predictor"] == "simulation":
+        _no_noise_flags(args)
     return out
+
+
+def _no_noise_flags(args) -> None:
+    """Noise given on the command line for an output-error fit: one line naming the
+    flag and ``--predictor ekf`` (the Problem's own error spoke of keywords)."""
+    flags = [("process_noise", "--process-noise"), ("measurement_noise", "--measurement-noise")]
+    given = [flag for key, flag in flags if getattr(args, key, None)]
+    noise = tuple(NOISE_PREFIXES.values())
+    for flag in ("fix", "free", "bounds"):  # --free NAME; --fix, --bounds NAME=...
+        names = [n if isinstance(n, str) else n[0] for n in getattr(args, flag, None) or []]
+        given += [f"--{flag} {n}" for n in names if n.startswith(noise)]
+    if given:
+        raise ValueError(
+            f"{' and '.join(given)}: a noise intensity is for --predictor ekf (output error "
+            'has no noise model): add --predictor ekf, or predictor = "ekf" in the model file'
+        )
 
 
 def _validation_data(args, model, columns) -> list:

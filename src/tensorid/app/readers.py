@@ -326,6 +326,8 @@ _READERS = {".csv": _columns_csv, ".txt": _columns_csv, ".mat": _columns_mat, ".
 
 
 def _read(p: Path) -> _Columns:
+    if p.is_dir():
+        raise ValueError(f"data file {p} is a folder; give the data files in it ({p}/*.csv)")
     if not p.is_file():
         raise FileNotFoundError(f"data file {p} does not exist")
     suffix = p.suffix.lower()

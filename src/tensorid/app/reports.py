@@ -301,7 +301,8 @@ def fit_report(
     ]
     if data.get("noise_intensities"):
         lines += ["## Noise model", "", f"Predictor: {data['predictor']} (prediction error). "
-                  + noise_text(data["noise_intensities"]) + ".", ""]  # fmt: skip
+                  + noise_text(data["noise_intensities"], res.problem.model.discrete) + ".",
+                  ""]  # fmt: skip
     if data["warnings"]:
         lines += ["## Warnings", ""] + [f"- {w}" for w in data["warnings"]] + [""]
     if data["notes"] and res.success:

@@ -159,7 +159,10 @@ def _record(args, spec: ModelSpec, require_outputs: bool):
     )[0]  # fmt: skip
     if args.init_window is not None:
         if e.y is None:
-            raise ValueError(f"--init-window: {args.data} has no measured outputs to score")
+            raise ValueError(
+                f"--init-window: {args.data} has no measured outputs to score (a record is "
+                f"scored only with a column for each of {list(spec.model.outputs)})"
+            )
         try:
             check_init_window(args.init_window, e)
         except ValueError as err:
@@ -192,7 +195,10 @@ def _score(args, require_outputs: bool):
     spec = load_model(args.model)
     e = _record(args, spec, require_outputs)
     fitted = _fit_json(spec, args.params)
-    spec, predictor = _filter(spec, fitted, e)
+    try:
+        spec, predictor = _filter(spec, fitted, e)
+    except ValueError as err:  # a fit.json of another model: say which file
+        raise ValueError(f"--params {args.params[0]}, a filter fit's noise: {err}") from None
     params, defaults = _parameters(spec, args.params, fitted)
     disc = _integration(args, fitted)
     x0, free, source = _start(spec, args, e, fitted)
@@ -302,7 +308,7 @@ def run_compare(args) -> int:
         raise ValueError(f"--params {args.params}: give the fit.json of a fit")
     out = check_destination(args.out)
     args.params = [args.params]
-    spec, params, score, source, disc, _ = _score(args, require_outputs=True)
+    spec, params, score, source, disc, defaults = _score(args, require_outputs=True)
     m, sim = spec.model, score.simulation
     data = {
         "record": score.experiment.name,
@@ -310,6 +316,9 @@ def run_compare(args) -> int:
         "init_window": args.init_window,
         "samples": list(args.samples) if getattr(args, "samples", None) else None,
         "horizon": args.horizon,
+        # what the outputs were scored as: an output-error fit's every horizon is its
+        # simulation, so "horizon" (the one asked for) alone did not say
+        "scored_as": f"{score.horizon}-step prediction" if score.horizon else "simulation",
         "scored_samples": score.experiment.P - score.start,
         "x0": dict(zip(m.states, score.x0.tolist(), strict=True)),
         "x0_source": source,
@@ -327,6 +336,8 @@ def run_compare(args) -> int:
     if sim.status is Status.OK:
         written += _figures(score, out, "compare")
     _print_scores(score)
+    if defaults:  # a fit.json of another model file: say what it did not give
+        print(defaults)
     _print_x0(m, score.x0, source)
     print("wrote " + ", ".join(map(str, written)))
     return _finite(score, disc, args.data)

@@ -81,10 +81,15 @@ def metric_rows(scores) -> tuple[list[str], list[list[str]]]:
         n = s.experiment.P - s.start
         scored = f"{n}" if not s.start else f"{n} (after {s.start})"
         for o in s.simulation.model.outputs:
-            rows.append(
-                [s.label, o, f"{s.gof[o]:.4f}", f"{s.rmse[o]:.4g}", f"{s.nrmse[o]:.4g}", scored]
-            )
+            cells = [finite(s.gof[o], ".4f"), finite(s.rmse[o], ".4g"), finite(s.nrmse[o], ".4g")]
+            rows.append([s.label, o, *cells, scored])
     return header, rows
+
+
+def finite(value: float, spec: str) -> str:
+    """``value`` formatted, or "not finite" (a record whose simulation blew up was
+    shown as GOF -inf, RMSE nan)."""
+    return format(value, spec) if math.isfinite(value) else "not finite"
 
 
 _CRITERIA = (("AIC", "aic"), ("AICc", "aicc"), ("BIC", "bic"))
@@ -243,7 +248,7 @@ def fit_blocks(res, scores=None) -> list:
         blocks.append(Table(None, *metric_rows(scores)))
     noise = noise_intensities(res, u)
     if noise:
-        blocks.append(noise_text(noise))
+        blocks.append(noise_text(noise, res.problem.model.discrete))
     if u is not None:
         blocks.append("information: " + res.information().describe())
         c = res.criteria()
@@ -283,16 +288,28 @@ def noise_intensities(res, u=None) -> dict | None:
     return out
 
 
-def noise_text(noise: dict) -> str:
-    """One line: each noise intensity with its interval."""
+def noise_text(noise: dict, discrete: bool = False) -> str:
+    """One line: each noise intensity with its interval; a discrete-time model's
+    process noise is per step (P⁺ = A P Aᵀ + Q), a continuous one's per √time."""
     parts = []
-    for kind, unit, letter in (("process", "per √time", "w"), ("measurement", "", "e")):
+    per = "per step" if discrete else "per √time"
+    for kind, unit, letter in (("process", per, "w"), ("measurement", "", "e")):
         for name, e in noise[kind].items():
-            ci = f" [{e['ci95'][0]:.3g}, {e['ci95'][1]:.3g}]" if e["ci95"] else ""
+            ci = _noise_interval(e["ci95"])
             held = " (fixed)" if e["fixed"] else ""
             tail = f" {unit}" if unit else ""
             parts.append(f"σ_{letter}({name}) = {e['sigma']:.4g}{ci}{held}{tail}")
     return "noise intensities (standard deviations, 95 % intervals): " + "; ".join(parts)
+
+
+def _noise_interval(ci) -> str:
+    """The interval " [lo, hi]", "" for a fixed intensity, or a note where the error bars are not
+    available (too few samples: NaN ends, None once read back from fit.json)."""
+    if not ci:
+        return ""
+    if any(c is None or np.isnan(c) for c in ci):
+        return " [interval not available]"
+    return f" [{ci[0]:.3g}, {ci[1]:.3g}]"
 
 
 def summary_table(res, scores=None) -> str:
