@@ -192,3 +192,18 @@ def test_a_newton_step_out_of_the_box_is_taken_with_that_variable_held():
     d, pred = _candidate_step(x, g, H, lo, hi, np.ones(3, bool), 1.0, [0])
     assert x[0] + d[0] == 0.0 and np.linalg.norm(d) == pytest.approx(1.0)
     assert pred == pytest.approx(-_model(g, H, d)) and pred > 1.0  # the Cauchy point: 0.128
+
+
+def test_a_gradient_small_only_by_its_scale_is_not_converged():
+    # J = 1e-6 + ½ h (x - 1000)² with h = 1e-14: at x = 0 the gradient (1e-11) passes
+    # gtol, but a Newton step would still lower J by 5e-9, 0.5 % of it: the gradient
+    # is small only because the scales (chosen at some other point) make it so
+    h, xs = 1e-14, 1000.0
+
+    def fun(x):
+        return 1e-6 + 0.5 * h * float((x[0] - xs) ** 2), h * (x - xs), np.array([[h]])
+
+    inf = np.array([np.inf])
+    r = minimize_trust_region(fun, np.zeros(1), -inf, inf)
+    assert r.status.success and r.x[0] == pytest.approx(xs, rel=1e-6)
+    assert r.fun == pytest.approx(1e-6, rel=1e-12)

@@ -18,7 +18,9 @@ class FitOptions:
             on φ = θ / x_scale.
         maxiter: iteration limit.
         gtol: stop when the ∞-norm of the scaled projected gradient, relative to the
-            starting cost, is below this.
+            starting cost, is below this, and (with a dense Hessian) the decrease a
+            Newton step still predicts, ½ gᵀH⁻¹g, is below √gtol times the cost: the
+            second does not depend on the scales chosen at the start.
         ftol: stop when an accepted step lowers the cost by less than this, relative.
         xtol: stop when the scaled step is below this, relative to 1 + ‖φ‖∞.
         radius: the first trust radius, in scaled units.
