@@ -696,3 +696,29 @@ def test_a_method_the_filter_cannot_use_is_refused_in_flags(tmp_path, capsys):
     assert "--method fd-lsq minimises a sum of squared residuals" in err
     assert "(--predictor ekf)" in err and "use --method auto, newton," in err
     assert "'fd" not in err and "='" not in err and not (tmp_path / "o").exists()
+
+
+def test_a_measurement_noise_gone_to_zero_is_warned_of():
+    """σ_e → 0 (a tester's Silverbox filter fit from σ_e = 1e-7 ended "converged" at
+    3.4e-27, cost -12807, where a larger start reached -13136): a warning names the
+    output and how to start elsewhere; an ordinary or a fixed σ_e gives none."""
+    import types
+
+    from tensorid.fitting.summary import collapsed_noise
+
+    def res(log_sigma_e, names=("log_sigma_e_y", "log_sigma_e_z")):
+        y = np.column_stack([np.sin(np.arange(50.0)), np.cos(np.arange(50.0))])
+        problem = types.SimpleNamespace(
+            loss=types.SimpleNamespace(likelihood=True), theta_names=list(names),
+            model=types.SimpleNamespace(outputs=("y", "z")),
+            experiments=[types.SimpleNamespace(measured=y)],
+        )  # fmt: skip
+        return types.SimpleNamespace(
+            problem=problem, params={"log_sigma_e_y": log_sigma_e, "log_sigma_e_z": -3.0}
+        )
+
+    (line,) = collapsed_noise(res(-60.0))
+    assert "measurement noise of y went to σ_e = 8.8e-27" in line
+    assert "--measurement-noise y=σ" in line and "--fix log_sigma_e_y" in line
+    assert collapsed_noise(res(-5.0)) == []  # 0.0067 of a spread of 0.7: a sensor's
+    assert collapsed_noise(res(-60.0, names=("log_sigma_e_z",))) == []  # y's held

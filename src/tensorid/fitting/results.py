@@ -17,7 +17,7 @@ from ..engine.metrics import gof
 from ..engine.problem import Problem
 from ..engine.status import Status
 from .priors import NoiseCheck, move_lines, prior_moves
-from .summary import Tabular
+from .summary import Tabular, collapsed_noise
 from .uncertainty import Information, Uncertainty, information, uncertainty
 
 
@@ -318,7 +318,7 @@ class FitResult(Tabular):
         if self.has_uncertainty:
             out += self.uncertainty().warnings
         noise = self.noise_check.message() if self.noise_check is not None else None
-        out += [noise] if noise else []
+        out += ([noise] if noise else []) + collapsed_noise(self)
         return out + move_lines(self.prior_moves())
 
     def prior_moves(self) -> list[dict]:

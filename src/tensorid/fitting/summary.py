@@ -288,6 +288,33 @@ def noise_intensities(res, u=None) -> dict | None:
     return out
 
 
+def collapsed_noise(res) -> list[str]:
+    """A warning for each estimated measurement noise of a filter fit that went to
+    (almost) zero: below 1e-6 of its output's spread, no sensor's. The filter then
+    follows that output exactly, a corner where fits stop at a local optimum (a tester's
+    Silverbox fit ended there at cost -12807, where a larger starting noise reached
+    -13136)."""
+    noise = noise_intensities(res)
+    if noise is None:
+        return []
+    out = []
+    model, exps = res.problem.model, res.problem.experiments
+    for o, e in noise["measurement"].items():
+        j = model.outputs.index(o)
+        ys = np.concatenate([np.asarray(x.measured)[:, j] for x in exps])
+        spread = float(np.nanstd(ys))
+        if e["fixed"] or not spread > 0 or e["sigma"] >= 1e-6 * spread:
+            continue
+        out.append(
+            f"the measurement noise of {o} went to σ_e = {e['sigma']:.2g}, "
+            f"{e['sigma'] / spread:.0e} of the output's spread: the filter then follows "
+            f"{o} exactly, a corner of the likelihood where fits often stop at a worse "
+            f"optimum; start from a sensor's noise (--measurement-noise {o}=σ, "
+            f"measurement_noise= in Python) or fix it (--fix log_sigma_e_{o}=log σ)"
+        )
+    return out
+
+
 def noise_text(noise: dict, discrete: bool = False) -> str:
     """One line: each noise intensity with its interval; a discrete-time model's
     process noise is per step (P⁺ = A P Aᵀ + Q), a continuous one's per √time."""

@@ -258,8 +258,9 @@ def _downhill(H, free) -> bool:
     return not callable(H) and free.sum() <= 500 and negative_curvature(H[np.ix_(free, free)])
 
 
-def _newton_decrease(g: np.ndarray, H, free: np.ndarray) -> float:
-    """½ gᵀH⁻¹g over the free variables (H's directions of no curvature left out): the
+def _newton_decrease(g: np.ndarray, H, free: np.ndarray, J: float) -> float:
+    """½ gᵀH⁻¹g over the free variables (H's directions of no curvature left out),
+    relative to |J| (at least 1e-20: a likelihood's J may pass through 0): the
     decrease a Newton step predicts, which, unlike the gradient, does not depend on how
     θ and J were scaled. The gradient test alone trusts the scales chosen at the start:
     from a filter started at tiny noise intensities (J0 = 3.5e18, the scales of the
@@ -271,7 +272,7 @@ def _newton_decrease(g: np.ndarray, H, free: np.ndarray) -> float:
     mu, V = np.linalg.eigh(0.5 * (H + H.T)[np.ix_(free, free)])
     keep = mu > 1e-12 * max(mu[-1], 0.0)
     c = V[:, keep].T @ g[free]
-    return float(0.5 * np.sum(c**2 / mu[keep]))
+    return float(0.5 * np.sum(c**2 / mu[keep])) / max(abs(J), 1e-20)
 
 
 def _collapsed(J: float, pred: float, pg_norm: float, gtol: float) -> Status:
@@ -363,9 +364,7 @@ def trust_region_steps(
     for it in range(1, maxiter + 1):
         pg_norm = float(np.linalg.norm(_projected_gradient(x, g, lo, hi), np.inf))
         free = ~_held(x, g, lo, hi)
-        small = pg_norm <= gtol and _newton_decrease(g, H, free) <= np.sqrt(gtol) * max(
-            abs(J), gtol**2
-        )
+        small = pg_norm <= gtol and _newton_decrease(g, H, free, J) <= np.sqrt(gtol)
         # a saddle is not converged: its negative curvature is a way down (dense H only)
         if J <= fatol or (small and not _downhill(H, free)):
             status = Status.GTOL if small else Status.ROUNDING_FLOOR
