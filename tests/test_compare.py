@@ -361,3 +361,23 @@ def test_starts_tied_at_the_best_cost_go_to_the_fewest_iterations_and_failures_a
     assert starts_outcome(ranked) == (
         ", 3 at the best cost (to 1e-09 relative), 3 failed: 2 nonfinite start, 1 maxiter"
     )
+
+
+def test_compare_and_simulate_replace_their_own_files_not_a_fits(tmp_path, capsys):
+    """A compare (or simulate) into a folder an earlier one wrote leaves none of its
+    figures behind (a model with another output left compare_w.png beside the new
+    ones), and never removes a fit's files in the same folder."""
+    _, path, *_ = _discrete_record(tmp_path, P=60, noise=0.01)
+    model, f = str(tmp_path / "ar.py"), tmp_path / "f"
+    assert cli.main(["fit", model, str(path), "--out", str(f), "--no-progress"]) == 0
+    fits = {p.name for p in f.iterdir()}
+    for command, manifest in (("compare", ".tensorid-compare-files"),
+                              ("simulate", ".tensorid-simulate-files")):  # fmt: skip
+        stale = f / f"{command}_w.png"  # as an earlier run of another model left it
+        stale.write_bytes(b"an old figure")
+        (f / manifest).write_text(f"{stale.name}\n")
+        argv = [command, model, str(path), "--params", str(f / "fit.json"), "--out", str(f)]
+        assert cli.main(argv) == 0
+        assert not stale.exists()
+        assert fits <= {p.name for p in f.iterdir()}  # the fit's files all kept
+        assert json.loads((f / "fit.json").read_text())["params"]

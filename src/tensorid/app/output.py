@@ -175,20 +175,23 @@ def _written_by_tensorid(path: Path) -> bool:
     return isinstance(data, dict) and {"params", "estimates", "cost"} <= set(data)
 
 
-def previous_outputs(folder: Path) -> set[Path]:
+def previous_outputs(folder: Path, manifest_name: str = MANIFEST) -> set[Path]:
     """The files an earlier run wrote into ``folder`` (from its manifest; for a folder
     written before manifests and holding a tensorid fit.json, the file names a fit has
-    always used; otherwise none)."""
-    manifest = folder / MANIFEST
+    always used; otherwise none). ``manifest_name``: another command's manifest
+    (compare and simulate keep their own, so that they never remove a fit's files)."""
+    manifest = folder / manifest_name
     if manifest.is_file():
         names = [n for n in manifest.read_text().splitlines() if n and "/" not in n]
         return {folder / n for n in names if n not in (".", "..")}
-    if not _written_by_tensorid(folder / "fit.json"):
+    if manifest_name != MANIFEST or not _written_by_tensorid(folder / "fit.json"):
         return set()  # not a folder of tensorid results: nothing in it is ours
     return {p for pattern in _LEGACY for p in folder.glob(pattern)}
 
 
-def replace_outputs(folder: Path, old: set[Path], written: list[Path]) -> list[Path]:
+def replace_outputs(
+    folder: Path, old: set[Path], written: list[Path], manifest_name: str = MANIFEST
+) -> list[Path]:
     """After a run wrote ``written``: remove what the earlier run wrote and this one
     did not (a rerun never leaves a mix of old and new results), then record this
     run's files in the manifest. Returns the files removed."""
@@ -197,5 +200,5 @@ def replace_outputs(folder: Path, old: set[Path], written: list[Path]) -> list[P
         if p.is_file():
             p.unlink()
             removed.append(p)
-    write_text(folder / MANIFEST, "".join(f"{p.name}\n" for p in written))
+    write_text(folder / manifest_name, "".join(f"{p.name}\n" for p in written))
     return removed
