@@ -9,6 +9,7 @@ import json
 import re
 import shutil
 import subprocess
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -349,3 +350,25 @@ def test_a_validation_record_that_blows_up_is_said_not_finite(tmp_path, capsys):
         "| validation | y | not finite | not finite | not finite |"
         in (tmp_path / "f" / "report.md").read_text()
     )
+
+
+def test_a_model_file_s_own_variables_are_not_taken_for_misspelt_settings(tmp_path):
+    """The misspelt-setting warning fired on ordinary model files: ``outputs = [...]``
+    passed to a tensorid.Model ("did you mean output?") and constants in capitals
+    (``PARAMS``, ``X0``: "did you mean params / x0?"); a misspelling still warns, naming
+    the file."""
+    from tensorid.app.files import load_model
+
+    (tmp_path / "own.py").write_text(
+        "import tensorid as ti\nPARAMS = ['k']\nX0 = [1.0]\noutputs = ['y']\n"
+        "model = ti.Model(rhs=lambda x, p, u: -p[0] * x + u[0], output=lambda x, p: x,\n"
+        "    states=['x'], params=PARAMS, inputs=['u'], outputs=outputs)\n"
+        "p0 = {'k': 1.0}\nx0 = {'x': X0[0]}\n"
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_model(tmp_path / "own.py")
+    text = 'rhs = {"x": "-k*x + u"}\noutput = {"y": "x"}\ninputs = ["u"]\nparams = ["k"]\n'
+    (tmp_path / "typo.py").write_text(text + 'outputs = ["y"]\n')
+    with pytest.warns(UserWarning, match=r"typo\.py: outputs .* did you mean output\?"):
+        load_model(tmp_path / "typo.py")

@@ -233,7 +233,7 @@ def _spec(ns: dict, path: Path) -> ModelSpec:
         if value is not None and not isinstance(value, dict):
             raise TypeError(f"{key} must be a dict {{name: standard deviation}}, got {value!r}")
         setattr(out, key, value)
-    _stray_settings(ns)
+    _stray_settings(ns, path)
     return out
 
 
@@ -245,13 +245,21 @@ _ELSEWHERE = {"interpolation": "--interpolation", "scheme": "--scheme",
 _SETTINGS = ("model", "rhs", "output", "inputs", "params", "input_delays", "discrete", "p0",
              "x0", "free_x0", "fixed", "bounds", "weights", "priors", "noise", "loss",
              "loss_scale", "predictor", "process_noise", "measurement_noise")  # fmt: skip
+# read only beside text equations: beside a tensorid.Model, ``outputs = [...]`` or
+# ``param = ...`` are the file's own variables (passed to the Model), not misspellings
+_TEXT_ONLY = ("rhs", "output", "inputs", "params", "input_delays", "discrete")
 
 
-def _stray_settings(ns: dict) -> None:
+def _stray_settings(ns: dict, path: Path) -> None:
     """One line for an integration setting set in the file (refused: it would be
-    ignored), a warning for a name one letter or so from a setting's (``bound``)."""
+    ignored), a warning for a name one letter or so from a setting's (``bound``);
+    not for a constant in capitals (``X0``, ``PARAMS``: the file's own, by convention)."""
     import difflib
     import warnings
+
+    settings = _SETTINGS
+    if isinstance(ns.get("model"), Model):
+        settings = tuple(s for s in _SETTINGS if s not in _TEXT_ONLY)
 
     for name, flag in _ELSEWHERE.items():
         value = ns.get(name)
@@ -265,13 +273,14 @@ def _stray_settings(ns: dict) -> None:
         if (
             name.startswith("_")
             or name in _SETTINGS
+            or name.isupper()
             or not isinstance(value, dict | list | tuple | str | int | float)
         ):
             continue
-        close = difflib.get_close_matches(name.lower(), _SETTINGS, n=1, cutoff=0.85)
+        close = difflib.get_close_matches(name.lower(), settings, n=1, cutoff=0.85)
         if close:
             warnings.warn(
-                f"{name} is not a model-file setting and is ignored: did you mean "
+                f"{path}: {name} is not a model-file setting and is ignored: did you mean "
                 f"{close[0]}? (rename it if it is a variable of your own)",
                 stacklevel=4,
             )
