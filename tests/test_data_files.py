@@ -343,7 +343,8 @@ def test_a_time_column_of_another_name_is_pointed_to(tmp_path):
     --ts; the error names the column and the map that reads it."""
     (tmp_path / "d.csv").write_text(_text().replace("t,u,y", "Time [s],u,y", 1))
     message = _error(tmp_path / "d.csv")
-    assert "no time column 't'" in message and "--columns t=Time [s]" in message
+    assert "no time column 't'" in message and "--columns 't=Time [s]'" in message
+    assert "columns={'t': 'Time [s]'} in Python" in message
     (tmp_path / "e.csv").write_text("u,y\n1,2\n3,4\n")
     assert "--columns t=" not in _error(tmp_path / "e.csv")
 

@@ -11,6 +11,7 @@ and how to fix it.
 
 from __future__ import annotations
 
+import shlex
 from dataclasses import replace
 from pathlib import Path
 
@@ -230,7 +231,12 @@ def _time(p, cols: _Columns, ts, P: int, data: dict) -> np.ndarray:
     ts = _sampling_time(p, cols) if ts is None else ts
     if ts is None:
         named = [n for n in cols.values if str(n).lower().startswith("time")]
-        hint = f"; if {named[0]!r} holds the times: --columns t={named[0]}" if named else ""
+        hint = (
+            f"; if {named[0]!r} holds the times: --columns {shlex.quote(f't={named[0]}')} "
+            f"(columns={{'t': {named[0]!r}}} in Python)"
+            if named
+            else ""
+        )
         raise ValueError(
             f"{p} has no time column 't' and no sampling time 'Ts'; add one or give the "
             f"sampling time (--ts on the command line, ts= in Python){hint}"
