@@ -257,7 +257,7 @@ def _stray_settings(ns: dict, path: Path) -> None:
     import difflib
     import warnings
 
-    settings = _SETTINGS
+    settings: tuple[str, ...] = _SETTINGS
     if isinstance(ns.get("model"), Model):
         settings = tuple(s for s in _SETTINGS if s not in _TEXT_ONLY)
 
