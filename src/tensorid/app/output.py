@@ -88,6 +88,8 @@ def write_kept(path: Path, text: str) -> tuple[Path, str | None]:
 
 LOCK = ".tensorid.lock"
 MANIFEST = ".tensorid-files"
+# compare and simulate keep their own: a fit in the same folder keeps its files
+COMPARE_MANIFEST, SIMULATE_MANIFEST = ".tensorid-compare-files", ".tensorid-simulate-files"
 # what a fit wrote before folders had a manifest (tensorid 0.1.0 and older)
 _LEGACY = ("fit.json", "report.md", "convergence.png", "train_*.png", "validation_*.png")
 

@@ -20,7 +20,14 @@ from ..fitting.figures import file_name
 from ..fitting.validation import Score, check_init_window, score_record
 from .after_fit import SIMULATED_HORIZON
 from .files import ModelSpec, load_data, load_model
-from .output import check_destination, previous_outputs, replace_outputs, write_atomic
+from .output import (
+    COMPARE_MANIFEST,
+    SIMULATE_MANIFEST,
+    check_destination,
+    previous_outputs,
+    replace_outputs,
+    write_atomic,
+)
 from .provenance import data_entries, provenance
 from .renderer import draw_files
 from .reports import write_json
@@ -237,13 +244,13 @@ def run_simulate(args) -> int:
     header, table = _simulation_table(m, e, sim, table_only)
     target = out if table_only else out / "simulation.csv"
     target.parent.mkdir(parents=True, exist_ok=True)
-    old = set() if table_only else previous_outputs(out, ".tensorid-simulate-files")
+    old = set() if table_only else previous_outputs(out, SIMULATE_MANIFEST)
     write_atomic(target, partial(_savetxt, table, header))
     written = [target]
     if not table_only and e.y is not None and sim.status is Status.OK:
         written += _figures(score, out, "simulation")
     if not table_only:  # an earlier simulate's figures of outputs this one lacks: gone
-        replace_outputs(out, old, written, ".tensorid-simulate-files")
+        replace_outputs(out, old, written, SIMULATE_MANIFEST)
     if e.y is not None:
         for o, v in score.gof.items():
             print(f"GOF {o}: {v:.4f}" + _after(score))
@@ -335,12 +342,12 @@ def run_compare(args) -> int:
         ),
     }
     out.mkdir(parents=True, exist_ok=True)
-    old = previous_outputs(out, ".tensorid-compare-files")
+    old = previous_outputs(out, COMPARE_MANIFEST)
     written = [write_json(out / "compare.json", data)]
     if sim.status is Status.OK:
         written += _figures(score, out, "compare")
     # an earlier compare's figures (of another model's outputs) are not left beside these
-    replace_outputs(out, old, written, ".tensorid-compare-files")
+    replace_outputs(out, old, written, COMPARE_MANIFEST)
     _print_scores(score)
     if defaults:  # a fit.json of another model file: say what it did not give
         print(defaults)
