@@ -93,12 +93,50 @@ def test_another_model_is_traced_afresh_not_read(cache):
 @pytest.mark.slow  # fresh processes; the default run keeps the bit-for-bit check
 def test_a_damaged_program_file_is_traced_again(cache):
     _run(cache)
-    for f in (cache.parent / "jax-programs").glob("*.jaxexport"):
+    folder = cache.parent / "jax-programs"
+    for f in (*folder.glob("*.jaxexport"), *folder.glob("*.xla")):
         f.write_bytes(b"not a program")
     again = _run(cache)
     assert "_second_order" in again["traced"]
     plain = _run(cache.parent / "off3", TENSORID_CACHE="0")
     assert again["J"] == plain["J"] and again["H"] == plain["H"]
+
+
+def test_a_second_process_loads_the_executables(cache):
+    """The executables beside the traced programs (engine/executables.py): kept by the
+    first process, loaded by the next, which then neither traces nor lowers."""
+    first = _run(cache)
+    folder = cache.parent / "jax-programs"
+    kept = sorted(folder.glob("*.xla"))
+    assert len(kept) == len(list(folder.glob("*.jaxexport"))) >= 2
+    for f in folder.glob("*.jaxexport"):  # not needed where the executable is there
+        f.write_bytes(b"not a program")
+    second = _run(cache)
+    assert second["traced"] == []
+    for key in ("J", "g", "H", "sim"):
+        assert second[key] == first[key]
+
+
+def test_an_executable_whose_call_fails_is_removed_and_jit_runs(tmp_path, monkeypatch):
+    """A kept executable that loads but fails at its first call (a file from a build
+    whose serialization was incomplete): its file goes, the plain jit answers."""
+    import jax
+
+    from tensorid.engine import executables
+
+    kept = tmp_path / f"k-{executables.machine_digest()}.xla"
+    kept.write_bytes(b"stand-in")
+
+    def broken(*args):
+        raise RuntimeError("Function slice_fusion not found")
+
+    monkeypatch.setattr(programs, "folder", lambda: tmp_path)
+    monkeypatch.setattr(programs, "_key", lambda *a: "k")
+    monkeypatch.setattr(executables, "load", lambda path: broken if path == kept else None)
+    prog = programs.Program(jax.jit(lambda x: 2 * x), None, "e")
+    out = prog(np.arange(3.0))
+    assert np.array_equal(out, [0.0, 2.0, 4.0]) and not kept.exists()
+    assert np.array_equal(prog(np.arange(3.0)), [0.0, 2.0, 4.0])  # jit from then on
 
 
 def test_the_key_sees_the_model_its_constants_and_the_layout():

@@ -7,7 +7,9 @@ model through the integrator) and lowers them before it can look the result up:
 0.05-0.3 s per program, several programs per command-line fit, where the fit itself
 takes hundredths of a second. Here each program, once traced, is also written to
 disk as an exported StableHLO module; a later process reads it back (about a
-millisecond) and hands it to XLA, whose own cache then answers.
+millisecond) and hands it to XLA, whose own cache then answers. Beside it the
+executable XLA compiled from it is kept too (:mod:`.executables`), which a later
+process on the same kind of machine loads without lowering anything.
 
 A program is only reused when it would be traced exactly the same. Its key is a
 digest of everything the trace depends on:
@@ -217,7 +219,7 @@ class Program:
             if run is self.jitted:
                 self._runs[shapes] = run
                 return run(*args)
-            try:  # the first call lowers the read program: where even that fails, jit
+            try:  # the first call runs what was read: where even that fails, jit
                 out = run(*args)
             except Exception:
                 if path is not None:
@@ -228,8 +230,10 @@ class Program:
             return out
 
     def _prepare(self, args, leaves, treedef):
-        """(the exported program for these shapes, read or traced and written, and its
-        file), or (the plain jit, None) where it cannot be kept."""
+        """(what runs for these shapes, and its file): the executable kept by an
+        earlier process, else the exported program (read, or traced and written)
+        compiled and its executable kept; or (the plain jit, None) where nothing can
+        be kept."""
         try:
             where = folder()
             key = None if where is None else _key(self.sweeps, self.entry, leaves, treedef)
@@ -240,6 +244,12 @@ class Program:
             return self.jitted, None
         from jax import export
 
+        from . import executables
+
+        kept = executables.path_for(where, key)
+        run = executables.load(kept)
+        if run is not None:  # compiled by an earlier process: neither lowered nor looked up
+            return run, kept
         path = where / f"{key}.jaxexport"
         exported = _read(path)
         if exported is None:  # not there yet, or damaged: trace it now
@@ -252,6 +262,9 @@ class Program:
                 _prune(where, key[:8])
             except Exception:
                 return self.jitted, None
+        run = executables.compile_and_keep(jax.jit(exported.call), args, kept, _write)
+        if run is not None:
+            return run, kept
         return jax.jit(exported.call), path
 
 
@@ -302,7 +315,7 @@ def _prune(where: Path | None, current: str) -> None:
 def _prune_programs(where: Path, current: str) -> None:
     old = time.time() - STALE_DAYS * 86400
     kept = []
-    for path in where.glob("*.jaxexport"):
+    for path in (*where.glob("*.jaxexport"), *where.glob("*.xla")):
         try:
             st = path.stat()
             if not path.name.startswith(current) and st.st_mtime < old:
