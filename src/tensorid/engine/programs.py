@@ -124,9 +124,12 @@ def _jax_digest() -> str:
 def _consts(jaxpr, h) -> None:
     """Add the values of the arrays every (nested) jaxpr closes over to ``h``: a helper
     under jax.jit keeps its constants in its own jaxpr, which printing does not show."""
-    from jax.extend import core as jcore
+    try:  # loaded with jax; jax.extend's public names cost an import of 20 ms
+        from jax._src.core import ClosedJaxpr, Jaxpr
+    except ImportError:
+        from jax.extend.core import ClosedJaxpr, Jaxpr
 
-    closed = isinstance(jaxpr, jcore.ClosedJaxpr)
+    closed = isinstance(jaxpr, ClosedJaxpr)
     for c in jaxpr.consts if closed else ():
         a = np.asarray(c)
         h.update(f"{a.dtype}{a.shape}".encode())
@@ -134,7 +137,7 @@ def _consts(jaxpr, h) -> None:
     for eqn in (jaxpr.jaxpr if closed else jaxpr).eqns:
         for value in eqn.params.values():
             for v in value if isinstance(value, tuple | list) else (value,):
-                if isinstance(v, jcore.ClosedJaxpr | jcore.Jaxpr):
+                if isinstance(v, ClosedJaxpr | Jaxpr):
                     _consts(v, h)
 
 
