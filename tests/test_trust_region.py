@@ -207,3 +207,48 @@ def test_a_gradient_small_only_by_its_scale_is_not_converged():
     r = minimize_trust_region(fun, np.zeros(1), -inf, inf)
     assert r.status.success and r.x[0] == pytest.approx(xs, rel=1e-6)
     assert r.fun == pytest.approx(1e-6, rel=1e-12)
+
+
+def test_negative_curvature_does_not_depend_on_the_units_of_the_unknowns():
+    # a saddle whose downward curvature is 1e-10 of the other: in these units the
+    # eigenvalues are -1e-10 and 1, below rounding relative to the largest; rescaled,
+    # the same saddle. The verdict is made in Jacobi units, where both are the same
+    from tensorid.fitting.curvature import negative_curvature
+
+    rng = np.random.default_rng(0)
+    saddle = np.array([[1.0, 1e-6], [1e-6, -1e-10]])
+    minimum = np.array([[1.0, 1e-6], [1e-6, 1e-10]])  # 1e-10 - 1e-12 > 0: positive
+    for _ in range(20):
+        S = np.diag(10.0 ** rng.uniform(-8, 8, 2))
+        assert negative_curvature(S @ saddle @ S)
+        assert not negative_curvature(S @ minimum @ S)
+    # no curvature (a zero row, an unknown that does not enter) is not negative
+    # curvature, nor is a row that is not finite, nor nothing at all
+    assert not negative_curvature(np.diag([1.0, 0.0, 1e-300]))
+    assert not negative_curvature(np.array([[1.0, np.nan], [np.nan, np.inf]]))
+    assert not negative_curvature(np.zeros((0, 0)))
+    # rounding at 1e-12 of the diagonal in a positive definite matrix: no saddle
+    A = rng.standard_normal((6, 6))
+    H = A @ A.T + 1e-3 * np.eye(6)
+    E = rng.standard_normal((6, 6)) * 1e-12 * np.sqrt(np.outer(np.diag(H), np.diag(H)))
+    assert not negative_curvature(H + E + E.T)
+
+
+def test_a_badly_scaled_saddle_is_not_converged():
+    # J = 1 + ½ x0² + ε (¼ x1⁴ - ½ x1²), ε = 1e-10, near its saddle (0, 0): the
+    # gradient passes gtol, and the Hessian's eigenvalues are -1e-10 and 1 in the
+    # trust region's units: "no negative curvature" by a test relative to the largest,
+    # and the run stopped there, "converged". Its minima are x1 = ±1, in basins
+    # |x1| > 1/√3 where J is convex (the run may stop short of x1 = 1 in one: the
+    # gradient there, ε (x1³ - x1), passes gtol)
+    eps = 1e-10
+
+    def fun(x):
+        J = 1.0 + 0.5 * x[0] ** 2 + eps * (0.25 * x[1] ** 4 - 0.5 * x[1] ** 2)
+        g = np.array([x[0], eps * (x[1] ** 3 - x[1])])
+        return J, g, np.diag([1.0, eps * (3.0 * x[1] ** 2 - 1.0)])
+
+    inf = np.full(2, np.inf)
+    r = minimize_trust_region(fun, np.array([1e-12, 0.0]), -inf, inf)
+    assert r.status.success and abs(r.x[1]) > 1.0 / np.sqrt(3.0), (r.x, r.status)
+    assert r.fun < 1.0 - 0.15 * eps  # the saddle's is 1
