@@ -270,14 +270,23 @@ def _newton_decrease(g: np.ndarray, H, free: np.ndarray, J: float) -> float:
     return float(0.5 * np.sum(c**2 / mu[keep])) / max(abs(J), 1e-20)
 
 
-def _collapsed(J: float, pred: float, pg_norm: float, gtol: float, downhill=False) -> Status:
+def _collapsed(J: float, pred: float, pg_norm: float, gtol: float) -> Status:
     """The radius fell below xtol with every step rejected: a genuine rounding floor
     (rejected steps of length r mean |g| r is below the cost's rounding noise, so the
-    gradient must be small too), or a collapse. Where H curves downward (``downhill``)
-    it is a collapse: a saddle is no floor, whatever the steps found."""
+    gradient must be small too), or a collapse."""
     tiny = max(abs(J), np.finfo(float).tiny)  # |J|: a likelihood's may be negative
-    ok = pred <= 1e-8 * tiny and pg_norm <= max(np.sqrt(gtol), 1e-3 * tiny) and not downhill
+    ok = pred <= 1e-8 * tiny and pg_norm <= max(np.sqrt(gtol), 1e-3 * tiny)
     return Status.MACHINE_PRECISION if ok else Status.RADIUS_COLLAPSED
+
+
+def _unless_saddle(ended, H, free):
+    """``ended`` (from :func:`_ended`), unless it would call a point where H curves
+    downward (curvature.py) converged: a saddle's negative curvature is a way down, so
+    small steps there (FTOL, XTOL) go on (None), and a radius that collapsed under
+    rejected steps there (False) is a collapse, not a rounding floor."""
+    if ended not in (Status.FTOL, Status.XTOL, False) or not _downhill(H, free):
+        return ended
+    return None if ended else Status.RADIUS_COLLAPSED
 
 
 def _ended(accepted, held_back, actual, pred, J, d, xscale, radius, ftol, xtol):
@@ -388,10 +397,9 @@ def trust_region_steps(
             x, J, g, H = x_new, J_new, g_new, H_new
         record(it, step, rho, accepted)
         ended = _ended(accepted, held_back, actual, pred, J_old, d, xscale, radius, ftol, xtol)
-        if ended in (Status.FTOL, Status.XTOL) and _downhill(H, ~_held(x, g, lo, hi)):
-            ended = None  # small steps at a saddle: its negative curvature is a way down
+        ended = _unless_saddle(ended, H, ~_held(x, g, lo, hi))
         if ended is not None:
-            status = ended or _collapsed(J, pred, pg_norm, gtol, _downhill(H, free))
+            status = ended or _collapsed(J, pred, pg_norm, gtol)
             break
     hess = None if callable(H) else H
     detail = f"maxiter={maxiter}" if status is Status.MAXITER else ""
