@@ -252,3 +252,21 @@ def test_a_badly_scaled_saddle_is_not_converged():
     r = minimize_trust_region(fun, np.array([1e-12, 0.0]), -inf, inf)
     assert r.status.success and abs(r.x[1]) > 1.0 / np.sqrt(3.0), (r.x, r.status)
     assert r.fun < 1.0 - 0.15 * eps  # the saddle's is 1
+
+
+def test_small_steps_or_a_collapsed_radius_at_a_saddle_are_not_convergence():
+    # FTOL and XTOL at a point where H curves downward (in Jacobi units: -1e-12 beside
+    # 1 is -1 beside 1) go on; a radius collapsed under rejected steps there is a
+    # collapse, not a rounding floor. Where H does not curve downward, as before
+    from tensorid.fitting.trust_region import _unless_saddle
+
+    saddle, minimum, free = np.diag([1.0, -1e-12]), np.diag([1.0, 1e-12]), np.ones(2, bool)
+    for ended in (Status.FTOL, Status.XTOL):
+        assert _unless_saddle(ended, saddle, free) is None
+        assert _unless_saddle(ended, minimum, free) is ended
+    assert _unless_saddle(False, saddle, free) is Status.RADIUS_COLLAPSED
+    assert _unless_saddle(False, minimum, free) is False
+    assert _unless_saddle(None, saddle, free) is None
+    assert _unless_saddle(Status.RADIUS_COLLAPSED, saddle, free) is Status.RADIUS_COLLAPSED
+    # the unknown held at its bound is left out: a minimum on a bound is a minimum
+    assert _unless_saddle(Status.FTOL, saddle, np.array([True, False])) is Status.FTOL
