@@ -270,3 +270,16 @@ def test_small_steps_or_a_collapsed_radius_at_a_saddle_are_not_convergence():
     assert _unless_saddle(Status.RADIUS_COLLAPSED, saddle, free) is Status.RADIUS_COLLAPSED
     # the unknown held at its bound is left out: a minimum on a bound is a minimum
     assert _unless_saddle(Status.FTOL, saddle, np.array([True, False])) is Status.FTOL
+
+
+def test_a_boundary_step_is_not_cut_short_where_the_model_is_tiny():
+    # the trust region's units came from a start whose cost was 1e3-1e18 times the
+    # current one, so g and H are tiny (a filter fit's at its saddle, in its two main
+    # eigen-directions); the secular equation stopped at an absolute width of 1e-15 in
+    # λ, where the λ it needed was within 3e-20 of 1.3e-18, and the step along the
+    # slight negative curvature was 8e-5 long at a radius of 1.6. Filter fits from
+    # σ = 1e-9 crawled so for 200 iterations; now they converge in 18-19
+    g, H = np.array([-4e-20, 1e-14]), np.diag([-1.3e-18, 1e-9])
+    s, on_boundary = solve_subproblem(g, H, 1.6)
+    assert on_boundary and np.linalg.norm(s) == pytest.approx(1.6, rel=1e-9)
+    assert s[0] > 1.59  # downhill along the first unknown
