@@ -207,3 +207,79 @@ def test_a_gradient_small_only_by_its_scale_is_not_converged():
     r = minimize_trust_region(fun, np.zeros(1), -inf, inf)
     assert r.status.success and r.x[0] == pytest.approx(xs, rel=1e-6)
     assert r.fun == pytest.approx(1e-6, rel=1e-12)
+
+
+def test_negative_curvature_does_not_depend_on_the_units_of_the_unknowns():
+    # a saddle whose downward curvature is 1e-10 of the other: in these units the
+    # eigenvalues are -1e-10 and 1, below rounding relative to the largest; rescaled,
+    # the same saddle. The verdict is made in Jacobi units, where both are the same
+    from tensorid.fitting.curvature import negative_curvature
+
+    rng = np.random.default_rng(0)
+    saddle = np.array([[1.0, 1e-6], [1e-6, -1e-10]])
+    minimum = np.array([[1.0, 1e-6], [1e-6, 1e-10]])  # 1e-10 - 1e-12 > 0: positive
+    for _ in range(20):
+        S = np.diag(10.0 ** rng.uniform(-8, 8, 2))
+        assert negative_curvature(S @ saddle @ S)
+        assert not negative_curvature(S @ minimum @ S)
+    # no curvature (a zero row, an unknown that does not enter) is not negative
+    # curvature, nor is a row that is not finite, nor nothing at all
+    assert not negative_curvature(np.diag([1.0, 0.0, 1e-300]))
+    assert not negative_curvature(np.array([[1.0, np.nan], [np.nan, np.inf]]))
+    assert not negative_curvature(np.zeros((0, 0)))
+    # rounding at 1e-12 of the diagonal in a positive definite matrix: no saddle
+    A = rng.standard_normal((6, 6))
+    H = A @ A.T + 1e-3 * np.eye(6)
+    E = rng.standard_normal((6, 6)) * 1e-12 * np.sqrt(np.outer(np.diag(H), np.diag(H)))
+    assert not negative_curvature(H + E + E.T)
+
+
+def test_a_badly_scaled_saddle_is_not_converged():
+    # J = 1 + ½ x0² + ε (¼ x1⁴ - ½ x1²), ε = 1e-10, near its saddle (0, 0): the
+    # gradient passes gtol, and the Hessian's eigenvalues are -1e-10 and 1 in the
+    # trust region's units: "no negative curvature" by a test relative to the largest,
+    # and the run stopped there, "converged". Its minima are x1 = ±1, in basins
+    # |x1| > 1/√3 where J is convex (the run may stop short of x1 = 1 in one: the
+    # gradient there, ε (x1³ - x1), passes gtol)
+    eps = 1e-10
+
+    def fun(x):
+        J = 1.0 + 0.5 * x[0] ** 2 + eps * (0.25 * x[1] ** 4 - 0.5 * x[1] ** 2)
+        g = np.array([x[0], eps * (x[1] ** 3 - x[1])])
+        return J, g, np.diag([1.0, eps * (3.0 * x[1] ** 2 - 1.0)])
+
+    inf = np.full(2, np.inf)
+    r = minimize_trust_region(fun, np.array([1e-12, 0.0]), -inf, inf)
+    assert r.status.success and abs(r.x[1]) > 1.0 / np.sqrt(3.0), (r.x, r.status)
+    assert r.fun < 1.0 - 0.15 * eps  # the saddle's is 1
+
+
+def test_small_steps_or_a_collapsed_radius_at_a_saddle_are_not_convergence():
+    # FTOL and XTOL at a point where H curves downward (in Jacobi units: -1e-12 beside
+    # 1 is -1 beside 1) go on; a radius collapsed under rejected steps there is a
+    # collapse, not a rounding floor. Where H does not curve downward, as before
+    from tensorid.fitting.trust_region import _unless_saddle
+
+    saddle, minimum, free = np.diag([1.0, -1e-12]), np.diag([1.0, 1e-12]), np.ones(2, bool)
+    for ended in (Status.FTOL, Status.XTOL):
+        assert _unless_saddle(ended, saddle, free) is None
+        assert _unless_saddle(ended, minimum, free) is ended
+    assert _unless_saddle(False, saddle, free) is Status.RADIUS_COLLAPSED
+    assert _unless_saddle(False, minimum, free) is False
+    assert _unless_saddle(None, saddle, free) is None
+    assert _unless_saddle(Status.RADIUS_COLLAPSED, saddle, free) is Status.RADIUS_COLLAPSED
+    # the unknown held at its bound is left out: a minimum on a bound is a minimum
+    assert _unless_saddle(Status.FTOL, saddle, np.array([True, False])) is Status.FTOL
+
+
+def test_a_boundary_step_is_not_cut_short_where_the_model_is_tiny():
+    # the trust region's units came from a start whose cost was 1e3-1e18 times the
+    # current one, so g and H are tiny (a filter fit's at its saddle, in its two main
+    # eigen-directions); the secular equation stopped at an absolute width of 1e-15 in
+    # λ, where the λ it needed was within 3e-20 of 1.3e-18, and the step along the
+    # slight negative curvature was 8e-5 long at a radius of 1.6. Filter fits from
+    # σ = 1e-9 crawled so for 200 iterations; now they converge in 18-19
+    g, H = np.array([-4e-20, 1e-14]), np.diag([-1.3e-18, 1e-9])
+    s, on_boundary = solve_subproblem(g, H, 1.6)
+    assert on_boundary and np.linalg.norm(s) == pytest.approx(1.6, rel=1e-9)
+    assert s[0] > 1.59  # downhill along the first unknown

@@ -32,11 +32,12 @@ from typing import Any, ClassVar, NamedTuple
 import numpy as np
 
 from ..engine.status import Status
+from .curvature import negative_curvature
 from .endings import Outcome
 from .hybrid import Hybrid
 from .options import FitOptions
 from .scaling import Tracker
-from .trust_region import TRResult, negative_curvature, trust_region_steps
+from .trust_region import TRResult, trust_region_steps
 
 
 class Sweep(enum.Enum):

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..engine.status import Status
+from .curvature import negative_curvature
 from .projected import held_newton_steps, projected_cauchy, subspace_steps
 
 
@@ -72,7 +73,7 @@ def solve_subproblem(g: np.ndarray, H: np.ndarray, radius: float) -> tuple[np.nd
         dphi = np.sum(a**2 / d**3) / n**3
         l_new = l - phi / dphi if dphi > 0 else np.nan
         l = l_new if l_lo < l_new < l_hi else 0.5 * (l_lo + l_hi)
-        if l_hi - l_lo <= 1e-15 * max(1.0, l_hi):
+        if l_hi - l_lo <= 1e-15 * l_hi:  # relative: H may be 1e-3 (J0 >> J), see curvature.py
             break
     s = -Q @ (a / (lam + l))
     n = np.linalg.norm(s)
@@ -248,12 +249,6 @@ def _held(x, g, lo, hi) -> np.ndarray:
     return ((x <= lo + tol_b) & (g > 0)) | ((x >= hi - tol_b) & (g < 0))
 
 
-def negative_curvature(H: np.ndarray) -> bool:
-    """Does the (scaled) Hessian curve downward, beyond rounding?"""
-    lam = np.linalg.eigvalsh(0.5 * (H + H.T)) if H.size else np.zeros(1)
-    return bool(lam[0] < -1e-8 * max(1.0, abs(lam[-1])))
-
-
 def _downhill(H, free) -> bool:
     return not callable(H) and free.sum() <= 500 and negative_curvature(H[np.ix_(free, free)])
 
@@ -282,6 +277,16 @@ def _collapsed(J: float, pred: float, pg_norm: float, gtol: float) -> Status:
     tiny = max(abs(J), np.finfo(float).tiny)  # |J|: a likelihood's may be negative
     ok = pred <= 1e-8 * tiny and pg_norm <= max(np.sqrt(gtol), 1e-3 * tiny)
     return Status.MACHINE_PRECISION if ok else Status.RADIUS_COLLAPSED
+
+
+def _unless_saddle(ended, H, free):
+    """``ended`` (from :func:`_ended`), unless it would call a point where H curves
+    downward (curvature.py) converged: a saddle's negative curvature is a way down, so
+    small steps there (FTOL, XTOL) go on (None), and a radius that collapsed under
+    rejected steps there (False) is a collapse, not a rounding floor."""
+    if ended not in (Status.FTOL, Status.XTOL, False) or not _downhill(H, free):
+        return ended
+    return None if ended else Status.RADIUS_COLLAPSED
 
 
 def _ended(accepted, held_back, actual, pred, J, d, xscale, radius, ftol, xtol):
@@ -392,6 +397,7 @@ def trust_region_steps(
             x, J, g, H = x_new, J_new, g_new, H_new
         record(it, step, rho, accepted)
         ended = _ended(accepted, held_back, actual, pred, J_old, d, xscale, radius, ftol, xtol)
+        ended = _unless_saddle(ended, H, ~_held(x, g, lo, hi))
         if ended is not None:
             status = ended or _collapsed(J, pred, pg_norm, gtol)
             break
