@@ -33,6 +33,20 @@ def _positive_seconds(text: str) -> float:
     return x
 
 
+def _sample_time(text: str) -> float:
+    """--ts: a finite sampling time > 0 (argparse's float took 0, -1, nan and inf, and
+    the error came later without the flag's name)."""
+    try:
+        x = float(text)
+    except ValueError:
+        x = float("nan")
+    if not 0 < x < float("inf"):
+        raise argparse.ArgumentTypeError(
+            f"expected a positive sampling time in seconds (a finite number > 0), got {text!r}"
+        )
+    return x
+
+
 def _level(text: str) -> float:
     x = _non_negative(text)
     if not 0 < x < 1:

@@ -20,6 +20,7 @@ from .argtypes import (
     _non_negative,
     _positive_seconds,
     _range,
+    _sample_time,
     _samples,
     _value,
 )
@@ -158,7 +159,7 @@ def register(sub) -> None:
         "with a prediction horizon): with --predictor ekf, the filter's state K samples "
         "before, run ahead by the model; for output error every horizon is the simulation",
     )
-    f.add_argument("--ts", type=float, default=None, help=_TS_HELP)
+    f.add_argument("--ts", type=_sample_time, default=None, help=_TS_HELP)
     f.add_argument(
         "--samples",
         type=_samples,

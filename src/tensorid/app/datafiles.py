@@ -357,8 +357,8 @@ def load_data(
     that each lack what the others hold."""
     if isinstance(paths, str | Path):
         paths = [paths]
-    if ts is not None and not ts > 0:
-        raise ValueError(f"the sampling time must be positive, got {ts}")
+    if ts is not None and not 0 < ts < np.inf:
+        raise ValueError(f"the sampling time ts must be positive and finite, got {ts}")
     paths = list(paths)
     maps = _maps(columns, len(paths))
     if len(paths) > 1 and not isinstance(columns, list):
