@@ -248,6 +248,10 @@ MAKERS: dict[str, Callable[[Path], None]] = {
     "sheet.xlsx": _written(b"PK\x03\x04 not really a workbook"),
     "fit.json": _written('{"params": {"a": 2.0, "b": 3.0}, "x0": [0.0]}'),
     "fit_broken.json": _written('{"params": '),
+    "fit_cut.json": _written('{"params": {"a": 2.0, "b": 3.0},\n "x0": [0.0'),
+    "fit_garbage.json": _written('saved 2026-11-26\n{"params": {"a": 2.0, "b": 3.0}}'),
+    "fit_empty.json": _written(""),
+    "fit_binary.json": _written(b"\xff\xfe\x00{"),
     "fit_noparams.json": _written('{"x0": [0.0]}'),
 }
 

@@ -46,14 +46,40 @@ def _assignments(items: list[str], what: str) -> dict[str, float]:
     return out
 
 
+def _read_json(path: Path):
+    """The JSON in ``path``, or one line saying how the file is not a fit.json: empty,
+    not text, cut short, text before or after the JSON (json's own message, "Expecting
+    value: line 1 column 1 (char 0)", said none of this)."""
+    fix = "give the fit.json that tensorid fit --out wrote, or run the fit again"
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as e:
+        raise ValueError(
+            f"--params {path} is not a fit.json: not text (byte {e.start} is not UTF-8); {fix}"
+        ) from None
+    if not text.strip():
+        raise ValueError(f"--params {path} is empty, not a fit.json; {fix}")
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as e:
+        where = f"line {e.lineno}, column {e.colno}"
+        if e.pos >= len(text.rstrip()):
+            what = f"is damaged: its JSON ends unfinished at {where} (the file was cut short)"
+        elif e.msg == "Extra data":
+            what = f"is damaged: text follows its JSON at {where}"
+        elif e.pos == len(text) - len(text.lstrip()):
+            first = text.lstrip().splitlines()[0][:30]
+            what = f"is not a fit.json: it does not start with JSON ({first!r} at {where})"
+        else:
+            what = f"is damaged: its JSON breaks at {where} ({e.msg})"
+        raise ValueError(f"--params {path} {what}; {fix}") from None
+
+
 def _fitted(path: Path, spec: ModelSpec) -> dict:
     """A fit.json's parameters and initial state, checked against the model."""
     if not path.is_file():
         raise FileNotFoundError(f"--params {path} does not exist")
-    try:
-        fitted = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise ValueError(f"--params {path} is not valid JSON ({e}); give a fit.json") from None
+    fitted = _read_json(path)
     if not isinstance(fitted, dict) or not isinstance(fitted.get("params"), dict):
         raise ValueError(f"--params {path} holds no params: give a fit.json written by tensorid")
     bad = [k for k, v in fitted["params"].items() if not isinstance(v, int | float)]
