@@ -667,6 +667,23 @@ def test_noise_flags_without_the_filter_name_the_flags(tmp_path, capsys):
     assert not (tmp_path / "o").exists()  # refused before any work
 
 
+def test_noise_flags_on_a_state_without_process_noise_are_refused(tmp_path, capsys):
+    """--free log_sigma_w_x on a filter fit whose state x has no process noise was
+    ignored without a word (the fit ran with v's noise alone); --bounds on it named
+    no flag. Both name the flag and --process-noise x=σ, before any work."""
+    from tensorid import cli
+
+    (tmp_path / "m.py").write_text(EKF_MODEL_FILE)
+    (tmp_path / "d.csv").write_text("t,u,y\n" + "".join(f"{k},1,{k % 3}\n" for k in range(20)))
+    argv = ["fit", str(tmp_path / "m.py"), str(tmp_path / "d.csv"), "--out", str(tmp_path / "o")]
+    for flags in (["--free", "log_sigma_w_x"], ["--bounds", "log_sigma_w_x=-5:-1"]):
+        assert cli.main([*argv, *flags]) == 2
+        err = capsys.readouterr().err
+        assert f"{flags[0]} log_sigma_w_x: the state x has no process noise" in err, err
+        assert "--process-noise x=σ" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()
+
+
 def test_a_discrete_model_s_process_noise_is_labelled_per_step():
     """P⁺ = A P Aᵀ + Q: a discrete-time model's σ_w is per step, not per √time."""
     from tensorid.fitting.summary import noise_text

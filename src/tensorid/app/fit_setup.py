@@ -153,7 +153,25 @@ def _predictor(spec: ModelSpec, args) -> dict:
                 out[key] = {**(out[key] or {}), name[len(prefix) :]: float(np.exp(value))}
     if out["predictor"] == "simulation":
         _no_noise_flags(args)
+    else:
+        _process_noise_named(args, out["process_noise"] or {})
     return out
+
+
+def _process_noise_named(args, process: dict) -> None:
+    """--free or --bounds on log σ_w of a state without process noise: one line with
+    the way out (--free was ignored without a word, --bounds named no flag)."""
+    prefix = NOISE_PREFIXES["process"]
+    for flag in ("free", "bounds"):
+        names = [n if isinstance(n, str) else n[0] for n in getattr(args, flag, None) or []]
+        for name in names:
+            state = name[len(prefix) :]
+            if name.startswith(prefix) and state not in process:
+                raise ValueError(
+                    f"--{flag} {name}: the state {state} has no process noise to estimate; "
+                    f"give it a start with --process-noise {state}=σ (or process_noise in "
+                    f"the model file), or drop --{flag} {name}"
+                )
 
 
 def _no_noise_flags(args) -> None:
