@@ -54,7 +54,21 @@ class Parser(argparse.ArgumentParser):
     names the argument and says where the help is."""
 
     def error(self, message: str):  # type: ignore[override]
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+        self.exit(2, f"{self.prog}: error: {_nearest_choice(message)} (see {self.prog} --help)\n")
+
+
+def _nearest_choice(message: str) -> str:
+    """argparse's "invalid choice: 'sdrik3' (choose from ...)" with "; did you mean
+    'sdirk3'?" after it (Python 3.14's argparse suggests; those before do not)."""
+    import re
+
+    from ..engine.checks import nearest
+
+    found = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)$", message)
+    if not found or "did you mean" in message:
+        return message
+    close = nearest(found[1], re.findall(r"'([^']*)'", found[2]))
+    return f"{message}; did you mean {close!r}?" if close and close != found[1] else message
 
 
 _COLUMNS_HELP = (

@@ -250,6 +250,25 @@ _SETTINGS = ("model", "rhs", "output", "inputs", "params", "input_delays", "disc
 _TEXT_ONLY = ("rhs", "output", "inputs", "params", "input_delays", "discrete")
 
 
+def _not_a_choice(name: str, value) -> tuple[str, str]:
+    """(", and 'sdrik3' is no scheme (...)", the value to suggest) where a scheme or
+    interpolation set in a model file is no valid one: the flag the refusal suggests
+    would be refused in turn. ("", value) otherwise."""
+    from ..engine.checks import nearest
+    from ..engine.discretisation import INTERPOLATIONS
+    from ..engine.integrators import SCHEMES
+
+    choices = {"scheme": sorted(SCHEMES), "interpolation": list(INTERPOLATIONS)}.get(name)
+    if choices is None or value in choices:
+        return "", value
+    close = nearest(value, choices)
+    hint = f"did you mean {close!r}? " if close else ""
+    return (
+        f", and {value!r} is no {name} ({hint}the {name}s: {', '.join(choices)})",
+        close or name.upper(),
+    )
+
+
 def _stray_settings(ns: dict, path: Path) -> None:
     """One line for an integration setting set in the file (refused: it would be
     ignored), a warning for a name one letter or so from a setting's (``bound``);
@@ -264,10 +283,11 @@ def _stray_settings(ns: dict, path: Path) -> None:
     for name, flag in _ELSEWHERE.items():
         value = ns.get(name)
         if isinstance(value, str | int | float) and not isinstance(value, bool):
+            invalid, value = _not_a_choice(name, value)
             raise ValueError(
-                f"{name} = {value!r} is not a model-file setting and would be ignored: "
-                f"give it on the command line ({flag} {value}) or to ti.Problem({name}=...); "
-                "rename the variable if it is one of your own"
+                f"{name} = {ns[name]!r} is not a model-file setting and would be ignored"
+                f"{invalid}: give it on the command line ({flag} {value}) or to "
+                f"ti.Problem({name}=...); rename the variable if it is one of your own"
             )
     for name, value in ns.items():
         if (

@@ -12,6 +12,27 @@ import numpy as np
 from .data import Experiment
 
 
+_ALIASES = {"foh": "linear"}  # MATLAB's first-order hold is linear interpolation
+
+
+def nearest(value, choices: Sequence[str]) -> str | None:
+    """The choice a misspelt ``value`` most likely meant ('sdrik3': 'sdirk3', 'RK4':
+    'rk4', MATLAB's 'foh': 'linear'), or None."""
+    import difflib
+
+    text = str(value).lower()
+    if text in choices or _ALIASES.get(text) in choices:
+        return text if text in choices else _ALIASES[text]
+    close = difflib.get_close_matches(text, list(choices), n=1, cutoff=0.6)
+    return close[0] if close else None
+
+
+def did_you_mean(value, choices: Sequence[str]) -> str:
+    """" (did you mean 'sdirk3'?)" for the choice nearest to a misspelt ``value``, or ""."""
+    close = nearest(value, choices)
+    return f" (did you mean {close!r}?)" if close else ""
+
+
 def name_list(what: str, names, known: Sequence[str], kind: str) -> list[str]:
     if names is None:
         return []
