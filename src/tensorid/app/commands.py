@@ -32,6 +32,7 @@ from .fit_setup import (  # _problem and _data_entries are also patched and read
     _validation_data,
     checked_method,
     discretisation,
+    predictor_origin,
 )
 from .keeping import (
     _keep,
@@ -153,8 +154,8 @@ def _fit_command(args, renderer: Renderer) -> int:
     problem = _problem(spec, train, args)
     if problem.loss.likelihood and args.data_sensitivity:
         raise ValueError(
-            "--data-sensitivity is for output error, not --predictor ekf: drop it, or fit "
-            "with --predictor simulation"
+            f"--data-sensitivity is for output error, not a filter fit "
+            f"({predictor_origin(spec, args)}): drop it, or fit with --predictor simulation"
         )
     if problem.loss.robust and (args.profile is not None or args.data_sensitivity):
         raise ValueError(
@@ -162,7 +163,8 @@ def _fit_command(args, renderer: Renderer) -> int:
             f"{problem.loss.name} (its error bars are the sandwich form): drop them, or fit "
             "with --loss squared"
         )
-    checked_method(problem, args.method)  # one that cannot serve it: before the folder
+    # a method that cannot serve it: refused before the folder is touched
+    checked_method(problem, args.method, predictor_origin(spec, args))
     unknown = [n for n in args.profile or [] if n not in problem.theta_names]
     if unknown:
         raise ValueError(

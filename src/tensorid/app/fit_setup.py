@@ -105,15 +105,23 @@ def _as_flags(message: str, args) -> str:
     return re.sub(r"measurement_noise=\{'([^']*)': σ\}", r"--measurement-noise \1=σ", message)
 
 
-def checked_method(problem, method: str) -> None:
+def predictor_origin(spec: ModelSpec, args) -> str:
+    """Where a filter fit's predictor was chosen: "--predictor ekf", or the model file's
+    setting (a refusal that blamed --predictor ekf sent the user to a flag not given)."""
+    if getattr(args, "predictor", None) == "ekf":
+        return "--predictor ekf"
+    return f'predictor = "ekf" in {spec.path}'
+
+
+def checked_method(problem, method: str, origin: str = "--predictor ekf") -> None:
     """``check_method`` before any work, its refusal spelled in the command line's
     flags ("method 'fd-lsq' ... (predictor='ekf')" as "--method fd-lsq ... (--predictor
-    ekf)")."""
+    ekf)"); ``origin``: where the filter was chosen (:func:`predictor_origin`)."""
     try:
         check_method(problem, method)
     except ValueError as e:
         message = re.sub(r"^method '([\w-]+)'", r"--method \1", str(e))
-        message = message.replace("predictor='ekf'", "--predictor ekf")
+        message = message.replace("predictor='ekf'", origin)
         message = message.replace("drop the segments", "drop --segments or --segment-length")
         names = r"use ('[\w-]+'(?:(?:, | or )'[\w-]+')*)"
         message = re.sub(names, lambda m: "use --method " + m[1].replace("'", ""), message)

@@ -11,7 +11,6 @@ import numpy as np
 
 from .data import Experiment
 
-
 _ALIASES = {"foh": "linear"}  # MATLAB's first-order hold is linear interpolation
 
 
@@ -28,7 +27,7 @@ def nearest(value, choices: Sequence[str]) -> str | None:
 
 
 def did_you_mean(value, choices: Sequence[str]) -> str:
-    """" (did you mean 'sdirk3'?)" for the choice nearest to a misspelt ``value``, or ""."""
+    """ " (did you mean 'sdirk3'?)" for the choice nearest to a misspelt ``value``, or ""."""
     close = nearest(value, choices)
     return f" (did you mean {close!r}?)" if close else ""
 
