@@ -16,6 +16,7 @@ from ..fitting.summary import (
     headline,
     interval,
     interval_note,
+    metric_notes,
     metric_rows,
     noise_intensities,
     noise_text,
@@ -179,6 +180,8 @@ def fit_json(
     }
     for metric in ("gof", "rmse", "nrmse"):
         d[metric] = {"train": _metrics(train, metric), "validation": _metrics(validation, metric)}
+    # why a gof is null where no simulation blew up: an output constant in its record
+    d["gof_notes"] = [n[len("note: ") :] for n in metric_notes(train + list(validation))]
     if u:
         d.update(_error_bars(res, u, names, residual))
     d.update(_profile_json(profiles))
@@ -312,6 +315,7 @@ def fit_report(
         lines += ["## Observed and expected information", "", data["information"]["text"] + ".", ""]
     header, metric_table = metric_rows(scores)
     lines += ["## Goodness of fit", "", md_table(header, metric_table)]
+    lines += [f"\n{n[len('note: ') :]}" for n in metric_notes(scores)]
     if res.starts:
         lines += [
             "",

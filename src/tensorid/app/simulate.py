@@ -17,6 +17,7 @@ from ..engine.diagnostics import describe_failure
 from ..engine.discretisation import Discretisation
 from ..engine.status import Status
 from ..fitting.figures import file_name
+from ..fitting.summary import gof_text, metric_notes, undefined_gof
 from ..fitting.validation import Score, check_init_window, score_record
 from .after_fit import SIMULATED_HORIZON
 from .files import ModelSpec, load_data, load_model
@@ -278,8 +279,10 @@ def run_simulate(args) -> int:
     if not table_only:  # an earlier simulate's figures of outputs this one lacks: gone
         replace_outputs(out, old, written, SIMULATE_MANIFEST)
     if e.y is not None:
-        for o, v in score.gof.items():
-            print(f"GOF {o}: {v:.4f}" + _after(score))
+        for o in score.gof:
+            print(f"GOF {o}: {gof_text(score, o)}" + _after(score))
+        for note in metric_notes([score]):
+            print(note)
     if defaults:
         print(defaults)
     _print_x0(m, score.x0, source)
@@ -318,7 +321,7 @@ def _figures(score: Score, out: Path, stem: str) -> list[Path]:
     e, s = score.experiment, score.simulation
     jobs = []
     for j, name in enumerate(s.model.outputs):
-        title = f"{stem} on {e.name or 'data'}, output {name}: GOF {score.gof[name]:.4f}"
+        title = f"{stem} on {e.name or 'data'}, output {name}: GOF {gof_text(score, name)}"
         arguments = dict(
             t=np.asarray(e.t),
             y_meas=np.asarray(e.measured[:, j]),
@@ -361,6 +364,8 @@ def run_compare(args) -> int:
         "params": {n: float(params[n]) for n in m.params},
         "integration": disc.as_dict(),
         "status": str(sim.status),
+        # why a gof is null although the simulation is finite (a constant output)
+        "gof_notes": [n[len("note: ") :] for n in metric_notes([score])],
         "provenance": provenance(
             args.model,
             data_entries([args.data], [effective_columns(m, args.columns)]),
@@ -386,8 +391,16 @@ def _print_scores(score: Score) -> None:
     n = score.experiment.P - score.start
     scored = f"{n} samples" + (f" after the first {score.start}" if score.start else "")
     scored += f", {score.horizon}-step prediction" if score.horizon else ""
+    flat = undefined_gof(score)
     for o, v in score.metrics().items():
+        shown = {k: "undefined" if o in flat else format(x, spec) for k, x, spec in (
+            ("nrmse", v["nrmse"], ".6g"), ("r2", v["r2"], ".9g"),
+            ("fit_percent", v["fit_percent"], ".4f"), ("gof", v["gof"], ".6f"),
+        )}  # fmt: skip
+        fit = "undefined" if o in flat else f"{shown['fit_percent']} %"
         print(
-            f"{o}: RMSE {v['rmse']:.6g}, NRMSE {v['nrmse']:.6g}, R² {v['r2']:.9g}, "
-            f"fit {v['fit_percent']:.4f} %, GOF {v['gof']:.6f} ({scored})"
+            f"{o}: RMSE {v['rmse']:.6g}, NRMSE {shown['nrmse']}, R² {shown['r2']}, "
+            f"fit {fit}, GOF {shown['gof']} ({scored})"
         )
+    for note in metric_notes([score]):
+        print(note)

@@ -17,7 +17,7 @@ from ..engine.problem import Problem
 from ..engine.simulate import Simulation, run_simulation
 from ..engine.sweeps import shared_sweeps
 from .scaling import Tracker
-from .summary import Table, Tabular, metric_rows
+from .summary import Table, Tabular, metric_notes, metric_rows
 from .trust_region import minimize_trust_region
 
 
@@ -63,6 +63,15 @@ class Score(Tabular):
         return self._per_output(rmse)
 
     @property
+    def constant(self) -> dict[str, float]:
+        """{output: value} for each output the record holds constant over its scored
+        samples, where GOF, NRMSE, R² and fit percent (which divide by its spread)
+        are undefined unless the simulation matches it exactly."""
+        outs = self.simulation.model.outputs
+        pairs = zip(outs, self._pairs(), strict=True)
+        return {o: float(a[0]) for o, (a, _) in pairs if np.ptp(a) == 0}
+
+    @property
     def nrmse(self) -> dict[str, float]:
         return self._per_output(nrmse)
 
@@ -84,7 +93,7 @@ class Score(Tabular):
 
     def blocks(self) -> list:
         """The metric table of the summary and report.md, for this record."""
-        return [Table(None, *metric_rows([self]))]
+        return [Table(None, *metric_rows([self])), *metric_notes([self])]
 
     def __repr__(self) -> str:
         fits = ", ".join(f"{o}: {v:.4f}" for o, v in self.gof.items())
