@@ -359,10 +359,29 @@ def _notes() -> Iterator[None]:
         yield
 
 
+def _unrecognized(parser: argparse.ArgumentParser, args, extra: list[str]) -> None:
+    """Arguments no option takes, refused by the command's own parser ("tensorid
+    simulate: error: ... (see tensorid simulate --help)", where argparse's top parser
+    sent the user to tensorid --help), with the option nearest to a misspelt one."""
+    from ..engine.checks import nearest
+
+    command = parser
+    for action in parser._actions:  # the subcommand's parser, where there is one
+        if isinstance(action, argparse._SubParsersAction):
+            command = action.choices.get(getattr(args, "command", None), parser)
+    options = [o for a in command._actions for o in a.option_strings if o.startswith("--")]
+    flag = next((x.split("=")[0] for x in extra if x.startswith("--")), None)
+    close = nearest(flag, options) if flag else None
+    hint = f"; did you mean {close}?" if close and close != flag else ""
+    command.error(f"unrecognized arguments: {' '.join(extra)}{hint}")
+
+
 def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     """Parse ``argv`` and run the chosen command. Our errors say what is wrong and how
     to fix it; a traceback only hides that (set TENSORID_TRACEBACK=1 to see it)."""
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # named by the command's parser, as its other mistakes are
+        _unrecognized(parser, args, extra)
     args.argv = sys.argv[1:] if argv is None else list(argv)  # for the results' provenance
     from .._config import default_compilation_cache
 
