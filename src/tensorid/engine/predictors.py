@@ -296,7 +296,8 @@ class Prediction:
 
 def check_horizon(horizon, samples: int) -> None:
     """A prediction horizon of at least one sample and below a record's length."""
-    if not (isinstance(horizon, int | np.integer) and 1 <= horizon < samples):
+    whole = isinstance(horizon, int | np.integer) and not isinstance(horizon, bool)
+    if not (whole and 1 <= horizon < samples):
         raise ValueError(
             f"horizon must be a whole number of samples from 1 to {samples - 1}, got {horizon!r}"
         )

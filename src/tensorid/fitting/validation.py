@@ -162,7 +162,11 @@ def _free_x0(problem: Problem) -> np.ndarray:
 
 
 def check_init_window(init_window: int | None, record: Experiment) -> None:
-    """An initialisation window leaves at least two samples of ``record`` to score."""
+    """An initialisation window, a whole number of samples, leaves at least two
+    samples of ``record`` to score (2.5 was cut to 2 and "20" read as 20, silently)."""
+    whole = isinstance(init_window, int | np.integer) and not isinstance(init_window, bool)
+    if init_window is not None and not whole:
+        raise ValueError(f"init_window must be a whole number of samples, got {init_window!r}")
     if init_window is not None and not (2 <= int(init_window) < record.P - 1):
         raise ValueError(
             f"init_window must be between 2 and {record.P - 2} samples (the record "
