@@ -44,10 +44,13 @@ def _parse(where: str, text: str, symbols: dict) -> sp.Expr:
     except (sp.SympifyError, SyntaxError, TypeError) as e:
         # SymPy's message spans lines; its last line says what was wrong
         why = [ln.strip() for ln in str(e).splitlines() if ln.strip()][-1:] or ["invalid"]
-        raise ValueError(
-            f"cannot parse {where} = {text!r} ({why[0]}); write it as a Python expression "
-            "such as 'a*x - b*u**2'"
-        ) from None
+        fix = "write it as a Python expression such as 'a*x - b*u**2'"
+        if "truth value of Relational" in why[0]:  # x if x > 0 else ..., and, or, max(...)
+            fix = (
+                "a condition on a state, input or parameter cannot be Python's if, and, "
+                "or: write it with Piecewise((a*x, x > 0), (b*u, True)) or Heaviside(x)"
+            )
+        raise ValueError(f"cannot parse {where} = {text!r} ({why[0]}); {fix}") from None
     if not isinstance(expr, sp.Expr):
         raise ValueError(f"{where} = {text!r} is not an expression")
     return expr
