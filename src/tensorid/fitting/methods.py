@@ -95,9 +95,12 @@ def fit(
     if starts is not None:
         _check_count("starts", starts)
     n = 1 if starts is None else int(starts)
+    # checked with one start too: spread=-1 or timeout=-1 passed without a word
+    _check_multistart(spread, sampling, workers, timeout)
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
+        raise TypeError(f"seed must be a whole number, got {seed!r}")
     if n > 1:
         batch = _check_batch(solver, batch, n, executor, workers)
-        _check_multistart(spread, sampling, workers, timeout)
     with compile_clock() as clock:  # this process's compilations (not the workers')
         if n > 1:
             lo, hi = problem.lower, problem.upper
