@@ -101,6 +101,9 @@ def _as_flags(message: str, args) -> str:
         message = re.sub(name + r"'([^']*)'", rf"{flag} \1", message)  # key='value'
         message = re.sub(name + r"([^\s'():,;]+)", rf"{flag} \1", message)  # key=4
         message = re.sub(name + r"(?=[)\s,;]|$)", flag, message)  # drop key=
+        entry = rf"(?<![\w-]){key}\['([^']*)'\] = ([^\s:;,]+)"  # key['y'] = 0.0
+        message = re.sub(entry, rf"{flag} \1=\2", message)
+        message = re.sub(rf"(?<![\w-]){key} names", f"{flag} names", message)
     # a hint to give a noise: on the command line, its flag (given or not)
     return re.sub(r"measurement_noise=\{'([^']*)': σ\}", r"--measurement-noise \1=σ", message)
 
