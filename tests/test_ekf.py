@@ -711,8 +711,12 @@ def test_a_method_the_filter_cannot_use_is_refused_in_flags(tmp_path, capsys):
     assert cli.main(argv) == 2
     err = capsys.readouterr().err
     assert "--method fd-lsq minimises a sum of squared residuals" in err
-    assert "(--predictor ekf)" in err and "use --method auto, newton," in err
+    # the model file chose the filter, not a flag: said so (it said --predictor ekf)
+    assert f'(predictor = "ekf" in {tmp_path / "m.py"})' in err
+    assert "use --method auto, newton," in err
     assert "'fd" not in err and "='" not in err and not (tmp_path / "o").exists()
+    assert cli.main([*argv, "--predictor", "ekf"]) == 2
+    assert "(--predictor ekf)" in capsys.readouterr().err
 
 
 def test_a_measurement_noise_gone_to_zero_is_warned_of():
