@@ -256,6 +256,11 @@ MAKERS: dict[str, Callable[[Path], None]] = {
     "fit_cut.json": _written('{"params": {"a": 2.0, "b": 3.0},\n "x0": [0.0'),
     "fit_garbage.json": _written('saved 2026-11-26\n{"params": {"a": 2.0, "b": 3.0}}'),
     "fit_empty.json": _written(""),
+    "compare.json": _written(
+        '{"record": "first", "outputs": {}, "scored_as": "simulation", "x0": {"x": 0.0}, '
+        '"x0_source": "the model file\'s x0", "params": {"a": 2.0, "b": 3.0}}'
+    ),
+    "fit_x0_dict.json": _written('{"params": {"a": 2.0, "b": 3.0}, "x0": {"x": 0.0}}'),
     "fit_binary.json": _written(b"\xff\xfe\x00{"),
     "fit_noparams.json": _written('{"x0": [0.0]}'),
 }

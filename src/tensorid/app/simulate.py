@@ -81,6 +81,11 @@ def _fitted(path: Path, spec: ModelSpec) -> dict:
     if not path.is_file():
         raise FileNotFoundError(f"--params {path} does not exist")
     fitted = _read_json(path)
+    if isinstance(fitted, dict) and "scored_as" in fitted and "x0_source" in fitted:
+        raise ValueError(
+            f"--params {path} is a compare.json (tensorid compare's scores), not a fit.json: "
+            "give the fit.json that tensorid fit --out wrote"
+        )
     if not isinstance(fitted, dict) or not isinstance(fitted.get("params"), dict):
         raise ValueError(f"--params {path} holds no params: give a fit.json written by tensorid")
     bad = [k for k, v in fitted["params"].items() if not isinstance(v, int | float)]
@@ -90,8 +95,11 @@ def _fitted(path: Path, spec: ModelSpec) -> dict:
         try:
             x0 = np.atleast_2d(np.asarray(fitted["x0"], dtype=float))
         except (TypeError, ValueError):
-            x0 = np.zeros((1, 0))
-        if x0.shape[1] != spec.model.N:
+            raise ValueError(
+                f"--params {path}: its x0 is not a list of numbers (one per state "
+                f"{list(spec.model.states)}), got {fitted['x0']!r:.60}"
+            ) from None
+        if x0.ndim != 2 or x0.shape[1] != spec.model.N:
             raise ValueError(
                 f"--params {path}: its x0 has {x0.shape[1]} values, the model has "
                 f"{spec.model.N} states {list(spec.model.states)}"
