@@ -42,7 +42,7 @@ from .keeping import (
     _save_interrupted,
 )
 from .output import check_destination, claimed, previous_outputs, write_atomic, write_text
-from .overrides import overridden
+from .overrides import given_once, overridden
 from .progress import _log_line, _progress_table
 from .provenance import provenance
 from .renderer import Renderer
@@ -150,7 +150,8 @@ def _fit_command(args, renderer: Renderer) -> int:
         _data_entries(m, args.data, train_maps) + _data_entries(m, args.validate, val_maps),
         getattr(args, "argv", None),
     )
-    spec, args.overrides = overridden(spec, dict(args.fix), args.free, dict(args.bounds))
+    fix, bounds = given_once("--fix", args.fix), given_once("--bounds", args.bounds)
+    spec, args.overrides = overridden(spec, fix, args.free, bounds)
     problem = _problem(spec, train, args)
     if problem.loss.likelihood and args.data_sensitivity:
         raise ValueError(

@@ -35,15 +35,23 @@ from .reports import write_json
 
 
 def _assignments(items: list[str], what: str) -> dict[str, float]:
-    out = {}
+    out: dict[str, float] = {}
     for it in items:
         if "=" not in it:
             raise ValueError(f"{what} must be NAME=VALUE, got {it!r}")
         k, v = it.split("=", 1)
         try:
-            out[k.strip()] = float(v)
+            value = float(v)
         except ValueError:
             raise ValueError(f"{what}: {k.strip()}={v!r} is not a number") from None
+        if not np.isfinite(value):  # it was refused as "p0 has non-finite values"
+            raise ValueError(f"{what}: {k.strip()}={v} is not a finite number")
+        if k.strip() in out:  # the last would win silently
+            raise ValueError(
+                f"{what} gives {k.strip()} twice ({k.strip()}={out[k.strip()]:g} and "
+                f"{k.strip()}={value:g}); give it once"
+            )
+        out[k.strip()] = value
     return out
 
 
