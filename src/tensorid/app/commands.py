@@ -32,6 +32,7 @@ from .fit_setup import (  # _problem and _data_entries are also patched and read
     _validation_data,
     checked_method,
     discretisation,
+    no_repeats,
     predictor_origin,
 )
 from .keeping import (
@@ -139,6 +140,7 @@ def _fit_command(args, renderer: Renderer) -> int:
     spec = load_model(args.model)
     m = spec.model
     train_maps = _maps(args.columns, args.data, "--columns")
+    no_repeats(args.data, train_maps)
     train = load_data(args.data, m, ts=args.ts, samples=args.samples, columns=train_maps)
     val_maps = _maps(
         args.validate_columns or _one(args.columns), args.validate, "--validate-columns"
