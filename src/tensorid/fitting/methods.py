@@ -95,10 +95,7 @@ def fit(
     if starts is not None:
         _check_count("starts", starts)
     n = 1 if starts is None else int(starts)
-    # checked with one start too: spread=-1 or timeout=-1 passed without a word
-    _check_multistart(spread, sampling, workers, timeout)
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
-        raise TypeError(f"seed must be a whole number, got {seed!r}")
+    _check_multistart(spread, sampling, workers, timeout, seed)
     if n > 1:
         batch = _check_batch(solver, batch, n, executor, workers)
     with compile_clock() as clock:  # this process's compilations (not the workers')
@@ -218,7 +215,11 @@ def _check_count(name: str, n) -> None:
         raise ValueError(f"{name} must be a positive integer, got {n!r}")
 
 
-def _check_multistart(spread, sampling, workers, timeout) -> None:
+def _check_multistart(spread, sampling, workers, timeout, seed=0) -> None:
+    """The multi-start options, checked with one start too (spread=-1 or timeout=-1
+    passed without a word there)."""
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
+        raise TypeError(f"seed must be a whole number, got {seed!r}")
     if spread is not None and not (
         isinstance(spread, int | float) and np.isfinite(spread) and spread >= 0
     ):
