@@ -138,8 +138,34 @@ def _column(name: str, cells: list[str], lines: list[int], decimal_comma: bool) 
     return np.array(out)
 
 
+def _uncommented(lines: list[str]) -> list[str]:
+    """``lines`` with the comment lines (#) before the header blanked (they were read
+    as the header: "found ['#', 'export', 'lab']"), and numpy.savetxt's header, "# t,u,y"
+    above the numbers, read as the header; line numbers are kept."""
+    out = list(lines)
+    lead = []
+    for i, line in enumerate(lines):
+        if not line.strip():
+            continue
+        if not line.lstrip().startswith("#"):
+            break
+        lead.append(i)
+        out[i] = ""
+    else:
+        return out  # nothing but comments: told as a file without data rows
+    first = next(line for line in out if line.strip())
+    cells = first.replace(";", ",").replace("\t", ",").replace(" ", ",").split(",")
+    try:
+        [float(c) for c in cells if c.strip()]
+    except ValueError:
+        return out  # a header of names follows the comments
+    if lead:  # numbers right below the comments: the last of them names the columns
+        out[lead[-1]] = lines[lead[-1]].lstrip()[1:]
+    return out
+
+
 def _columns_csv(path: Path) -> _Columns:
-    lines = _decode(path, path.read_bytes()).splitlines()
+    lines = _uncommented(_decode(path, path.read_bytes()).splitlines())
     header_line = next((line for line in lines if line.strip()), "")
     delimiter = _delimiter(header_line)
     rows = _rows(lines, delimiter)
