@@ -371,3 +371,12 @@ def test_a_folder_given_as_a_data_file_is_called_a_folder(tmp_path):
     (tmp_path / "records").mkdir()
     message = _error(tmp_path / "records")
     assert "is a folder" in message and "does not exist" not in message
+
+
+def test_columns_named_in_other_capitals_are_pointed_to(tmp_path):
+    """A MATLAB export's T, U, Y: the error listed them as found and suggested holding
+    u constant (--columns u=0); it now gives the map for all of them at once."""
+    (tmp_path / "caps.csv").write_text(_text().replace("t,u,y", "T,U,Y", 1))
+    message = _error(tmp_path / "caps.csv")
+    assert "--columns t=T,u=U,y=Y" in message and "u=0" not in message
+    _same_as_plain(tmp_path / "caps.csv", columns={"t": "T", "u": "U", "y": "Y"})

@@ -230,7 +230,9 @@ def _time(p, cols: _Columns, ts, P: int, data: dict) -> np.ndarray:
         return _on_grid(p, data["t"])
     ts = _sampling_time(p, cols) if ts is None else ts
     if ts is None:
-        named = [n for n in cols.values if str(n).lower().startswith("time")]
+        named = [
+            n for n in cols.values if str(n).lower() == "t" or str(n).lower().startswith("time")
+        ]
         hint = (
             f"; if {named[0]!r} holds the times: --columns {shlex.quote(f't={named[0]}')} "
             f"(columns={{'t': {named[0]!r}}} in Python)"
@@ -250,13 +252,21 @@ def _lacking(p, cols: _Columns, model: Model, need: list[str], ts) -> None:
     missing = [n for n in need if not cols.has(n)]
     if not missing:
         return
-    inputs = [n for n in missing if n in model.inputs]
+    # the same name in other capitals (MATLAB exports U, Y): read by name, exactly
+    # (all of them at once: t, inputs and outputs, not one per try)
+    names = (["t"] if ts is None else []) + list(model.inputs) + list(model.outputs)
+    absent = [n for n in names if not cols.has(n)]
+    cased = {n: c for n in absent for c in cols.values if str(c).lower() == n.lower()}
+    inputs = [n for n in missing if n in model.inputs and n not in cased]
     hint = (
         f"; an input the record lacks can be held constant: --columns "
         f"{','.join(f'{n}=0' for n in inputs)} (columns={{{inputs[0]!r}: 0}} in Python)"
         if inputs
         else ""
     )
+    if cased:
+        pairs = ",".join(f"{n}={c}" for n, c in cased.items())
+        hint = f"; names are read as written, capitals too: --columns {pairs}{hint}"
     raise ValueError(
         f"{p} lacks columns {missing}; expected {(['t'] if ts is None else []) + need} "
         f"(the model's inputs {list(model.inputs)} and outputs {list(model.outputs)}), "
