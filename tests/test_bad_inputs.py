@@ -222,6 +222,7 @@ MAKERS: dict[str, Callable[[Path], None]] = {
     "renamed.csv": _written(_csv(header=("t", "uEst", "yEst"))),
     "no_time.csv": _written(_csv(header=("time", "u", "y"))),
     "bom.csv": _written(("\ufeff" + _csv()).encode("utf-8")),
+    "units_row.csv": _written(_csv().replace("t,u,y\n", "t,u,y\ns,V,m\n", 1)),
     "commented.csv": _written("# rig 3, 2026-11-26\n# u in V, y in m\n" + _csv()),
     "savetxt.csv": _written("# " + _csv()),  # numpy.savetxt's header="t,u,y"
     "utf16.csv": _written(_csv().encode("utf-16")),

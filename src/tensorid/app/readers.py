@@ -164,6 +164,19 @@ def _uncommented(lines: list[str]) -> list[str]:
     return out
 
 
+def _no_units_row(path: Path, row: tuple[int, list[str]]) -> None:
+    """One line for a first row below the header without a digit in it: a row of
+    units (s, V, m) or a second header, which was told as one bad value of column t."""
+    cells = [c.strip() for c in row[1] if c.strip()]
+    if not cells or any(ch.isdigit() for c in cells for ch in c):
+        return  # numbers (perhaps split wrongly: told by the columns' checks)
+    shown = ", ".join(cells[:6]) + (", ..." if len(cells) > 6 else "")
+    raise ValueError(
+        f"{path}: line {row[0]}, below the header, holds no number ({shown}): a row of "
+        "units or a second header; delete it (the data start on the next line)"
+    )
+
+
 def _columns_csv(path: Path) -> _Columns:
     lines = _uncommented(_decode(path, path.read_bytes()).splitlines())
     header_line = next((line for line in lines if line.strip()), "")
@@ -172,6 +185,7 @@ def _columns_csv(path: Path) -> _Columns:
     if len(rows) < 2:
         raise ValueError(f"{path} has no data rows under its header")
     header = [h.strip().strip('"') for h in rows[0][1]]
+    _no_units_row(path, rows[1])
     numbers = [n for n, _ in rows[1:]]
     values: dict[str, np.ndarray | str] = {}
     for j, name in enumerate(header):
