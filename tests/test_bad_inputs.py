@@ -263,6 +263,9 @@ MAKERS: dict[str, Callable[[Path], None]] = {
         '{"record": "first", "outputs": {}, "scored_as": "simulation", "x0": {"x": 0.0}, '
         '"x0_source": "the model file\'s x0", "params": {"a": 2.0, "b": 3.0}}'
     ),
+    "fit_discrete.json": _written(
+        '{"params": {"a": 0.5, "b": 1.0}, "x0": [0.0], "integration": {"scheme": "discrete"}}'
+    ),
     "fit_x0_dict.json": _written('{"params": {"a": 2.0, "b": 3.0}, "x0": {"x": 0.0}}'),
     "fit_binary.json": _written(b"\xff\xfe\x00{"),
     "fit_noparams.json": _written('{"x0": [0.0]}'),

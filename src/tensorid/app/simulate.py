@@ -84,6 +84,21 @@ def _read_json(path: Path):
         raise ValueError(f"--params {path} {what}; {fix}") from None
 
 
+def _same_time(path: Path, fitted: dict, spec: ModelSpec) -> None:
+    """A fit of a discrete-time model scored with a continuous-time model file (or the
+    reverse): refused; it ran, the parameters of one read by the other (GOF -0.59)."""
+    scheme = (fitted.get("integration") or {}).get("scheme")
+    if scheme is None or (scheme == "discrete") == bool(spec.model.discrete):
+        return
+    kind = {True: "a discrete-time", False: "a continuous-time"}
+    source = ((fitted.get("provenance") or {}).get("model") or {}).get("path")
+    raise ValueError(
+        f"--params {path} is the fit of {kind[scheme == 'discrete']} model and "
+        f"{spec.path} is {kind[bool(spec.model.discrete)]} one: give the model file it "
+        f"was fitted with{f' ({source})' if source else ''}"
+    )
+
+
 def _fitted(path: Path, spec: ModelSpec) -> dict:
     """A fit.json's parameters and initial state, checked against the model."""
     if not path.is_file():
@@ -96,6 +111,7 @@ def _fitted(path: Path, spec: ModelSpec) -> dict:
         )
     if not isinstance(fitted, dict) or not isinstance(fitted.get("params"), dict):
         raise ValueError(f"--params {path} holds no params: give a fit.json written by tensorid")
+    _same_time(path, fitted, spec)
     bad = [k for k, v in fitted["params"].items() if not isinstance(v, int | float)]
     if bad:
         raise ValueError(f"--params {path}: params {bad} are not numbers")
