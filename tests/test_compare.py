@@ -411,3 +411,24 @@ def test_a_constant_output_s_undefined_scores_are_said_why(tmp_path, capsys):
     assert "-inf" not in out
     scored = json.loads((tmp_path / "c" / "compare.json").read_text())
     assert scored["gof_notes"] == data["gof_notes"]
+
+
+def test_a_fit_of_another_or_edited_model_file_is_noted(tmp_path, capsys):
+    """compare with a fit.json made from another model file, or from this one before
+    an edit, scored the parameters with these equations without a word."""
+    model, path, *_ = _discrete_record(tmp_path)
+    fit = tmp_path / "f"
+    argv = ["fit", str(tmp_path / "ar.py"), str(path), "--no-progress", "--out", str(fit)]
+    assert cli.main(argv) == 0
+    compare = ["compare", str(tmp_path / "ar.py"), str(path), "--params", str(fit / "fit.json"),
+               "--out", str(tmp_path / "c")]  # fmt: skip
+    capsys.readouterr()
+    assert cli.main(compare) == 0
+    assert "note" not in capsys.readouterr().err  # the same file: nothing to say
+    (tmp_path / "other.py").write_text(DISCRETE.replace("0.2*x1**3", "0.3*x1**3"))
+    assert cli.main([compare[0], str(tmp_path / "other.py"), *compare[2:]]) == 0
+    err = capsys.readouterr().err
+    assert f"note: the fit was made with {tmp_path / 'ar.py'} (SHA-256" in err
+    (tmp_path / "ar.py").write_text(DISCRETE + "# edited\n")
+    assert cli.main(compare) == 0
+    assert "the fit was made with this model file before it was edited" in capsys.readouterr().err

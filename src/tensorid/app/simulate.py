@@ -29,7 +29,7 @@ from .output import (
     replace_outputs,
     write_atomic,
 )
-from .provenance import data_entries, provenance
+from .provenance import data_entries, other_model, provenance
 from .renderer import draw_files
 from .reports import write_json
 
@@ -261,6 +261,8 @@ def _score(args, require_outputs: bool):
     spec = load_model(args.model)
     e = _record(args, spec, require_outputs)
     fitted = _fit_json(spec, args.params)
+    if fitted is not None and other_model(fitted, args.model):
+        print(other_model(fitted, args.model), file=sys.stderr)
     try:
         spec, predictor = _filter(spec, fitted, e)
     except ValueError as err:  # a fit.json of another model: say which file
