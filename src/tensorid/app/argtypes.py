@@ -47,6 +47,18 @@ def _sample_time(text: str) -> float:
     return x
 
 
+def _positive(text: str) -> float:
+    """A finite number > 0 (--loss-scale: 0, -1, nan and inf failed later, in the
+    Problem's words)."""
+    try:
+        x = float(text)
+    except ValueError:
+        x = float("nan")
+    if not 0 < x < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+    return x
+
+
 def _level(text: str) -> float:
     x = _non_negative(text)
     if not 0 < x < 1:

@@ -18,6 +18,7 @@ from .argtypes import (
     _level,
     _mapping,
     _non_negative,
+    _positive,
     _positive_seconds,
     _range,
     _sample_time,
@@ -127,7 +128,7 @@ def register(sub) -> None:
     )
     f.add_argument(
         "--loss-scale",
-        type=float,
+        type=_positive,
         default=None,
         metavar="SCALE",
         help="a robust loss's scale in the outputs' units (default: from the data, a "
