@@ -117,3 +117,12 @@ def _range(text: str) -> tuple[str, tuple[float, float]]:
     if not eq or not colon or not name.strip() or len(ends) != 2:
         raise argparse.ArgumentTypeError(f"expected NAME=LO:HI (e.g. M=50:150), got {text!r}")
     return name.strip(), (ends[0], ends[1])
+
+
+def tolerances_as_flags(message: str) -> str:
+    """The integration's refusal of rtol=/atol= as the flags that gave them ("need
+    rtol > 0 ...; got rtol=0.0" named no flag)."""
+    import re
+
+    message = re.sub(r"(?<![\w-])(rtol|atol|substeps)\b", r"--\1", message)
+    return re.sub(r"; '([\w-]+)' takes", r"; --scheme \1 takes", message)

@@ -65,6 +65,9 @@ def _nearest_choice(message: str) -> str:
 
     from ..engine.checks import nearest
 
+    taken = re.match(r"argument (--[\w-]+)(?:/[\w-]+)?: expected one argument$", message)
+    if taken:  # "--rtol -1e-6": argparse reads -1e-6 as an option (not -1 or -0.5)
+        return f"{message} (one that starts with '-', as -1e-6, is written {taken[1]}=VALUE)"
     found = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)$", message)
     if not found or "did you mean" in message:
         return message

@@ -18,6 +18,7 @@ from ..fitting.methods import check_method
 from ..fitting.registry import exact_derivatives
 from ..fitting.residuals import lag_limit
 from ..fitting.validation import check_init_window
+from .argtypes import tolerances_as_flags
 from .files import ModelSpec, load_data
 from .provenance import data_entries
 from .simulate import effective_columns
@@ -25,7 +26,12 @@ from .simulate import effective_columns
 
 def discretisation(args) -> Discretisation:
     """The integration settings of the command line, checked once."""
-    return Discretisation.of(args.scheme, args.substeps, args.interpolation, args.rtol, args.atol)
+    try:
+        return Discretisation.of(
+            args.scheme, args.substeps, args.interpolation, args.rtol, args.atol
+        )
+    except ValueError as e:
+        raise ValueError(tolerances_as_flags(str(e))) from None
 
 
 def _problem(spec: ModelSpec, train, args) -> Problem:

@@ -20,6 +20,7 @@ from ..fitting.figures import file_name
 from ..fitting.summary import gof_text, metric_notes, undefined_gof
 from ..fitting.validation import Score, check_init_window, score_record
 from .after_fit import SIMULATED_HORIZON
+from .argtypes import tolerances_as_flags
 from .files import ModelSpec, load_data, load_model
 from .output import (
     COMPARE_MANIFEST,
@@ -182,13 +183,13 @@ def _integration(args, fitted: dict | None) -> Discretisation:
     same = scheme == saved.get("scheme")
     rtol = args.rtol if args.rtol is not None else saved.get("rtol") if same else None
     atol = args.atol if args.atol is not None else saved.get("atol") if same else None
-    return Discretisation.of(
-        scheme,
-        args.substeps or saved.get("substeps", 4),
-        args.interpolation or saved.get("interpolation", "linear"),
-        rtol,
-        atol,
-    )
+    substeps, interpolation = args.substeps or saved.get("substeps", 4), args.interpolation
+    try:
+        return Discretisation.of(
+            scheme, substeps, interpolation or saved.get("interpolation", "linear"), rtol, atol
+        )
+    except ValueError as e:  # named as the flags (the fit.json's are valid)
+        raise ValueError(tolerances_as_flags(str(e))) from None
 
 
 def _start(spec: ModelSpec, args, e, fitted) -> tuple[np.ndarray, list[str], str]:
