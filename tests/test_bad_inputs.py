@@ -187,6 +187,7 @@ MAKERS: dict[str, Callable[[Path], None]] = {
     "ekf_file.py": _written(FIRST + 'predictor = "ekf"\nprocess_noise = {"x": 0.1}\n'),
     "unknown_fn.py": _written(_edit(FIRST, '"-a*x + b*u"', '"-a*x + b*heaviside(u)"')),
     "if_else.py": _written(_edit(FIRST, '"-a*x + b*u"', '"-a*x if x > 0 else b*u"')),
+    "predictor_caps.py": _written(FIRST + 'predictor = "Kalman"\n'),
     "scheme_typo.py": _written(FIRST + 'scheme = "sdrik3"\n'),
     "interp_foh.py": _written(FIRST + 'interpolation = "foh"\n'),
     "bound_typo.py": _written(FIRST + 'bound = {"a": (0.0, 5.0)}\n'),

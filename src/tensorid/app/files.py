@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..engine.checks import did_you_mean
 from ..engine.equations import model_from_equations
 from ..engine.losses import LOSSES
 from ..engine.model import Model
@@ -219,14 +220,19 @@ def _spec(ns: dict, path: Path) -> ModelSpec:
     out.weights = weights
     loss, scale = ns.get("loss"), ns.get("loss_scale")
     if loss is not None and loss not in LOSSES:
-        raise ValueError(f"loss must be one of {list(LOSSES)}, got {loss!r}")
+        raise ValueError(
+            f"loss must be one of {list(LOSSES)}, got {loss!r}{did_you_mean(loss, LOSSES)}"
+        )
     if scale is not None and not isinstance(scale, int | float | dict):
         raise TypeError(f"loss_scale must be a number or a dict {{output: scale}}, got {scale!r}")
     out.loss, out.loss_scale = loss, scale
     out.noise = ns.get("noise")  # Problem checks it, naming this file
     predictor = ns.get("predictor")
     if predictor is not None and predictor not in PREDICTORS:
-        raise ValueError(f"predictor must be one of {list(PREDICTORS)}, got {predictor!r}")
+        raise ValueError(
+            f"predictor must be one of {list(PREDICTORS)}, got {predictor!r}"
+            f"{did_you_mean(predictor, PREDICTORS)}"
+        )
     out.predictor = predictor
     for key in ("process_noise", "measurement_noise"):
         value = ns.get(key)

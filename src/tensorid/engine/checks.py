@@ -11,7 +11,8 @@ import numpy as np
 
 from .data import Experiment
 
-_ALIASES = {"foh": "linear"}  # MATLAB's first-order hold is linear interpolation
+# MATLAB's first-order hold is linear interpolation; a Kalman filter is the EKF here
+_ALIASES = {"foh": "linear", "kalman": "ekf"}
 
 
 def nearest(value, choices: Sequence[str]) -> str | None:

@@ -30,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401
+from .checks import did_you_mean
 
 PREDICTORS = ("simulation", "ekf")
 # a filter's noise parameters: these prefixes and the state's or output's name
@@ -217,7 +218,10 @@ def make_predictor(model, predictor, process_noise, measurement_noise, measured)
     from .model import Model
 
     if predictor not in PREDICTORS:
-        raise ValueError(f"predictor must be one of {PREDICTORS}, got {predictor!r}")
+        raise ValueError(
+            f"predictor must be one of {PREDICTORS}, got {predictor!r}"
+            f"{did_you_mean(predictor, PREDICTORS)}"
+        )
     if predictor == "simulation":
         for what, v in (("process_noise", process_noise), ("measurement_noise", measurement_noise)):
             if v:

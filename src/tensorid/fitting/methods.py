@@ -15,6 +15,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..engine.checks import did_you_mean
 from ..engine.compilation import compile_clock
 from ..engine.problem import Problem
 from ..engine.status import Status
@@ -225,7 +226,10 @@ def _check_multistart(spread, sampling, workers, timeout, seed=0) -> None:
     ):
         raise ValueError(f"spread must be a finite number >= 0, got {spread!r}")
     if sampling not in SAMPLINGS:
-        raise ValueError(f"sampling must be one of {SAMPLINGS}, got {sampling!r}")
+        raise ValueError(
+            f"sampling must be one of {SAMPLINGS}, got {sampling!r}"
+            f"{did_you_mean(sampling, SAMPLINGS)}"
+        )
     if workers is not None:
         _check_count("workers", workers)
     if timeout is not None and not (
