@@ -476,6 +476,8 @@ def test_ekf_from_the_command_line(tmp_path, capsys):
     assert cli.main(argv) == 0
     printed = capsys.readouterr().out
     assert "noise intensities" in printed and "5-step prediction" in printed
+    # the training row is the filter fit's simulation, beside the prediction: said so
+    assert "GOF train, simulation: y" in printed and "│ training, simulation " in printed
     d = json.loads((out / "fit.json").read_text())
     assert d["predictor"] == "ekf" and d["horizon"] == 5
     noise = d["noise_intensities"]

@@ -37,13 +37,17 @@ class Score(Tabular):
     init_window: int | None = None
     alone: bool = True  # the only record of its kind
     horizon: int | None = None  # k: scored as k-step-ahead prediction, not simulation
+    filtered: bool = False  # the model of a filter fit (predictor="ekf")
 
     @property
     def label(self) -> str:
         """The kind, with the record's name where it tells records apart (and the
-        prediction horizon, where scored as prediction)."""
+        prediction horizon, where scored as prediction; "simulation" for a filter
+        fit's record scored without one, beside rows scored as prediction)."""
         label = record_label(self.kind, self.experiment.name, self.alone)
-        return label if self.horizon is None else f"{label}, {self.horizon}-step prediction"
+        if self.horizon is None:
+            return f"{label}, simulation" if self.filtered else label
+        return f"{label}, {self.horizon}-step prediction"
 
     def _pairs(self):
         y, s = self.experiment.measured[self.start :], self.simulation.y[self.start :]
@@ -123,8 +127,9 @@ def training_scores(res) -> list[Score]:
     """The training records at the estimate."""
     x0 = np.atleast_2d(res.x0)
     exps = res.problem.experiments
+    filtered = res.problem.predictor.update is not None  # scored as its simulation
     return [
-        Score("training", e, s, x0[i], alone=len(exps) == 1)
+        Score("training", e, s, x0[i], alone=len(exps) == 1, filtered=filtered)
         for i, (e, s) in enumerate(zip(exps, res.simulate(), strict=True))
     ]
 
@@ -210,7 +215,10 @@ def score_record(
     if horizon is not None:
         sim = _predicted(sim, model, params, x0, record, disc, horizon, predictor)
     start = 0 if init_window is None else int(init_window)
-    return Score(kind, record, sim, x0, start, init_window, alone=alone, horizon=horizon)
+    filtered = predictor is not None and predictor[1].update is not None
+    return Score(
+        kind, record, sim, x0, start, init_window, alone=alone, horizon=horizon, filtered=filtered
+    )
 
 
 def _predicted(sim, model, params, x0, record, disc, horizon, predictor) -> Simulation:
