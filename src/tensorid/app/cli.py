@@ -372,7 +372,7 @@ def _unrecognized(parser: argparse.ArgumentParser, args, extra: list[str]) -> No
     command = parser
     for action in parser._actions:  # the subcommand's parser, where there is one
         if isinstance(action, argparse._SubParsersAction):
-            command = action.choices.get(getattr(args, "command", None), parser)
+            command = action.choices.get(str(getattr(args, "command", "")), parser)
     options = [o for a in command._actions for o in a.option_strings if o.startswith("--")]
     flag = next((x.split("=")[0] for x in extra if x.startswith("--")), None)
     close = nearest(flag, options) if flag else None

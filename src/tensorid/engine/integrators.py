@@ -216,7 +216,7 @@ def get_scheme(
             scheme = SCHEMES[scheme]
         except KeyError:
             raise ValueError(
-                f"unknown integration scheme {scheme!r}{did_you_mean(scheme, SCHEMES)}; "
+                f"unknown integration scheme {scheme!r}{did_you_mean(scheme, list(SCHEMES))}; "
                 f"choose one of {sorted(SCHEMES)}"
             ) from None
     elif not isinstance(scheme, RungeKuttaScheme):
