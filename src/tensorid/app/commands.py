@@ -13,6 +13,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.live import Live
 
+from ..engine.checks import same_step, step
 from ..engine.problem import Problem
 from ..engine.status import Status
 from ..fitting.figures import figure_jobs, save_png
@@ -147,6 +148,8 @@ def _fit_command(args, renderer: Renderer) -> int:
     )
     val = _validation_data(args, m, val_maps)
     _check_options(args, train, val)
+    for e in val:  # a discrete-time model at another rate: refused before the fit
+        same_step(m, e, step(train[0]), f"the validation record {e.name!r}")
     args.provenance = provenance(
         args.model,
         _data_entries(m, args.data, train_maps) + _data_entries(m, args.validate, val_maps),

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..engine.checks import step
 from ..fitting.figures import new_figure, save_png
 from ..fitting.summary import (
     coloured_residuals_line,
@@ -172,6 +173,7 @@ def fit_json(
         "correlation_names": names,
         "history": res.history,
         "starts": res.starts,
+        "sample_time": step(res.problem.experiments[0]),  # a discrete-time model's step
         "init_window": validation[0].init_window if validation else None,
         "horizon": validation[0].horizon if validation else None,
         "validation_x0": {

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..engine.checks import same_step
 from ..engine.diagnostics import describe_failure
 from ..engine.discretisation import Discretisation
 from ..engine.status import Status
@@ -262,6 +263,7 @@ def _score(args, require_outputs: bool):
     spec = load_model(args.model)
     e = _record(args, spec, require_outputs)
     fitted = _fit_json(spec, args.params)
+    same_step(spec.model, e, (fitted or {}).get("sample_time"), f"{args.data}")
     if fitted is not None and other_model(fitted, args.model):
         print(other_model(fitted, args.model), file=sys.stderr)
     try:

@@ -88,7 +88,28 @@ def check_data(problem, data) -> list[Experiment]:
                 f"{where} has {e.y.shape[1]} output column(s) but the model "
                 f"has {m.S} outputs {list(m.outputs)}"
             )
+    if m.discrete:
+        for i, e in enumerate(exps[1:], 1):
+            same_step(m, e, step(exps[0]), f"experiment {i}" + (f" ({e.name})" if e.name else ""))
     return exps
+
+
+def step(e: Experiment) -> float:
+    """A record's sampling interval (the mean of its steps)."""
+    return float((e.t[-1] - e.t[0]) / (e.P - 1))
+
+
+def same_step(model, e: Experiment, fitted: float | None, where: str) -> None:
+    """A discrete-time model steps once per sample: a record sampled at another rate
+    than the model was fitted at is another model (it ran, silently)."""
+    if not model.discrete or fitted is None or e.P < 2:
+        return
+    if abs(step(e) - fitted) > 1e-6 * fitted:
+        raise ValueError(
+            f"{where} is sampled every {step(e):.6g} s, the discrete-time model's records "
+            f"every {fitted:.6g} s: its step is one sample, so it is another model at "
+            "another rate; resample the record to the model's rate"
+        )
 
 
 def check_x0(problem, x0) -> np.ndarray:

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..engine.checks import same_step, step
 from ..engine.compiled import on_device
 from ..engine.data import Experiment
 from ..engine.metrics import gof, nrmse, r2, rmse
@@ -246,6 +247,7 @@ def validate(res, data, init_window: int | None = None, horizon: int | None = No
             raise ValueError(f"validation record {i} ({e.name!r}) has no measured outputs")
         windows.append(e.init_window if init_window is None else init_window)
         check_init_window(windows[-1], e)
+        same_step(prob.model, e, step(prob.experiments[0]), f"validation record {e.name!r}")
     return [
         score_record(
             prob.model,
