@@ -188,6 +188,7 @@ MAKERS: dict[str, Callable[[Path], None]] = {
     "unknown_fn.py": _written(_edit(FIRST, '"-a*x + b*u"', '"-a*x + b*heaviside(u)"')),
     "if_else.py": _written(_edit(FIRST, '"-a*x + b*u"', '"-a*x if x > 0 else b*u"')),
     "predictor_caps.py": _written(FIRST + 'predictor = "Kalman"\n'),
+    "noise_bounds.py": _written(FIRST + 'bounds = {"log_sigma_e_y": (-9.0, 0.0)}\n'),
     "scheme_typo.py": _written(FIRST + 'scheme = "sdrik3"\n'),
     "interp_foh.py": _written(FIRST + 'interpolation = "foh"\n'),
     "bound_typo.py": _written(FIRST + 'bound = {"a": (0.0, 5.0)}\n'),

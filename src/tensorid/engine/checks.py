@@ -266,3 +266,20 @@ def check_filter_options(predictor: str, **options) -> None:
             continue
         shown = value if isinstance(value, str | int | float) else type(value).__name__
         raise ValueError(f"predictor='ekf' cannot take {name}={shown!r}: {why[name]}")
+
+
+def no_noise_without_filter(model, predictor: str, fixed, bounds) -> None:
+    """fixed or bounds naming a filter's noise intensity (log_sigma_w_STATE,
+    log_sigma_e_OUTPUT) without the filter: one line saying so (it read "names unknown
+    params ['log_sigma_e_y']"). A parameter of the model of such a name is its own."""
+    if predictor == "ekf":
+        return
+    for what, names in (("fixed", fixed or []), ("bounds", bounds or {})):
+        noisy = [n for n in ([names] if isinstance(names, str) else names)
+                 if str(n).startswith(("log_sigma_w_", "log_sigma_e_"))
+                 and n not in model.params]  # fmt: skip
+        if noisy:
+            raise ValueError(
+                f"{what} names {noisy}, noise intensities of a filter: they exist with "
+                "predictor='ekf' (output error has no noise model); add it, or drop them"
+            )
