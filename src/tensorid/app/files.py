@@ -209,7 +209,10 @@ def _spec(ns: dict, path: Path) -> ModelSpec:
         if kind is list:
             value = list(value) if isinstance(value, tuple) else _names(value)
         if not isinstance(value, kind):
-            raise TypeError(f"{key} must be a {kind.__name__}, got {type(value).__name__}")
+            raise TypeError(
+                f"{key} must be a {kind.__name__}, got {type(value).__name__}"
+                + _as_dict(key, value, model)
+            )
         setattr(out, key, value)
     weights = ns.get("weights")
     if weights is not None and not (
@@ -254,6 +257,15 @@ _SETTINGS = ("model", "rhs", "output", "inputs", "params", "input_delays", "disc
 # read only beside text equations: beside a tensorid.Model, ``outputs = [...]`` or
 # ``param = ...`` are the file's own variables (passed to the Model), not misspellings
 _TEXT_ONLY = ("rhs", "output", "inputs", "params", "input_delays", "discrete")
+
+
+def _as_dict(key: str, value, model: Model) -> str:
+    """ "; write x0 = {'y': 0.0, 'v': 0.0}" for a list of start values in the model's
+    order (a list is what ti.Problem takes; a model file names them), or ""."""
+    names = {"p0": model.params, "x0": model.states}.get(key)
+    if names is None or not isinstance(value, list | tuple) or len(value) != len(names):
+        return ""
+    return f"; write {key} = {dict(zip(names, value, strict=True))!r}"
 
 
 def _not_a_choice(name: str, value) -> tuple[str, str]:
