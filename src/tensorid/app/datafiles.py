@@ -19,7 +19,7 @@ import numpy as np
 
 from ..engine.data import Experiment
 from ..engine.model import Model
-from .readers import _TS, _Columns, _read
+from .readers import _TS, _Columns, _read, input_is_output
 
 # -- experiments -----------------------------------------------------------------------
 _NOT_NUMBERS = {"U": "text", "S": "text", "O": "objects (a cell array?)", "V": "records"}
@@ -137,6 +137,7 @@ def _mapped(p, cols: _Columns, columns: dict | None, model: Model, strict=True) 
                 f"it has {sorted(cols.values)}"
             )
         values[name] = cols.values[source]
+    input_is_output(p, columns, model, constants)
     return _Columns(values, cols.what, cols.lines, cols.note, constants)
 
 

@@ -374,3 +374,22 @@ def _read(p: Path) -> _Columns:
     if suffix not in _READERS:
         raise ValueError(f"{p}: unknown data format {suffix!r}; use .csv, .mat or .npz")
     return _READERS[suffix](p)
+
+
+def input_is_output(p, columns: dict, model, constants: dict) -> None:
+    """A warning where an input reads the column an output is measured from (u=y, a
+    slip of the map): the model is handed the signal it is fitted to, which it ran on
+    without a word."""
+    import warnings
+
+    source = {n: str(columns.get(n, n)) for n in (*model.inputs, *model.outputs)}
+    for u in model.inputs:
+        same = [y for y in model.outputs if source[y] == source[u] and u not in constants]
+        if same:
+            warnings.warn(
+                f"{p}: the input {u} and the output {same[0]} are both read from column "
+                f"{source[u]!r}: the model is given the signal it is fitted to; map each "
+                "to its own column",
+                UserWarning,
+                stacklevel=4,
+            )
