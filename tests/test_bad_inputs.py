@@ -268,6 +268,7 @@ MAKERS: dict[str, Callable[[Path], None]] = {
     "fit_discrete.json": _written(
         '{"params": {"a": 0.5, "b": 1.0}, "x0": [0.0], "integration": {"scheme": "discrete"}}'
     ),
+    "fit_other_states.json": _written('{"params": {"a": 2.0, "b": 3.0}, "free_x0": ["q"]}'),
     "fit_x0_dict.json": _written('{"params": {"a": 2.0, "b": 3.0}, "x0": {"x": 0.0}}'),
     "fit_binary.json": _written(b"\xff\xfe\x00{"),
     "fit_noparams.json": _written('{"x0": [0.0]}'),

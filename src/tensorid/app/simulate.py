@@ -117,6 +117,9 @@ def _fitted(path: Path, spec: ModelSpec) -> dict:
     bad = [k for k, v in fitted["params"].items() if not isinstance(v, int | float)]
     if bad:
         raise ValueError(f"--params {path}: params {bad} are not numbers")
+    bad = [n for n in fitted.get("free_x0") or [] if n not in spec.model.states]
+    if bad:  # a fit of another model file: it said "free_x0 names unknown states"
+        raise ValueError(f"--params {path}: its free_x0 {bad} are not states of {spec.path}")
     if "x0" in fitted:
         try:
             x0 = np.atleast_2d(np.asarray(fitted["x0"], dtype=float))
