@@ -729,8 +729,11 @@ def test_a_measurement_noise_gone_to_zero_is_warned_of():
 
     from tensorid.fitting.summary import collapsed_noise
 
-    def res(log_sigma_e, names=("log_sigma_e_y", "log_sigma_e_z")):
+    def res(log_sigma_e, names=("log_sigma_e_y", "log_sigma_e_z"), step=None):
         y = np.column_stack([np.sin(np.arange(50.0)), np.cos(np.arange(50.0))])
+        if step is not None:  # a quantised sensor: an encoder's counts, times its step
+            counts = np.concatenate([np.arange(25.0), 60000.0 * np.arange(25.0)])
+            y = step * np.column_stack([counts, counts[::-1]])  # spread 0.02: EMPS's 0.07
         problem = types.SimpleNamespace(
             loss=types.SimpleNamespace(likelihood=True), theta_names=list(names),
             model=types.SimpleNamespace(outputs=("y", "z")),
@@ -745,3 +748,9 @@ def test_a_measurement_noise_gone_to_zero_is_warned_of():
     assert "--measurement-noise y=σ" in line and "--fix log_sigma_e_y" in line
     assert collapsed_noise(res(-5.0)) == []  # 0.0067 of a spread of 0.7: a sensor's
     assert collapsed_noise(res(-60.0, names=("log_sigma_e_z",))) == []  # y's held
+    # EMPS's σ_e = 2e-8 m (2e-7 of the spread) is its encoder's 5e-8 m steps, q/√12:
+    # the sensor's own noise, not a collapse (it was warned of)
+    q = 5e-8
+    assert collapsed_noise(res(np.log(q / np.sqrt(12)), step=q)) == []
+    assert len(collapsed_noise(res(np.log(q / 1000), step=q))) == 1  # far below it
+    assert len(collapsed_noise(res(np.log(q / np.sqrt(12))))) == 1  # y not on a grid

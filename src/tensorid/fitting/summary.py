@@ -338,6 +338,9 @@ def collapsed_noise(res) -> list[str]:
         spread = float(np.nanstd(ys))
         if e["fixed"] or not spread > 0 or e["sigma"] >= 1e-6 * spread:
             continue
+        q = _resolution(ys)
+        if q > 0 and e["sigma"] >= 0.5 * q / np.sqrt(12):
+            continue  # a quantised sensor's own noise (EMPS's encoder: 5e-8 m steps)
         out.append(
             f"the measurement noise of {o} went to σ_e = {e['sigma']:.2g}, "
             f"{e['sigma'] / spread:.0e} of the output's spread: the filter then follows "
@@ -346,6 +349,19 @@ def collapsed_noise(res) -> list[str]:
             f"measurement_noise= in Python) or fix it (--fix log_sigma_e_{o}=log σ)"
         )
     return out
+
+
+def _resolution(ys: np.ndarray) -> float:
+    """The step q of a quantised record (every difference between its values a whole
+    multiple of the smallest), whose rounding is noise of q/√12; 0 for a record whose
+    values are not on a grid."""
+    values = np.unique(ys[np.isfinite(ys)])
+    if values.size < 3:
+        return 0.0
+    steps = np.diff(values)
+    q = float(steps.min())
+    ratio = steps / q
+    return q if np.allclose(ratio, np.round(ratio), rtol=0, atol=1e-3) else 0.0
 
 
 def noise_text(noise: dict, discrete: bool = False) -> str:
