@@ -184,6 +184,13 @@ MAKERS: dict[str, Callable[[Path], None]] = {
     "noise_alone.py": _written(FIRST + "noise = 0.1\n"),
     "noise_given.py": _written(FIRST + 'priors = {"a": (1.0, 0.5)}\nnoise = 0.01\n'),
     "interp_file.py": _written(FIRST + 'interpolation = "zoh"\n'),
+    "ekf_file.py": _written(FIRST + 'predictor = "ekf"\nprocess_noise = {"x": 0.1}\n'),
+    "unknown_fn.py": _written(_edit(FIRST, '"-a*x + b*u"', '"-a*x + b*heaviside(u)"')),
+    "if_else.py": _written(_edit(FIRST, '"-a*x + b*u"', '"-a*x if x > 0 else b*u"')),
+    "predictor_caps.py": _written(FIRST + 'predictor = "Kalman"\n'),
+    "noise_bounds.py": _written(FIRST + 'bounds = {"log_sigma_e_y": (-9.0, 0.0)}\n'),
+    "scheme_typo.py": _written(FIRST + 'scheme = "sdrik3"\n'),
+    "interp_foh.py": _written(FIRST + 'interpolation = "foh"\n'),
     "bound_typo.py": _written(FIRST + 'bound = {"a": (0.0, 5.0)}\n'),
     "endless.py": _written("while True:\n    pass\n"),
     "model_bad_rhs.py": _written(
@@ -217,6 +224,9 @@ MAKERS: dict[str, Callable[[Path], None]] = {
     "renamed.csv": _written(_csv(header=("t", "uEst", "yEst"))),
     "no_time.csv": _written(_csv(header=("time", "u", "y"))),
     "bom.csv": _written(("\ufeff" + _csv()).encode("utf-8")),
+    "units_row.csv": _written(_csv().replace("t,u,y\n", "t,u,y\ns,V,m\n", 1)),
+    "commented.csv": _written("# rig 3, 2026-11-26\n# u in V, y in m\n" + _csv()),
+    "savetxt.csv": _written("# " + _csv()),  # numpy.savetxt's header="t,u,y"
     "utf16.csv": _written(_csv().encode("utf-16")),
     "semicolon.csv": _written(_csv(";")),
     "tab.csv": _written(_csv("\t")),
@@ -248,6 +258,19 @@ MAKERS: dict[str, Callable[[Path], None]] = {
     "sheet.xlsx": _written(b"PK\x03\x04 not really a workbook"),
     "fit.json": _written('{"params": {"a": 2.0, "b": 3.0}, "x0": [0.0]}'),
     "fit_broken.json": _written('{"params": '),
+    "fit_cut.json": _written('{"params": {"a": 2.0, "b": 3.0},\n "x0": [0.0'),
+    "fit_garbage.json": _written('saved 2026-11-26\n{"params": {"a": 2.0, "b": 3.0}}'),
+    "fit_empty.json": _written(""),
+    "compare.json": _written(
+        '{"record": "first", "outputs": {}, "scored_as": "simulation", "x0": {"x": 0.0}, '
+        '"x0_source": "the model file\'s x0", "params": {"a": 2.0, "b": 3.0}}'
+    ),
+    "fit_discrete.json": _written(
+        '{"params": {"a": 0.5, "b": 1.0}, "x0": [0.0], "integration": {"scheme": "discrete"}}'
+    ),
+    "fit_other_states.json": _written('{"params": {"a": 2.0, "b": 3.0}, "free_x0": ["q"]}'),
+    "fit_x0_dict.json": _written('{"params": {"a": 2.0, "b": 3.0}, "x0": {"x": 0.0}}'),
+    "fit_binary.json": _written(b"\xff\xfe\x00{"),
     "fit_noparams.json": _written('{"x0": [0.0]}'),
 }
 

@@ -381,3 +381,54 @@ def test_compare_and_simulate_replace_their_own_files_not_a_fits(tmp_path, capsy
         assert not stale.exists()
         assert fits <= {p.name for p in f.iterdir()}  # the fit's files all kept
         assert json.loads((f / "fit.json").read_text())["params"]
+
+
+def test_a_constant_output_s_undefined_scores_are_said_why(tmp_path, capsys):
+    """A validation record whose output is constant (a sensor stuck, a record at rest)
+    has no spread for GOF, NRMSE, R² and fit percent to divide by: the table said GOF
+    "not finite" as for a simulation that blew up, compare printed GOF -inf, and none
+    said why. They read "undefined", with a note naming the record and its RMSE."""
+    model, path, t, u, y = _discrete_record(tmp_path)
+    flat = tmp_path / "flat.csv"
+    rows = np.column_stack([t, u, np.full_like(y, 0.1)])  # 0.1: its mean rounds
+    np.savetxt(flat, rows, delimiter=",", header="t,u,y", comments="")
+    model_file, fit = str(tmp_path / "ar.py"), tmp_path / "f"
+    argv = ["fit", model_file, str(path), "--validate", str(flat), "--no-progress"]
+    assert cli.main([*argv, "--out", str(fit)]) == 0
+    out = capsys.readouterr().out
+    assert "│ undefined │" in out and "GOF validation flat: y undefined" in out
+    note = "validation 'flat', y: GOF (fit percent), NRMSE and R² are undefined: y is constant"
+    assert f"note: {note}" in out and "(0.1 at every scored sample)" in out
+    data = json.loads((fit / "fit.json").read_text())
+    assert data["gof"]["validation"]["flat"]["y"] is None
+    assert len(data["gof_notes"]) == 1 and data["gof_notes"][0].startswith(note)
+    assert note in (fit / "report.md").read_text()
+    rc = cli.main(["compare", model_file, str(flat), "--params", str(fit / "fit.json"),
+                   "--out", str(tmp_path / "c")])  # fmt: skip
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "GOF undefined" in out and "fit undefined" in out and f"note: {note}" in out
+    assert "-inf" not in out
+    scored = json.loads((tmp_path / "c" / "compare.json").read_text())
+    assert scored["gof_notes"] == data["gof_notes"]
+
+
+def test_a_fit_of_another_or_edited_model_file_is_noted(tmp_path, capsys):
+    """compare with a fit.json made from another model file, or from this one before
+    an edit, scored the parameters with these equations without a word."""
+    model, path, *_ = _discrete_record(tmp_path)
+    fit = tmp_path / "f"
+    argv = ["fit", str(tmp_path / "ar.py"), str(path), "--no-progress", "--out", str(fit)]
+    assert cli.main(argv) == 0
+    compare = ["compare", str(tmp_path / "ar.py"), str(path), "--params", str(fit / "fit.json"),
+               "--out", str(tmp_path / "c")]  # fmt: skip
+    capsys.readouterr()
+    assert cli.main(compare) == 0
+    assert "note" not in capsys.readouterr().err  # the same file: nothing to say
+    (tmp_path / "other.py").write_text(DISCRETE.replace("0.2*x1**3", "0.3*x1**3"))
+    assert cli.main([compare[0], str(tmp_path / "other.py"), *compare[2:]]) == 0
+    err = capsys.readouterr().err
+    assert f"note: the fit was made with {tmp_path / 'ar.py'} (SHA-256" in err
+    (tmp_path / "ar.py").write_text(DISCRETE + "# edited\n")
+    assert cli.main(compare) == 0
+    assert "the fit was made with this model file before it was edited" in capsys.readouterr().err

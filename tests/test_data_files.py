@@ -183,6 +183,19 @@ def test_utf8_bom_is_stripped(tmp_path):
     _same_as_plain(tmp_path / "bom.csv")
 
 
+def test_comment_lines_above_the_header_and_numpy_s_header_are_read(tmp_path):
+    """'# rig 3' above the header was read as the header (found ['#', '3', 'rig']), and
+    numpy.savetxt's header ('# t,u,y' above the numbers) as a column '# t': "no time
+    column 't'". Comments before the header are skipped; a commented line right
+    above the numbers names the columns."""
+    (tmp_path / "c.csv").write_text("# rig 3\n#\n\n# u in V\n" + _text())
+    _same_as_plain(tmp_path / "c.csv")
+    np.savetxt(tmp_path / "s.csv", np.column_stack([T, U, Y]), delimiter=",", header="t,u,y")
+    _same_as_plain(tmp_path / "s.csv")
+    (tmp_path / "o.csv").write_text("# nothing here\n")
+    assert "no data rows" in _error(tmp_path / "o.csv")
+
+
 @pytest.mark.parametrize("encoding", ["utf-16", "utf-16-le", "utf-16-be"])
 def test_utf16_is_read(tmp_path, encoding):
     (tmp_path / "wide.csv").write_bytes(_text().encode(encoding))
@@ -288,13 +301,17 @@ def test_records_of_one_name_get_names_of_their_own(tmp_path, capsys):
     assert [e.name for e in ti.load_data([a, a], MODEL)] == ["val", "val#2"]
     (tmp_path / "m.py").write_text(MODEL_FILE)
     out = tmp_path / "fit"
-    argv = ["fit", str(tmp_path / "m.py"), str(a), str(a), "--validate", str(a), str(b)]
+    # a training file given twice is refused (its samples would count twice); a
+    # validation file may be, and the two records keep names of their own
+    argv = ["fit", str(tmp_path / "m.py"), str(a), str(a), "--out", str(out), "--no-progress"]
+    assert cli.main(argv) == 2 and "given twice" in capsys.readouterr().err
+    argv = ["fit", str(tmp_path / "m.py"), str(a), str(b), "--validate", str(a), str(a)]
     assert cli.main([*argv, "--out", str(out), "--no-progress"]) == 0
     import json
 
     fit = json.loads((out / "fit.json").read_text())
-    assert set(fit["gof"]["train"]) == {"val", "val#2"}
-    assert set(fit["gof"]["validation"]) == {"A/val", "B/val"}
+    assert set(fit["gof"]["train"]) == {"A/val", "B/val"}
+    assert set(fit["gof"]["validation"]) == {"val", "val#2"}
     assert not list(out.glob(".*part"))
 
 
@@ -354,3 +371,12 @@ def test_a_folder_given_as_a_data_file_is_called_a_folder(tmp_path):
     (tmp_path / "records").mkdir()
     message = _error(tmp_path / "records")
     assert "is a folder" in message and "does not exist" not in message
+
+
+def test_columns_named_in_other_capitals_are_pointed_to(tmp_path):
+    """A MATLAB export's T, U, Y: the error listed them as found and suggested holding
+    u constant (--columns u=0); it now gives the map for all of them at once."""
+    (tmp_path / "caps.csv").write_text(_text().replace("t,u,y", "T,U,Y", 1))
+    message = _error(tmp_path / "caps.csv")
+    assert "--columns t=T,u=U,y=Y" in message and "u=0" not in message
+    _same_as_plain(tmp_path / "caps.csv", columns={"t": "T", "u": "U", "y": "Y"})

@@ -116,3 +116,41 @@ def test_a_model_file_with_discrete_text_equations(tmp_path):
     res = ti.fit(prob)
     assert res.params["a"] == pytest.approx(0.8, rel=1e-10)
     assert res.params["b"] == pytest.approx(0.3, rel=1e-10)
+
+
+def test_a_record_at_another_rate_is_refused_for_a_discrete_model(tmp_path, capsys):
+    """A discrete-time model's step is one sample: a record sampled at another rate
+    (here every other sample, 0.2 s against 0.1 s) is another model. Training with
+    both, validating on it (res.validate, fit --validate before any work) and compare
+    of a saved fit on it all ran without a word."""
+    import json
+
+    from tensorid import cli
+
+    data = record(P=120)
+    half = ti.Experiment(data.t[::2], data.u[::2], data.y[::2], name="half")
+    with pytest.raises(ValueError, match=r"experiment 1 \(half\) is sampled every 0.2 s"):
+        ti.Problem(hammerstein(), [data, half], p0=TRUE, x0=[0.1, -0.2])
+    res = ti.fit(ti.Problem(hammerstein(), data, p0=TRUE, x0=[0.1, -0.2]))
+    with pytest.raises(ValueError, match="validation record 'half' is sampled every 0.2 s"):
+        res.validate(half)
+    assert res.validate(record(P=60, seed=1))[0].gof["y"] > 0.99  # the same rate: scored
+    f = tmp_path / "ar.py"
+    f.write_text(
+        'discrete = True\nrhs = {"x": "a*x + b*u"}\ninputs = ["u"]\nparams = ["a", "b"]\n'
+        'p0 = {"a": 0.5, "b": 0.5}\nx0 = {"x": 0.0}\noutput = {"y": "x"}\n'
+    )
+    rows = "".join(f"{k * 0.1:.1f},{np.sin(k)},{np.cos(k)}\n" for k in range(60))
+    (tmp_path / "a.csv").write_text("t,u,y\n" + rows)
+    (tmp_path / "b.csv").write_text("t,u,y\n" + "".join(rows.splitlines(True)[::2]))
+    fit = ["fit", str(f), str(tmp_path / "a.csv"), "--no-progress", "--out", str(tmp_path / "o")]
+    assert cli.main([*fit, "--validate", str(tmp_path / "b.csv")]) == 2
+    assert "'b' is sampled every 0.2 s" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()  # refused before the fit
+    assert cli.main(fit) == 0
+    assert json.loads((tmp_path / "o" / "fit.json").read_text())["sample_time"] == 0.1
+    compare = ["compare", str(f), str(tmp_path / "b.csv"), "--params",
+               str(tmp_path / "o" / "fit.json"), "--out", str(tmp_path / "c")]  # fmt: skip
+    capsys.readouterr()
+    assert cli.main(compare) == 2
+    assert "b.csv is sampled every 0.2 s" in capsys.readouterr().err

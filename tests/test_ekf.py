@@ -476,6 +476,8 @@ def test_ekf_from_the_command_line(tmp_path, capsys):
     assert cli.main(argv) == 0
     printed = capsys.readouterr().out
     assert "noise intensities" in printed and "5-step prediction" in printed
+    # the training row is the filter fit's simulation, beside the prediction: said so
+    assert "GOF train, simulation: y" in printed and "│ training, simulation " in printed
     d = json.loads((out / "fit.json").read_text())
     assert d["predictor"] == "ekf" and d["horizon"] == 5
     noise = d["noise_intensities"]
@@ -667,6 +669,23 @@ def test_noise_flags_without_the_filter_name_the_flags(tmp_path, capsys):
     assert not (tmp_path / "o").exists()  # refused before any work
 
 
+def test_noise_flags_on_a_state_without_process_noise_are_refused(tmp_path, capsys):
+    """--free log_sigma_w_x on a filter fit whose state x has no process noise was
+    ignored without a word (the fit ran with v's noise alone); --bounds on it named
+    no flag. Both name the flag and --process-noise x=σ, before any work."""
+    from tensorid import cli
+
+    (tmp_path / "m.py").write_text(EKF_MODEL_FILE)
+    (tmp_path / "d.csv").write_text("t,u,y\n" + "".join(f"{k},1,{k % 3}\n" for k in range(20)))
+    argv = ["fit", str(tmp_path / "m.py"), str(tmp_path / "d.csv"), "--out", str(tmp_path / "o")]
+    for flags in (["--free", "log_sigma_w_x"], ["--bounds", "log_sigma_w_x=-5:-1"]):
+        assert cli.main([*argv, *flags]) == 2
+        err = capsys.readouterr().err
+        assert f"{flags[0]} log_sigma_w_x: the state x has no process noise" in err, err
+        assert "--process-noise x=σ" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()
+
+
 def test_a_discrete_model_s_process_noise_is_labelled_per_step():
     """P⁺ = A P Aᵀ + Q: a discrete-time model's σ_w is per step, not per √time."""
     from tensorid.fitting.summary import noise_text
@@ -694,8 +713,12 @@ def test_a_method_the_filter_cannot_use_is_refused_in_flags(tmp_path, capsys):
     assert cli.main(argv) == 2
     err = capsys.readouterr().err
     assert "--method fd-lsq minimises a sum of squared residuals" in err
-    assert "(--predictor ekf)" in err and "use --method auto, newton," in err
+    # the model file chose the filter, not a flag: said so (it said --predictor ekf)
+    assert f'(predictor = "ekf" in {tmp_path / "m.py"})' in err
+    assert "use --method auto, newton," in err
     assert "'fd" not in err and "='" not in err and not (tmp_path / "o").exists()
+    assert cli.main([*argv, "--predictor", "ekf"]) == 2
+    assert "(--predictor ekf)" in capsys.readouterr().err
 
 
 def test_a_measurement_noise_gone_to_zero_is_warned_of():
@@ -706,8 +729,11 @@ def test_a_measurement_noise_gone_to_zero_is_warned_of():
 
     from tensorid.fitting.summary import collapsed_noise
 
-    def res(log_sigma_e, names=("log_sigma_e_y", "log_sigma_e_z")):
+    def res(log_sigma_e, names=("log_sigma_e_y", "log_sigma_e_z"), step=None):
         y = np.column_stack([np.sin(np.arange(50.0)), np.cos(np.arange(50.0))])
+        if step is not None:  # a quantised sensor: an encoder's counts, times its step
+            counts = np.concatenate([np.arange(25.0), 60000.0 * np.arange(25.0)])
+            y = step * np.column_stack([counts, counts[::-1]])  # spread 0.02: EMPS's 0.07
         problem = types.SimpleNamespace(
             loss=types.SimpleNamespace(likelihood=True), theta_names=list(names),
             model=types.SimpleNamespace(outputs=("y", "z")),
@@ -722,6 +748,12 @@ def test_a_measurement_noise_gone_to_zero_is_warned_of():
     assert "--measurement-noise y=σ" in line and "--fix log_sigma_e_y" in line
     assert collapsed_noise(res(-5.0)) == []  # 0.0067 of a spread of 0.7: a sensor's
     assert collapsed_noise(res(-60.0, names=("log_sigma_e_z",))) == []  # y's held
+    # EMPS's σ_e = 2e-8 m (2e-7 of the spread) is its encoder's 5e-8 m steps, q/√12:
+    # the sensor's own noise, not a collapse (it was warned of)
+    q = 5e-8
+    assert collapsed_noise(res(np.log(q / np.sqrt(12)), step=q)) == []
+    assert len(collapsed_noise(res(np.log(q / 1000), step=q))) == 1  # far below it
+    assert len(collapsed_noise(res(np.log(q / np.sqrt(12))))) == 1  # y not on a grid
 
 
 @pytest.mark.slow  # two fits of 65 iterations: about 10 s on 2 idle cores

@@ -30,3 +30,14 @@ def test_non_finite_simulation_scores_minus_infinity_and_shapes_are_checked():
     assert ti.gof(y, np.array([0, 1, np.nan, 3, 4.0])) == -np.inf
     with pytest.raises(ValueError, match="shape"):
         ti.gof(y, y[:4])
+
+
+def test_a_constant_record_has_no_spread_even_where_its_mean_rounds():
+    """The mean of 1,000 samples of 0.1 is not 0.1 to the last bit: that rounding
+    (4e-16) was divided by, and a constant record scored GOF -1.4e15 and NRMSE
+    1.4e15, printed as numbers. With no spread the scores are undefined (inf); an
+    exact match still scores 1."""
+    for c in (0.1, 0.3, 1.1):
+        y = np.full(1000, c)
+        assert ti.nrmse(y, y + 0.01) == np.inf and ti.gof(y, y + 0.01) == -np.inf
+        assert ti.gof(y, y) == 1.0 and ti.nrmse(y, y) == 0.0

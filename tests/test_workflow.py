@@ -373,7 +373,7 @@ def test_integration_options_on_the_command_line(workdir, capsys):
     # a bad combination is one clear line, not a traceback
     assert cli.main(args + ["--rtol", "1e-9"]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("tensorid: error: rtol/atol apply to the adaptive schemes")
+    assert err.startswith("tensorid: error: --rtol/--atol apply to the adaptive schemes")
 
 
 def test_compilation_cache_is_on_by_default_and_can_be_turned_off(tmp_path):

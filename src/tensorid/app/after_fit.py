@@ -12,7 +12,7 @@ from ..engine.diagnostics import describe_failure
 from ..engine.status import Status
 from ..fitting.figures import file_name, profile_figure
 from ..fitting.residuals import lag_limit
-from ..fitting.summary import finite
+from ..fitting.summary import gof_text
 from ..fitting.validation import Score
 
 
@@ -22,7 +22,7 @@ def _gof_lines(scores: list[Score]) -> list[str]:
     for s in scores:
         label = s.label.replace(s.kind, kinds[s.kind], 1)
         label = label.replace("'", "")
-        per = ", ".join(f"{o} {finite(v, '.4f')}" for o, v in s.gof.items())
+        per = ", ".join(f"{o} {gof_text(s, o)}" for o in s.gof)
         out.append(f"GOF {label}: {per}")
     return out
 

@@ -33,6 +33,32 @@ def _positive_seconds(text: str) -> float:
     return x
 
 
+def _sample_time(text: str) -> float:
+    """--ts: a finite sampling time > 0 (argparse's float took 0, -1, nan and inf, and
+    the error came later without the flag's name)."""
+    try:
+        x = float(text)
+    except ValueError:
+        x = float("nan")
+    if not 0 < x < float("inf"):
+        raise argparse.ArgumentTypeError(
+            f"expected a positive sampling time in seconds (a finite number > 0), got {text!r}"
+        )
+    return x
+
+
+def _positive(text: str) -> float:
+    """A finite number > 0 (--loss-scale: 0, -1, nan and inf failed later, in the
+    Problem's words)."""
+    try:
+        x = float(text)
+    except ValueError:
+        x = float("nan")
+    if not 0 < x < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+    return x
+
+
 def _level(text: str) -> float:
     x = _non_negative(text)
     if not 0 < x < 1:
@@ -91,3 +117,12 @@ def _range(text: str) -> tuple[str, tuple[float, float]]:
     if not eq or not colon or not name.strip() or len(ends) != 2:
         raise argparse.ArgumentTypeError(f"expected NAME=LO:HI (e.g. M=50:150), got {text!r}")
     return name.strip(), (ends[0], ends[1])
+
+
+def tolerances_as_flags(message: str) -> str:
+    """The integration's refusal of rtol=/atol= as the flags that gave them ("need
+    rtol > 0 ...; got rtol=0.0" named no flag)."""
+    import re
+
+    message = re.sub(r"(?<![\w-])(rtol|atol|substeps)\b", r"--\1", message)
+    return re.sub(r"; '([\w-]+)' takes", r"; --scheme \1 takes", message)

@@ -18,8 +18,10 @@ from .argtypes import (
     _level,
     _mapping,
     _non_negative,
+    _positive,
     _positive_seconds,
     _range,
+    _sample_time,
     _samples,
     _value,
 )
@@ -53,7 +55,24 @@ class Parser(argparse.ArgumentParser):
     names the argument and says where the help is."""
 
     def error(self, message: str):  # type: ignore[override]
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+        self.exit(2, f"{self.prog}: error: {_nearest_choice(message)} (see {self.prog} --help)\n")
+
+
+def _nearest_choice(message: str) -> str:
+    """argparse's "invalid choice: 'sdrik3' (choose from ...)" with "; did you mean
+    'sdirk3'?" after it (Python 3.14's argparse suggests; those before do not)."""
+    import re
+
+    from ..engine.checks import nearest
+
+    taken = re.match(r"argument (--[\w-]+)(?:/[\w-]+)?: expected one argument$", message)
+    if taken:  # "--rtol -1e-6": argparse reads -1e-6 as an option (not -1 or -0.5)
+        return f"{message} (one that starts with '-', as -1e-6, is written {taken[1]}=VALUE)"
+    found = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)$", message)
+    if not found or "did you mean" in message:
+        return message
+    close = nearest(found[1], re.findall(r"'([^']*)'", found[2]))
+    return f"{message}; did you mean {close!r}?" if close and close != found[1] else message
 
 
 _COLUMNS_HELP = (
@@ -112,7 +131,7 @@ def register(sub) -> None:
     )
     f.add_argument(
         "--loss-scale",
-        type=float,
+        type=_positive,
         default=None,
         metavar="SCALE",
         help="a robust loss's scale in the outputs' units (default: from the data, a "
@@ -158,7 +177,7 @@ def register(sub) -> None:
         "with a prediction horizon): with --predictor ekf, the filter's state K samples "
         "before, run ahead by the model; for output error every horizon is the simulation",
     )
-    f.add_argument("--ts", type=float, default=None, help=_TS_HELP)
+    f.add_argument("--ts", type=_sample_time, default=None, help=_TS_HELP)
     f.add_argument(
         "--samples",
         type=_samples,
@@ -344,10 +363,29 @@ def _notes() -> Iterator[None]:
         yield
 
 
+def _unrecognized(parser: argparse.ArgumentParser, args, extra: list[str]) -> None:
+    """Arguments no option takes, refused by the command's own parser ("tensorid
+    simulate: error: ... (see tensorid simulate --help)", where argparse's top parser
+    sent the user to tensorid --help), with the option nearest to a misspelt one."""
+    from ..engine.checks import nearest
+
+    command = parser
+    for action in parser._actions:  # the subcommand's parser, where there is one
+        if isinstance(action, argparse._SubParsersAction):
+            command = action.choices.get(str(getattr(args, "command", "")), parser)
+    options = [o for a in command._actions for o in a.option_strings if o.startswith("--")]
+    flag = next((x.split("=")[0] for x in extra if x.startswith("--")), None)
+    close = nearest(flag, options) if flag else None
+    hint = f"; did you mean {close}?" if close and close != flag else ""
+    command.error(f"unrecognized arguments: {' '.join(extra)}{hint}")
+
+
 def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     """Parse ``argv`` and run the chosen command. Our errors say what is wrong and how
     to fix it; a traceback only hides that (set TENSORID_TRACEBACK=1 to see it)."""
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # named by the command's parser, as its other mistakes are
+        _unrecognized(parser, args, extra)
     args.argv = sys.argv[1:] if argv is None else list(argv)  # for the results' provenance
     from .._config import default_compilation_cache
 

@@ -13,6 +13,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.live import Live
 
+from ..engine.checks import same_step, step
 from ..engine.problem import Problem
 from ..engine.status import Status
 from ..fitting.figures import figure_jobs, save_png
@@ -32,6 +33,8 @@ from .fit_setup import (  # _problem and _data_entries are also patched and read
     _validation_data,
     checked_method,
     discretisation,
+    no_repeats,
+    predictor_origin,
 )
 from .keeping import (
     _keep,
@@ -41,7 +44,7 @@ from .keeping import (
     _save_interrupted,
 )
 from .output import check_destination, claimed, previous_outputs, write_atomic, write_text
-from .overrides import overridden
+from .overrides import given_once, overridden
 from .progress import _log_line, _progress_table
 from .provenance import provenance
 from .renderer import Renderer
@@ -138,23 +141,27 @@ def _fit_command(args, renderer: Renderer) -> int:
     spec = load_model(args.model)
     m = spec.model
     train_maps = _maps(args.columns, args.data, "--columns")
+    no_repeats(args.data, train_maps)
     train = load_data(args.data, m, ts=args.ts, samples=args.samples, columns=train_maps)
     val_maps = _maps(
         args.validate_columns or _one(args.columns), args.validate, "--validate-columns"
     )
     val = _validation_data(args, m, val_maps)
     _check_options(args, train, val)
+    for e in val:  # a discrete-time model at another rate: refused before the fit
+        same_step(m, e, step(train[0]), f"the validation record {e.name!r}")
     args.provenance = provenance(
         args.model,
         _data_entries(m, args.data, train_maps) + _data_entries(m, args.validate, val_maps),
         getattr(args, "argv", None),
     )
-    spec, args.overrides = overridden(spec, dict(args.fix), args.free, dict(args.bounds))
+    fix, bounds = given_once("--fix", args.fix), given_once("--bounds", args.bounds)
+    spec, args.overrides = overridden(spec, fix, args.free, bounds)
     problem = _problem(spec, train, args)
     if problem.loss.likelihood and args.data_sensitivity:
         raise ValueError(
-            "--data-sensitivity is for output error, not --predictor ekf: drop it, or fit "
-            "with --predictor simulation"
+            f"--data-sensitivity is for output error, not a filter fit "
+            f"({predictor_origin(spec, args)}): drop it, or fit with --predictor simulation"
         )
     if problem.loss.robust and (args.profile is not None or args.data_sensitivity):
         raise ValueError(
@@ -162,7 +169,8 @@ def _fit_command(args, renderer: Renderer) -> int:
             f"{problem.loss.name} (its error bars are the sandwich form): drop them, or fit "
             "with --loss squared"
         )
-    checked_method(problem, args.method)  # one that cannot serve it: before the folder
+    # a method that cannot serve it: refused before the folder is touched
+    checked_method(problem, args.method, predictor_origin(spec, args))
     unknown = [n for n in args.profile or [] if n not in problem.theta_names]
     if unknown:
         raise ValueError(

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..engine.data import Experiment
 from ..engine.model import Model
-from .readers import _TS, _Columns, _read
+from .readers import _TS, _Columns, _read, input_is_output
 
 # -- experiments -----------------------------------------------------------------------
 _NOT_NUMBERS = {"U": "text", "S": "text", "O": "objects (a cell array?)", "V": "records"}
@@ -137,6 +137,7 @@ def _mapped(p, cols: _Columns, columns: dict | None, model: Model, strict=True) 
                 f"it has {sorted(cols.values)}"
             )
         values[name] = cols.values[source]
+    input_is_output(p, columns, model, constants)
     return _Columns(values, cols.what, cols.lines, cols.note, constants)
 
 
@@ -230,7 +231,9 @@ def _time(p, cols: _Columns, ts, P: int, data: dict) -> np.ndarray:
         return _on_grid(p, data["t"])
     ts = _sampling_time(p, cols) if ts is None else ts
     if ts is None:
-        named = [n for n in cols.values if str(n).lower().startswith("time")]
+        named = [
+            n for n in cols.values if str(n).lower() == "t" or str(n).lower().startswith("time")
+        ]
         hint = (
             f"; if {named[0]!r} holds the times: --columns {shlex.quote(f't={named[0]}')} "
             f"(columns={{'t': {named[0]!r}}} in Python)"
@@ -250,13 +253,21 @@ def _lacking(p, cols: _Columns, model: Model, need: list[str], ts) -> None:
     missing = [n for n in need if not cols.has(n)]
     if not missing:
         return
-    inputs = [n for n in missing if n in model.inputs]
+    # the same name in other capitals (MATLAB exports U, Y): read by name, exactly
+    # (all of them at once: t, inputs and outputs, not one per try)
+    names = (["t"] if ts is None else []) + list(model.inputs) + list(model.outputs)
+    absent = [n for n in names if not cols.has(n)]
+    cased = {n: c for n in absent for c in cols.values if str(c).lower() == n.lower()}
+    inputs = [n for n in missing if n in model.inputs and n not in cased]
     hint = (
         f"; an input the record lacks can be held constant: --columns "
         f"{','.join(f'{n}=0' for n in inputs)} (columns={{{inputs[0]!r}: 0}} in Python)"
         if inputs
         else ""
     )
+    if cased:
+        pairs = ",".join(f"{n}={c}" for n, c in cased.items())
+        hint = f"; names are read as written, capitals too: --columns {pairs}{hint}"
     raise ValueError(
         f"{p} lacks columns {missing}; expected {(['t'] if ts is None else []) + need} "
         f"(the model's inputs {list(model.inputs)} and outputs {list(model.outputs)}), "
@@ -357,8 +368,8 @@ def load_data(
     that each lack what the others hold."""
     if isinstance(paths, str | Path):
         paths = [paths]
-    if ts is not None and not ts > 0:
-        raise ValueError(f"the sampling time must be positive, got {ts}")
+    if ts is not None and not 0 < ts < np.inf:
+        raise ValueError(f"the sampling time ts must be positive and finite, got {ts}")
     paths = list(paths)
     maps = _maps(columns, len(paths))
     if len(paths) > 1 and not isinstance(columns, list):

@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..engine.checks import did_you_mean
 from ..engine.equations import model_from_equations
 from ..engine.losses import LOSSES
 from ..engine.model import Model
@@ -208,7 +209,10 @@ def _spec(ns: dict, path: Path) -> ModelSpec:
         if kind is list:
             value = list(value) if isinstance(value, tuple) else _names(value)
         if not isinstance(value, kind):
-            raise TypeError(f"{key} must be a {kind.__name__}, got {type(value).__name__}")
+            raise TypeError(
+                f"{key} must be a {kind.__name__}, got {type(value).__name__}"
+                + _as_dict(key, value, model)
+            )
         setattr(out, key, value)
     weights = ns.get("weights")
     if weights is not None and not (
@@ -219,14 +223,19 @@ def _spec(ns: dict, path: Path) -> ModelSpec:
     out.weights = weights
     loss, scale = ns.get("loss"), ns.get("loss_scale")
     if loss is not None and loss not in LOSSES:
-        raise ValueError(f"loss must be one of {list(LOSSES)}, got {loss!r}")
+        raise ValueError(
+            f"loss must be one of {list(LOSSES)}, got {loss!r}{did_you_mean(loss, LOSSES)}"
+        )
     if scale is not None and not isinstance(scale, int | float | dict):
         raise TypeError(f"loss_scale must be a number or a dict {{output: scale}}, got {scale!r}")
     out.loss, out.loss_scale = loss, scale
     out.noise = ns.get("noise")  # Problem checks it, naming this file
     predictor = ns.get("predictor")
     if predictor is not None and predictor not in PREDICTORS:
-        raise ValueError(f"predictor must be one of {list(PREDICTORS)}, got {predictor!r}")
+        raise ValueError(
+            f"predictor must be one of {list(PREDICTORS)}, got {predictor!r}"
+            f"{did_you_mean(predictor, PREDICTORS)}"
+        )
     out.predictor = predictor
     for key in ("process_noise", "measurement_noise"):
         value = ns.get(key)
@@ -250,6 +259,34 @@ _SETTINGS = ("model", "rhs", "output", "inputs", "params", "input_delays", "disc
 _TEXT_ONLY = ("rhs", "output", "inputs", "params", "input_delays", "discrete")
 
 
+def _as_dict(key: str, value, model: Model) -> str:
+    """ "; write x0 = {'y': 0.0, 'v': 0.0}" for a list of start values in the model's
+    order (a list is what ti.Problem takes; a model file names them), or ""."""
+    names = {"p0": model.params, "x0": model.states}.get(key)
+    if names is None or not isinstance(value, list | tuple) or len(value) != len(names):
+        return ""
+    return f"; write {key} = {dict(zip(names, value, strict=True))!r}"
+
+
+def _not_a_choice(name: str, value) -> tuple[str, str]:
+    """(", and 'sdrik3' is no scheme (...)", the value to suggest) where a scheme or
+    interpolation set in a model file is no valid one: the flag the refusal suggests
+    would be refused in turn. ("", value) otherwise."""
+    from ..engine.checks import nearest
+    from ..engine.discretisation import INTERPOLATIONS
+    from ..engine.integrators import SCHEMES
+
+    choices = {"scheme": sorted(SCHEMES), "interpolation": list(INTERPOLATIONS)}.get(name)
+    if choices is None or value in choices:
+        return "", value
+    close = nearest(value, choices)
+    hint = f"did you mean {close!r}? " if close else ""
+    return (
+        f", and {value!r} is no {name} ({hint}the {name}s: {', '.join(choices)})",
+        close or name.upper(),
+    )
+
+
 def _stray_settings(ns: dict, path: Path) -> None:
     """One line for an integration setting set in the file (refused: it would be
     ignored), a warning for a name one letter or so from a setting's (``bound``);
@@ -264,10 +301,11 @@ def _stray_settings(ns: dict, path: Path) -> None:
     for name, flag in _ELSEWHERE.items():
         value = ns.get(name)
         if isinstance(value, str | int | float) and not isinstance(value, bool):
+            invalid, value = _not_a_choice(name, value)
             raise ValueError(
-                f"{name} = {value!r} is not a model-file setting and would be ignored: "
-                f"give it on the command line ({flag} {value}) or to ti.Problem({name}=...); "
-                "rename the variable if it is one of your own"
+                f"{name} = {ns[name]!r} is not a model-file setting and would be ignored"
+                f"{invalid}: give it on the command line ({flag} {value}) or to "
+                f"ti.Problem({name}=...); rename the variable if it is one of your own"
             )
     for name, value in ns.items():
         if (

@@ -18,6 +18,7 @@ from ..fitting.methods import check_method
 from ..fitting.registry import exact_derivatives
 from ..fitting.residuals import lag_limit
 from ..fitting.validation import check_init_window
+from .argtypes import tolerances_as_flags
 from .files import ModelSpec, load_data
 from .provenance import data_entries
 from .simulate import effective_columns
@@ -25,7 +26,12 @@ from .simulate import effective_columns
 
 def discretisation(args) -> Discretisation:
     """The integration settings of the command line, checked once."""
-    return Discretisation.of(args.scheme, args.substeps, args.interpolation, args.rtol, args.atol)
+    try:
+        return Discretisation.of(
+            args.scheme, args.substeps, args.interpolation, args.rtol, args.atol
+        )
+    except ValueError as e:
+        raise ValueError(tolerances_as_flags(str(e))) from None
 
 
 def _problem(spec: ModelSpec, train, args) -> Problem:
@@ -101,19 +107,30 @@ def _as_flags(message: str, args) -> str:
         message = re.sub(name + r"'([^']*)'", rf"{flag} \1", message)  # key='value'
         message = re.sub(name + r"([^\s'():,;]+)", rf"{flag} \1", message)  # key=4
         message = re.sub(name + r"(?=[)\s,;]|$)", flag, message)  # drop key=
+        entry = rf"(?<![\w-]){key}\['([^']*)'\] = ([^\s:;,]+)"  # key['y'] = 0.0
+        message = re.sub(entry, rf"{flag} \1=\2", message)
+        message = re.sub(rf"(?<![\w-]){key} names", f"{flag} names", message)
     # a hint to give a noise: on the command line, its flag (given or not)
     return re.sub(r"measurement_noise=\{'([^']*)': σ\}", r"--measurement-noise \1=σ", message)
 
 
-def checked_method(problem, method: str) -> None:
+def predictor_origin(spec: ModelSpec, args) -> str:
+    """Where a filter fit's predictor was chosen: "--predictor ekf", or the model file's
+    setting (a refusal that blamed --predictor ekf sent the user to a flag not given)."""
+    if getattr(args, "predictor", None) == "ekf":
+        return "--predictor ekf"
+    return f'predictor = "ekf" in {spec.path}'
+
+
+def checked_method(problem, method: str, origin: str = "--predictor ekf") -> None:
     """``check_method`` before any work, its refusal spelled in the command line's
     flags ("method 'fd-lsq' ... (predictor='ekf')" as "--method fd-lsq ... (--predictor
-    ekf)")."""
+    ekf)"); ``origin``: where the filter was chosen (:func:`predictor_origin`)."""
     try:
         check_method(problem, method)
     except ValueError as e:
         message = re.sub(r"^method '([\w-]+)'", r"--method \1", str(e))
-        message = message.replace("predictor='ekf'", "--predictor ekf")
+        message = message.replace("predictor='ekf'", origin)
         message = message.replace("drop the segments", "drop --segments or --segment-length")
         names = r"use ('[\w-]+'(?:(?:, | or )'[\w-]+')*)"
         message = re.sub(names, lambda m: "use --method " + m[1].replace("'", ""), message)
@@ -153,7 +170,25 @@ def _predictor(spec: ModelSpec, args) -> dict:
                 out[key] = {**(out[key] or {}), name[len(prefix) :]: float(np.exp(value))}
     if out["predictor"] == "simulation":
         _no_noise_flags(args)
+    else:
+        _process_noise_named(args, out["process_noise"] or {})
     return out
+
+
+def _process_noise_named(args, process: dict) -> None:
+    """--free or --bounds on log σ_w of a state without process noise: one line with
+    the way out (--free was ignored without a word, --bounds named no flag)."""
+    prefix = NOISE_PREFIXES["process"]
+    for flag in ("free", "bounds"):
+        names = [n if isinstance(n, str) else n[0] for n in getattr(args, flag, None) or []]
+        for name in names:
+            state = name[len(prefix) :]
+            if name.startswith(prefix) and state not in process:
+                raise ValueError(
+                    f"--{flag} {name}: the state {state} has no process noise to estimate; "
+                    f"give it a start with --process-noise {state}=σ (or process_noise in "
+                    f"the model file), or drop --{flag} {name}"
+                )
 
 
 def _no_noise_flags(args) -> None:
@@ -248,6 +283,23 @@ def _maps(given: list | None, files: list, option: str):
             "once for all files, or once per file in their order"
         )
     return list(given)
+
+
+def no_repeats(files: list, maps) -> None:
+    """A training file given twice with the same columns: refused, one line. Read
+    twice it counted twice, and every standard error shrank by √2 without a word."""
+    from pathlib import Path
+
+    per_file = maps if isinstance(maps, list) else [maps] * len(files)
+    seen: dict = {}
+    for f, m in zip(files, per_file, strict=True):
+        key = (str(Path(f).resolve()), repr(sorted((m or {}).items())))
+        if key in seen:
+            raise ValueError(
+                f"the training data {f} is given twice ({seen[key]} and {f}): its samples "
+                "would count twice and every standard error shrink by √2; give it once"
+            )
+        seen[key] = f
 
 
 def _one(maps: list | None):

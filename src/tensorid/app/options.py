@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from .argtypes import _count, _mapping, _samples
+from .argtypes import _count, _mapping, _sample_time, _samples
 
 _TS_HELP = (
     "sampling time TS: the samples are taken at k·TS, whatever time column the files "
@@ -25,7 +25,7 @@ def record_options(p: argparse.ArgumentParser) -> None:
         help="DATA's column (variable) for each model input/output, e.g. u=uVal,y=yVal; "
         "a number holds an input the record lacks constant (pulses=0)",
     )
-    p.add_argument("--ts", type=float, default=None, help=_TS_HELP)
+    p.add_argument("--ts", type=_sample_time, default=None, help=_TS_HELP)
     p.add_argument(
         "--samples",
         type=_samples,

@@ -18,6 +18,17 @@ def noise_names(spec: ModelSpec) -> list[str]:
     return process + measurement
 
 
+def given_once(option: str, pairs) -> dict:
+    """--fix or --bounds as a dict, each name given once: repeated, the last won
+    without a word (--fix a=1 --fix a=0.9 fitted with 0.9)."""
+    out: dict = {}
+    for name, value in pairs or []:
+        if name in out:
+            raise ValueError(f"{option} gives {name} twice; give it once")
+        out[name] = value
+    return out
+
+
 def _check_names(spec: ModelSpec, fix: dict, free: list, bounds: dict) -> None:
     m = spec.model
     known = list(m.params) + list(m.states) + noise_names(spec)

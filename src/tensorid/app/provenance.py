@@ -84,3 +84,18 @@ def markdown(prov: dict) -> list[str]:
         f"Python {v['python']}; {prov['time']}",
     ]
     return lines
+
+
+def other_model(fitted: dict, model_path) -> str:
+    """A note where a fit.json was made with another model file than ``model_path`` (by
+    content: another file, or this one edited since), or "": its parameters are read
+    by these equations, which may not be the ones they were fitted with."""
+    made = (fitted.get("provenance") or {}).get("model") or {}
+    if not made.get("sha256") or made["sha256"] == sha256(model_path):
+        return ""
+    same = Path(str(made.get("path", ""))).resolve() == Path(model_path).resolve()
+    what = "this model file before it was edited" if same else f"{made.get('path')}"
+    return (
+        f"tensorid: note: the fit was made with {what} (SHA-256 {made['sha256'][:12]}..., "
+        f"not {model_path}'s): its parameters are read by the equations of {model_path}"
+    )

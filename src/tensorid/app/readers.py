@@ -138,14 +138,54 @@ def _column(name: str, cells: list[str], lines: list[int], decimal_comma: bool) 
     return np.array(out)
 
 
+def _uncommented(lines: list[str]) -> list[str]:
+    """``lines`` with the comment lines (#) before the header blanked (they were read
+    as the header: "found ['#', 'export', 'lab']"), and numpy.savetxt's header, "# t,u,y"
+    above the numbers, read as the header; line numbers are kept."""
+    out = list(lines)
+    lead = []
+    for i, line in enumerate(lines):
+        if not line.strip():
+            continue
+        if not line.lstrip().startswith("#"):
+            break
+        lead.append(i)
+        out[i] = ""
+    else:
+        return out  # nothing but comments: told as a file without data rows
+    first = next(line for line in out if line.strip())
+    cells = first.replace(";", ",").replace("\t", ",").replace(" ", ",").split(",")
+    try:
+        [float(c) for c in cells if c.strip()]
+    except ValueError:
+        return out  # a header of names follows the comments
+    if lead:  # numbers right below the comments: the last of them names the columns
+        out[lead[-1]] = lines[lead[-1]].lstrip()[1:]
+    return out
+
+
+def _no_units_row(path: Path, row: tuple[int, list[str]]) -> None:
+    """One line for a first row below the header without a digit in it: a row of
+    units (s, V, m) or a second header, which was told as one bad value of column t."""
+    cells = [c.strip() for c in row[1] if c.strip()]
+    if not cells or any(ch.isdigit() for c in cells for ch in c):
+        return  # numbers (perhaps split wrongly: told by the columns' checks)
+    shown = ", ".join(cells[:6]) + (", ..." if len(cells) > 6 else "")
+    raise ValueError(
+        f"{path}: line {row[0]}, below the header, holds no number ({shown}): a row of "
+        "units or a second header; delete it (the data start on the next line)"
+    )
+
+
 def _columns_csv(path: Path) -> _Columns:
-    lines = _decode(path, path.read_bytes()).splitlines()
+    lines = _uncommented(_decode(path, path.read_bytes()).splitlines())
     header_line = next((line for line in lines if line.strip()), "")
     delimiter = _delimiter(header_line)
     rows = _rows(lines, delimiter)
     if len(rows) < 2:
         raise ValueError(f"{path} has no data rows under its header")
     header = [h.strip().strip('"') for h in rows[0][1]]
+    _no_units_row(path, rows[1])
     numbers = [n for n, _ in rows[1:]]
     values: dict[str, np.ndarray | str] = {}
     for j, name in enumerate(header):
@@ -334,3 +374,22 @@ def _read(p: Path) -> _Columns:
     if suffix not in _READERS:
         raise ValueError(f"{p}: unknown data format {suffix!r}; use .csv, .mat or .npz")
     return _READERS[suffix](p)
+
+
+def input_is_output(p, columns: dict, model, constants: dict) -> None:
+    """A warning where an input reads the column an output is measured from (u=y, a
+    slip of the map): the model is handed the signal it is fitted to, which it ran on
+    without a word."""
+    import warnings
+
+    source = {n: str(columns.get(n, n)) for n in (*model.inputs, *model.outputs)}
+    for u in model.inputs:
+        same = [y for y in model.outputs if source[y] == source[u] and u not in constants]
+        if same:
+            warnings.warn(
+                f"{p}: the input {u} and the output {same[0]} are both read from column "
+                f"{source[u]!r}: the model is given the signal it is fitted to; map each "
+                "to its own column",
+                UserWarning,
+                stacklevel=4,
+            )

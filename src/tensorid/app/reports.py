@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..engine.checks import step
 from ..fitting.figures import new_figure, save_png
 from ..fitting.summary import (
     coloured_residuals_line,
@@ -16,6 +17,7 @@ from ..fitting.summary import (
     headline,
     interval,
     interval_note,
+    metric_notes,
     metric_rows,
     noise_intensities,
     noise_text,
@@ -171,6 +173,7 @@ def fit_json(
         "correlation_names": names,
         "history": res.history,
         "starts": res.starts,
+        "sample_time": step(res.problem.experiments[0]),  # a discrete-time model's step
         "init_window": validation[0].init_window if validation else None,
         "horizon": validation[0].horizon if validation else None,
         "validation_x0": {
@@ -179,6 +182,8 @@ def fit_json(
     }
     for metric in ("gof", "rmse", "nrmse"):
         d[metric] = {"train": _metrics(train, metric), "validation": _metrics(validation, metric)}
+    # why a gof is null where no simulation blew up: an output constant in its record
+    d["gof_notes"] = [n[len("note: ") :] for n in metric_notes(train + list(validation))]
     if u:
         d.update(_error_bars(res, u, names, residual))
     d.update(_profile_json(profiles))
@@ -312,6 +317,7 @@ def fit_report(
         lines += ["## Observed and expected information", "", data["information"]["text"] + ".", ""]
     header, metric_table = metric_rows(scores)
     lines += ["## Goodness of fit", "", md_table(header, metric_table)]
+    lines += [f"\n{n[len('note: ') :]}" for n in metric_notes(scores)]
     if res.starts:
         lines += [
             "",

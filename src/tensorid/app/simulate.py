@@ -13,12 +13,15 @@ from pathlib import Path
 
 import numpy as np
 
+from ..engine.checks import same_step
 from ..engine.diagnostics import describe_failure
 from ..engine.discretisation import Discretisation
 from ..engine.status import Status
 from ..fitting.figures import file_name
+from ..fitting.summary import gof_text, metric_notes, undefined_gof
 from ..fitting.validation import Score, check_init_window, score_record
 from .after_fit import SIMULATED_HORIZON
+from .argtypes import tolerances_as_flags
 from .files import ModelSpec, load_data, load_model
 from .output import (
     COMPARE_MANIFEST,
@@ -28,43 +31,104 @@ from .output import (
     replace_outputs,
     write_atomic,
 )
-from .provenance import data_entries, provenance
+from .provenance import data_entries, other_model, provenance
 from .renderer import draw_files
 from .reports import write_json
 
 
 def _assignments(items: list[str], what: str) -> dict[str, float]:
-    out = {}
+    out: dict[str, float] = {}
     for it in items:
         if "=" not in it:
             raise ValueError(f"{what} must be NAME=VALUE, got {it!r}")
         k, v = it.split("=", 1)
         try:
-            out[k.strip()] = float(v)
+            value = float(v)
         except ValueError:
             raise ValueError(f"{what}: {k.strip()}={v!r} is not a number") from None
+        if not np.isfinite(value):  # it was refused as "p0 has non-finite values"
+            raise ValueError(f"{what}: {k.strip()}={v} is not a finite number")
+        if k.strip() in out:  # the last would win silently
+            raise ValueError(
+                f"{what} gives {k.strip()} twice ({k.strip()}={out[k.strip()]:g} and "
+                f"{k.strip()}={value:g}); give it once"
+            )
+        out[k.strip()] = value
     return out
+
+
+def _read_json(path: Path):
+    """The JSON in ``path``, or one line saying how the file is not a fit.json: empty,
+    not text, cut short, text before or after the JSON (json's own message, "Expecting
+    value: line 1 column 1 (char 0)", said none of this)."""
+    fix = "give the fit.json that tensorid fit --out wrote, or run the fit again"
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as e:
+        raise ValueError(
+            f"--params {path} is not a fit.json: not text (byte {e.start} is not UTF-8); {fix}"
+        ) from None
+    if not text.strip():
+        raise ValueError(f"--params {path} is empty, not a fit.json; {fix}")
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as e:
+        where = f"line {e.lineno}, column {e.colno}"
+        if e.pos >= len(text.rstrip()):
+            what = f"is damaged: its JSON ends unfinished at {where} (the file was cut short)"
+        elif e.msg == "Extra data":
+            what = f"is damaged: text follows its JSON at {where}"
+        elif e.pos == len(text) - len(text.lstrip()):
+            first = text.lstrip().splitlines()[0][:30]
+            what = f"is not a fit.json: it does not start with JSON ({first!r} at {where})"
+        else:
+            what = f"is damaged: its JSON breaks at {where} ({e.msg})"
+        raise ValueError(f"--params {path} {what}; {fix}") from None
+
+
+def _same_time(path: Path, fitted: dict, spec: ModelSpec) -> None:
+    """A fit of a discrete-time model scored with a continuous-time model file (or the
+    reverse): refused; it ran, the parameters of one read by the other (GOF -0.59)."""
+    scheme = (fitted.get("integration") or {}).get("scheme")
+    if scheme is None or (scheme == "discrete") == bool(spec.model.discrete):
+        return
+    kind = {True: "a discrete-time", False: "a continuous-time"}
+    source = ((fitted.get("provenance") or {}).get("model") or {}).get("path")
+    raise ValueError(
+        f"--params {path} is the fit of {kind[scheme == 'discrete']} model and "
+        f"{spec.path} is {kind[bool(spec.model.discrete)]} one: give the model file it "
+        f"was fitted with{f' ({source})' if source else ''}"
+    )
 
 
 def _fitted(path: Path, spec: ModelSpec) -> dict:
     """A fit.json's parameters and initial state, checked against the model."""
     if not path.is_file():
         raise FileNotFoundError(f"--params {path} does not exist")
-    try:
-        fitted = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise ValueError(f"--params {path} is not valid JSON ({e}); give a fit.json") from None
+    fitted = _read_json(path)
+    if isinstance(fitted, dict) and "scored_as" in fitted and "x0_source" in fitted:
+        raise ValueError(
+            f"--params {path} is a compare.json (tensorid compare's scores), not a fit.json: "
+            "give the fit.json that tensorid fit --out wrote"
+        )
     if not isinstance(fitted, dict) or not isinstance(fitted.get("params"), dict):
         raise ValueError(f"--params {path} holds no params: give a fit.json written by tensorid")
+    _same_time(path, fitted, spec)
     bad = [k for k, v in fitted["params"].items() if not isinstance(v, int | float)]
     if bad:
         raise ValueError(f"--params {path}: params {bad} are not numbers")
+    bad = [n for n in fitted.get("free_x0") or [] if n not in spec.model.states]
+    if bad:  # a fit of another model file: it said "free_x0 names unknown states"
+        raise ValueError(f"--params {path}: its free_x0 {bad} are not states of {spec.path}")
     if "x0" in fitted:
         try:
             x0 = np.atleast_2d(np.asarray(fitted["x0"], dtype=float))
         except (TypeError, ValueError):
-            x0 = np.zeros((1, 0))
-        if x0.shape[1] != spec.model.N:
+            raise ValueError(
+                f"--params {path}: its x0 is not a list of numbers (one per state "
+                f"{list(spec.model.states)}), got {fitted['x0']!r:.60}"
+            ) from None
+        if x0.ndim != 2 or x0.shape[1] != spec.model.N:
             raise ValueError(
                 f"--params {path}: its x0 has {x0.shape[1]} values, the model has "
                 f"{spec.model.N} states {list(spec.model.states)}"
@@ -123,13 +187,13 @@ def _integration(args, fitted: dict | None) -> Discretisation:
     same = scheme == saved.get("scheme")
     rtol = args.rtol if args.rtol is not None else saved.get("rtol") if same else None
     atol = args.atol if args.atol is not None else saved.get("atol") if same else None
-    return Discretisation.of(
-        scheme,
-        args.substeps or saved.get("substeps", 4),
-        args.interpolation or saved.get("interpolation", "linear"),
-        rtol,
-        atol,
-    )
+    substeps, interpolation = args.substeps or saved.get("substeps", 4), args.interpolation
+    try:
+        return Discretisation.of(
+            scheme, substeps, interpolation or saved.get("interpolation", "linear"), rtol, atol
+        )
+    except ValueError as e:  # named as the flags (the fit.json's are valid)
+        raise ValueError(tolerances_as_flags(str(e))) from None
 
 
 def _start(spec: ModelSpec, args, e, fitted) -> tuple[np.ndarray, list[str], str]:
@@ -202,6 +266,9 @@ def _score(args, require_outputs: bool):
     spec = load_model(args.model)
     e = _record(args, spec, require_outputs)
     fitted = _fit_json(spec, args.params)
+    same_step(spec.model, e, (fitted or {}).get("sample_time"), f"{args.data}")
+    if fitted is not None and other_model(fitted, args.model):
+        print(other_model(fitted, args.model), file=sys.stderr)
     try:
         spec, predictor = _filter(spec, fitted, e)
     except ValueError as err:  # a fit.json of another model: say which file
@@ -252,8 +319,10 @@ def run_simulate(args) -> int:
     if not table_only:  # an earlier simulate's figures of outputs this one lacks: gone
         replace_outputs(out, old, written, SIMULATE_MANIFEST)
     if e.y is not None:
-        for o, v in score.gof.items():
-            print(f"GOF {o}: {v:.4f}" + _after(score))
+        for o in score.gof:
+            print(f"GOF {o}: {gof_text(score, o)}" + _after(score))
+        for note in metric_notes([score]):
+            print(note)
     if defaults:
         print(defaults)
     _print_x0(m, score.x0, source)
@@ -292,7 +361,7 @@ def _figures(score: Score, out: Path, stem: str) -> list[Path]:
     e, s = score.experiment, score.simulation
     jobs = []
     for j, name in enumerate(s.model.outputs):
-        title = f"{stem} on {e.name or 'data'}, output {name}: GOF {score.gof[name]:.4f}"
+        title = f"{stem} on {e.name or 'data'}, output {name}: GOF {gof_text(score, name)}"
         arguments = dict(
             t=np.asarray(e.t),
             y_meas=np.asarray(e.measured[:, j]),
@@ -335,6 +404,8 @@ def run_compare(args) -> int:
         "params": {n: float(params[n]) for n in m.params},
         "integration": disc.as_dict(),
         "status": str(sim.status),
+        # why a gof is null although the simulation is finite (a constant output)
+        "gof_notes": [n[len("note: ") :] for n in metric_notes([score])],
         "provenance": provenance(
             args.model,
             data_entries([args.data], [effective_columns(m, args.columns)]),
@@ -360,8 +431,16 @@ def _print_scores(score: Score) -> None:
     n = score.experiment.P - score.start
     scored = f"{n} samples" + (f" after the first {score.start}" if score.start else "")
     scored += f", {score.horizon}-step prediction" if score.horizon else ""
+    flat = undefined_gof(score)
     for o, v in score.metrics().items():
+        shown = {k: "undefined" if o in flat else format(x, spec) for k, x, spec in (
+            ("nrmse", v["nrmse"], ".6g"), ("r2", v["r2"], ".9g"),
+            ("fit_percent", v["fit_percent"], ".4f"), ("gof", v["gof"], ".6f"),
+        )}  # fmt: skip
+        fit = "undefined" if o in flat else f"{shown['fit_percent']} %"
         print(
-            f"{o}: RMSE {v['rmse']:.6g}, NRMSE {v['nrmse']:.6g}, R² {v['r2']:.9g}, "
-            f"fit {v['fit_percent']:.4f} %, GOF {v['gof']:.6f} ({scored})"
+            f"{o}: RMSE {v['rmse']:.6g}, NRMSE {shown['nrmse']}, R² {shown['r2']}, "
+            f"fit {fit}, GOF {shown['gof']} ({scored})"
         )
+    for note in metric_notes([score]):
+        print(note)

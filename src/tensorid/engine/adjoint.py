@@ -50,6 +50,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config
+from .checks import did_you_mean
 from .discretisation import Discretisation, input_at
 from .integrators import DiscreteMap, ExplicitRungeKutta
 from .programs import Program
@@ -103,7 +104,9 @@ def choose_hessian(
     the cost model (the adjoint where it is predicted MARGIN times faster and the
     scheme allows it, with at most ``cap`` threads)."""
     if hessian not in HESSIANS:
-        raise ValueError(f"hessian must be one of {HESSIANS}, got {hessian!r}")
+        raise ValueError(
+            f"hessian must be one of {HESSIANS}, got {hessian!r}{did_you_mean(hessian, HESSIANS)}"
+        )
     if hessian == "adjoint" and not supports(discretisation):
         raise ValueError(
             f"hessian='adjoint' needs an explicit Runge-Kutta scheme or a discrete-time "

@@ -11,6 +11,27 @@ import numpy as np
 
 from .data import Experiment
 
+# MATLAB's first-order hold is linear interpolation; a Kalman filter is the EKF here
+_ALIASES = {"foh": "linear", "kalman": "ekf"}
+
+
+def nearest(value, choices: Sequence[str]) -> str | None:
+    """The choice a misspelt ``value`` most likely meant ('sdrik3': 'sdirk3', 'RK4':
+    'rk4', MATLAB's 'foh': 'linear'), or None."""
+    import difflib
+
+    text = str(value).lower()
+    if text in choices or _ALIASES.get(text) in choices:
+        return text if text in choices else _ALIASES[text]
+    close = difflib.get_close_matches(text, list(choices), n=1, cutoff=0.6)
+    return close[0] if close else None
+
+
+def did_you_mean(value, choices: Sequence[str]) -> str:
+    """ " (did you mean 'sdirk3'?)" for the choice nearest to a misspelt ``value``, or ""."""
+    close = nearest(value, choices)
+    return f" (did you mean {close!r}?)" if close else ""
+
 
 def name_list(what: str, names, known: Sequence[str], kind: str) -> list[str]:
     if names is None:
@@ -67,7 +88,28 @@ def check_data(problem, data) -> list[Experiment]:
                 f"{where} has {e.y.shape[1]} output column(s) but the model "
                 f"has {m.S} outputs {list(m.outputs)}"
             )
+    if m.discrete:
+        for i, e in enumerate(exps[1:], 1):
+            same_step(m, e, step(exps[0]), f"experiment {i}" + (f" ({e.name})" if e.name else ""))
     return exps
+
+
+def step(e: Experiment) -> float:
+    """A record's sampling interval (the mean of its steps)."""
+    return float((e.t[-1] - e.t[0]) / (e.P - 1))
+
+
+def same_step(model, e: Experiment, fitted: float | None, where: str) -> None:
+    """A discrete-time model steps once per sample: a record sampled at another rate
+    than the model was fitted at is another model (it ran, silently)."""
+    if not model.discrete or fitted is None or e.P < 2:
+        return
+    if abs(step(e) - fitted) > 1e-6 * fitted:
+        raise ValueError(
+            f"{where} is sampled every {step(e):.6g} s, the discrete-time model's records "
+            f"every {fitted:.6g} s: its step is one sample, so it is another model at "
+            "another rate; resample the record to the model's rate"
+        )
 
 
 def check_x0(problem, x0) -> np.ndarray:
@@ -224,3 +266,20 @@ def check_filter_options(predictor: str, **options) -> None:
             continue
         shown = value if isinstance(value, str | int | float) else type(value).__name__
         raise ValueError(f"predictor='ekf' cannot take {name}={shown!r}: {why[name]}")
+
+
+def no_noise_without_filter(model, predictor: str, fixed, bounds) -> None:
+    """fixed or bounds naming a filter's noise intensity (log_sigma_w_STATE,
+    log_sigma_e_OUTPUT) without the filter: one line saying so (it read "names unknown
+    params ['log_sigma_e_y']"). A parameter of the model of such a name is its own."""
+    if predictor == "ekf":
+        return
+    for what, names in (("fixed", fixed or []), ("bounds", bounds or {})):
+        noisy = [n for n in ([names] if isinstance(names, str) else names)
+                 if str(n).startswith(("log_sigma_w_", "log_sigma_e_"))
+                 and n not in model.params]  # fmt: skip
+        if noisy:
+            raise ValueError(
+                f"{what} names {noisy}, noise intensities of a filter: they exist with "
+                "predictor='ekf' (output error has no noise model); add it, or drop them"
+            )

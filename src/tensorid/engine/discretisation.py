@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401
+from .checks import did_you_mean
 from .integrators import DISCRETE, DiscreteMap, RungeKuttaScheme, Scheme, _x, get_scheme
 from .status import Status
 
@@ -53,6 +54,7 @@ class Discretisation:
         if self.interpolation not in INTERPOLATIONS:
             raise ValueError(
                 f"interpolation must be one of {INTERPOLATIONS}, got {self.interpolation!r}"
+                + did_you_mean(self.interpolation, INTERPOLATIONS)
             )
         object.__setattr__(self, "substeps", int(self.substeps))
 

@@ -44,13 +44,43 @@ def _parse(where: str, text: str, symbols: dict) -> sp.Expr:
     except (sp.SympifyError, SyntaxError, TypeError) as e:
         # SymPy's message spans lines; its last line says what was wrong
         why = [ln.strip() for ln in str(e).splitlines() if ln.strip()][-1:] or ["invalid"]
-        raise ValueError(
-            f"cannot parse {where} = {text!r} ({why[0]}); write it as a Python expression "
-            "such as 'a*x - b*u**2'"
-        ) from None
+        fix = "write it as a Python expression such as 'a*x - b*u**2'"
+        if "truth value of Relational" in why[0]:  # x if x > 0 else ..., and, or, max(...)
+            fix = (
+                "a condition on a state, input or parameter cannot be Python's if, and, "
+                "or: write it with Piecewise((a*x, x > 0), (b*u, True)) or Heaviside(x)"
+            )
+        raise ValueError(f"cannot parse {where} = {text!r} ({why[0]}); {fix}") from None
     if not isinstance(expr, sp.Expr):
         raise ValueError(f"{where} = {text!r} is not an expression")
     return expr
+
+
+def _known_functions(fn, exprs: list, keys: list[str]) -> None:
+    """One line for a function the equations call that SymPy does not know and JAX's
+    printer does not either (heaviside, arctan): it failed at the first call, as a
+    NameError that spoke of jax.numpy and math. (log10, log1p, hypot ... print fine.)"""
+    import builtins
+    import inspect
+
+    import sympy as sp
+
+    # the functions the generated code calls by a bare name it does not have (those
+    # it knows it calls qualified: jax.numpy.log10)
+    tree = ast.parse(inspect.getsource(fn))
+    called = {n.func.id for n in ast.walk(tree) if isinstance(n, ast.Call)
+              and isinstance(n.func, ast.Name)}  # fmt: skip
+    missing = called - set(fn.__globals__) - set(dir(builtins))
+    for key, e in zip(keys, exprs, strict=True):
+        calls = {str(f.func) for f in e.atoms(sp.core.function.AppliedUndef)}
+        unknown = sorted(calls & missing)
+        if unknown:
+            raise ValueError(
+                f"{key} = {str(e)!r} calls {', '.join(unknown)}, which text equations do "
+                f"not know; they know {', '.join(sorted(_FUNCTIONS, key=str.lower))}, "
+                "SymPy's functions by their names (Heaviside, Piecewise, floor, log10 ...), "
+                "or write the model as a tensorid.Model with jax.numpy"
+            )
 
 
 def _names(what: str, names) -> list[str]:
@@ -168,6 +198,8 @@ def _with_sympy(rhs, output, states, inputs, params):
     us = [sp.Symbol(n) for n in inputs]
     f_num = sp.lambdify([xs, ps, us], rhs_e, modules="jax")
     h_num = sp.lambdify([xs, ps], out_e, modules="jax")
+    _known_functions(f_num, rhs_e, [f"rhs[{s!r}]" for s in states])
+    _known_functions(h_num, out_e, [f"output[{o!r}]" for o in output])
     f, h = _stacked(f_num), _stacked(h_num)
     f.equations = dict(zip(states, map(str, rhs_e), strict=True))  # type: ignore[attr-defined]
     h.equations = dict(zip(output, map(str, out_e), strict=True))  # type: ignore[attr-defined]

@@ -39,6 +39,7 @@ import jax.numpy as jnp
 
 from .. import _config  # noqa: F401
 from .adaptive import AdaptiveRungeKutta, StepSizeController
+from .checks import did_you_mean
 from .implicit import DiagonallyImplicitRungeKutta, NewtonStageSolver
 from .tableau import Field, _axpy, _check_tableau, _explicit_stages, _n_levels, _x
 
@@ -215,7 +216,8 @@ def get_scheme(
             scheme = SCHEMES[scheme]
         except KeyError:
             raise ValueError(
-                f"unknown integration scheme {scheme!r}; choose one of {sorted(SCHEMES)}"
+                f"unknown integration scheme {scheme!r}{did_you_mean(scheme, list(SCHEMES))}; "
+                f"choose one of {sorted(SCHEMES)}"
             ) from None
     elif not isinstance(scheme, RungeKuttaScheme):
         raise TypeError(

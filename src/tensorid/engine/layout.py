@@ -70,7 +70,14 @@ class ThetaLayout:
     def check_theta(self, theta) -> np.ndarray:
         """θ as a float array (K,); a clear error for a wrong length or non-finite
         entries."""
-        theta = np.asarray(theta, dtype=float).reshape(-1)
+        try:
+            theta = np.asarray(theta, dtype=float).reshape(-1)
+        except (TypeError, ValueError):  # a dict, text: numpy's message named neither
+            raise TypeError(
+                f"theta must be an array of the {self.K} unknowns {self.theta_names} in "
+                f"that order (the problem's theta_names), got {type(theta).__name__}; "
+                "start values by name go to the Problem (p0=, x0=)"
+            ) from None
         if theta.shape != (self.K,):
             raise ValueError(
                 f"theta must have {self.K} entries {self.theta_names}, got {theta.size}"

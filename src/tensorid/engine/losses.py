@@ -44,6 +44,8 @@ import jax.numpy as jnp
 import jax.scipy.linalg
 import numpy as np
 
+from .checks import did_you_mean
+
 LOSSES = ("squared", "huber", "cauchy", "student-t")
 
 # the scale c as a multiple of the noise's standard deviation σ when c is estimated:
@@ -235,7 +237,7 @@ def make_loss(
     elif isinstance(loss, str) and loss in LOSSES:
         name, loss = loss, Loss(loss)
     else:
-        raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
+        raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}{did_you_mean(loss, LOSSES)}")
     S = len(outputs)
     if name == "squared" or loss.likelihood:
         if scale is not None:

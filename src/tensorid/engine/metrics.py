@@ -20,9 +20,13 @@ def _out(v: np.ndarray, scalar: bool):
 
 
 def nrmse(y_obs, y_sim):
-    """||y_obs - y_sim|| / ||y_obs - mean(y_obs)|| (0 is perfect)."""
+    """||y_obs - y_sim|| / ||y_obs - mean(y_obs)|| (0 is perfect); inf where y_obs is
+    constant (no spread to divide by) and y_sim differs from it."""
     a, b, scalar = _pair(y_obs, y_sim)
     den = np.linalg.norm(a - a.mean(axis=0), axis=0)
+    # a constant record has no spread, though its mean's rounding leaves ~1e-16: that
+    # read as a spread made a constant 0.1 score GOF -1e15, printed as a number
+    den = np.where(np.ptp(a, axis=0) == 0, 0.0, den)
     num = np.linalg.norm(a - b, axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
         v = np.where(den > 0, num / den, np.where(num > 0, np.inf, 0.0))
@@ -32,7 +36,8 @@ def nrmse(y_obs, y_sim):
 def gof(y_obs, y_sim):
     """Goodness of fit 1 - ||y_obs - y_sim|| / ||y_obs - mean(y_obs)||: the paper's GOF,
     MATLAB's FitPercent / 100. 1 is a perfect fit; 0 is no better than the mean;
-    -inf when the simulation is not finite."""
+    -inf when the simulation is not finite, or when y_obs is constant (undefined: no
+    spread to divide by) and y_sim is not exactly it."""
     a, b, scalar = _pair(y_obs, y_sim)
     v = 1.0 - np.atleast_1d(nrmse(a, b))
     v = np.where(np.isfinite(b).all(axis=0), v, -np.inf)

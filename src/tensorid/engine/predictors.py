@@ -30,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401
+from .checks import did_you_mean
 
 PREDICTORS = ("simulation", "ekf")
 # a filter's noise parameters: these prefixes and the state's or output's name
@@ -217,7 +218,10 @@ def make_predictor(model, predictor, process_noise, measurement_noise, measured)
     from .model import Model
 
     if predictor not in PREDICTORS:
-        raise ValueError(f"predictor must be one of {PREDICTORS}, got {predictor!r}")
+        raise ValueError(
+            f"predictor must be one of {PREDICTORS}, got {predictor!r}"
+            f"{did_you_mean(predictor, PREDICTORS)}"
+        )
     if predictor == "simulation":
         for what, v in (("process_noise", process_noise), ("measurement_noise", measurement_noise)):
             if v:
@@ -296,7 +300,8 @@ class Prediction:
 
 def check_horizon(horizon, samples: int) -> None:
     """A prediction horizon of at least one sample and below a record's length."""
-    if not (isinstance(horizon, int | np.integer) and 1 <= horizon < samples):
+    whole = isinstance(horizon, int | np.integer) and not isinstance(horizon, bool)
+    if not (whole and 1 <= horizon < samples):
         raise ValueError(
             f"horizon must be a whole number of samples from 1 to {samples - 1}, got {horizon!r}"
         )

@@ -25,6 +25,7 @@ from .checks import (
     check_weights,
     check_x0,
     name_list,
+    no_noise_without_filter,
 )
 from .compiled import on_device
 from .data import Experiment
@@ -154,6 +155,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
             predictor, loss=loss, loss_scale=loss_scale, weights=weights, noise=noise,
             segments=segments, segment_length=segment_length, hessian=hessian,
         )  # fmt: skip
+        no_noise_without_filter(model, predictor, fixed, bounds)
         self.model = model
         self.experiments = check_data(self, data)
         self.p0 = check_p0(self, p0)

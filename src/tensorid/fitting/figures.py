@@ -292,6 +292,7 @@ def figure_jobs(res, validation=None, training: bool = True, convergence: bool =
     """What :func:`fit_figures` draws, as plain data: (file stem, kind, arguments) per
     figure, ``draw(kind, arguments)`` making it. Plain data (arrays, strings) can be
     drawn in another process (the command line does), with the same pixels."""
+    from .summary import gof_text
     from .validation import training_scores
 
     jobs = []
@@ -300,7 +301,7 @@ def figure_jobs(res, validation=None, training: bool = True, convergence: bool =
         e = s.experiment
         for j, name in enumerate(res.problem.model.outputs):
             stem = f"{s.kind[:5] if s.kind == 'training' else s.kind}_{e.name or 'data'}_{name}"
-            title = f"{s.label}, output {name}: GOF {s.gof[name]:.4f}"
+            title = f"{s.label}, output {name}: GOF {gof_text(s, name)}"
             if s.start:
                 title += f" (scored after the first {s.start} samples)"
             arguments = dict(

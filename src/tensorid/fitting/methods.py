@@ -15,6 +15,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..engine.checks import did_you_mean
 from ..engine.compilation import compile_clock
 from ..engine.problem import Problem
 from ..engine.status import Status
@@ -95,9 +96,9 @@ def fit(
     if starts is not None:
         _check_count("starts", starts)
     n = 1 if starts is None else int(starts)
+    _check_multistart(spread, sampling, workers, timeout, seed)
     if n > 1:
         batch = _check_batch(solver, batch, n, executor, workers)
-        _check_multistart(spread, sampling, workers, timeout)
     with compile_clock() as clock:  # this process's compilations (not the workers')
         if n > 1:
             lo, hi = problem.lower, problem.upper
@@ -215,13 +216,20 @@ def _check_count(name: str, n) -> None:
         raise ValueError(f"{name} must be a positive integer, got {n!r}")
 
 
-def _check_multistart(spread, sampling, workers, timeout) -> None:
+def _check_multistart(spread, sampling, workers, timeout, seed=0) -> None:
+    """The multi-start options, checked with one start too (spread=-1 or timeout=-1
+    passed without a word there)."""
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
+        raise TypeError(f"seed must be a whole number, got {seed!r}")
     if spread is not None and not (
         isinstance(spread, int | float) and np.isfinite(spread) and spread >= 0
     ):
         raise ValueError(f"spread must be a finite number >= 0, got {spread!r}")
     if sampling not in SAMPLINGS:
-        raise ValueError(f"sampling must be one of {SAMPLINGS}, got {sampling!r}")
+        raise ValueError(
+            f"sampling must be one of {SAMPLINGS}, got {sampling!r}"
+            f"{did_you_mean(sampling, SAMPLINGS)}"
+        )
     if workers is not None:
         _check_count("workers", workers)
     if timeout is not None and not (

@@ -3,6 +3,7 @@ Everything else asks the method object (its markers, see solvers.py)."""
 
 from __future__ import annotations
 
+from ..engine.checks import did_you_mean
 from .baselines import FdBfgs, FdLsq
 from .solvers import Auto, GaussNewton, Method, Newton, NewtonCG
 
@@ -19,7 +20,8 @@ def resolve(method: str | Method) -> Method:
         return method
     cls = REGISTRY.get(method) if isinstance(method, str) else None
     if cls is None:
-        raise ValueError(f"unknown method {method!r}; choose one of {list(METHODS)}")
+        hint = did_you_mean(method, list(METHODS)) if isinstance(method, str) else ""
+        raise ValueError(f"unknown method {method!r}{hint}; choose one of {list(METHODS)}")
     return cls()
 
 

@@ -80,10 +80,42 @@ def metric_rows(scores) -> tuple[list[str], list[list[str]]]:
     for s in scores:
         n = s.experiment.P - s.start
         scored = f"{n}" if not s.start else f"{n} (after {s.start})"
+        undefined = undefined_gof(s)
         for o in s.simulation.model.outputs:
             cells = [finite(s.gof[o], ".4f"), finite(s.rmse[o], ".4g"), finite(s.nrmse[o], ".4g")]
+            if o in undefined:  # not a blow-up: no spread to divide by
+                cells[0] = cells[2] = "undefined"
             rows.append([s.label, o, *cells, scored])
     return header, rows
+
+
+def undefined_gof(score) -> dict[str, float]:
+    """{output: value} where GOF is not finite because the record holds the output
+    constant (the simulation is finite but not exactly that value)."""
+    if not np.isfinite(score.simulation.y).all():
+        return {}
+    flat = getattr(score, "constant", {})
+    return {o: v for o, v in flat.items() if not math.isfinite(score.gof[o])}
+
+
+def gof_text(score, output: str) -> str:
+    """A record's GOF for one output as the figures' titles and lines show it:
+    "0.9811", "undefined" (a constant record) or "not finite" (a blow-up)."""
+    if output in undefined_gof(score):
+        return "undefined"
+    return finite(score.gof[output], ".4f")
+
+
+def metric_notes(scores) -> list[str]:
+    """One line per output whose GOF and NRMSE are undefined (constant in its record),
+    saying why: a bare "not finite" read as a simulation that blew up."""
+    return [
+        f"note: {s.label}, {o}: GOF (fit percent), NRMSE and R² are undefined: {o} is "
+        f"constant in the record ({v:g} at every scored sample) and they divide by its "
+        f"spread about the mean; its RMSE, {s.rmse[o]:.4g}, is the score"
+        for s in scores
+        for o, v in undefined_gof(s).items()
+    ]
 
 
 def finite(value: float, spec: str) -> str:
@@ -246,6 +278,7 @@ def fit_blocks(res, scores=None) -> list:
     blocks: list = [headline(res), estimates_table(res.problem.theta_names, res.theta, u, title)]
     if scores:
         blocks.append(Table(None, *metric_rows(scores)))
+        blocks += metric_notes(scores)
     noise = noise_intensities(res, u)
     if noise:
         blocks.append(noise_text(noise, res.problem.model.discrete))
@@ -305,6 +338,9 @@ def collapsed_noise(res) -> list[str]:
         spread = float(np.nanstd(ys))
         if e["fixed"] or not spread > 0 or e["sigma"] >= 1e-6 * spread:
             continue
+        q = _resolution(ys)
+        if q > 0 and e["sigma"] >= 0.5 * q / np.sqrt(12):
+            continue  # a quantised sensor's own noise (EMPS's encoder: 5e-8 m steps)
         out.append(
             f"the measurement noise of {o} went to σ_e = {e['sigma']:.2g}, "
             f"{e['sigma'] / spread:.0e} of the output's spread: the filter then follows "
@@ -313,6 +349,19 @@ def collapsed_noise(res) -> list[str]:
             f"measurement_noise= in Python) or fix it (--fix log_sigma_e_{o}=log σ)"
         )
     return out
+
+
+def _resolution(ys: np.ndarray) -> float:
+    """The step q of a quantised record (every difference between its values a whole
+    multiple of the smallest), whose rounding is noise of q/√12; 0 for a record whose
+    values are not on a grid."""
+    values = np.unique(ys[np.isfinite(ys)])
+    if values.size < 3:
+        return 0.0
+    steps = np.diff(values)
+    q = float(steps.min())
+    ratio = steps / q
+    return q if np.allclose(ratio, np.round(ratio), rtol=0, atol=1e-3) else 0.0
 
 
 def noise_text(noise: dict, discrete: bool = False) -> str:

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..engine.checks import same_step, step
 from ..engine.compiled import on_device
 from ..engine.data import Experiment
 from ..engine.metrics import gof, nrmse, r2, rmse
@@ -17,7 +18,7 @@ from ..engine.problem import Problem
 from ..engine.simulate import Simulation, run_simulation
 from ..engine.sweeps import shared_sweeps
 from .scaling import Tracker
-from .summary import Table, Tabular, metric_rows
+from .summary import Table, Tabular, metric_notes, metric_rows
 from .trust_region import minimize_trust_region
 
 
@@ -37,13 +38,17 @@ class Score(Tabular):
     init_window: int | None = None
     alone: bool = True  # the only record of its kind
     horizon: int | None = None  # k: scored as k-step-ahead prediction, not simulation
+    filtered: bool = False  # the model of a filter fit (predictor="ekf")
 
     @property
     def label(self) -> str:
         """The kind, with the record's name where it tells records apart (and the
-        prediction horizon, where scored as prediction)."""
+        prediction horizon, where scored as prediction; "simulation" for a filter
+        fit's record scored without one, beside rows scored as prediction)."""
         label = record_label(self.kind, self.experiment.name, self.alone)
-        return label if self.horizon is None else f"{label}, {self.horizon}-step prediction"
+        if self.horizon is None:
+            return f"{label}, simulation" if self.filtered else label
+        return f"{label}, {self.horizon}-step prediction"
 
     def _pairs(self):
         y, s = self.experiment.measured[self.start :], self.simulation.y[self.start :]
@@ -61,6 +66,15 @@ class Score(Tabular):
     @property
     def rmse(self) -> dict[str, float]:
         return self._per_output(rmse)
+
+    @property
+    def constant(self) -> dict[str, float]:
+        """{output: value} for each output the record holds constant over its scored
+        samples, where GOF, NRMSE, R² and fit percent (which divide by its spread)
+        are undefined unless the simulation matches it exactly."""
+        outs = self.simulation.model.outputs
+        pairs = zip(outs, self._pairs(), strict=True)
+        return {o: float(a[0]) for o, (a, _) in pairs if np.ptp(a) == 0}
 
     @property
     def nrmse(self) -> dict[str, float]:
@@ -84,7 +98,7 @@ class Score(Tabular):
 
     def blocks(self) -> list:
         """The metric table of the summary and report.md, for this record."""
-        return [Table(None, *metric_rows([self]))]
+        return [Table(None, *metric_rows([self])), *metric_notes([self])]
 
     def __repr__(self) -> str:
         fits = ", ".join(f"{o}: {v:.4f}" for o, v in self.gof.items())
@@ -114,8 +128,9 @@ def training_scores(res) -> list[Score]:
     """The training records at the estimate."""
     x0 = np.atleast_2d(res.x0)
     exps = res.problem.experiments
+    filtered = res.problem.predictor.update is not None  # scored as its simulation
     return [
-        Score("training", e, s, x0[i], alone=len(exps) == 1)
+        Score("training", e, s, x0[i], alone=len(exps) == 1, filtered=filtered)
         for i, (e, s) in enumerate(zip(exps, res.simulate(), strict=True))
     ]
 
@@ -153,7 +168,11 @@ def _free_x0(problem: Problem) -> np.ndarray:
 
 
 def check_init_window(init_window: int | None, record: Experiment) -> None:
-    """An initialisation window leaves at least two samples of ``record`` to score."""
+    """An initialisation window, a whole number of samples, leaves at least two
+    samples of ``record`` to score (2.5 was cut to 2 and "20" read as 20, silently)."""
+    whole = isinstance(init_window, int | np.integer) and not isinstance(init_window, bool)
+    if init_window is not None and not whole:
+        raise ValueError(f"init_window must be a whole number of samples, got {init_window!r}")
     if init_window is not None and not (2 <= int(init_window) < record.P - 1):
         raise ValueError(
             f"init_window must be between 2 and {record.P - 2} samples (the record "
@@ -197,7 +216,10 @@ def score_record(
     if horizon is not None:
         sim = _predicted(sim, model, params, x0, record, disc, horizon, predictor)
     start = 0 if init_window is None else int(init_window)
-    return Score(kind, record, sim, x0, start, init_window, alone=alone, horizon=horizon)
+    filtered = predictor is not None and predictor[1].update is not None
+    return Score(
+        kind, record, sim, x0, start, init_window, alone=alone, horizon=horizon, filtered=filtered
+    )
 
 
 def _predicted(sim, model, params, x0, record, disc, horizon, predictor) -> Simulation:
@@ -225,6 +247,7 @@ def validate(res, data, init_window: int | None = None, horizon: int | None = No
             raise ValueError(f"validation record {i} ({e.name!r}) has no measured outputs")
         windows.append(e.init_window if init_window is None else init_window)
         check_init_window(windows[-1], e)
+        same_step(prob.model, e, step(prob.experiments[0]), f"validation record {e.name!r}")
     return [
         score_record(
             prob.model,
