@@ -414,3 +414,28 @@ def test_half_written_programs_of_killed_processes_are_removed(tmp_path, monkeyp
     monkeypatch.setattr(programs, "_pruned", False)
     programs._prune(tmp_path, "cccccccc")
     assert not stale.exists() and fresh.exists()  # a live writer's is left alone
+
+
+def test_keeping_an_executable_first_leaves_jax_s_cache_on_for_the_process(tmp_path):
+    """JAX decides whether its compilation cache is used at a process's first
+    compilation, once: where that is an executable compiled for keeping (with the
+    cache off), nothing else the process compiled was cached (a first command-line
+    fit wrote no cache entry)."""
+    script = (
+        "import sys, numpy as np, jax, tensorid\n"
+        "from pathlib import Path\n"
+        "from tensorid.engine import executables, programs\n"
+        "f = Path(sys.argv[1])\n"
+        "executables.compile_and_keep(jax.jit(lambda x: x + 1.0), (np.ones(3),),"
+        " f.parent / 'jax-programs' / 'k-0.xla', programs._write)\n"
+        "jax.jit(lambda x: 3.0 * x)(np.ones(3)).block_until_ready()\n"
+        "print(len(list(f.glob('*-cache'))))\n"
+    )
+    cache = tmp_path / "jax"
+    environ = dict(os.environ, TENSORID_CACHE_DIR=str(cache), TENSORID_PROGRAMS="1")
+    out = subprocess.run(
+        [sys.executable, "-c", script, str(cache)],
+        capture_output=True, text=True, env=environ, check=True,
+    )  # fmt: skip
+    assert (tmp_path / "jax-programs" / "k-0.xla").exists()
+    assert int(out.stdout.split()[-1]) >= 1  # the plain jit's entry

@@ -114,6 +114,11 @@ def compile_and_keep(jitted, args, path: Path, write):
     if fresh is None:
         return None
     try:
+        from jax._src import compilation_cache, xla_bridge
+
+        # JAX decides once per process, at its first compilation, whether it uses its
+        # cache: decided under fresh(False), the cache would be off for the whole process
+        compilation_cache.is_cache_used(xla_bridge.get_backend())
         specs = jax.tree_util.tree_map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype), args)
         with fresh(False):  # not from the compilation cache: see the module's docstring
             compiled = jitted.trace(*specs).lower().compile()
