@@ -439,3 +439,24 @@ def test_keeping_an_executable_first_leaves_jax_s_cache_on_for_the_process(tmp_p
     )  # fmt: skip
     assert (tmp_path / "jax-programs" / "k-0.xla").exists()
     assert int(out.stdout.split()[-1]) >= 1  # the plain jit's entry
+
+
+def test_an_executable_is_kept_apart_per_compile_setting(tmp_path):
+    """JAX's settings that reach XLA's compile options but not the traced program
+    (its key) name another executable: one compiled with optimizations on gave
+    another process run with JAX_DISABLE_MOST_OPTIMIZATIONS=1 the optimized numbers
+    (the Silverbox example's cost ...760906 against ...76092 compiled afresh)."""
+    import jax
+
+    from tensorid.engine import executables
+
+    plain = executables.path_for(tmp_path, "k")
+    for name, value in [("jax_disable_most_optimizations", True),
+                        ("jax_optimization_level", "O0")]:  # fmt: skip
+        before = jax.config.values[name]
+        jax.config.update(name, value)
+        try:
+            assert executables.path_for(tmp_path, "k") != plain, name
+        finally:
+            jax.config.update(name, before)
+        assert executables.path_for(tmp_path, "k") == plain

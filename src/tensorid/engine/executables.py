@@ -13,9 +13,10 @@ An executable is more particular than a traced program: it is compiled for this
 machine's processor and XLA's flags. Its file is named by the traced program's key
 (which holds the model, the sweep, the shapes, the package's sources and JAX's
 version and settings) and a digest of what the executable depends on beyond it: the
-processor (its model and feature flags), ``XLA_FLAGS`` and the backend's platform
-version. A cache folder shared by machines of different processors keeps one
-executable per kind.
+processor (its model and feature flags), ``XLA_FLAGS``, the backend's platform
+version and device kind, and JAX's settings that reach XLA's compile options (such
+as ``jax_disable_most_optimizations``). A cache folder shared by machines of
+different processors keeps one executable per kind.
 
 An executable is only written when this process compiled it afresh: one that JAX's
 compilation cache handed back serializes incompletely (jaxlib 0.10.2: its call fails,
@@ -54,17 +55,39 @@ def _processor() -> str:
         return f"{platform.machine()} {platform.processor()}"
 
 
+# JAX's settings that reach XLA's compile options (JAX's own cache keys them), not the
+# traced program: an executable compiled under one is not what another would compile
+_COMPILE_SETTINGS = (
+    "jax_disable_most_optimizations",
+    "jax_exec_time_optimization_effort",
+    "jax_memory_fitting_effort",
+    "jax_optimization_level",
+    "jax_memory_fitting_level",
+    "jax_compiler_enable_remat_pass",
+    "jax_xla_profile_version",
+    "jax_use_shardy_partitioner",
+)
+
+
+def _setting(name: str):
+    value = getattr(jax.config, name, None)  # on this thread (context managers)
+    return jax.config.values.get(name) if value is None else value
+
+
 def machine_digest() -> str:
-    """Of what an executable depends on beyond its traced program, once per process."""
+    """Of what an executable depends on beyond its traced program: the processor,
+    XLA_FLAGS, the backend and its devices' kind (once per process) and JAX's
+    compile settings (as they hold now)."""
     global _machine
     if _machine is None:
         try:
-            version = str(jax.devices()[0].client.platform_version)
+            device = jax.devices()[0]
+            version = f"{device.client.platform_version} {device.device_kind}"
         except Exception:  # noqa: BLE001 - only part of the digest
             version = ""
-        text = f"{_processor()}\n{os.environ.get('XLA_FLAGS', '')}\n{version}"
-        _machine = hashlib.sha256(text.encode()).hexdigest()[:12]
-    return _machine
+        _machine = f"{_processor()}\n{os.environ.get('XLA_FLAGS', '')}\n{version}"
+    settings = repr([_setting(name) for name in _COMPILE_SETTINGS])
+    return hashlib.sha256(f"{_machine}\n{settings}".encode()).hexdigest()[:12]
 
 
 def path_for(folder: Path, key: str) -> Path:
