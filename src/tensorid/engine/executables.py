@@ -128,8 +128,12 @@ def load(path: Path):
 
 def compile_and_keep(jitted, args, path: Path, write):
     """``jitted`` compiled afresh for ``args``' shapes, written to ``path`` (with
-    ``write(path, bytes)``, atomic) and read back: the executable to run, or None
-    where it cannot be kept (then nothing is written)."""
+    ``write(path, bytes)``, atomic, True where written) and read back: the executable
+    to run, or None where it cannot be kept (then the caller's jit runs, by JAX's
+    compilation cache: compiled afresh, without that cache, in every process where
+    the folder cannot be written, it would never be looked up)."""
+    if not os.access(path.parent, os.W_OK):
+        return None
     from jax._src import config as jax_config
     from jax.experimental import serialize_executable
 
@@ -148,6 +152,7 @@ def compile_and_keep(jitted, args, path: Path, write):
         body = pickle.dumps(serialize_executable.serialize(compiled))
     except Exception:  # noqa: BLE001 - cannot be kept: the traced program runs
         return None
-    write(path, body)
+    if not write(path, body):
+        return None
     kept = load(path)  # the copy later processes will read, run here first
-    return compiled if kept is None else kept  # (a folder that cannot be written)
+    return compiled if kept is None else kept
