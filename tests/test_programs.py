@@ -426,6 +426,7 @@ def test_keeping_an_executable_first_leaves_jax_s_cache_on_for_the_process(tmp_p
         "from pathlib import Path\n"
         "from tensorid.engine import executables, programs\n"
         "f = Path(sys.argv[1])\n"
+        "(f.parent / 'jax-programs').mkdir()\n"
         "executables.compile_and_keep(jax.jit(lambda x: x + 1.0), (np.ones(3),),"
         " f.parent / 'jax-programs' / 'k-0.xla', programs._write)\n"
         "jax.jit(lambda x: 3.0 * x)(np.ones(3)).block_until_ready()\n"
