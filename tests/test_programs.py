@@ -481,3 +481,32 @@ def test_an_executable_that_cannot_be_written_is_left_to_jax_s_cache(tmp_path):
     assert not gone.exists()
     kept = executables.compile_and_keep(f, args, tmp_path / "k.xla", programs._write)
     assert kept is not None and np.array_equal(kept(*args), [2.0, 2.0, 2.0])
+
+
+def test_jax_s_cache_met_before_an_executable_is_kept_does_not_break_a_fit(tmp_path):
+    """Once JAX's compilation cache is in use in a process (the user's own jit ran
+    first), enable_compilation_cache(False) no longer keeps it from answering: where
+    it held the program (its executable file gone, pruned), the executable kept was
+    the incomplete copy, whose failure ("Function ... not found") surfaced only when
+    the result was read, outside the first call's check: the fit failed, and so did
+    every later process, which loaded the same file."""
+    script = (
+        "import jax, numpy as np, tensorid as ti\n"
+        "jax.jit(lambda x: x - 1.0)(np.ones(2))\n"
+        "from tensorid.paper.problems import silverbox_problem\n"
+        "print(ti.fit(silverbox_problem(offset=True), maxiter=3).cost.hex())\n"
+    )
+
+    def run(folder, **env):
+        environ = dict(os.environ, TENSORID_CACHE_DIR=str(folder), TENSORID_PROGRAMS="1", **env)
+        out = subprocess.run(
+            [sys.executable, "-c", script], capture_output=True, text=True, env=environ
+        )
+        assert out.returncode == 0, out.stderr[-300:]
+        return out.stdout.split()[-1]
+
+    plain = run(tmp_path / "off", TENSORID_CACHE="0")
+    for _ in range(3):
+        assert run(tmp_path / "jax") == plain
+        for f in (tmp_path / "jax-programs").glob("*.xla"):
+            f.unlink()  # as pruning may leave JAX's cache with the program

@@ -20,9 +20,12 @@ different processors keeps one executable per kind.
 
 An executable is only written when this process compiled it afresh: one that JAX's
 compilation cache handed back serializes incompletely (jaxlib 0.10.2: its call fails,
-"Function ... not found"). So the first process compiles it with that cache off for
-the one program, and runs the copy it wrote, read back: a file that does not work
-fails in the process that wrote it, which removes it and runs the traced program.
+"Function ... not found", when the result is read). So the first process compiles it
+with that cache off for the one program, and runs the copy it wrote, read back: a
+file that does not work fails in the process that wrote it (its first call is waited
+for), which removes it and runs the traced program. The switch does not reach a cache
+that this process has already opened (the user's own jit ran first): where that
+cache answers anyway (a hit), nothing is kept.
 Whatever else goes wrong (JAX's private switch gone, a file that cannot be read or
 written), the traced program runs as before; this only saves time.
 """
@@ -33,6 +36,7 @@ import hashlib
 import os
 import pickle
 import platform
+import threading
 import time
 from pathlib import Path
 
@@ -126,6 +130,24 @@ def load(path: Path):
     return run
 
 
+_hits = threading.local()  # JAX's compilation cache's hits, on this thread
+_listening = False
+_listen_lock = threading.Lock()
+
+
+def _count_hit(event: str, **_) -> None:
+    if event == "/jax/compilation_cache/cache_hits":
+        _hits.n = getattr(_hits, "n", 0) + 1
+
+
+def _listen() -> None:
+    global _listening
+    with _listen_lock:
+        if not _listening:
+            jax.monitoring.register_event_listener(_count_hit)
+            _listening = True
+
+
 def compile_and_keep(jitted, args, path: Path, write):
     """``jitted`` compiled afresh for ``args``' shapes, written to ``path`` (with
     ``write(path, bytes)``, atomic, True where written) and read back: the executable
@@ -147,8 +169,12 @@ def compile_and_keep(jitted, args, path: Path, write):
         # cache: decided under fresh(False), the cache would be off for the whole process
         compilation_cache.is_cache_used(xla_bridge.get_backend())
         specs = jax.tree_util.tree_map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype), args)
+        _listen()
+        before = getattr(_hits, "n", 0)
         with fresh(False):  # not from the compilation cache: see the module's docstring
             compiled = jitted.trace(*specs).lower().compile()
+        if getattr(_hits, "n", 0) != before:  # the switch does not reach a cache
+            return None  # already in use in this process: the copy would be incomplete
         body = pickle.dumps(serialize_executable.serialize(compiled))
     except Exception:  # noqa: BLE001 - cannot be kept: the traced program runs
         return None

@@ -223,7 +223,7 @@ class Program:
                 self._runs[shapes] = run
                 return run(*args)
             try:  # the first call runs what was read: where even that fails, jit
-                out = run(*args)
+                out = jax.block_until_ready(run(*args))  # an executable's fails late
             except Exception:
                 if path is not None:
                     path.unlink(missing_ok=True)  # so that the next process traces anew
