@@ -283,3 +283,25 @@ def test_a_boundary_step_is_not_cut_short_where_the_model_is_tiny():
     s, on_boundary = solve_subproblem(g, H, 1.6)
     assert on_boundary and np.linalg.norm(s) == pytest.approx(1.6, rel=1e-9)
     assert s[0] > 1.59  # downhill along the first unknown
+
+
+def test_a_saddle_of_couplings_alone_is_not_converged():
+    # J = 1 + x0 x1 + (x0⁴ + x1⁴)/4 from (0, 0): g = 0 and H = [[0, 1], [1, 0]]. With
+    # the unknowns of zero diagonal left out of the Jacobi-scaled test, nothing was
+    # left and the run stopped there, "converged" (as a fit of y' = -y + a·b·u from
+    # a = b = 0 did, cost 578.6, where the base version reached 0.79). Its minima are
+    # at x0 = -x1 = ±1, J = 0.5
+    from tensorid.fitting.curvature import negative_curvature
+
+    assert negative_curvature(np.array([[0.0, -385.0], [-385.0, 0.0]]))
+    assert negative_curvature(np.array([[0.0, 1.0], [1.0, 1.0]]))  # det -1
+    assert negative_curvature(np.diag([1e-320, -1.0]))  # a subnormal entry: no overflow
+
+    def fun(x):
+        J = 1.0 + x[0] * x[1] + 0.25 * (x[0] ** 4 + x[1] ** 4)
+        g = np.array([x[1] + x[0] ** 3, x[0] + x[1] ** 3])
+        return J, g, np.array([[3.0 * x[0] ** 2, 1.0], [1.0, 3.0 * x[1] ** 2]])
+
+    inf = np.full(2, np.inf)
+    r = minimize_trust_region(fun, np.zeros(2), -inf, inf)
+    assert r.status.success and r.fun == pytest.approx(0.5, rel=1e-9), (r.x, r.status)

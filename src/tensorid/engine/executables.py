@@ -13,15 +13,19 @@ An executable is more particular than a traced program: it is compiled for this
 machine's processor and XLA's flags. Its file is named by the traced program's key
 (which holds the model, the sweep, the shapes, the package's sources and JAX's
 version and settings) and a digest of what the executable depends on beyond it: the
-processor (its model and feature flags), ``XLA_FLAGS`` and the backend's platform
-version. A cache folder shared by machines of different processors keeps one
-executable per kind.
+processor (its model and feature flags), ``XLA_FLAGS``, the backend's platform
+version and device kind, and JAX's settings that reach XLA's compile options (such
+as ``jax_disable_most_optimizations``). A cache folder shared by machines of
+different processors keeps one executable per kind.
 
 An executable is only written when this process compiled it afresh: one that JAX's
 compilation cache handed back serializes incompletely (jaxlib 0.10.2: its call fails,
-"Function ... not found"). So the first process compiles it with that cache off for
-the one program, and runs the copy it wrote, read back: a file that does not work
-fails in the process that wrote it, which removes it and runs the traced program.
+"Function ... not found", when the result is read). So the first process compiles it
+with that cache off for the one program, and runs the copy it wrote, read back: a
+file that does not work fails in the process that wrote it (its first call is waited
+for), which removes it and runs the traced program. The switch does not reach a cache
+that this process has already opened (the user's own jit ran first): where that
+cache answers anyway (a hit), nothing is kept.
 Whatever else goes wrong (JAX's private switch gone, a file that cannot be read or
 written), the traced program runs as before; this only saves time.
 """
@@ -32,6 +36,7 @@ import hashlib
 import os
 import pickle
 import platform
+import threading
 import time
 from pathlib import Path
 
@@ -54,17 +59,39 @@ def _processor() -> str:
         return f"{platform.machine()} {platform.processor()}"
 
 
+# JAX's settings that reach XLA's compile options (JAX's own cache keys them), not the
+# traced program: an executable compiled under one is not what another would compile
+_COMPILE_SETTINGS = (
+    "jax_disable_most_optimizations",
+    "jax_exec_time_optimization_effort",
+    "jax_memory_fitting_effort",
+    "jax_optimization_level",
+    "jax_memory_fitting_level",
+    "jax_compiler_enable_remat_pass",
+    "jax_xla_profile_version",
+    "jax_use_shardy_partitioner",
+)
+
+
+def _setting(name: str):
+    value = getattr(jax.config, name, None)  # on this thread (context managers)
+    return jax.config.values.get(name) if value is None else value
+
+
 def machine_digest() -> str:
-    """Of what an executable depends on beyond its traced program, once per process."""
+    """Of what an executable depends on beyond its traced program: the processor,
+    XLA_FLAGS, the backend and its devices' kind (once per process) and JAX's
+    compile settings (as they hold now)."""
     global _machine
     if _machine is None:
         try:
-            version = str(jax.devices()[0].client.platform_version)
+            device = jax.devices()[0]
+            version = f"{device.client.platform_version} {device.device_kind}"
         except Exception:  # noqa: BLE001 - only part of the digest
             version = ""
-        text = f"{_processor()}\n{os.environ.get('XLA_FLAGS', '')}\n{version}"
-        _machine = hashlib.sha256(text.encode()).hexdigest()[:12]
-    return _machine
+        _machine = f"{_processor()}\n{os.environ.get('XLA_FLAGS', '')}\n{version}"
+    settings = repr([_setting(name) for name in _COMPILE_SETTINGS])
+    return hashlib.sha256(f"{_machine}\n{settings}".encode()).hexdigest()[:12]
 
 
 def path_for(folder: Path, key: str) -> Path:
@@ -103,10 +130,32 @@ def load(path: Path):
     return run
 
 
+_hits = threading.local()  # JAX's compilation cache's hits, on this thread
+_listening = False
+_listen_lock = threading.Lock()
+
+
+def _count_hit(event: str, **_) -> None:
+    if event == "/jax/compilation_cache/cache_hits":
+        _hits.n = getattr(_hits, "n", 0) + 1
+
+
+def _listen() -> None:
+    global _listening
+    with _listen_lock:
+        if not _listening:
+            jax.monitoring.register_event_listener(_count_hit)
+            _listening = True
+
+
 def compile_and_keep(jitted, args, path: Path, write):
     """``jitted`` compiled afresh for ``args``' shapes, written to ``path`` (with
-    ``write(path, bytes)``, atomic) and read back: the executable to run, or None
-    where it cannot be kept (then nothing is written)."""
+    ``write(path, bytes)``, atomic, True where written) and read back: the executable
+    to run, or None where it cannot be kept (then the caller's jit runs, by JAX's
+    compilation cache: compiled afresh, without that cache, in every process where
+    the folder cannot be written, it would never be looked up)."""
+    if not os.access(path.parent, os.W_OK):
+        return None
     from jax._src import config as jax_config
     from jax.experimental import serialize_executable
 
@@ -114,12 +163,22 @@ def compile_and_keep(jitted, args, path: Path, write):
     if fresh is None:
         return None
     try:
+        from jax._src import compilation_cache, xla_bridge
+
+        # JAX decides once per process, at its first compilation, whether it uses its
+        # cache: decided under fresh(False), the cache would be off for the whole process
+        compilation_cache.is_cache_used(xla_bridge.get_backend())
         specs = jax.tree_util.tree_map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype), args)
+        _listen()
+        before = getattr(_hits, "n", 0)
         with fresh(False):  # not from the compilation cache: see the module's docstring
             compiled = jitted.trace(*specs).lower().compile()
+        if getattr(_hits, "n", 0) != before:  # the switch does not reach a cache
+            return None  # already in use in this process: the copy would be incomplete
         body = pickle.dumps(serialize_executable.serialize(compiled))
     except Exception:  # noqa: BLE001 - cannot be kept: the traced program runs
         return None
-    write(path, body)
+    if not write(path, body):
+        return None
     kept = load(path)  # the copy later processes will read, run here first
-    return compiled if kept is None else kept  # (a folder that cannot be written)
+    return compiled if kept is None else kept

@@ -223,7 +223,7 @@ class Program:
                 self._runs[shapes] = run
                 return run(*args)
             try:  # the first call runs what was read: where even that fails, jit
-                out = run(*args)
+                out = jax.block_until_ready(run(*args))  # an executable's fails late
             except Exception:
                 if path is not None:
                     path.unlink(missing_ok=True)  # so that the next process traces anew
@@ -385,10 +385,10 @@ def _keep_under(entries: list, cap: int) -> None:
         total -= size
 
 
-def _write(path: Path, data: bytes) -> None:
+def _write(path: Path, data: bytes) -> bool:
     """Atomically and with a digest of the contents, so that a process reading it never
     uses half a program; a folder that cannot be written only means the next process
-    traces again."""
+    traces again. Whether it was written."""
     tmp = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -398,7 +398,8 @@ def _write(path: Path, data: bytes) -> None:
         os.replace(tmp, path)
         tmp = None
     except OSError:
-        pass
+        return False
     finally:  # also after Ctrl-C: no half-written file is left behind
         if tmp is not None:
             Path(tmp).unlink(missing_ok=True)
+    return True

@@ -20,16 +20,20 @@ ROUNDING = 1e-8  # relative eigenvalue of the Jacobi-scaled Hessian below which 
 
 
 def jacobi_scaled(H: np.ndarray) -> np.ndarray:
-    """D^-1/2 H D^-1/2 with D = |diag H|, symmetrised, over the unknowns whose diagonal
-    entry is finite and not zero and whose row is finite. An unknown with a zero
-    diagonal entry is left out: a direction of no curvature is not one of negative
-    curvature (a coupling to it would be, but its size relative to the diagonal has
-    no scale-free meaning), and a non-finite entry says nothing either way."""
+    """D^-1/2 H D^-1/2 with D = |diag H|, symmetrised, over the unknowns whose row is
+    finite (a non-finite entry says nothing either way). An unknown with a zero
+    diagonal entry keeps the units it has, as in the error bars' Jacobi scaling
+    (uncertainty.py): alone it is a direction of no curvature, not of negative
+    curvature, but coupled to another unknown it makes H indefinite whatever the units
+    ([[0, b], [b, c]] has determinant -b²): the saddle of J = c + a·b at a = b = 0,
+    where a fit from zero starts, has nothing but such couplings. Scaled row by row
+    and then column by column, so that a subnormal diagonal entry does not overflow."""
     H = 0.5 * (H + H.T)
+    keep = np.isfinite(H).all(axis=1)
+    H = H[np.ix_(keep, keep)]
     d = np.abs(np.diag(H))
-    keep = np.isfinite(d) & (d > 0) & np.isfinite(H).all(axis=1)
-    s = 1.0 / np.sqrt(d[keep])
-    return H[np.ix_(keep, keep)] * np.outer(s, s)
+    s = np.where(d > 0, 1.0 / np.sqrt(np.where(d > 0, d, 1.0)), 1.0)
+    return (H * s[:, None]) * s[None, :]
 
 
 def negative_curvature(H: np.ndarray) -> bool:
@@ -40,8 +44,9 @@ def negative_curvature(H: np.ndarray) -> bool:
     make each unknown's own curvature ±1. It does not change when the unknowns are
     rescaled (S H S has diagonal S²D, so the same A): the verdict cannot depend on the
     scales chosen at the start, as a test on H in the trust region's units did. A has
-    ±1 on its diagonal, so its largest eigenvalue in magnitude is at least 1 (and at
-    most n when H is semi-definite). Rounding in H's entries of up to η √(|H_ii H_jj|)
+    ±1 on its diagonal (0 where H_ii = 0, in the units given), so its largest eigenvalue
+    in magnitude is at least 1 (and at most n when H is semi-definite) unless every
+    H_ii is 0. Rounding in H's entries of up to η √(|H_ii H_jj|)
     each (relative to the curvatures they couple: the sweeps compute each entry as a
     sum of terms of about its own size or less) perturbs A by a matrix E with
     |E_ij| <= η, whose norm is at most n η, and by Weyl's inequality no eigenvalue of A
