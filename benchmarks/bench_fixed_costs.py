@@ -10,7 +10,8 @@ Prints medians (and the range) of:
 - the README's command-line fit of the bundled Silverbox example (with validation,
   report and four figures), warm: run once to fill the caches (Python's bytecode
   of tensorid's modules too, even where PYTHONDONTWRITEBYTECODE is set), then
-  timed, wall and CPU (user + system, the figure renderers included);
+  timed, wall and CPU (user + system, the figure renderers included), with a cache
+  folder of its own that the first run filled (``--user-cache``: the user's, as it is);
 - the benchmarks' scoring of that fit on the validation record, ``tensorid compare``
   (one figure), warm;
 - the same fit from Python in a second process against the first, with an empty
@@ -83,6 +84,11 @@ def main() -> None:
         action="store_true",
         help="run the command as python -m tensorid (e.g. another checkout on PYTHONPATH)",
     )
+    ap.add_argument(
+        "--user-cache",
+        action="store_true",
+        help="time the commands with the user's cache folder as it is, not a fresh one",
+    )
     args = ap.parse_args()
     tensorid = None if args.module else shutil.which("tensorid")
     cli = [tensorid] if tensorid else [sys.executable, "-m", "tensorid"]
@@ -95,6 +101,12 @@ def main() -> None:
     # every timed run would compile tensorid's sources again (0.1 s of a fit),
     # which a user's installation does once
     warm = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    # the commands' caches as a user has them after one run of this version: a fresh
+    # folder, filled by the warm-up (a folder that JAX's cache filled under an earlier
+    # version holds compiled code under which no executable is kept: engine/executables.py)
+    own = {} if args.user_cache else {"TENSORID_CACHE_DIR": str(out / "cache" / "jax")}
+    warm.update(own)
+    commands = dict(os.environ, **own)
     subprocess.run(fit, check=True, capture_output=True, env=warm)
     subprocess.run(compare, check=True, capture_output=True, env=warm)
     load0 = os.getloadavg()[0]
@@ -104,10 +116,10 @@ def main() -> None:
         rows["jax"].append(_timed([sys.executable, "-c", "import jax"])[0])
         rows["tensorid"].append(_timed([sys.executable, "-c", "import tensorid"])[0])
         rows["help"].append(_timed([*cli, "fit", "--help"])[0])
-        wall, cpu = _timed(fit)
+        wall, cpu = _timed(fit, commands)
         rows["fit"].append(wall)
         rows["cpu"].append(cpu)
-        rows["compare"].append(_timed(compare)[0])
+        rows["compare"].append(_timed(compare, commands)[0])
     firsts, seconds = [], []
     for _ in range(max(1, args.repeats // 2)):
         cache = Path(tempfile.mkdtemp(prefix="tensorid-cache-"))
@@ -129,6 +141,8 @@ def main() -> None:
     shutil.rmtree(out, ignore_errors=True)
     when = time.strftime("%Y-%m-%d %H:%M %Z")
     print(f"{when}, {os.cpu_count()} cores, load {load0:.1f} → {load1:.1f}")
+    print("(the commands with the user's cache folder)" if args.user_cache else
+          "(the commands with a fresh cache folder, filled by one run first)")  # fmt: skip
     if os.environ.get("PYTHONDONTWRITEBYTECODE"):
         print("(PYTHONDONTWRITEBYTECODE is set here: the warm-up wrote tensorid's bytecode)")
     print("\n| what | median | range | command |\n|---|---|---|---|")

@@ -102,9 +102,11 @@ def test_a_damaged_program_file_is_traced_again(cache):
     assert again["J"] == plain["J"] and again["H"] == plain["H"]
 
 
-def test_a_second_process_loads_the_executables(cache):
+def test_a_second_process_loads_the_executables(tmp_path):
     """The executables beside the traced programs (engine/executables.py): kept by the
-    first process, loaded by the next, which then neither traces nor lowers."""
+    first process, loaded by the next, which then neither traces nor lowers. (A cache
+    folder of its own: where JAX's cache already holds a program, none is kept.)"""
+    cache = tmp_path / "jax"
     first = _run(cache)
     folder = cache.parent / "jax-programs"
     kept = sorted(folder.glob("*.xla"))

@@ -18,16 +18,17 @@ version and device kind, and JAX's settings that reach XLA's compile options (su
 as ``jax_disable_most_optimizations``). A cache folder shared by machines of
 different processors keeps one executable per kind.
 
-An executable is only written when this process compiled it afresh: one that JAX's
+An executable is only written when this process compiled it: one that JAX's
 compilation cache handed back serializes incompletely (jaxlib 0.10.2: its call fails,
-"Function ... not found", when the result is read). So the first process compiles it
-with that cache off for the one program, and runs the copy it wrote, read back: a
-file that does not work fails in the process that wrote it (its first call is waited
-for), which removes it and runs the traced program. The switch does not reach a cache
-that this process has already opened (the user's own jit ran first): where that
-cache answers anyway (a hit), nothing is kept.
-Whatever else goes wrong (JAX's private switch gone, a file that cannot be read or
-written), the traced program runs as before; this only saves time.
+"Function ... not found", when the result is read), and JAX's switch to keep its cache
+out of one compilation does not reach a cache the process has opened. So where JAX's
+cache answers (a hit, counted through jax.monitoring), nothing is kept: a program
+that cache already holds, from an earlier version of tensorid whose traced program
+was the same, goes on being loaded from it as before. What is written is read back
+and run: a file that does not work fails in the process that wrote it (its first
+call is waited for), which removes it and runs the plain jit. Whatever else goes
+wrong (a file that cannot be read or written), the plain jit runs as before; this
+only saves time.
 """
 
 from __future__ import annotations
@@ -149,32 +150,24 @@ def _listen() -> None:
 
 
 def compile_and_keep(jitted, args, path: Path, write):
-    """``jitted`` compiled afresh for ``args``' shapes, written to ``path`` (with
+    """``jitted`` compiled for ``args``' shapes, written to ``path`` (with
     ``write(path, bytes)``, atomic, True where written) and read back: the executable
     to run, or None where it cannot be kept (then the caller's jit runs, by JAX's
-    compilation cache: compiled afresh, without that cache, in every process where
-    the folder cannot be written, it would never be looked up)."""
+    compilation cache). Nothing is kept where the folder cannot be written (each
+    process would compile afresh, never looking in JAX's cache) or where JAX's cache
+    answered the compilation (a hit: the copy would be incomplete, see the module's
+    docstring)."""
     if not os.access(path.parent, os.W_OK):
         return None
-    from jax._src import config as jax_config
     from jax.experimental import serialize_executable
 
-    fresh = getattr(jax_config, "enable_compilation_cache", None)  # JAX's, private
-    if fresh is None:
-        return None
     try:
-        from jax._src import compilation_cache, xla_bridge
-
-        # JAX decides once per process, at its first compilation, whether it uses its
-        # cache: decided under fresh(False), the cache would be off for the whole process
-        compilation_cache.is_cache_used(xla_bridge.get_backend())
         specs = jax.tree_util.tree_map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype), args)
         _listen()
         before = getattr(_hits, "n", 0)
-        with fresh(False):  # not from the compilation cache: see the module's docstring
-            compiled = jitted.trace(*specs).lower().compile()
-        if getattr(_hits, "n", 0) != before:  # the switch does not reach a cache
-            return None  # already in use in this process: the copy would be incomplete
+        compiled = jitted.trace(*specs).lower().compile()
+        if getattr(_hits, "n", 0) != before:  # handed back by JAX's cache
+            return None
         body = pickle.dumps(serialize_executable.serialize(compiled))
     except Exception:  # noqa: BLE001 - cannot be kept: the traced program runs
         return None
