@@ -38,6 +38,28 @@ class _Columns:
         return name in self.values or name in self.constants
 
 
+_NOT_NUMBERS = {"U": "text", "S": "text", "O": "objects (a cell array?)", "V": "records"}
+
+
+def _real(path: Path, what: str, name: str, v: np.ndarray | str) -> np.ndarray:
+    """A signal as real floats; complex values with an imaginary part are refused."""
+    if isinstance(v, str):
+        raise ValueError(f"{path}: {v}")
+    if v.dtype.kind == "c":
+        if np.any(v.imag != 0):
+            raise ValueError(
+                f"{path}: {what} {name!r} holds complex values; tensorid fits real "
+                f"signals: split into real and imaginary {what}s"
+            )
+        v = v.real
+    if v.dtype.kind not in "biuf":
+        raise ValueError(
+            f"{path}: {what} {name!r} holds {_NOT_NUMBERS.get(v.dtype.kind, v.dtype)}, "
+            "not numbers; save it as a numeric vector"
+        )
+    return v.astype(float)
+
+
 def _reason(e: BaseException) -> str:
     """An exception as a short phrase on one line."""
     text = " ".join(str(e).split())
