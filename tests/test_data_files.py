@@ -380,3 +380,25 @@ def test_columns_named_in_other_capitals_are_pointed_to(tmp_path):
     message = _error(tmp_path / "caps.csv")
     assert "--columns t=T,u=U,y=Y" in message and "u=0" not in message
     _same_as_plain(tmp_path / "caps.csv", columns={"t": "T", "u": "U", "y": "Y"})
+
+
+def test_a_sampling_time_given_that_differs_from_the_file_s_is_noted(tmp_path):
+    """--ts (ts=) is used even where the file has a time base of its own; where the two
+    differ, a DataNote says so (the file's was set aside without a word)."""
+    import warnings
+
+    from tensorid.app.datafiles import DataNote
+
+    path = tmp_path / "d.csv"
+    path.write_text(_text())
+    step = float(np.median(np.diff(T)))
+    with pytest.warns(DataNote, match=rf"given, {2 * step:g} s .*'t' steps by {step:.6g} s"):
+        (e,) = ti.load_data(path, MODEL, ts=2 * step)
+    np.testing.assert_allclose(np.diff(e.t), 2 * step)  # the one given is used
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DataNote)
+        ti.load_data(path, MODEL, ts=step)  # the same as the file's: nothing to say
+    ts_file = tmp_path / "ts.csv"
+    ts_file.write_text("Ts,u,y\n0.1,1,2\n0.1,2,3\n0.1,3,4\n")
+    with pytest.warns(DataNote, match="its sampling time 'Ts' is 0.1 s"):
+        ti.load_data(ts_file, MODEL, ts=0.05)

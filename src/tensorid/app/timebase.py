@@ -63,6 +63,8 @@ def _time(p, cols: _Columns, ts, P: int, data: dict) -> np.ndarray:
     sampling time (``Ts``); one line naming the ways out when there is none."""
     if ts is None and "t" in data:
         return _on_grid(p, data["t"])
+    if ts is not None:
+        _given(p, cols, ts)
     ts = _sampling_time(p, cols) if ts is None else ts
     if ts is None:
         named = [
@@ -79,3 +81,25 @@ def _time(p, cols: _Columns, ts, P: int, data: dict) -> np.ndarray:
             f"sampling time (--ts on the command line, ts= in Python){hint}"
         )
     return np.arange(P) * float(ts)
+
+
+def _given(p, cols: _Columns, ts: float) -> None:
+    """A DataNote where the sampling time given (--ts, ts=), which is used, differs from
+    the file's own time base (its column ``t``, or its ``Ts``): a user who forgot that
+    the file has one learns that it was set aside."""
+    try:
+        if isinstance(cols.values.get("t"), np.ndarray) and cols.values["t"].size > 1:
+            t = _real(p, cols.what, "t", cols.values["t"])
+            own, what = float(np.median(np.diff(t))), f"its {cols.what} 't' steps by"
+        else:
+            own, what = _sampling_time(p, cols), "its sampling time 'Ts' is"
+    except ValueError:  # a time base it could not use: nothing to compare
+        return
+    if own is None or not np.isfinite(own) or abs(own - ts) <= 1e-6 * ts:
+        return
+    warnings.warn(
+        f"{p}: the sampling time given, {ts:g} s (--ts, ts= in Python), is used, though "
+        f"{what} {own:.6g} s; leave it out to use the file's",
+        DataNote,
+        stacklevel=3,
+    )
