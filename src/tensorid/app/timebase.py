@@ -87,9 +87,11 @@ def _given(p, cols: _Columns, ts: float) -> None:
     """A DataNote where the sampling time given (--ts, ts=), which is used, differs from
     the file's own time base (its column ``t``, or its ``Ts``): a user who forgot that
     the file has one learns that it was set aside."""
+    column = cols.values.get("t")
+    own: float | None
     try:
-        if isinstance(cols.values.get("t"), np.ndarray) and cols.values["t"].size > 1:
-            t = _real(p, cols.what, "t", cols.values["t"])
+        if isinstance(column, np.ndarray) and column.size > 1:
+            t = _real(p, cols.what, "t", column)
             own, what = float(np.median(np.diff(t))), f"its {cols.what} 't' steps by"
         else:
             own, what = _sampling_time(p, cols), "its sampling time 'Ts' is"
