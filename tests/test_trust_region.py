@@ -272,6 +272,20 @@ def test_small_steps_or_a_collapsed_radius_at_a_saddle_are_not_convergence():
     assert _unless_saddle(Status.FTOL, saddle, np.array([True, False])) is Status.FTOL
 
 
+def test_a_collapse_where_the_cost_curves_downward_says_so():
+    # the exact Hessian curves down along x2, but the cost rises every way: each step
+    # is rejected until the radius collapses; the message's general reasons (noise,
+    # inconsistent derivatives) are joined by what was seen there
+    def fun(x):
+        d = x - 1.0
+        return 1.0 + float(d @ d), 2.0 * d, np.diag([1.0, -1.0])
+
+    inf = np.full(2, np.inf)
+    r = minimize_trust_region(fun, np.ones(2), -inf, inf)
+    assert r.status is Status.RADIUS_COLLAPSED and not r.success
+    assert "where the cost curves downward: a saddle, or a flat valley" in r.message
+
+
 def test_a_boundary_step_is_not_cut_short_where_the_model_is_tiny():
     # the trust region's units came from a start whose cost was 1e3-1e18 times the
     # current one, so g and H are tiny (a filter fit's at its saddle, in its two main

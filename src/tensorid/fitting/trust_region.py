@@ -289,6 +289,24 @@ def _unless_saddle(ended, H, free):
     return None if ended else Status.RADIUS_COLLAPSED
 
 
+def _detail(status: Status, maxiter: int, radius: float, history: list, H, free) -> str:
+    """What the status's message leaves out: the iteration limit, or what was seen
+    where the radius collapsed (a cost curving downward there: a saddle, or a flat
+    valley of points as good, where the general reasons the message gives mislead)."""
+    if status is Status.MAXITER:
+        return f"maxiter={maxiter}"
+    if status is not Status.RADIUS_COLLAPSED:
+        return ""
+    if _downhill(H, free):
+        return (
+            f"radius {radius:.1e}, where the cost curves downward: a saddle, or a flat "
+            "valley of points as good (an unknown the data cannot tell); try other starts"
+        )
+    if history and history[-1]["accepted"]:
+        return f"radius {radius:.1e}; its last steps were accepted, on tiny decreases"
+    return ""
+
+
 def _ended(accepted, held_back, actual, pred, J, d, xscale, radius, ftol, xtol):
     """How the run ends after a step from cost J: a Status, False for "the radius
     collapsed under rejected steps" (a rounding floor or a collapse: _collapsed), or
@@ -402,7 +420,5 @@ def trust_region_steps(
             status = ended or _collapsed(J, pred, pg_norm, gtol)
             break
     hess = None if callable(H) else H
-    detail = f"maxiter={maxiter}" if status is Status.MAXITER else ""
-    if status is Status.RADIUS_COLLAPSED and history[-1]["accepted"]:
-        detail = f"radius {radius:.1e}; its last steps were accepted, on tiny decreases"
+    detail = _detail(status, maxiter, radius, history, H, ~_held(x, g, lo, hi))
     return TRResult(x, float(J), g, hess, it, nfev, status, history, nhev[0], detail)
