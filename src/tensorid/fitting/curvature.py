@@ -19,6 +19,13 @@ import numpy as np
 ROUNDING = 1e-8  # relative eigenvalue of the Jacobi-scaled Hessian below which it is noise
 
 
+def jacobi_scale(H: np.ndarray) -> np.ndarray:
+    """s with diag(s H s) = 1 where H_ii > 0: unit-free, and it takes the Silverbox
+    Hessian from a condition number near 1e18 to one that eigen-solvers resolve."""
+    d = np.abs(np.diag(H))
+    return np.where(d > 0, 1.0 / np.sqrt(np.where(d > 0, d, 1.0)), 1.0)
+
+
 def jacobi_scaled(H: np.ndarray) -> np.ndarray:
     """D^-1/2 H D^-1/2 with D = |diag H|, symmetrised, over the unknowns whose row is
     finite (a non-finite entry says nothing either way). An unknown with a zero
@@ -31,8 +38,7 @@ def jacobi_scaled(H: np.ndarray) -> np.ndarray:
     H = 0.5 * (H + H.T)
     keep = np.isfinite(H).all(axis=1)
     H = H[np.ix_(keep, keep)]
-    d = np.abs(np.diag(H))
-    s = np.where(d > 0, 1.0 / np.sqrt(np.where(d > 0, d, 1.0)), 1.0)
+    s = jacobi_scale(H)
     return (H * s[:, None]) * s[None, :]
 
 

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import quantiles
+from .curvature import jacobi_scale
 from .residuals import residual_count, too_few
 from .summary import Table, Tabular, estimates_table, stderr_text
 
@@ -104,13 +105,6 @@ class Uncertainty(Tabular):
             f"{n}={stderr_text(float(s))}" for n, s in zip(self.names, self.stderr, strict=True)
         )
         return f"Uncertainty(kind={self.kind!r}, stderr={{{se}}}, dof={self.dof})"
-
-
-def jacobi_scale(H: np.ndarray) -> np.ndarray:
-    """s with diag(s H s) = 1 where H_ii > 0: unit-free, and it takes the Silverbox
-    Hessian from a condition number near 1e18 to one that eigen-solvers resolve."""
-    d = np.abs(np.diag(H))
-    return np.where(d > 0, 1.0 / np.sqrt(np.where(d > 0, d, 1.0)), 1.0)
 
 
 def _directions(H: np.ndarray, names: list[str], keep) -> list[tuple[float, list[str]]]:
