@@ -33,21 +33,7 @@ def _positive_seconds(text: str) -> float:
     return x
 
 
-def _sample_time(text: str) -> float:
-    """--ts: a finite sampling time > 0 (argparse's float took 0, -1, nan and inf, and
-    the error came later without the flag's name)."""
-    try:
-        x = float(text)
-    except ValueError:
-        x = float("nan")
-    if not 0 < x < float("inf"):
-        raise argparse.ArgumentTypeError(
-            f"expected a positive sampling time in seconds (a finite number > 0), got {text!r}"
-        )
-    return x
-
-
-def _positive(text: str) -> float:
+def _positive(text: str, expected: str = "a finite number > 0") -> float:
     """A finite number > 0 (--loss-scale: 0, -1, nan and inf failed later, in the
     Problem's words)."""
     try:
@@ -55,8 +41,14 @@ def _positive(text: str) -> float:
     except ValueError:
         x = float("nan")
     if not 0 < x < float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
     return x
+
+
+def _sample_time(text: str) -> float:
+    """--ts: a finite sampling time > 0 (argparse's float took 0, -1, nan and inf, and
+    the error came later without the flag's name)."""
+    return _positive(text, "a positive sampling time in seconds (a finite number > 0)")
 
 
 def _level(text: str) -> float:
