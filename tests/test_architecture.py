@@ -18,6 +18,7 @@ LAYERS = {
     "functions": 1,
     "datasets": 1,
     "fitting": 2,
+    "population": 2,
     "app": 3,
     "paper": 4,
     # the top: the package itself and the names that gather every layer

@@ -10,6 +10,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from .data import Experiment
+from .initial import evaluate, has_expressions
 
 # MATLAB's first-order hold is linear interpolation; a Kalman filter is the EKF here
 _ALIASES = {"foh": "linear", "kalman": "ekf"}
@@ -116,6 +117,9 @@ def check_x0(problem, x0) -> np.ndarray:
     m, E = problem.model, len(problem.experiments)
     if x0 is None:
         return np.zeros((E, m.N))
+    if has_expressions(x0):  # {"depot": "Dose * Wt"}: per record, at its first sample
+        arr, problem.x0_uses = evaluate(m, problem.experiments, x0, problem.p0)
+        return arr
     if isinstance(x0, Mapping):
         return np.tile(m.states_array(x0), (E, 1))
     if isinstance(x0, Sequence) and x0 and isinstance(x0[0], Mapping):

@@ -30,6 +30,7 @@ from .checks import (
 from .compiled import on_device
 from .data import Experiment
 from .discretisation import Discretisation, DiscretisationSettings
+from .fleet import check_population, fixed_x0_parameters
 from .integrators import Scheme
 from .layout import ThetaLayout
 from .losses import GAUSSIAN, Loss, make_loss
@@ -119,6 +120,12 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
         measurement_noise: {output: σ_e}: the start of each output's measurement noise
             (standard deviation); an output not listed starts from its noise level in the
             data ("ekf" only).
+        population: {parameter: ω}: a fleet's random effects (one experiment per
+            unit): each unit's value is the typical value times exp(η), η ~ N(0, ω²)
+            per unit, ω started at the number given; :func:`tensorid.fit` then
+            estimates the typical values, the ω, the parameters not named (shared by
+            the fleet) and each output's residual SD by the marginal likelihood (see
+            :mod:`tensorid.population`).
     """
 
     def __init__(
@@ -148,6 +155,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
         predictor: str = "simulation",
         process_noise: Mapping[str, float] | None = None,
         measurement_noise: Mapping[str, float] | None = None,
+        population: Mapping[str, float] | None = None,
     ):
         if not isinstance(model, Model):
             raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
@@ -164,6 +172,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
         self.free_x0 = name_list("free_x0", free_x0, model.states, "states")
         self.fixed = name_list("fixed", fixed, model.params, "params")
         self.free_params = [n for n in model.params if n not in self.fixed]
+        fixed_x0_parameters(self)
         discretisation = Discretisation.resolve(
             discretisation, scheme, substeps, interpolation, rtol, atol
         ).for_model(model)
@@ -179,6 +188,8 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
         self.loss_scale_estimated = self.loss.robust and loss_scale is None
         self.lower, self.upper = check_bounds(self, bounds or {})
         self._set_priors(priors, noise)
+        # a fleet's random effects: {param: ω start}; tensorid.fit estimates them
+        self.population = check_population(self, population, predictor, loss, segments)
         if self.K == 0:
             raise ValueError("nothing to estimate: every parameter is fixed and free_x0 is empty")
         self._sweeps = shared_sweeps(

@@ -71,11 +71,14 @@ def layout(sweeps, second: bool = True) -> Layout:
     return Layout(N, K, explicit and N * (1 + K + K * (K + 1) // 2) <= FLAT_MAX, second)
 
 
-def second_order(sw, theta, x0, p, t, u, y, w, v=None, end=False, both=False):
-    """See :meth:`Sweeps._second_order`."""
-    x0, p = sw._start(theta, x0, p)
+def _machinery(sw, x0, p, v=None):
+    """What every second-order sweep of ``sw`` shares: the layout of the carried state,
+    ``directions`` (the (a, b, c) of each carried column), ``pairs(fn, x, A, B, C)``
+    (fn_z a and fn_zz[a, b] + fn_z c for every column, by one nested jvp), ``push``
+    (a map's value and the sensitivities carried through it), the packed pairs
+    (jj, kk) or None for a direction v, and the number of carried columns."""
     M, K = sw.model.M, sw.K
-    dx0, Psel = sw.seeds()
+    Psel = sw.seeds()[1]
     # the parameter parts of the directions are constants (or Psel v): keeping them
     # apart from the state parts, rather than in z = (x, p), spares the compiled
     # sweep the concatenations, which costs ~30 % of its time on Silverbox
@@ -114,6 +117,16 @@ def second_order(sw, theta, x0, p, t, u, y, w, v=None, end=False, both=False):
         # the first K columns of A are Z itself (diagonal pairs come first)
         return lay.pack(fn(x, p), Fa[:K], d2)
 
+    return lay, directions, pairs, push, ((jj, kk) if v is None else None), ncols
+
+
+def second_order(sw, theta, x0, p, t, u, y, w, v=None, end=False, both=False):
+    """See :meth:`Sweeps._second_order`."""
+    x0, p = sw._start(theta, x0, p)
+    K = sw.K
+    dx0 = sw.seeds()[0]
+    lay, directions, pairs, push, packed, ncols = _machinery(sw, x0, p, v)
+
     def field(state, uu):
         # ẋ, d(dx)/dt = F_z Z, d(d2x)/dt = F_zz[Z,Z] + F_x d2x
         return push(sw._f(p, uu), state)
@@ -127,7 +140,7 @@ def second_order(sw, theta, x0, p, t, u, y, w, v=None, end=False, both=False):
         ell, l1, l2, gamma = sw.loss.terms(y_h, sw._pi(x, p), w_h)
 
         def quadratic(c):
-            return quadratic_packed(D, c, (jj, kk) if v is None else None, v)
+            return quadratic_packed(D, c, packed, v)
 
         curv = quadratic(l2)
         out = (J + ell, g + D @ l1, H + curv + e2 @ l1)
@@ -141,3 +154,29 @@ def second_order(sw, theta, x0, p, t, u, y, w, v=None, end=False, both=False):
     update = sw._update(push)
     acc, _, _ = sw._march(field, observe, state0, acc0, t, u, y, p, end, update)
     return (*acc[0], lay.tuple(acc[1])) if end else acc
+
+
+def output_tensors(sw, theta, x0, p, t, u):
+    """The simulated outputs and their first and second derivatives at every sample,
+    ``(ŷ (P, S), ∂ŷ/∂θ (P, S, K), ∂²ŷ/∂θ² (P, S, K, K))``: the model alone (output
+    error), from the transition matrices and tensors as the Hessian sweep makes them
+    (C_z Z and C_zz[Z, Z] + C_x d2x per sample). A fleet's population fit builds each
+    unit's inner Hessian and the derivatives of its marginal likelihood from these."""
+    x0, p = sw._start(theta, x0, p)
+    K = sw.K
+    dx0 = sw.seeds()[0]
+    lay, directions, pairs, push, (jj, kk), ncols = _machinery(sw, x0, p)
+    m = sw.model
+
+    def field(state, uu):
+        return push(lambda z, p_: m.f(z, p_, uu), state)
+
+    def observe(acc, state, _):
+        x, dxT, d2T = lay.split(state)
+        Ca, e2 = pairs(m.h, x, *directions(dxT, d2T))
+        d2 = jnp.zeros((K, K, e2.shape[-1])).at[jj, kk].set(e2).at[kk, jj].set(e2)
+        return acc, (m.h(x, p), Ca[:K].T, jnp.moveaxis(d2, -1, 0))
+
+    state0 = lay.pack(x0, jnp.asarray(dx0.T), jnp.zeros((ncols, lay.N)))
+    _, outs, _ = sw._march(field, observe, state0, 0.0, t, u, jnp.zeros(t.shape), p)
+    return outs

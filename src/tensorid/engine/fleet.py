@@ -1,0 +1,72 @@
+"""A fleet: one model, many units (one experiment each), and the kinds of parameter
+they have. Shared (the default): one value for the fleet. Population
+(``Problem(population={"ka": 0.6})``): each unit's value is the typical value times
+exp(η), η ~ N(0, ω²) per unit (a random effect, log-normal), ω estimated from its start.
+This module checks what a Problem is told of them; the estimation lives in
+:mod:`tensorid.population`."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from .checks import did_you_mean
+
+
+def check_population(problem, population, predictor, loss, segments) -> dict[str, float]:
+    """{parameter: ω start} checked against the model and the other settings; {} for
+    none. One line for each mistake, before anything compiles."""
+    if population is None:
+        return {}
+    if not isinstance(population, Mapping) or not population:
+        raise TypeError(
+            "population must be a dict {parameter: ω} (the start of each random effect's "
+            f"standard deviation, e.g. {{'ka': 0.5}}), got {population!r}"
+        )
+    m = problem.model
+    out: dict[str, float] = {}
+    for name, omega in population.items():
+        if name not in m.params or str(name).startswith("log_sigma_"):
+            raise ValueError(
+                f"population names {name!r}, which is not a parameter of the model "
+                f"{list(m.params)}{did_you_mean(str(name), list(m.params))}"
+            )
+        if name in problem.fixed:
+            raise ValueError(
+                f"{name!r} is both fixed and in population: a random effect needs a "
+                "typical value to estimate; drop it from one of them"
+            )
+        ok = isinstance(omega, int | float | np.floating) and not isinstance(omega, bool)
+        if not ok or not np.isfinite(omega) or omega <= 0:
+            raise ValueError(
+                f"population[{name!r}] = {omega!r}: ω (the standard deviation of the "
+                "unit-to-unit variation on the log scale) must be a finite number > 0, "
+                "e.g. 0.3 for about 30 % variation"
+            )
+        if not problem.p0[m.params.index(name)] > 0:
+            raise ValueError(
+                f"population[{name!r}]: its start value p0 = "
+                f"{problem.p0[m.params.index(name)]!r} must be > 0 (the unit's value is "
+                "the typical value times exp(η))"
+            )
+        out[str(name)] = float(omega)
+    if predictor != "simulation" or segments not in (None, 1) or loss != "squared":
+        raise ValueError(
+            "a population fit is of output error with additive Gaussian noise: leave "
+            "predictor, segments and loss at their defaults"
+        )
+    if problem.priors:
+        raise ValueError("a population fit takes no priors: its Ω is the units' prior")
+    return out
+
+
+def fixed_x0_parameters(problem) -> None:
+    """An initial-state expression may name parameters only where they stay fixed."""
+    moving = sorted(getattr(problem, "x0_uses", set()) & set(problem.free_params))
+    if moving:
+        raise ValueError(
+            f"an x0 expression names {moving}, which are estimated: an initial state that "
+            "moves with an estimated parameter is not supported; add them to fixed, or "
+            "write the dependence into the model's equations"
+        )

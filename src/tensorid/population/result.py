@@ -1,0 +1,154 @@
+"""A population fit's outcome, in a population user's words (nlmixr2/NONMEM): typical
+values with standard errors, ω (the standard deviation of η) and the CV it means,
+η shrinkage, the residual SD per output, and each unit's empirical Bayes estimates
+with their own error bars."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..engine.status import Status
+
+
+def _inverse(H: np.ndarray) -> np.ndarray:
+    """H⁻¹ where H is positive definite; inf where it is not (no error bars)."""
+    try:
+        np.linalg.cholesky(H)
+        return np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        return np.full_like(H, np.inf)
+
+
+@dataclass(frozen=True)
+class PopulationResult:
+    """The outcome of :func:`tensorid.population.fit_population` (``tensorid.fit`` of a
+    Problem with ``population``).
+
+    ``objective`` is −2 log L (Laplace/FOCEI, constants included); nlmixr2 and NONMEM
+    print it less N log 2π (``objective_nlmixr``). ``population`` holds per random
+    effect ``typical``, ``typical_stderr`` (same units), ``omega`` (SD of η),
+    ``omega_stderr``, ``cv_percent`` (√(exp(ω²) − 1)) and ``shrinkage_percent``
+    (1 − SD(η̂)/ω); ``shared`` the fleet's other parameters; ``residual_sd`` each
+    output's σ; ``units`` per unit its ``id``, ``params`` and their ``stderr``."""
+
+    x: np.ndarray
+    names: list[str]
+    objective: float
+    jac: np.ndarray
+    hess: np.ndarray
+    cov: np.ndarray
+    etas: np.ndarray
+    population: dict
+    shared: dict
+    residual_sd: dict
+    units: list
+    nit: int
+    nfev: int
+    status: Status
+    method: str
+    seconds: float
+    observations: int
+    problem: object = field(repr=False, default=None)
+    history: list = field(repr=False, default_factory=list)
+
+    @property
+    def success(self) -> bool:
+        return self.status.success
+
+    @property
+    def message(self) -> str:
+        return self.status.describe()
+
+    @property
+    def cost(self) -> float:
+        return self.objective
+
+    @property
+    def objective_nlmixr(self) -> float:
+        return self.objective - self.observations * float(np.log(2 * np.pi))
+
+    @property
+    def params(self) -> dict[str, float]:
+        """Typical values of the random-effect parameters and the shared ones."""
+        out = {n: v["typical"] for n, v in self.population.items()}
+        out.update({n: v["value"] for n, v in self.shared.items()})
+        return out
+
+    @property
+    def stderr(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.cov))
+
+    @classmethod
+    def build(cls, obj, r, etas, status, seconds) -> PopulationResult:
+        q, ns, x = obj.q, obj.ns, np.asarray(r.x, dtype=float)
+        H = np.asarray(r.hess, dtype=float)
+        cov = 2.0 * _inverse(H)  # O = −2 log L: the information is H / 2
+        se = np.sqrt(np.where(np.diag(cov) >= 0, np.diag(cov), np.inf))
+        population = {}
+        for k, n in enumerate(obj.pop):
+            typ, om = float(np.exp(x[k])), float(np.exp(x[q + k]))
+            sd = float(np.std(etas[:, k], ddof=1)) if len(etas) > 1 else float("nan")
+            population[n] = {
+                "typical": typ,
+                "typical_stderr": typ * float(se[k]),
+                "omega": om,
+                "omega_stderr": om * float(se[q + k]),
+                "cv_percent": 100.0 * float(np.sqrt(np.expm1(om**2))),
+                "shrinkage_percent": 100.0 * (1.0 - sd / om),
+            }
+        shared = {
+            n: {"value": float(x[2 * q + j]), "stderr": float(se[2 * q + j])}
+            for j, n in enumerate(obj.shared)
+        }
+        sig = x[2 * q + ns :]
+        residual_sd = {
+            o: {
+                "value": float(np.exp(sig[g])),
+                "stderr": float(np.exp(sig[g]) * se[2 * q + ns + g]),
+            }
+            for g, o in enumerate(obj.problem.model.outputs)
+        }
+        inner = obj.inner_hessians(x, etas)
+        units = []
+        for i, uid in enumerate(obj.units.names):
+            ci = _inverse(inner[i])
+            vals = {n: float(np.exp(x[k] + etas[i, k])) for k, n in enumerate(obj.pop)}
+            errs = {n: vals[n] * float(np.sqrt(ci[k, k])) for k, n in enumerate(obj.pop)}
+            vals.update({n: v["value"] for n, v in shared.items()})
+            errs.update({n: v["stderr"] for n, v in shared.items()})
+            eta = {n: float(etas[i, k]) for k, n in enumerate(obj.pop)}
+            units.append({"id": uid, "params": vals, "stderr": errs, "eta": eta})
+        return cls(
+            x=x, names=list(obj.names), objective=float(r.fun), jac=np.asarray(r.jac),
+            hess=H, cov=cov, etas=np.asarray(etas), population=population, shared=shared,
+            residual_sd={o: v["value"] for o, v in residual_sd.items()},
+            units=units, nit=r.nit, nfev=r.nfev, status=status, method=obj.method,
+            seconds=seconds, observations=int(obj.units.mask.sum()), problem=obj.problem,
+            history=list(getattr(r, "history", [])),
+        )  # fmt: skip
+
+    def summary(self) -> str:
+        """The population table, the shared parameters and the residual SD."""
+        lines = [
+            f"Population fit ({self.method.upper()}), {len(self.units)} units, "
+            f"{self.observations} observations: {self.message}",
+            f"  -2 log L = {self.objective:.4f} (nlmixr2's OBJF convention, less N log 2π: "
+            f"{self.objective_nlmixr:.4f}); {self.nit} iterations, {self.seconds:.1f} s",
+            f"  {'parameter':<12}{'typical':>12}{'SE':>11}{'omega':>9}{'SE':>9}"
+            f"{'CV %':>8}{'shrink %':>10}",
+        ]
+        for n, v in self.population.items():
+            lines.append(
+                f"  {n:<12}{v['typical']:>12.5g}{v['typical_stderr']:>11.3g}{v['omega']:>9.4f}"
+                f"{v['omega_stderr']:>9.3g}{v['cv_percent']:>8.1f}{v['shrinkage_percent']:>10.1f}"
+            )
+        for n, v in self.shared.items():
+            lines.append(f"  {n:<12}{v['value']:>12.5g}{v['stderr']:>11.3g}   (shared)")
+        for o, s in self.residual_sd.items():
+            lines.append(f"  residual SD of {o}: {s:.5g}")
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        return self.summary()

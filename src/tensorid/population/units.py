@@ -1,0 +1,83 @@
+"""A fleet's units as arrays of one shape, and each unit's outputs as a function of its
+parameters whose derivatives, of any order JAX asks, come from the engine's sweeps.
+
+Units have their own time stamps and numbers of samples; they are padded to the
+longest (the last sample repeated: a zero-length interval changes nothing; its mask
+is 0) so that one compiled program, vmapped over units, serves them all.
+
+``outputs(sweeps)`` is ŷ(θ) (P, S) with a custom derivative tower: its first
+derivative is the first-order sensitivity sweep's ∂ŷ/∂θ (the transition matrices),
+whose own derivative is the second-order sweep's ∂²ŷ/∂θ² (the transition tensors),
+differentiated further by JAX's forward mode through that sweep where a third order is
+asked for (the outer Hessian). No finite differences anywhere.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..engine.second_order import output_tensors
+
+
+@dataclass(frozen=True)
+class Units:
+    """The fleet's records padded to P samples: t (E, P), u (E, P, U), y (E, P, S),
+    mask (E, P, S) 1 where a sample is observed, x0 (E, N); ``names`` the units' ids."""
+
+    t: np.ndarray
+    u: np.ndarray
+    y: np.ndarray
+    mask: np.ndarray
+    x0: np.ndarray
+    names: list[str]
+    samples: np.ndarray  # (E,) each unit's own number of samples
+
+    @classmethod
+    def of(cls, problem) -> Units:
+        exps = problem.experiments
+        P = max(e.P for e in exps)
+        S, U = problem.model.S, len(problem.model.inputs)
+        t, u = np.zeros((len(exps), P)), np.zeros((len(exps), P, U))
+        y, mask = np.zeros((len(exps), P, S)), np.zeros((len(exps), P, S))
+        for i, e in enumerate(exps):
+            n, ue = e.P, problem.inputs(e)
+            t[i, :n], t[i, n:] = e.t, e.t[-1]
+            u[i, :n], u[i, n:] = ue, ue[-1]
+            y[i, :n], mask[i, :n] = e.y, 1.0
+        names = [e.name or str(i) for i, e in enumerate(exps)]
+        samples = np.array([e.P for e in exps])
+        return cls(t, u, y, mask, np.asarray(problem.x0, float), names, samples)
+
+    def arrays(self):
+        return tuple(jnp.asarray(a) for a in (self.t, self.u, self.y, self.mask, self.x0))
+
+
+def outputs(sw):
+    """ŷ(θ, x0, p, t, u) (P, S) for the Sweeps ``sw`` (θ its free parameters), with
+    the derivative tower described in the module docstring."""
+
+    def second(theta, x0, p, t, u):
+        return output_tensors(sw, theta, x0, p, t, u)[2]  # (P, S, K, K)
+
+    @jax.custom_jvp
+    def first(theta, x0, p, t, u):
+        return sw._output_jacobian(theta, x0, p, t, u)  # (P, S, K)
+
+    @first.defjvp
+    def _first_jvp(primals, tangents):
+        return first(*primals), jnp.einsum("psjk,k->psj", second(*primals), tangents[0])
+
+    @jax.custom_jvp
+    def value(theta, x0, p, t, u):
+        x0_, p_ = sw.expand(theta, x0, p)
+        return sw._simulate(x0_, p_, t, u)[1]
+
+    @value.defjvp
+    def _value_jvp(primals, tangents):
+        return value(*primals), first(*primals) @ tangents[0]
+
+    return value
