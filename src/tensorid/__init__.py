@@ -44,6 +44,7 @@ from .functions import (
     smooth_sign,
     stribeck_friction,
 )
+from .population import PopulationResult, fit_population
 
 __all__ = [
     "METHODS",
@@ -71,6 +72,8 @@ __all__ = [
     "design_input",
     "fit",
     "fit_batch",
+    "fit_population",
+    "PopulationResult",
     "profile",
     "gof",
     "load_data",

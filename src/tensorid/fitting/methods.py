@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import time
 from dataclasses import replace
+from typing import cast
 
 import numpy as np
 
@@ -19,6 +20,7 @@ from ..engine.checks import did_you_mean
 from ..engine.compilation import compile_clock
 from ..engine.problem import Problem
 from ..engine.status import Status
+from ..population import fit_population
 from .multistart import SAMPLINGS, draw_starts
 from .options import FitOptions
 from .priors import weighed
@@ -88,8 +90,17 @@ def fit(
         from its solution (default); ``result.shooting`` reports the stage.
     Ctrl-C stops the fit at once, workers included, raising :class:`FitInterrupted`
     (a KeyboardInterrupt) whose ``result`` is the best point so far.
+
+    A Problem with ``population`` (a fleet's random effects) is fitted by its marginal
+    likelihood instead: method "auto"/"focei" or "laplace", ``maxiter`` and
+    ``callback`` apply, and the result is a
+    :class:`tensorid.population.PopulationResult` (see docs: Fleets and populations).
     """
     started = time.perf_counter()
+    if getattr(problem, "population", None):  # a fleet's random effects
+        kind = "focei" if method == "auto" else str(method)
+        # typed as FitResult for the many callers of ordinary problems; documented above
+        return cast(FitResult, fit_population(problem, kind, maxiter=maxiter, callback=callback))
     solver = check_method(problem, method)
     options = _options(options, x_scale, maxiter, gtol, ftol, xtol, callback, polish)
     theta0 = _check_start(problem, problem.theta0 if theta0 is None else theta0, "theta0")

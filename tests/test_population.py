@@ -1,0 +1,219 @@
+"""Population fits of a fleet: exact derivatives against plain JAX, the bundled
+theophylline study against nlmixr2's published fit, and the checks of the input."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import tensorid as ti
+from tensorid.population.objective import Objective
+
+THEOPH = Path(__file__).resolve().parents[2] / "shared" / "data" / "theophylline" / "Theoph.csv"
+
+
+def one_compartment() -> ti.Model:
+    def rhs(x, p, u):
+        ka, cl, v = p
+        return jnp.stack([-ka * x[0], ka * x[0] - cl / v * x[1]])
+
+    return ti.Model(
+        rhs=rhs,
+        output=lambda x, p: x[1:] / p[2],
+        states=["depot", "center"],
+        params=["ka", "cl", "v"],
+        inputs=["Dose"],
+        outputs=["cp"],
+    )
+
+
+def simulated_fleet(n_units=4, seed=0, times=(0.5, 1, 2, 4, 8, 12, 24)):
+    """Units of the one-compartment model with log-normal ka and cl, shared v."""
+    rng = np.random.default_rng(seed)
+    m, units = one_compartment(), []
+    for i in range(n_units):
+        t = np.array([0.0, *times]) + np.r_[0, rng.uniform(-0.1, 0.1, len(times))]
+        p = {"ka": 1.5 * np.exp(0.5 * rng.standard_normal()), "v": 30.0}
+        p["cl"] = 2.5 * np.exp(0.3 * rng.standard_normal())
+        u = np.full((t.size, 1), 300.0 + 20 * i)
+        sim = ti.simulate(m, p, [u[0, 0], 0.0], ti.Experiment(t, u), substeps=20)
+        y = sim.y + 0.3 * rng.standard_normal(sim.y.shape)
+        units.append(ti.Experiment(t, u, y, name=f"u{i}"))
+    return m, units
+
+
+def fleet_problem(n_units=4, **kw):
+    m, units = simulated_fleet(n_units)
+    return ti.Problem(
+        m, units, p0={"ka": 1.2, "cl": 2.0, "v": 25.0}, x0={"depot": "Dose", "center": 0.0},
+        substeps=20, population={"ka": 0.4, "cl": 0.4}, **kw,
+    )  # fmt: skip
+
+
+def _plain_objective(obj: Objective, newton_steps: int = 25):
+    """O(ψ) written plainly: ŷ by the engine's simulation differentiated by JAX itself
+    (no sensitivity sweeps), each η̂ by Newton steps from 0 inside the function, and
+    the FOCEI determinant from jax.jacfwd; jax.grad / jax.hessian of it are the
+    reference."""
+    sw = obj.sweeps
+
+    def yhat(psi, eta, unit):
+        t, u, _, _, x0 = unit
+        x0_, p_ = sw.expand(obj.theta(psi, eta), x0, obj.p)
+        return sw._simulate(x0_, p_, t, u)[1]
+
+    def ell(eta, psi, unit):
+        _, logw, _, logsig = obj.split(psi)
+        r = (unit[2] - yhat(psi, eta, unit)) * unit[3]
+        return 0.5 * (jnp.sum(r**2 * jnp.exp(-2 * logsig)) + jnp.sum((eta * jnp.exp(-logw)) ** 2))
+
+    def unit_O(psi, unit):
+        eta = jnp.zeros(obj.q)
+        for _ in range(newton_steps):
+            eta = eta - jnp.linalg.solve(
+                jax.hessian(ell)(eta, psi, unit), jax.grad(ell)(eta, psi, unit)
+            )
+        _, logw, _, logsig = obj.split(psi)
+        A = jax.jacfwd(lambda e: yhat(psi, e, unit))(eta)
+        Aw = A * (jnp.sqrt(unit[3]) * jnp.exp(-logsig))[..., None]
+        M = jnp.einsum("psj,psk->jk", Aw, Aw) + jnp.diag(jnp.exp(-2 * logw))
+        n = jnp.sum(unit[3], axis=0)
+        return (
+            2 * ell(eta, psi, unit) + jnp.sum(n * (jnp.log(2 * jnp.pi) + 2 * logsig))
+            + 2 * jnp.sum(logw) + jnp.linalg.slogdet(M)[1]
+        )  # fmt: skip
+
+    def total(psi):
+        return sum(unit_O(psi, tuple(a[i] for a in obj.data)) for i in range(len(obj.units.names)))
+
+    return total
+
+
+def test_the_outer_gradient_and_hessian_are_those_of_the_plain_objective():
+    pr = fleet_problem(3)
+    obj = Objective(pr)
+    psi = np.array([np.log(1.3), np.log(2.2), np.log(0.5), np.log(0.35), 26.0, np.log(0.4)])
+    etas, ok = obj.solve_inner(psi, np.zeros((3, 2)))
+    assert ok
+    O, g = obj.value_grad(psi, etas)
+    H = obj.hessian(psi, etas)
+    plain = _plain_objective(obj)
+    Jp = float(plain(jnp.asarray(psi)))
+    gp = np.asarray(jax.grad(plain)(jnp.asarray(psi)))
+    Hp = np.asarray(jax.hessian(plain)(jnp.asarray(psi)))
+    assert O.sum() == pytest.approx(Jp, rel=1e-12)
+    np.testing.assert_allclose(g.sum(0), gp, rtol=1e-8, atol=1e-8 * np.abs(gp).max())
+    np.testing.assert_allclose(H, Hp, rtol=1e-7, atol=1e-7 * np.abs(Hp).max())
+
+
+def test_the_inner_hessian_is_the_exact_one():
+    """The unit's ∇²ℓ from the tensors (the tower in units.py) equals jax.hessian of ℓ
+    with ŷ differentiated by JAX through the simulation."""
+    pr = fleet_problem(2)
+    obj = Objective(pr, "laplace")
+    psi = jnp.array([np.log(1.3), np.log(2.2), np.log(0.5), np.log(0.35), 26.0, np.log(0.4)])
+    unit = tuple(a[1] for a in obj.data)
+    eta = jnp.array([0.2, -0.1])
+    sw = obj.sweeps
+
+    def ell_plain(e):
+        t, u, y, mask, x0 = unit
+        x0_, p_ = sw.expand(obj.theta(psi, e), x0, obj.p)
+        r = (y - sw._simulate(x0_, p_, t, u)[1]) * mask
+        return 0.5 * (jnp.sum(r**2 / 0.4**2) + jnp.sum((e / jnp.exp(psi[2:4])) ** 2))
+
+    np.testing.assert_allclose(
+        jax.hessian(obj.ell)(eta, psi, unit), jax.hessian(ell_plain)(eta), rtol=1e-10
+    )
+
+
+def test_a_simulated_fleet_is_fitted_and_reported():
+    pr = fleet_problem(8)
+    res = ti.fit(pr)
+    assert isinstance(res, ti.PopulationResult) and res.success
+    assert np.isfinite(res.objective) and np.linalg.norm(res.jac) < 1e-5
+    assert set(res.population) == {"ka", "cl"} and set(res.shared) == {"v"}
+    for v in res.population.values():
+        assert v["typical_stderr"] > 0 and v["omega"] > 0 and np.isfinite(v["cv_percent"])
+    assert len(res.units) == 8 and res.units[0]["id"] == "u0"
+    assert set(res.units[0]["params"]) == {"ka", "cl", "v"}
+    text = str(res)
+    assert "typical" in text and "residual SD of cp" in text
+
+
+def theophylline_problem(**kw):
+    rows = list(csv.DictReader(THEOPH.open()))
+    ids = list(dict.fromkeys(r["ID"] for r in rows))
+    exps = []
+    for i in ids:
+        rr = [r for r in rows if r["ID"] == i]
+        t = np.array([float(r["Time"]) for r in rr])
+        u = np.array([[float(r["Dose"]) * float(r["Wt"])] for r in rr])
+        exps.append(ti.Experiment(t, u, [float(r["conc"]) for r in rr], name=i))
+    return ti.Problem(
+        one_compartment(), exps, p0={"ka": 1.57, "cl": 2.72, "v": 31.5},
+        x0={"depot": "Dose", "center": 0.0}, substeps=40,
+        population={"ka": 0.6**0.5, "cl": 0.3**0.5, "v": 0.1**0.5}, **kw,
+    )  # fmt: skip
+
+
+@pytest.mark.slow
+def test_theophylline_matches_nlmixr2s_published_fit():
+    """nlmixr2's FOCEi fit of the same model and data (its model-piping vignette):
+    OBJF 116.804; tka 0.4663 (SE 0.1911), tcl 1.012 (0.08366), tv 3.460 (0.04654);
+    BSV 70.00/26.80/13.88 %; shrinkage 1.421/3.968/10.28 %; add.sd 0.6947."""
+    res = ti.fit(theophylline_problem())
+    assert res.success
+    assert res.objective_nlmixr == pytest.approx(116.804, abs=0.01)
+    pop = res.population
+    for n, (typ, se) in {"ka": (0.4663, 0.1911), "cl": (1.012, 0.08366), "v": (3.460, 0.04654)}.items():
+        assert np.log(pop[n]["typical"]) == pytest.approx(typ, abs=0.01)
+        assert pop[n]["typical_stderr"] / pop[n]["typical"] == pytest.approx(se, rel=0.03)
+    for n, cv in {"ka": 70.00, "cl": 26.80, "v": 13.88}.items():
+        assert pop[n]["cv_percent"] == pytest.approx(cv, abs=0.6)
+    for n, sh in {"ka": 1.421, "cl": 3.968, "v": 10.28}.items():
+        assert pop[n]["shrinkage_percent"] == pytest.approx(sh, abs=0.5)
+    assert res.residual_sd["cp"] == pytest.approx(0.6947, abs=0.002)
+
+
+@pytest.mark.parametrize(
+    "population, words",
+    [
+        ({"kk": 0.3}, "not a parameter of the model"),
+        ({"ka": 0.0}, "must be a finite number > 0"),
+        ({"ka": float("nan")}, "must be a finite number > 0"),
+        ({"ka": True}, "must be a finite number > 0"),
+        ([("ka", 0.3)], "must be a dict"),
+    ],
+)
+def test_bad_population_is_one_clear_line(population, words):
+    m, units = simulated_fleet(2)
+    with pytest.raises((ValueError, TypeError), match=words):
+        ti.Problem(m, units, p0={"ka": 1, "cl": 2, "v": 30}, population=population)
+
+
+def test_population_with_a_fixed_parameter_or_a_filter_is_refused():
+    m, units = simulated_fleet(2)
+    p0 = {"ka": 1, "cl": 2, "v": 30}
+    with pytest.raises(ValueError, match="both fixed and in population"):
+        ti.Problem(m, units, p0=p0, fixed=["ka"], population={"ka": 0.3})
+    with pytest.raises(ValueError, match="leave predictor, segments and loss"):
+        ti.Problem(m, units, p0=p0, loss="huber", population={"ka": 0.3})
+
+
+def test_x0_expressions_are_evaluated_per_record():
+    m, units = simulated_fleet(3)
+    pr = ti.Problem(m, units, p0={"ka": 1, "cl": 2, "v": 30}, x0={"depot": "2 * Dose", "center": 1.5})
+    np.testing.assert_allclose(pr.x0[:, 0], [2 * e.u[0, 0] for e in units])
+    np.testing.assert_allclose(pr.x0[:, 1], 1.5)
+    with pytest.raises(ValueError, match="names \\['Wt'\\], which are neither inputs"):
+        ti.Problem(m, units, p0={"ka": 1, "cl": 2, "v": 30}, x0={"depot": "Dose * Wt"})
+    with pytest.raises(ValueError, match="an x0 expression names \\['v'\\], which are estimated"):
+        ti.Problem(m, units, p0={"ka": 1, "cl": 2, "v": 30}, x0={"depot": "Dose / v"})
+    fixed = ti.Problem(m, units, p0={"ka": 1, "cl": 2, "v": 30}, x0={"depot": "Dose / v"}, fixed=["v"])
+    np.testing.assert_allclose(fixed.x0[:, 0], [e.u[0, 0] / 30 for e in units])
