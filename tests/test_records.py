@@ -5,6 +5,7 @@ inputs, each one line before any work."""
 from __future__ import annotations
 
 import hashlib
+import inspect
 import json
 import warnings
 from pathlib import Path
@@ -239,3 +240,52 @@ def test_parameters_per_unit_with_a_single_record_ask_for_records(tmp_path, caps
                "--out", tmp_path / "o"])  # fmt: skip
     err = capsys.readouterr().err.strip()
     assert rc == 2 and "give --records ID_COLUMN" in err and len(err.splitlines()) == 1, err
+
+
+FLEET = "individual" in inspect.signature(ti.Problem).parameters
+
+
+def test_individual_and_population_reach_the_problem_only_when_given(tmp_path, monkeypatch):
+    """The plumbing, whatever the Problem: a stand-in that takes the two keywords
+    records what the command line passes."""
+    import tensorid.app.fit_setup as setup
+
+    seen: list[dict] = []
+
+    class Stand(setup.Problem):  # type: ignore[misc, valid-type]
+        def __init__(self, *a, individual="absent", population="absent", **kw):
+            seen.append({"individual": individual, "population": population, "x0": kw["x0"]})
+            raise ValueError("stop here")
+
+    monkeypatch.setattr(setup, "Problem", Stand)
+    model = tmp_path / "m.py"
+    model.write_text(POOLED)
+    base = [model, theophylline_csv(), "--records", "ID", "--columns", "t=Time,cp=conc"]
+    assert _fit([*base, "--out", tmp_path / "a"]) == 2
+    assert _fit([*base, "--individual", "ka", "--population", "cl=0.3", "v=0.1",
+                 "--out", tmp_path / "b"]) == 2  # fmt: skip
+    assert _fit([EXAMPLE, *base[1:], "--out", tmp_path / "c"]) == 2
+    assert seen[0]["individual"] == "absent" and seen[0]["population"] == "absent"
+    assert seen[1]["individual"] == ["ka"] and seen[1]["population"] == {"cl": 0.3, "v": 0.1}
+    assert seen[2]["population"] == {"ka": 0.6, "cl": 0.3, "v": 0.1}
+    assert seen[2]["x0"] == {"depot": "Dose * Wt", "center": 0.0}
+
+
+@pytest.mark.skipif(FLEET, reason="ti.Problem takes individual= and population= here")
+def test_without_the_fleet_estimator_population_is_refused_in_one_line(tmp_path, capsys):
+    rc = _fit([EXAMPLE, theophylline_csv(), "--records", "ID", "--columns", "t=Time,cp=conc",
+               "--out", tmp_path / "o"])  # fmt: skip
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "lacks" in err and len(err.splitlines()) == 1, err
+
+
+@pytest.mark.skipif(not FLEET, reason="the fleet estimator (issue 42) is not in this tree")
+def test_theophylline_example_fits_from_the_command_line(tmp_path, capsys):
+    out = tmp_path / "out"
+    rc = _fit([EXAMPLE, theophylline_csv(), "--records", "ID", "--columns", "t=Time,cp=conc",
+               "--out", out])  # fmt: skip
+    assert rc in (0, 1), capsys.readouterr().err
+    data = json.loads((out / "fit.json").read_text())
+    assert set(data["population"]) == {"ka", "cl", "v"}
+    assert [u["id"] for u in data["units"]] == [str(i) for i in range(1, 13)]
+    assert "cp" in data["residual_sd"]

@@ -73,7 +73,7 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
             hessian=hessian,
             **_loss(spec, args),
             **_predictor(spec, args),
-            **fleets.problem_keywords(spec),  # individual=, population= where given
+            **fleets.problem_keywords(spec, Problem),  # individual=, population= where given
         )
     except (ValueError, TypeError) as e:  # the model file's settings, or the flags'
         raise type(e)(f"{spec.path}{_flags_given(args)}: {_as_flags(str(e), args)}") from None

@@ -161,19 +161,18 @@ def from_command_line(spec, args):
     return replace(spec, individual=list(ind), population=dict(pop))
 
 
-def problem_keywords(spec) -> dict:
-    """``individual=`` and ``population=`` for ti.Problem, only those given (a fit
-    without them passes neither, so that it runs where the Problem lacks them)."""
+def problem_keywords(spec, problem: type) -> dict:
+    """``individual=`` and ``population=`` for ``problem`` (ti.Problem), only those
+    given (a fit without them passes neither, so that it runs where the Problem lacks
+    them; one that has them and meets a Problem without is one line)."""
     import inspect
-
-    from ..engine.problem import Problem
 
     out: dict = {}
     if spec.individual:
         out["individual"] = list(spec.individual)
     if spec.population:
         out["population"] = dict(spec.population)
-    taken = inspect.signature(Problem).parameters
+    taken = inspect.signature(problem).parameters
     lacking = [k for k in out if k not in taken]
     if lacking:
         raise ValueError(
