@@ -26,6 +26,7 @@ from ..fitting.summary import (
     stderr_text,
 )
 from ..fitting.validation import Score, training_scores
+from .fleet_report import fleet_json, fleet_lines
 from .output import write_text
 from .provenance import markdown as provenance_lines
 
@@ -187,6 +188,7 @@ def fit_json(
     if u:
         d.update(_error_bars(res, u, names, residual))
     d.update(_profile_json(profiles))
+    d.update(fleet_json(res))  # population, residual_sd, units: a fleet's (issue 42)
     if missing:
         d["statistics_missing"] = missing
     elif np.isfinite(res.cost):
@@ -303,6 +305,7 @@ def fit_report(
         "",
         md_table(["unknown", "estimate", "std. error", "95 % interval", "note"], rows),
         "",
+        *fleet_lines(data),  # a fleet's population and units tables (issue 42)
     ]
     if data.get("noise_intensities"):
         lines += ["## Noise model", "", f"Predictor: {data['predictor']} (prediction error). "
