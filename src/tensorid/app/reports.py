@@ -187,8 +187,7 @@ def fit_json(
     d["gof_notes"] = [n[len("note: ") :] for n in metric_notes(train + list(validation))]
     if u:
         d.update(_error_bars(res, u, names, residual))
-    d.update(_profile_json(profiles))
-    d.update(fleet_json(res))  # population, residual_sd, units: a fleet's (issue 42)
+    d.update(_profile_json(profiles) | fleet_json(res))  # fleet_json: issue 42's keys
     if missing:
         d["statistics_missing"] = missing
     elif np.isfinite(res.cost):
