@@ -289,3 +289,16 @@ def test_theophylline_example_fits_from_the_command_line(tmp_path, capsys):
     assert set(data["population"]) == {"ka", "cl", "v"}
     assert [u["id"] for u in data["units"]] == [str(i) for i in range(1, 13)]
     assert "cp" in data["residual_sd"]
+
+
+def test_a_unit_with_fewer_observations_than_its_own_unknowns_is_refused(tmp_path, capsys):
+    model = tmp_path / "m.py"
+    model.write_text(POOLED + 'free_x0 = ["center"]\n')
+    rows = [(1, 0, 0.7, 70, 4), (1, 1, 6, 70, 4), (1, 2, 5, 70, 4), (2, 0, 0.1, 60, 4),
+            (2, 1, 5, 60, 4)]  # fmt: skip
+    data = _rows(tmp_path / "f.csv", "ID,Time,conc,Wt,Dose", rows)
+    base = [model, data, "--records", "ID", "--columns", "t=Time,cp=conc", "--out", tmp_path / "o"]
+    rc = _fit([*base, "--individual", "ka", "cl"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "unit '2' has 2 observation(s) for its 3 own unknowns" in err, err
+    assert len(err.splitlines()) == 1 and not (tmp_path / "o").exists()

@@ -16,6 +16,8 @@ from __future__ import annotations
 import ast
 import math
 
+import numpy as np
+
 from ..engine.equations import _FUNCTIONS
 from ..engine.model import Model
 
@@ -185,8 +187,24 @@ def problem_keywords(spec, problem: type) -> dict:
 
 def several_units(spec, train, args) -> None:
     """Parameters that vary over the units need more than one unit: one line naming
-    --records where the data were read as a single record."""
-    if not (spec.individual or spec.population) or len(train) > 1:
+    --records where the data were read as a single record. A unit with fewer
+    observations than its own unknowns (its individual parameters and free initial
+    states) cannot determine them: refused, naming it. (Population parameters are no
+    unit's own: a sparse unit's η is drawn towards 0, and it is kept.)"""
+    if not (spec.individual or spec.population):
+        return
+    own = [*spec.individual, *spec.free_x0]
+    for e in train if spec.individual else []:
+        seen = 0 if e.y is None else int(np.isfinite(e.y).sum())
+        if seen < len(own):
+            raise ValueError(
+                f"unit {e.name!r} has {seen} observation(s) for its {len(own)} own unknowns "
+                f"(individual {list(spec.individual)}"
+                + (f", free_x0 {list(spec.free_x0)}" if spec.free_x0 else "")
+                + "), too few to determine them: make some of them population parameters "
+                "(--population NAME=OMEGA), or leave the unit out"
+            )
+    if len(train) > 1:
         return
     kind = "population" if spec.population else "individual"
     hint = (
