@@ -207,6 +207,13 @@ def test_fit_reads_units_from_one_long_file_on_the_command_line(tmp_path, capsys
     data = json.loads((out / "fit.json").read_text())
     assert list(data["gof"]["train"]) == [str(i) for i in range(1, 13)]
     assert len(data["x0"]) == 12 and set(data["params"]) == {"ka", "cl", "v"}
+    # compare scores one unit of the long file with the fit's parameters
+    cmp = ["compare", str(model), str(theophylline_csv()), "--records", "ID", "--unit", "3",
+           "--columns", "t=Time,cp=conc", "--params", str(out / "fit.json")]  # fmt: skip
+    assert cli.main([*cmp, "--out", str(tmp_path / "cmp")]) == 0, capsys.readouterr().err
+    scored = json.loads((tmp_path / "cmp" / "compare.json").read_text())
+    assert scored["record"] == "3"
+    assert scored["outputs"]["cp"]["gof"] == pytest.approx(data["gof"]["train"]["3"]["cp"])
 
 
 @pytest.mark.parametrize(
@@ -302,3 +309,25 @@ def test_a_unit_with_fewer_observations_than_its_own_unknowns_is_refused(tmp_pat
     err = capsys.readouterr().err.strip()
     assert rc == 2 and "unit '2' has 2 observation(s) for its 3 own unknowns" in err, err
     assert len(err.splitlines()) == 1 and not (tmp_path / "o").exists()
+
+
+def test_simulate_reads_one_unit_of_a_long_file(tmp_path, capsys):
+    base = [EXAMPLE, theophylline_csv(), "--records", "ID", "--columns", "t=Time,cp=conc"]
+    sim = ["simulate", *map(str, base)]
+    out = tmp_path / "s.csv"
+    assert cli.main([*sim, "--unit", "3", "--x0", "depot=320", "--out", str(out)]) == 0
+    table = np.genfromtxt(out, delimiter=",", names=True)
+    raw = np.genfromtxt(theophylline_csv(), delimiter=",", names=True)
+    assert np.array_equal(table["t"], raw["Time"][raw["ID"] == 3])
+    capsys.readouterr()
+    for extra, expect in (
+        ([], "holds 12 units (--records ID): name the one to use with --unit ID"),
+        (["--unit", "31", "--x0", "depot=320"], "has no unit '31' in its column 'ID'"),
+        (["--unit", "3"], "x0['depot'] = 'Dose * Wt' is an expression"),
+    ):
+        assert cli.main([*sim, *extra, "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert expect in err and len(err.splitlines()) == 1, err
+    one = ["simulate", str(EXAMPLE), str(theophylline_csv()), "--unit", "3"]
+    assert cli.main([*one, "--out", str(out)]) == 2
+    assert "--unit 3 picks a unit of --records" in capsys.readouterr().err

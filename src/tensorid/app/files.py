@@ -73,8 +73,11 @@ class ModelSpec:
     individual: list = field(default_factory=list)
     population: dict = field(default_factory=dict)
 
-    def x0_array(self) -> np.ndarray:
-        """x0 of the model file as an array (N,), states it does not name at 0."""
+    def x0_array(self, given=()) -> np.ndarray:
+        """x0 of the model file as an array (N,), states it does not name at 0; a state
+        whose x0 is an expression is refused unless ``given`` (names, or --x0's
+        NAME=VALUE texts) names it, and is then NaN, for the caller to fill."""
+        given = [str(g).split("=")[0].strip() for g in given]
         x0 = dict.fromkeys(self.model.states, 0.0)
         for k, v in (self.x0 or {}).items():
             if k not in x0:
@@ -82,7 +85,9 @@ class ModelSpec:
                     f"{self.path}: x0 names unknown state {k!r}; states are "
                     f"{list(self.model.states)}"
                 )
-            if isinstance(v, str):
+            if isinstance(v, str) and k in given:
+                v = np.nan
+            elif isinstance(v, str):
                 raise ValueError(
                     f"{self.path}: x0[{k!r}] = {v!r} is an expression of the unit's data, "
                     "which this command does not evaluate; give --x0 "

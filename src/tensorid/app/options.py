@@ -34,6 +34,16 @@ def record_options(p: argparse.ArgumentParser) -> None:
         help="use samples START:STOP of DATA (as fit's --validate-samples: a record "
         "that holds training and test data in one file)",
     )
+    p.add_argument(  # fleets (issue 42)
+        "--records",
+        default=None,
+        metavar="ID_COLUMN",
+        help="DATA holds many units, one row per sample: the rows of each value of "
+        "ID_COLUMN are one unit's record (as fit's --records); --unit names the one to use",
+    )
+    p.add_argument(
+        "--unit", default=None, metavar="ID", help="with --records: the unit of DATA to use"
+    )
     p.add_argument(
         "--init-window",
         type=_count,

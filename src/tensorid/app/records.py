@@ -15,6 +15,7 @@ import warnings
 
 import numpy as np
 
+from ..engine.data import Experiment
 from ..engine.model import Model
 from .fleets import did_you_mean
 from .readers import _Columns
@@ -179,3 +180,28 @@ def check_covariates(p, name: str | None, cols: _Columns, covariates) -> None:
 def as_text(p, column: str | None) -> str:
     """ "FILE, unit 'ID'" for a unit's messages, or the file alone."""
     return str(p) if column is None else f"{p}, unit {column!r}"
+
+
+def one_unit(args, load) -> Experiment:
+    """simulate's and compare's one record, ``load(records=...)`` (load_data): with
+    ``--records``, the unit ``--unit`` names (the only one needs no name); one line for
+    a unit the file lacks, or --unit without --records (before the file is read)."""
+    unit, column = getattr(args, "unit", None), getattr(args, "records", None)
+    if unit is not None and column is None:
+        raise ValueError(f"--unit {unit} picks a unit of --records ID_COLUMN: give --records")
+    exps = load(records=column)
+    if column is None or (unit is None and len(exps) == 1):
+        return exps[0]
+    names = [e.name for e in exps]
+    shown = str(names[:10])[:-1] + (", ...]" if len(names) > 10 else "]")
+    if unit is None:
+        raise ValueError(
+            f"{args.data} holds {len(names)} units (--records {column}): name the one to "
+            f"use with --unit ID, one of {shown}"
+        )
+    if str(unit) not in names:
+        raise ValueError(
+            f"--unit {unit}: {args.data} has no unit {str(unit)!r} in its column {column!r}"
+            f"{did_you_mean(unit, names)}; its units are {shown}"
+        )
+    return exps[names.index(str(unit))]
