@@ -27,6 +27,7 @@ from .argtypes import (
 )
 from .options import (
     _TS_HELP,
+    fleet_options,
     integration_options,
     record_options,
     register_compare,
@@ -330,6 +331,7 @@ def register(sub) -> None:
         help="which samples drive each estimate: a figure of dθ/dy per noise level, and "
         "the samples that pulled each estimate most (influential_samples in fit.json)",
     )
+    fleet_options(f)  # fleets (issue 42): --records, --individual, --population
     integration_options(f)
     f.add_argument("--no-progress", action="store_true", help="no live progress display")
     f.set_defaults(func=_fit)

@@ -21,6 +21,7 @@ from ..fitting.methods import fit
 from ..fitting.results import FitInterrupted
 from ..fitting.summary import coloured_residuals_line, summary_table
 from ..fitting.validation import Score, training_scores
+from . import fleets
 from .after_fit import _after_fit, _gof_lines, _profile_figures
 from .cluster import _workers
 from .files import load_data, load_model
@@ -142,7 +143,15 @@ def _fit_command(args, renderer: Renderer) -> int:
     m = spec.model
     train_maps = _maps(args.columns, args.data, "--columns")
     no_repeats(args.data, train_maps)
-    train = load_data(args.data, m, ts=args.ts, samples=args.samples, columns=train_maps)
+    train = load_data(
+        args.data,
+        m,
+        ts=args.ts,
+        samples=args.samples,
+        columns=train_maps,
+        records=getattr(args, "records", None),  # fleets (issue 42)
+        covariates=spec.covariates,
+    )
     val_maps = _maps(
         args.validate_columns or _one(args.columns), args.validate, "--validate-columns"
     )
@@ -157,6 +166,7 @@ def _fit_command(args, renderer: Renderer) -> int:
     )
     fix, bounds = given_once("--fix", args.fix), given_once("--bounds", args.bounds)
     spec, args.overrides = overridden(spec, fix, args.free, bounds)
+    spec = fleets.from_command_line(spec, args)  # --individual, --population
     problem = _problem(spec, train, args)
     if problem.loss.likelihood and args.data_sensitivity:
         raise ValueError(

@@ -19,6 +19,14 @@ import numpy as np
 from ..engine.data import Experiment
 from ..engine.model import Model
 from .readers import _TS, _Columns, _read, _real, input_is_output
+from .records import (
+    as_text,
+    check_covariates,
+    has_id_column,
+    increasing,
+    no_samples,
+    split_units,
+)
 from .timebase import DataNote, _time  # noqa: F401  (DataNote: here for cli.py and users)
 
 # -- experiments -----------------------------------------------------------------------
@@ -118,7 +126,7 @@ def _mapped(p, cols: _Columns, columns: dict | None, model: Model, strict=True) 
             )
         values[name] = cols.values[source]
     input_is_output(p, columns, model, constants)
-    return _Columns(values, cols.what, cols.lines, cols.note, constants)
+    return _Columns(values, cols.what, cols.lines, cols.note, constants, cols.text)
 
 
 def _joined(paths: list[Path], parts: list[_Columns]) -> _Columns:
@@ -237,8 +245,11 @@ def _needed(cols: _Columns, model: Model, require_outputs: bool) -> list[str]:
     return [n for n in need if not cols.has(n)]
 
 
-def _one_or_joined(spec, columns, model, ts, samples, require_outputs) -> Experiment:
-    """An Experiment from one file, or from "a.mat+b.mat" joined side by side."""
+def _one_or_joined(
+    spec, columns, model, ts, samples, require_outputs, records=None, covariates=None
+) -> list[Experiment]:
+    """The Experiment of one file, or of "a.mat+b.mat" joined side by side; with
+    ``records`` (an id column), one per unit."""
     paths = [Path(q) for q in str(spec).split("+")] if not Path(spec).exists() else [Path(spec)]
     if any(not q for q in str(spec).split("+")) and len(paths) > 1:
         raise ValueError(
@@ -247,8 +258,21 @@ def _one_or_joined(spec, columns, model, ts, samples, require_outputs) -> Experi
     parts = [_read(q) for q in paths]
     cols = parts[0] if len(parts) == 1 else _joined(paths, parts)
     label = paths[0] if len(paths) == 1 else "+".join(str(q) for q in paths)
+    if records is not None:
+        has_id_column(label, cols, records)
     cols = _mapped(label, cols, columns, model)
-    return _experiment(label, cols, model, ts, samples, require_outputs)
+    if records is None:
+        check_covariates(label, None, cols, covariates)
+        return [_experiment(label, cols, model, ts, samples, require_outputs)]
+    units = no_samples(label, split_units(label, cols, records), model, require_outputs)
+    out = []
+    for name, part in units:  # every unit checked before any is made
+        increasing(label, name, part)
+        check_covariates(label, name, part, covariates)
+    for name, part in units:
+        e = _experiment(as_text(label, name), part, model, ts, None, require_outputs)
+        out.append(replace(e, name=name))
+    return out
 
 
 def load_data(
@@ -258,6 +282,8 @@ def load_data(
     samples: tuple[int, int] | None = None,
     require_outputs: bool = True,
     columns: dict | list[dict | None] | None = None,
+    records: str | None = None,
+    covariates: list[str] | None = None,
 ) -> list[Experiment]:
     """One Experiment per file, with the model's input and output columns; time from
     a column ``t`` (time stamps within 0.1 % of a sample time of a uniform grid are
@@ -273,21 +299,37 @@ def load_data(
     ``paths``; so one file holding several records (u1/y1, u2/y2) is read once per
     record, each named ``file:map``. Inputs and outputs in separate files are joined
     side by side: give ``"u.mat+y.mat"``, or (with one map for all) a list of files
-    that each lack what the others hold."""
+    that each lack what the others hold.
+
+    ``records`` names an id column: each file holds many units (a fleet, a cohort),
+    and each unit's rows (in the file's order, their times increasing) are one
+    Experiment named by its id as text ("1"), in the order the ids first appear;
+    with several files, named ``file:id``. A unit with no observation is left out
+    with a :class:`DataNote`; one of a single sample is refused. ``covariates`` names
+    inputs that must be constant within each unit (each file, without ``records``)."""
     if isinstance(paths, str | Path):
         paths = [paths]
     if ts is not None and not 0 < ts < np.inf:
         raise ValueError(f"the sampling time ts must be positive and finite, got {ts}")
+    if records is not None and samples is not None:
+        raise ValueError(
+            "samples (--samples) cut one record, and records (--records) reads many units "
+            "of differing lengths: drop samples"
+        )
     paths = list(paths)
     maps = _maps(columns, len(paths))
     if len(paths) > 1 and not isinstance(columns, list):
         if _complementary(paths, columns, model, require_outputs):
             paths, maps = ["+".join(str(p) for p in paths)], [columns]
-    exps = [
-        _one_or_joined(p, c, model, ts, samples, require_outputs)
-        for p, c in zip(paths, maps, strict=True)
-    ]
-    return _told_apart(exps, maps, paths)
+    exps, each_map, each_path = [], [], []
+    for p, c in zip(paths, maps, strict=True):
+        some = _one_or_joined(p, c, model, ts, samples, require_outputs, records, covariates)
+        if records is not None and len(paths) > 1:  # units of several files: file:id
+            some = [replace(e, name=f"{_stem(p)}:{e.name}") for e in some]
+        exps += some
+        each_map += [c] * len(some)
+        each_path += [p] * len(some)
+    return _told_apart(exps, each_map, each_path)
 
 
 def _maps(columns, n: int) -> list:

@@ -9,7 +9,11 @@ and it may define ``p0`` (dict), ``x0``
 (mean, sd)) and ``noise`` (the noise standard deviation that weighs the priors; without
 it, it is estimated and checked by the fit), ``loss``/``loss_scale`` and, for a
 stochastic model, ``predictor = "ekf"`` with ``process_noise`` (dict state -> σ_w)
-and ``measurement_noise`` (dict output -> σ_e). A file that has not finished running
+and ``measurement_noise`` (dict output -> σ_e). For many units (``--records``):
+``covariates`` (inputs constant per unit), ``individual`` (parameters each unit has
+its own value of), ``population`` (dict parameter -> start of ω, log-normal over the
+units) and x0 values that are expressions of the inputs and parameters ("Dose * Wt",
+at each unit's first sample). A file that has not finished running
 after TENSORID_MODEL_TIMEOUT seconds (default 60) is stopped with a clear message.
 
 Data files are CSV (a time column ``t``, or a sampling time given as ``ts``, plus
@@ -39,6 +43,7 @@ from ..engine.equations import model_from_equations
 from ..engine.losses import LOSSES
 from ..engine.model import Model
 from ..engine.predictors import PREDICTORS
+from . import fleets
 from .datafiles import load_data
 
 __all__ = ["ModelSpec", "load_data", "load_model"]
@@ -63,9 +68,16 @@ class ModelSpec:
     predictor: str | None = None
     process_noise: dict | None = None
     measurement_noise: dict | None = None
+    # fleets (issue 42): inputs constant per unit, parameters per unit (app/fleets.py)
+    covariates: list = field(default_factory=list)
+    individual: list = field(default_factory=list)
+    population: dict = field(default_factory=dict)
 
-    def x0_array(self) -> np.ndarray:
-        """x0 of the model file as an array (N,), states it does not name at 0."""
+    def x0_array(self, given=()) -> np.ndarray:
+        """x0 of the model file as an array (N,), states it does not name at 0; a state
+        whose x0 is an expression is refused unless ``given`` (names, or --x0's
+        NAME=VALUE texts) names it, and is then NaN, for the caller to fill."""
+        given = [str(g).split("=")[0].strip() for g in given]
         x0 = dict.fromkeys(self.model.states, 0.0)
         for k, v in (self.x0 or {}).items():
             if k not in x0:
@@ -73,8 +85,30 @@ class ModelSpec:
                     f"{self.path}: x0 names unknown state {k!r}; states are "
                     f"{list(self.model.states)}"
                 )
+            if isinstance(v, str) and k in given:
+                v = np.nan
+            elif isinstance(v, str):
+                raise ValueError(
+                    f"{self.path}: x0[{k!r}] = {v!r} is an expression of the unit's data, "
+                    "which this command does not evaluate; give --x0 "
+                    f"{k}=VALUE, or a number in the model file"
+                )
             x0[k] = float(v)
         return np.array([x0[s] for s in self.model.states])
+
+    def x0_given(self):
+        """x0 for ti.Problem: the array, or (where a state's start is an expression of
+        the unit's inputs and parameters) the dict, every state named, for the Problem
+        to evaluate per unit."""
+        if not fleets.has_expressions(self.x0):
+            return self.x0_array()
+        unknown = [k for k in self.x0 or {} if k not in self.model.states]
+        if unknown:
+            raise ValueError(
+                f"{self.path}: x0 names unknown state {unknown[0]!r}; states are "
+                f"{list(self.model.states)}"
+            )
+        return {s: (self.x0 or {}).get(s, 0.0) for s in self.model.states}
 
 
 class _TooSlow(BaseException):
@@ -242,8 +276,23 @@ def _spec(ns: dict, path: Path) -> ModelSpec:
         if value is not None and not isinstance(value, dict):
             raise TypeError(f"{key} must be a dict {{name: standard deviation}}, got {value!r}")
         setattr(out, key, value)
+    _fleet_settings(ns, out)
     _stray_settings(ns, path)
     return out
+
+
+def _fleet_settings(ns: dict, out: ModelSpec) -> None:
+    """covariates, individual, population; x0's expressions (app/fleets.py)."""
+    m = out.model
+    if ns.get("covariates") is not None:
+        out.covariates = fleets.covariates(ns["covariates"], m)
+    if ns.get("individual") is not None:
+        out.individual = fleets.individual(ns["individual"], m)
+    if ns.get("population") is not None:
+        out.population = fleets.population(ns["population"], m)
+    fleets.x0_expressions(out.x0, m)
+    where = {"individual": "individual", "population": "population", "fixed": "fixed"}
+    fleets.kinds(out.individual, out.population, out.fixed, where)
 
 
 # settings a model file does not take (the command line's and the Problem's), and
@@ -253,7 +302,8 @@ _ELSEWHERE = {"interpolation": "--interpolation", "scheme": "--scheme",
               "substeps": "--substeps", "rtol": "--rtol", "atol": "--atol"}  # fmt: skip
 _SETTINGS = ("model", "rhs", "output", "inputs", "params", "input_delays", "discrete", "p0",
              "x0", "free_x0", "fixed", "bounds", "weights", "priors", "noise", "loss",
-             "loss_scale", "predictor", "process_noise", "measurement_noise")  # fmt: skip
+             "loss_scale", "predictor", "process_noise", "measurement_noise",
+             "covariates", "individual", "population")  # fmt: skip
 # read only beside text equations: beside a tensorid.Model, ``outputs = [...]`` or
 # ``param = ...`` are the file's own variables (passed to the Model), not misspellings
 _TEXT_ONLY = ("rhs", "output", "inputs", "params", "input_delays", "discrete")

@@ -18,6 +18,7 @@ from ..fitting.methods import check_method
 from ..fitting.registry import exact_derivatives
 from ..fitting.residuals import lag_limit
 from ..fitting.validation import check_init_window
+from . import fleets
 from .argtypes import tolerances_as_flags
 from .files import ModelSpec, load_data
 from .provenance import data_entries
@@ -49,6 +50,7 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
             f"discrete-time model, not --scheme {disc.scheme.name}: drop --hessian or "
             "give --hessian tensors"
         )
+    fleets.several_units(spec, train, args)
     try:  # the segments are the command line's, not the model file's
         resolve_segments(train, args.segments, args.segment_length)
     except ValueError as e:
@@ -58,7 +60,7 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
             spec.model,
             train,
             p0=spec.p0,
-            x0=spec.x0_array(),
+            x0=spec.x0_given(),
             free_x0=spec.free_x0,
             fixed=spec.fixed,
             bounds=spec.bounds,
@@ -71,6 +73,7 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
             hessian=hessian,
             **_loss(spec, args),
             **_predictor(spec, args),
+            **fleets.problem_keywords(spec, Problem),  # individual=, population= where given
         )
     except (ValueError, TypeError) as e:  # the model file's settings, or the flags'
         raise type(e)(f"{spec.path}{_flags_given(args)}: {_as_flags(str(e), args)}") from None
@@ -214,7 +217,12 @@ def _validation_data(args, model, columns) -> list:
         return []
     try:
         return load_data(
-            args.validate, model, ts=args.ts, samples=args.validate_samples, columns=columns
+            args.validate,
+            model,
+            ts=args.ts,
+            samples=args.validate_samples,
+            columns=columns,
+            records=getattr(args, "records", None),  # fleets (issue 42)
         )
     except ValueError as e:
         if "column" not in str(e) or args.validate_columns:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from .argtypes import _count, _mapping, _sample_time, _samples
+from .argtypes import _count, _mapping, _sample_time, _samples, _value
 
 _TS_HELP = (
     "sampling time TS: the samples are taken at k·TS, whatever time column the files "
@@ -34,6 +34,16 @@ def record_options(p: argparse.ArgumentParser) -> None:
         help="use samples START:STOP of DATA (as fit's --validate-samples: a record "
         "that holds training and test data in one file)",
     )
+    p.add_argument(  # fleets (issue 42)
+        "--records",
+        default=None,
+        metavar="ID_COLUMN",
+        help="DATA holds many units, one row per sample: the rows of each value of "
+        "ID_COLUMN are one unit's record (as fit's --records); --unit names the one to use",
+    )
+    p.add_argument(
+        "--unit", default=None, metavar="ID", help="with --records: the unit of DATA to use"
+    )
     p.add_argument(
         "--init-window",
         type=_count,
@@ -44,6 +54,38 @@ def record_options(p: argparse.ArgumentParser) -> None:
         "scored after them (default: estimated on the whole record, all scored)",
     )
     integration_options(p, inherit=True)
+
+
+def fleet_options(f: argparse.ArgumentParser) -> None:
+    """fit's options for many units (issue 42): --records, --individual, --population."""
+    f.add_argument(
+        "--records",
+        default=None,
+        metavar="ID_COLUMN",
+        help="each data file holds many units (a fleet, a cohort), one row per sample: "
+        "the rows of each value of ID_COLUMN are one unit's record, with its own time "
+        "stamps (in increasing order), named by its id; a unit with no observation is "
+        "left out with a note. Columns constant within a unit (weight, dose) are read by "
+        "inputs of their name",
+    )
+    f.add_argument(
+        "--individual",
+        nargs="+",
+        default=None,
+        metavar="NAME",
+        help="parameters each unit has its own value of (no distribution); replaces the "
+        "model file's individual",
+    )
+    f.add_argument(
+        "--population",
+        type=_value,
+        nargs="+",
+        default=None,
+        metavar="NAME=OMEGA",
+        help="parameters log-normal over the units (typical value times exp(η), η ~ N(0, "
+        "ω²)), each with the start of ω (> 0), e.g. ka=0.5 cl=0.3; replaces the model "
+        "file's population",
+    )
 
 
 def integration_options(p: argparse.ArgumentParser, inherit: bool = False) -> None:

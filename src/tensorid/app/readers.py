@@ -33,6 +33,7 @@ class _Columns:
     lines: list[int] | None = None  # the file line of each sample (text files)
     note: str = ""  # said when columns are missing (how the header was split)
     constants: dict[str, float] = field(default_factory=dict)  # "pulses=0" in a map
+    text: dict[str, list[str]] = field(default_factory=dict)  # a text column's cells (ids)
 
     def has(self, name: str) -> bool:
         return name in self.values or name in self.constants
@@ -210,6 +211,7 @@ def _columns_csv(path: Path) -> _Columns:
     _no_units_row(path, rows[1])
     numbers = [n for n, _ in rows[1:]]
     values: dict[str, np.ndarray | str] = {}
+    text: dict[str, list[str]] = {}
     for j, name in enumerate(header):
         if not name:
             continue  # a trailing delimiter makes an empty column
@@ -217,6 +219,8 @@ def _columns_csv(path: Path) -> _Columns:
             raise ValueError(f"{path}: column {name!r} appears twice in the header; rename one")
         cells = [r[j] if j < len(r) else "" for _, r in rows[1:]]
         values[name] = _column(name, cells, numbers, decimal_comma=delimiter != ",")
+        if isinstance(values[name], str):  # not numbers: kept as text (an id column)
+            text[name] = [c.strip().strip('"') for c in cells]
     note = ""
     if len(values) == 1:
         note = (
@@ -224,7 +228,7 @@ def _columns_csv(path: Path) -> _Columns:
             f"{_DELIMITERS.get(delimiter or ',', 'space')}-separated (no ',', ';', tab or "
             "spaces between names): separate the columns with one of those"
         )
-    return _Columns(values, "column", numbers, note)
+    return _Columns(values, "column", numbers, note, text=text)
 
 
 # -- MATLAB ----------------------------------------------------------------------------

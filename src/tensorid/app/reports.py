@@ -26,6 +26,7 @@ from ..fitting.summary import (
     stderr_text,
 )
 from ..fitting.validation import Score, training_scores
+from .fleet_report import fleet_json, fleet_lines
 from .output import write_text
 from .provenance import markdown as provenance_lines
 
@@ -186,7 +187,7 @@ def fit_json(
     d["gof_notes"] = [n[len("note: ") :] for n in metric_notes(train + list(validation))]
     if u:
         d.update(_error_bars(res, u, names, residual))
-    d.update(_profile_json(profiles))
+    d.update(_profile_json(profiles) | fleet_json(res))  # fleet_json: issue 42's keys
     if missing:
         d["statistics_missing"] = missing
     elif np.isfinite(res.cost):
@@ -303,6 +304,7 @@ def fit_report(
         "",
         md_table(["unknown", "estimate", "std. error", "95 % interval", "note"], rows),
         "",
+        *fleet_lines(data),  # a fleet's population and units tables (issue 42)
     ]
     if data.get("noise_intensities"):
         lines += ["## Noise model", "", f"Predictor: {data['predictor']} (prediction error). "

@@ -32,6 +32,7 @@ from .output import (
     write_atomic,
 )
 from .provenance import data_entries, other_model, provenance
+from .records import one_unit
 from .renderer import draw_files
 from .reports import write_json
 
@@ -201,7 +202,7 @@ def _start(spec: ModelSpec, args, e, fitted) -> tuple[np.ndarray, list[str], str
     --x0 where given; the states the fit (else the model file) frees are estimated
     when the record has outputs; the others are the fit.json's or the model file's."""
     m = spec.model
-    x0 = dict(zip(m.states, spec.x0_array(), strict=True))
+    x0 = dict(zip(m.states, spec.x0_array(getattr(args, "x0", [])), strict=True))
     base, free = "the model file's x0", list(spec.free_x0)
     if fitted is not None and "x0" in fitted:
         x0 = dict(zip(m.states, np.atleast_2d(fitted["x0"])[0], strict=True))
@@ -224,10 +225,9 @@ def _start(spec: ModelSpec, args, e, fitted) -> tuple[np.ndarray, list[str], str
 
 def _record(args, spec: ModelSpec, require_outputs: bool):
     """The one record of DATA, with the init window checked before any work."""
-    e = load_data(
-        [args.data], spec.model, ts=args.ts, samples=getattr(args, "samples", None),
-        require_outputs=require_outputs, columns=args.columns,
-    )[0]  # fmt: skip
+    e = one_unit(args, partial(  # one_unit: --records ID --unit 3 (issue 42)
+        load_data, [args.data], spec.model, ts=args.ts, samples=getattr(args, "samples", None),
+        require_outputs=require_outputs, columns=args.columns))  # fmt: skip
     if args.init_window is not None:
         if e.y is None:
             raise ValueError(

@@ -121,3 +121,13 @@ def emps(record: str = "estimation", closed_loop: bool = False) -> Experiment:
     u = np.stack([d["qg"], d["pulses"]], axis=1) if closed_loop else d["vir"]
     name = f"emps-{record}" + ("-closed-loop" if closed_loop else "")
     return Experiment(d["t"], u, d["qm"], name=name)
+
+
+def theophylline_csv():
+    """The path of the bundled theophylline data (R's ``Theoph``: 12 subjects, one
+    oral dose, 11 samples each; columns Subject, Wt, Dose, Time, conc, ID), one long
+    file for ``ti.load_data(path, model, records="ID", columns={"t": "Time", ...})``
+    or ``tensorid fit ... --records ID``. See README.md beside it."""
+    from pathlib import Path
+
+    return Path(str(resources.files(__package__).joinpath("theophylline.csv")))
