@@ -9,7 +9,8 @@ and it may define ``p0`` (dict), ``x0``
 (mean, sd)) and ``noise`` (the noise standard deviation that weighs the priors; without
 it, it is estimated and checked by the fit), ``loss``/``loss_scale`` and, for a
 stochastic model, ``predictor = "ekf"`` with ``process_noise`` (dict state -> σ_w)
-and ``measurement_noise`` (dict output -> σ_e). A file that has not finished running
+and ``measurement_noise`` (dict output -> σ_e), and ``interpolation`` (the inputs
+between samples, as ``--interpolation``, which overrides it). A file that has not finished running
 after TENSORID_MODEL_TIMEOUT seconds (default 60) is stopped with a clear message.
 
 Data files are CSV (a time column ``t``, or a sampling time given as ``ts``, plus
@@ -63,6 +64,7 @@ class ModelSpec:
     predictor: str | None = None
     process_noise: dict | None = None
     measurement_noise: dict | None = None
+    interpolation: str | None = None
 
     def x0_array(self) -> np.ndarray:
         """x0 of the model file as an array (N,), states it does not name at 0."""
@@ -237,6 +239,7 @@ def _spec(ns: dict, path: Path) -> ModelSpec:
             f"{did_you_mean(predictor, PREDICTORS)}"
         )
     out.predictor = predictor
+    out.interpolation = _interpolation(ns.get("interpolation"))
     for key in ("process_noise", "measurement_noise"):
         value = ns.get(key)
         if value is not None and not isinstance(value, dict):
@@ -249,14 +252,28 @@ def _spec(ns: dict, path: Path) -> ModelSpec:
 # settings a model file does not take (the command line's and the Problem's), and
 # those it does: a file that sets the former, or misspells the latter, was fitted
 # without them and without a word (interpolation = "zoh" fitted linear)
-_ELSEWHERE = {"interpolation": "--interpolation", "scheme": "--scheme",
-              "substeps": "--substeps", "rtol": "--rtol", "atol": "--atol"}  # fmt: skip
+_ELSEWHERE = {"scheme": "--scheme", "substeps": "--substeps", "rtol": "--rtol",
+              "atol": "--atol"}  # fmt: skip
 _SETTINGS = ("model", "rhs", "output", "inputs", "params", "input_delays", "discrete", "p0",
              "x0", "free_x0", "fixed", "bounds", "weights", "priors", "noise", "loss",
-             "loss_scale", "predictor", "process_noise", "measurement_noise")  # fmt: skip
+             "loss_scale", "predictor", "process_noise", "measurement_noise",
+             "interpolation")  # fmt: skip
 # read only beside text equations: beside a tensorid.Model, ``outputs = [...]`` or
 # ``param = ...`` are the file's own variables (passed to the Model), not misspellings
 _TEXT_ONLY = ("rhs", "output", "inputs", "params", "input_delays", "discrete")
+
+
+def _interpolation(value) -> str | None:
+    """The file's ``interpolation`` (how its records' inputs behave between samples),
+    checked; ``--interpolation`` overrides it."""
+    from ..engine.discretisation import INTERPOLATIONS
+
+    if value is not None and value not in INTERPOLATIONS:
+        raise ValueError(
+            f"interpolation must be one of {list(INTERPOLATIONS)}, got {value!r}"
+            f"{did_you_mean(value, INTERPOLATIONS)}"
+        )
+    return value
 
 
 def _as_dict(key: str, value, model: Model) -> str:
@@ -269,14 +286,13 @@ def _as_dict(key: str, value, model: Model) -> str:
 
 
 def _not_a_choice(name: str, value) -> tuple[str, str]:
-    """(", and 'sdrik3' is no scheme (...)", the value to suggest) where a scheme or
-    interpolation set in a model file is no valid one: the flag the refusal suggests
+    """(", and 'sdrik3' is no scheme (...)", the value to suggest) where a scheme
+    set in a model file is no valid one: the flag the refusal suggests
     would be refused in turn. ("", value) otherwise."""
     from ..engine.checks import nearest
-    from ..engine.discretisation import INTERPOLATIONS
     from ..engine.integrators import SCHEMES
 
-    choices = {"scheme": sorted(SCHEMES), "interpolation": list(INTERPOLATIONS)}.get(name)
+    choices = {"scheme": sorted(SCHEMES)}.get(name)
     if choices is None or value in choices:
         return "", value
     close = nearest(value, choices)

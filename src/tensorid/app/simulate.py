@@ -177,9 +177,10 @@ def _parameters(spec: ModelSpec, given: list[str], fitted: dict | None) -> tuple
     return params, note if rest else ""
 
 
-def _integration(args, fitted: dict | None) -> Discretisation:
+def _integration(args, fitted: dict | None, spec: ModelSpec | None = None) -> Discretisation:
     """The command line's integration settings; those it leaves out are the fit.json's
-    (a fit is scored as it was fitted), else the defaults."""
+    (a fit is scored as it was fitted), else the model file's interpolation, else the
+    defaults."""
     saved = dict((fitted or {}).get("integration") or {})
     if saved.get("scheme") == "discrete":  # a discrete-time model: the defaults say so
         saved = {}
@@ -190,7 +191,12 @@ def _integration(args, fitted: dict | None) -> Discretisation:
     substeps, interpolation = args.substeps or saved.get("substeps", 4), args.interpolation
     try:
         return Discretisation.of(
-            scheme, substeps, interpolation or saved.get("interpolation", "linear"), rtol, atol
+            scheme,
+            substeps,
+            interpolation
+            or saved.get("interpolation", getattr(spec, "interpolation", None) or "linear"),
+            rtol,
+            atol,
         )
     except ValueError as e:  # named as the flags (the fit.json's are valid)
         raise ValueError(tolerances_as_flags(str(e))) from None
@@ -274,7 +280,7 @@ def _score(args, require_outputs: bool):
     except ValueError as err:  # a fit.json of another model: say which file
         raise ValueError(f"--params {args.params[0]}, a filter fit's noise: {err}") from None
     params, defaults = _parameters(spec, args.params, fitted)
-    disc = _integration(args, fitted)
+    disc = _integration(args, fitted, spec)
     x0, free, source = _start(spec, args, e, fitted)
     horizon = getattr(args, "horizon", None)
     if horizon is not None and predictor is None:
