@@ -215,3 +215,16 @@ def test_the_cli_flag_and_the_model_file_key(tmp_path):
     fit_json = str(tmp_path / "file" / "fit.json")
     args = ["simulate", str(model), str(csv), "--params", fit_json, "--out", str(tmp_path / "s")]
     assert main(args) == 0
+
+
+def test_the_command_line_offers_every_interpolation():
+    """The choices are spelled out in app/options.py (so that --help need not import
+    JAX): they must be the engine's."""
+    import argparse
+
+    from tensorid.app.options import integration_options
+    from tensorid.engine.discretisation import INTERPOLATIONS
+
+    p = argparse.ArgumentParser()
+    integration_options(p)
+    assert p._option_string_actions["--interpolation"].choices == list(INTERPOLATIONS)

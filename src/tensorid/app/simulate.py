@@ -188,16 +188,11 @@ def _integration(args, fitted: dict | None, spec: ModelSpec | None = None) -> Di
     same = scheme == saved.get("scheme")
     rtol = args.rtol if args.rtol is not None else saved.get("rtol") if same else None
     atol = args.atol if args.atol is not None else saved.get("atol") if same else None
-    substeps, interpolation = args.substeps or saved.get("substeps", 4), args.interpolation
+    substeps = args.substeps or saved.get("substeps", 4)
+    own = getattr(spec, "interpolation", None) or "linear"
+    interpolation = args.interpolation or saved.get("interpolation", own)
     try:
-        return Discretisation.of(
-            scheme,
-            substeps,
-            interpolation
-            or saved.get("interpolation", getattr(spec, "interpolation", None) or "linear"),
-            rtol,
-            atol,
-        )
+        return Discretisation.of(scheme, substeps, interpolation, rtol, atol)
     except ValueError as e:  # named as the flags (the fit.json's are valid)
         raise ValueError(tolerances_as_flags(str(e))) from None
 
