@@ -27,8 +27,8 @@ each interval keeping the whole record as its context.
 
 The polynomial of "bandlimited" and "periodic" on an interval has ``NODES`` Chebyshev
 coefficients: a signal below the Nyquist frequency is entire with |u⁽ⁿ⁾| ≤ πⁿ max|u|
-per sample, so the truncation error, ≈ 2 (π/4)ᴺᴼᴰᴱˢ/NODES! of the signal's size, is
-below 1e-15: the polynomial is the interpolant to rounding.
+per sample, so the truncation error, ≈ 2 (π/4)ᴺᴼᴰᴱˢ/NODES! ≈ 2e-15 of the signal's
+size, is at rounding level: the polynomial is the interpolant to rounding.
 """
 
 from __future__ import annotations
