@@ -193,6 +193,47 @@ def noisy_experiment(model, p, x0, t, u, seed, noise, **kw):
     return ti.Experiment(t, u, sim.y + noise * rng.standard_normal(sim.y.shape), name=f"e{seed}")
 
 
+def _oscillator(**kw):
+    """(problem, theta): two outputs with a p-dependent nonlinear output map, two
+    inputs (multisines), two experiments of different lengths, one free and one fixed
+    initial state, one fixed parameter, weights."""
+    m = oscillator_model()
+    ptrue = {"k": 2.0, "c": 0.3, "g": 1.0, "q": 0.7}
+    exps = []
+    for seed, P in ((4, 150), (5, 110)):
+        t = np.arange(P) * 0.05
+        u = np.stack(
+            [
+                multisine(P, 0.05, 1.0, seed, range(1, 20))[1],
+                multisine(P, 0.05, 0.5, seed + 10, range(2, 15))[1],
+            ],
+            axis=1,
+        )
+        sim_kw = {k: v for k, v in kw.items() if k in ("interpolation", "scheme")}
+        exps.append(noisy_experiment(m, ptrue, [0.3, -0.2], t, u, seed, 0.05, **sim_kw))
+    prob = ti.Problem(
+        m,
+        exps,
+        p0=ptrue,
+        x0=[[0.3, -0.2], [0.1, 0.4]],
+        free_x0=["om"],
+        fixed=["g"],
+        weights={"y2": 2.5},
+        **kw,
+    )
+    return prob, prob.theta0 + np.array([0.1, -0.2, 0.3, -0.05, 0.1])
+
+
+def interpolation_problems(**kw):
+    """(id, problem, theta): the oscillator case with each smooth input interpolation
+    (an adaptive scheme's: tests/test_integrate.py)."""
+    out = []
+    for interpolation in ("bandlimited", "periodic", "cubic"):
+        prob, theta = _oscillator(interpolation=interpolation, **kw)
+        out.append((f"oscillator, {interpolation} input", prob, theta))
+    return out
+
+
 def derivative_problems(**kw):
     """(id, problem, theta) with theta away from the optimum, so that the residual-
     weighted second-order term of the Hessian matters: explicit schemes, zoh, free
@@ -221,34 +262,7 @@ def derivative_problems(**kw):
     )
     out.append(("two-tank fixed x0, zoh", prob, prob.theta0 * np.array([1.1, 0.9, 1.05, 0.95])))
 
-    # two outputs with a p-dependent nonlinear output map, two inputs, two
-    # experiments of different lengths, one free and one fixed initial state,
-    # one fixed parameter, weights
-    m = oscillator_model()
-    ptrue = {"k": 2.0, "c": 0.3, "g": 1.0, "q": 0.7}
-    exps = []
-    for seed, P in ((4, 150), (5, 110)):
-        t = np.arange(P) * 0.05
-        u = np.stack(
-            [
-                multisine(P, 0.05, 1.0, seed, range(1, 20))[1],
-                multisine(P, 0.05, 0.5, seed + 10, range(2, 15))[1],
-            ],
-            axis=1,
-        )
-        exps.append(noisy_experiment(m, ptrue, [0.3, -0.2], t, u, seed, 0.05))
-    prob = ti.Problem(
-        m,
-        exps,
-        p0=ptrue,
-        x0=[[0.3, -0.2], [0.1, 0.4]],
-        free_x0=["om"],
-        fixed=["g"],
-        weights={"y2": 2.5},
-        **kw,
-    )
-    theta = prob.theta0 + np.array([0.1, -0.2, 0.3, -0.05, 0.1])
-    out.append(("oscillator multi-output multi-experiment", prob, theta))
+    out.append(("oscillator multi-output multi-experiment", *_oscillator(**kw)))
 
     m = reactor_model()
     ptrue = {"k1": 0.8, "k2": 0.5, "k3": 0.3, "V": 2.0}

@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import decay_model, derivative_problems
+from conftest import decay_model, derivative_problems, interpolation_problems
 
 import tensorid as ti
 from tensorid.benchmarks import mass_chain_problem, silverbox_problem, two_tank_problem
@@ -46,7 +46,11 @@ def test_the_chain_hessian_equals_tensors_and_jax_hessian():
 
 
 PAIRS = list(
-    zip(derivative_problems(hessian="adjoint"), derivative_problems(hessian="tensors"), strict=True)
+    zip(
+        derivative_problems(hessian="adjoint") + interpolation_problems(hessian="adjoint")[:1],
+        derivative_problems(hessian="tensors") + interpolation_problems(hessian="tensors")[:1],
+        strict=True,
+    )
 )
 
 
@@ -54,7 +58,8 @@ PAIRS = list(
 @pytest.mark.parametrize("case", PAIRS, ids=lambda c: c[0][0])
 def test_every_explicit_problem_kind_gives_the_tensors_hessian(case):
     """Free and fixed x0, zoh, two experiments of different lengths, two outputs with
-    a p-dependent output map, weights, heun, euler with K = N = 1."""
+    a p-dependent output map, weights, heun, euler with K = N = 1, a band-limited
+    input (the adjoint's padded grid holds its coefficients past the record)."""
     (_, prob, theta), (_, ref, _) = case
     _, _, H, _ = _same_as_tensors(prob, ref, theta)
     _close(H, jax.jit(jax.hessian(prob.jax_cost))(jnp.asarray(theta)))

@@ -184,6 +184,8 @@ MAKERS: dict[str, Callable[[Path], None]] = {
     "noise_alone.py": _written(FIRST + "noise = 0.1\n"),
     "noise_given.py": _written(FIRST + 'priors = {"a": (1.0, 0.5)}\nnoise = 0.01\n'),
     "interp_file.py": _written(FIRST + 'interpolation = "zoh"\n'),
+    "scheme_file.py": _written(FIRST + 'scheme = "heun"\n'),
+    "interp_bl.py": _written(FIRST + 'interpolation = "bl"\n'),
     "ekf_file.py": _written(FIRST + 'predictor = "ekf"\nprocess_noise = {"x": 0.1}\n'),
     "unknown_fn.py": _written(_edit(FIRST, '"-a*x + b*u"', '"-a*x + b*heaviside(u)"')),
     "if_else.py": _written(_edit(FIRST, '"-a*x + b*u"', '"-a*x if x > 0 else b*u"')),

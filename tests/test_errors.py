@@ -185,7 +185,7 @@ def test_nothing_to_estimate_and_bad_settings():
     with pytest.raises(ValueError, match="substeps must be a positive integer"):
         _problem(substeps=0)
     with pytest.raises(ValueError, match="interpolation must be one of"):
-        _problem(interpolation="cubic")
+        _problem(interpolation="quintic")
     with pytest.raises(ValueError, match="unknown integration scheme"):
         _problem(scheme="rk45")
 

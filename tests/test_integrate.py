@@ -133,18 +133,22 @@ def test_adaptive_error_follows_the_tolerance(scheme):
 
 
 @pytest.mark.parametrize(  # compile-bound: in the slow run
-    "scheme", [pytest.param(s, marks=pytest.mark.slow) for s in ("dopri5", "bosh3")]
+    "scheme, interpolation",
+    [
+        pytest.param(*c, marks=pytest.mark.slow)
+        for c in (("dopri5", "linear"), ("bosh3", "linear"), ("dopri5", "bandlimited"))
+    ],
 )
-def test_adaptive_derivatives_are_exact_for_the_steps_taken(scheme):
+def test_adaptive_derivatives_are_exact_for_the_steps_taken(scheme, interpolation):
+    """(bandlimited: the input read at stage fractions not known in advance)"""
     m = oscillator_model()
     t = np.linspace(0, 6, 60)
     u = np.stack([np.sin(1.3 * t), np.cos(0.7 * t)], axis=1)
     truth = {"k": 2.0, "c": 0.3, "g": 1.0, "q": 0.7}
     sim = ti.simulate(m, truth, [0.3, 0.0], ti.Experiment(t, u))
     data = ti.Experiment(t, u, sim.y)
-    prob = ti.Problem(
-        m, data, p0=truth, x0=[0.3, 0.0], free_x0=["om"], scheme=scheme, rtol=1e-7, atol=1e-10
-    )
+    prob = ti.Problem(m, data, p0=truth, x0=[0.3, 0.0], free_x0=["om"], scheme=scheme,
+                      rtol=1e-7, atol=1e-10, interpolation=interpolation)  # fmt: skip
     _assert_exact(
         prob, prob.theta0 * np.array([1, 1.1, 0.9, 1.05, 0.8]) + np.array([0.2, 0, 0, 0, 0])
     )

@@ -7,16 +7,28 @@ from __future__ import annotations
 import jax
 import numpy as np
 import pytest
-from conftest import SILVERBOX_P, decay_model, derivative_problems, silverbox_model
+from conftest import (
+    SILVERBOX_P,
+    decay_model,
+    derivative_problems,
+    interpolation_problems,
+    silverbox_model,
+)
 from scipy.integrate import solve_ivp
 
 import tensorid as ti
 
-PROBLEMS = derivative_problems(hessian="tensors")  # this module checks the tensors
+# the smooth input interpolations (their first in the default run, the rest slow)
+SMOOTH = interpolation_problems(hessian="tensors")
+PROBLEMS = derivative_problems(hessian="tensors") + SMOOTH  # this module checks the tensors
 IDS = [name for name, _, _ in PROBLEMS]
+CASES = [
+    pytest.param(*case, id=case[0], marks=[pytest.mark.slow] if case in SMOOTH[1:] else [])
+    for case in PROBLEMS
+]
 
 
-@pytest.mark.parametrize("name,prob,theta", PROBLEMS, ids=IDS)
+@pytest.mark.parametrize("name,prob,theta", CASES)
 def test_gradient_and_hessian_equal_autodiff(name, prob, theta):
     J, g, H = prob.cost_grad_hess(theta)
     J_ad = float(prob.jax_cost(theta))
@@ -31,7 +43,7 @@ def test_gradient_and_hessian_equal_autodiff(name, prob, theta):
     assert np.abs(H - H_gn).max() > 1e-4 * np.abs(H).max()
 
 
-@pytest.mark.parametrize("name,prob,theta", PROBLEMS, ids=IDS)
+@pytest.mark.parametrize("name,prob,theta", CASES)
 def test_hessian_vector_products_equal_the_hessian(name, prob, theta):
     """The one-direction sweep gives ∇²J v for any v; together the products rebuild H."""
     J, g, H = prob.cost_grad_hess(theta)
@@ -49,7 +61,7 @@ def test_hessian_vector_products_equal_the_hessian(name, prob, theta):
     np.testing.assert_allclose(cols, H, rtol=1e-9, atol=1e-9 * np.abs(H).max())
 
 
-@pytest.mark.parametrize("name,prob,theta", PROBLEMS, ids=IDS)
+@pytest.mark.parametrize("name,prob,theta", CASES)
 def test_gauss_newton_pieces_equal_autodiff_of_residuals(name, prob, theta):
     J, g, H_gn = prob.cost_grad_gn(theta)
     jac = jax.jacfwd(lambda th: _jax_residuals(prob, th))(theta)
@@ -75,7 +87,7 @@ def _jax_residuals(prob, theta):
     return jnp.concatenate(parts)
 
 
-@pytest.mark.parametrize("name,prob,theta", PROBLEMS, ids=IDS)
+@pytest.mark.parametrize("name,prob,theta", CASES)
 def test_output_sensitivities_equal_autodiff_of_the_simulation(name, prob, theta):
     """Problem.output_sensitivities (one sensitivity sweep) against jax.jacfwd of the
     plain simulation, and its per-sample shares of the gradient sum to ∇J."""
@@ -106,7 +118,10 @@ def test_output_sensitivities_equal_autodiff_of_the_simulation(name, prob, theta
         )
 
 
-@pytest.mark.parametrize("name,prob,theta", PROBLEMS[:3], ids=IDS[:3])
+FD_IDS = [*IDS[:3], SMOOTH[0][0]]
+
+
+@pytest.mark.parametrize("name,prob,theta", [*PROBLEMS[:3], SMOOTH[0]], ids=FD_IDS)
 def test_hessian_matches_central_differences_of_gradient(name, prob, theta):
     _, _, H = prob.cost_grad_hess(theta)
     K = theta.size

@@ -9,11 +9,12 @@ and it may define ``p0`` (dict), ``x0``
 (mean, sd)) and ``noise`` (the noise standard deviation that weighs the priors; without
 it, it is estimated and checked by the fit), ``loss``/``loss_scale`` and, for a
 stochastic model, ``predictor = "ekf"`` with ``process_noise`` (dict state -> σ_w)
-and ``measurement_noise`` (dict output -> σ_e). For many units (``--records``):
-``covariates`` (inputs constant per unit), ``individual`` (parameters each unit has
-its own value of), ``population`` (dict parameter -> start of ω, log-normal over the
-units) and x0 values that are expressions of the inputs and parameters ("Dose * Wt",
-at each unit's first sample). A file that has not finished running
+and ``measurement_noise`` (dict output -> σ_e), and ``interpolation`` (the inputs
+between samples, as ``--interpolation``, which overrides it). For many units
+(``--records``): ``covariates`` (inputs constant per unit), ``individual`` (parameters
+each unit has its own value of), ``population`` (dict parameter -> start of ω,
+log-normal over the units) and x0 values that are expressions of the inputs and
+parameters ("Dose * Wt", at each unit's first sample). A file that has not finished running
 after TENSORID_MODEL_TIMEOUT seconds (default 60) is stopped with a clear message.
 
 Data files are CSV (a time column ``t``, or a sampling time given as ``ts``, plus
@@ -68,6 +69,7 @@ class ModelSpec:
     predictor: str | None = None
     process_noise: dict | None = None
     measurement_noise: dict | None = None
+    interpolation: str | None = None
     # fleets (issue 42): inputs constant per unit, parameters per unit (app/fleets.py)
     covariates: list = field(default_factory=list)
     individual: list = field(default_factory=list)
@@ -271,6 +273,7 @@ def _spec(ns: dict, path: Path) -> ModelSpec:
             f"{did_you_mean(predictor, PREDICTORS)}"
         )
     out.predictor = predictor
+    out.interpolation = _interpolation(ns.get("interpolation"))
     for key in ("process_noise", "measurement_noise"):
         value = ns.get(key)
         if value is not None and not isinstance(value, dict):
@@ -298,15 +301,28 @@ def _fleet_settings(ns: dict, out: ModelSpec) -> None:
 # settings a model file does not take (the command line's and the Problem's), and
 # those it does: a file that sets the former, or misspells the latter, was fitted
 # without them and without a word (interpolation = "zoh" fitted linear)
-_ELSEWHERE = {"interpolation": "--interpolation", "scheme": "--scheme",
-              "substeps": "--substeps", "rtol": "--rtol", "atol": "--atol"}  # fmt: skip
+_ELSEWHERE = {"scheme": "--scheme", "substeps": "--substeps", "rtol": "--rtol",
+              "atol": "--atol"}  # fmt: skip
 _SETTINGS = ("model", "rhs", "output", "inputs", "params", "input_delays", "discrete", "p0",
              "x0", "free_x0", "fixed", "bounds", "weights", "priors", "noise", "loss",
              "loss_scale", "predictor", "process_noise", "measurement_noise",
-             "covariates", "individual", "population")  # fmt: skip
+             "interpolation", "covariates", "individual", "population")  # fmt: skip
 # read only beside text equations: beside a tensorid.Model, ``outputs = [...]`` or
 # ``param = ...`` are the file's own variables (passed to the Model), not misspellings
 _TEXT_ONLY = ("rhs", "output", "inputs", "params", "input_delays", "discrete")
+
+
+def _interpolation(value) -> str | None:
+    """The file's ``interpolation`` (how its records' inputs behave between samples),
+    checked; ``--interpolation`` overrides it."""
+    from ..engine.discretisation import INTERPOLATIONS
+
+    if value is not None and value not in INTERPOLATIONS:
+        raise ValueError(
+            f"interpolation must be one of {list(INTERPOLATIONS)}, got {value!r}"
+            f"{did_you_mean(value, INTERPOLATIONS)}"
+        )
+    return value
 
 
 def _as_dict(key: str, value, model: Model) -> str:
@@ -319,14 +335,13 @@ def _as_dict(key: str, value, model: Model) -> str:
 
 
 def _not_a_choice(name: str, value) -> tuple[str, str]:
-    """(", and 'sdrik3' is no scheme (...)", the value to suggest) where a scheme or
-    interpolation set in a model file is no valid one: the flag the refusal suggests
+    """(", and 'sdrik3' is no scheme (...)", the value to suggest) where a scheme
+    set in a model file is no valid one: the flag the refusal suggests
     would be refused in turn. ("", value) otherwise."""
     from ..engine.checks import nearest
-    from ..engine.discretisation import INTERPOLATIONS
     from ..engine.integrators import SCHEMES
 
-    choices = {"scheme": sorted(SCHEMES), "interpolation": list(INTERPOLATIONS)}.get(name)
+    choices = {"scheme": sorted(SCHEMES)}.get(name)
     if choices is None or value in choices:
         return "", value
     close = nearest(value, choices)

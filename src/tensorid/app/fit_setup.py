@@ -25,12 +25,12 @@ from .provenance import data_entries
 from .simulate import effective_columns
 
 
-def discretisation(args) -> Discretisation:
-    """The integration settings of the command line, checked once."""
+def discretisation(args, spec: ModelSpec | None = None) -> Discretisation:
+    """The integration settings of the command line (the interpolation: else the
+    model file's, else linear), checked once."""
+    interpolation = args.interpolation or getattr(spec, "interpolation", None) or "linear"
     try:
-        return Discretisation.of(
-            args.scheme, args.substeps, args.interpolation, args.rtol, args.atol
-        )
+        return Discretisation.of(args.scheme, args.substeps, interpolation, args.rtol, args.atol)
     except ValueError as e:
         raise ValueError(tolerances_as_flags(str(e))) from None
 
@@ -41,7 +41,7 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
             f"{spec.path} defines no p0: add p0 = {{name: start value}} for "
             f"{list(spec.model.params)}"
         )
-    disc = discretisation(args)
+    disc = discretisation(args, spec)
     hessian = getattr(args, "hessian", "auto")
     if hessian == "adjoint" and not adjoint_supports(disc):
         explicit = [n for n in SCHEMES if adjoint_supports(Discretisation.of(n))]

@@ -112,10 +112,13 @@ def integration_options(p: argparse.ArgumentParser, inherit: bool = False) -> No
     p.add_argument("--atol", type=float, default=None, help="adaptive schemes: absolute tolerance")
     p.add_argument(
         "--interpolation",
-        default=None if inherit else "linear",
-        choices=["linear", "zoh"],
-        help="the input between samples: linear or zero-order hold" + default % "linear",
-    )
+        default=None,  # the model file's (a fit.json's) where it is not given
+        choices=["linear", "zoh", "cubic", "bandlimited", "periodic"],
+        help="the input between samples: linear, zoh (held), cubic (spline), bandlimited "
+        "(windowed sinc) or periodic (trigonometric: a record of whole periods)"
+        + (" (default: the fit.json's, else the model file's, else linear)" if inherit
+           else " (default: the model file's, else linear)"),
+    )  # fmt: skip
 
 
 def _simulate(args) -> int:

@@ -178,9 +178,10 @@ def _parameters(spec: ModelSpec, given: list[str], fitted: dict | None) -> tuple
     return params, note if rest else ""
 
 
-def _integration(args, fitted: dict | None) -> Discretisation:
+def _integration(args, fitted: dict | None, spec: ModelSpec | None = None) -> Discretisation:
     """The command line's integration settings; those it leaves out are the fit.json's
-    (a fit is scored as it was fitted), else the defaults."""
+    (a fit is scored as it was fitted), else the model file's interpolation, else the
+    defaults."""
     saved = dict((fitted or {}).get("integration") or {})
     if saved.get("scheme") == "discrete":  # a discrete-time model: the defaults say so
         saved = {}
@@ -188,11 +189,11 @@ def _integration(args, fitted: dict | None) -> Discretisation:
     same = scheme == saved.get("scheme")
     rtol = args.rtol if args.rtol is not None else saved.get("rtol") if same else None
     atol = args.atol if args.atol is not None else saved.get("atol") if same else None
-    substeps, interpolation = args.substeps or saved.get("substeps", 4), args.interpolation
+    substeps = args.substeps or saved.get("substeps", 4)
+    own = getattr(spec, "interpolation", None) or "linear"
+    interpolation = args.interpolation or saved.get("interpolation", own)
     try:
-        return Discretisation.of(
-            scheme, substeps, interpolation or saved.get("interpolation", "linear"), rtol, atol
-        )
+        return Discretisation.of(scheme, substeps, interpolation, rtol, atol)
     except ValueError as e:  # named as the flags (the fit.json's are valid)
         raise ValueError(tolerances_as_flags(str(e))) from None
 
@@ -274,7 +275,7 @@ def _score(args, require_outputs: bool):
     except ValueError as err:  # a fit.json of another model: say which file
         raise ValueError(f"--params {args.params[0]}, a filter fit's noise: {err}") from None
     params, defaults = _parameters(spec, args.params, fitted)
-    disc = _integration(args, fitted)
+    disc = _integration(args, fitted, spec)
     x0, free, source = _start(spec, args, e, fitted)
     horizon = getattr(args, "horizon", None)
     if horizon is not None and predictor is None:

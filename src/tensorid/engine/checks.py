@@ -12,8 +12,9 @@ import numpy as np
 from .data import Experiment
 from .initial import evaluate, has_expressions
 
-# MATLAB's first-order hold is linear interpolation; a Kalman filter is the EKF here
-_ALIASES = {"foh": "linear", "kalman": "ekf"}
+# MATLAB's first-order hold is linear interpolation, its 'bl' band-limited; a Kalman
+# filter is the EKF here
+_ALIASES = {"foh": "linear", "bl": "bandlimited", "spline": "cubic", "kalman": "ekf"}
 
 
 def nearest(value, choices: Sequence[str]) -> str | None:

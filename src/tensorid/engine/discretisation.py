@@ -3,8 +3,10 @@ once and shared by Problem, simulate, the sweeps and the CLI), and the one routi
 that marches any state (a pytree) across the grid (``march``).
 
 Between samples t_h and t_{h+1} the input u(t) is known only at the samples, so a
-stage at fraction s of the interval sees u_h + s (u_{h+1} - u_h) ("linear") or u_h
-("zoh").
+stage at fraction s of the interval sees u_h + s (u_{h+1} - u_h) ("linear"), u_h
+("zoh"), or a smooth interpolant of the samples around it ("cubic", "bandlimited",
+"periodic": ``intersample.py``), whose coefficients on each interval the record
+carries in place of its samples (``Discretisation.inputs``).
 """
 
 from __future__ import annotations
@@ -19,9 +21,10 @@ import numpy as np
 from .. import _config  # noqa: F401
 from .checks import did_you_mean
 from .integrators import DISCRETE, DiscreteMap, RungeKuttaScheme, Scheme, _x, get_scheme
+from .intersample import SMOOTH, chebyshev_at, track
 from .status import Status
 
-INTERPOLATIONS = ("linear", "zoh")
+INTERPOLATIONS = ("linear", "zoh", *SMOOTH)
 
 
 @dataclass(frozen=True)
@@ -34,7 +37,9 @@ class Discretisation:
             its rtol/atol.
         substeps: steps per sample interval (adaptive schemes: the first trial step
             is one interval / substeps).
-        interpolation: "linear" or "zoh".
+        interpolation: the input between samples: "linear", "zoh" (held), "cubic"
+            (not-a-knot spline), "bandlimited" (windowed sinc) or "periodic"
+            (trigonometric, for a record of whole periods); see ``intersample.py``.
     """
 
     scheme: Scheme | RungeKuttaScheme
@@ -109,6 +114,14 @@ class Discretisation:
             f"{self.substeps}"
         )
 
+    def inputs(self, model, t, u) -> np.ndarray:
+        """The inputs as the march reads them: the samples (P, U), delayed where the
+        model says so; for a smooth interpolation, each interval's coefficients
+        (P, Q, U) of the (delayed) input (``intersample.track``)."""
+        if self.interpolation in SMOOTH:
+            return track(model, t, u, self.interpolation)
+        return model.delayed(t, u, self.interpolation)
+
     def as_dict(self) -> dict:
         """What a reader needs to reproduce a cost: scheme, substeps, interpolation and,
         for an adaptive scheme, rtol and atol (fit.json's "integration")."""
@@ -146,8 +159,12 @@ class DiscretisationSettings:
 
 
 def input_at(u0: jax.Array, u1: jax.Array, s, interpolation: str) -> jax.Array:
+    """The input at fraction s of an interval: from its end samples u0, u1, or, for a
+    smooth interpolation, from u0 = the interval's coefficients (u1 unused)."""
     if interpolation == "zoh":
         return u0
+    if interpolation in SMOOTH:
+        return chebyshev_at(u0, s)
     return u0 + s * (u1 - u0)
 
 

@@ -220,9 +220,10 @@ class Model:
     def __getstate__(self):
         return {k: v for k, v in self.__dict__.items() if k != "_compiled_sweeps"}
 
-    def delayed(self, t, u, interpolation: str = "linear") -> np.ndarray:
+    def delayed(self, t, u, interpolation: str = "linear", at=None) -> np.ndarray:
         """The inputs the model sees at the sample times t: u(t − τ) for each delayed
-        input (``input_delays``), u itself for the others."""
+        input (``input_delays``), u itself for the others. ``at(times, j)``: input j
+        between samples (the smooth interpolations'); without it, linear or held."""
         u = np.asarray(u, dtype=float)
         if not self.input_delays:
             return u
@@ -236,7 +237,9 @@ class Model:
                     "sample; give a shorter delay or a longer record"
                 )
             j = self.inputs.index(name)
-            if interpolation == "zoh":  # the last sample at or before t − τ
+            if at is not None:
+                out[:, j] = at(t - tau, j)
+            elif interpolation == "zoh":  # the last sample at or before t − τ
                 k = np.searchsorted(t, t - tau * (1 - 1e-12), side="right") - 1
                 out[:, j] = u[np.clip(k, 0, len(t) - 1), j]
             else:

@@ -61,7 +61,8 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
             ±inf for an open side.
         substeps: Runge-Kutta steps per sample interval (for an adaptive scheme: the
             first trial step is one sample interval / substeps).
-        interpolation: "linear" or "zoh" for the input between samples.
+        interpolation: the input between samples: "linear", "zoh", "cubic",
+            "bandlimited" or "periodic" (docs/your-own-model.md says which to choose).
         scheme: explicit fixed-step "rk4" (default), "rk38", "heun", "euler"; implicit
             (L-stable, for stiff models) "sdirk3", "sdirk2", "implicit-euler"; adaptive
             (error-controlled) "dopri5", "bosh3".
@@ -223,8 +224,9 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
         return self.model
 
     def inputs(self, e: Experiment) -> np.ndarray:
-        """The inputs the model sees on experiment e: delayed where the model says so."""
-        return self.model.delayed(e.t, e.u, self.discretisation.interpolation)
+        """The inputs the model sees on experiment e: delayed where the model says so
+        (a smooth interpolation's: each interval's coefficients, Discretisation.inputs)."""
+        return self.discretisation.inputs(self.model, e.t, e.u)
 
     @property
     def sweeps(self) -> Sweeps:

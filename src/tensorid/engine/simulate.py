@@ -48,7 +48,7 @@ class Simulation:
 
 def run_simulation(sweeps: Sweeps, data: Experiment, x0, p) -> Simulation:
     """Simulate with compiled ``sweeps`` and read the integrator's failure code."""
-    u = sweeps.model.delayed(data.t, data.u, sweeps.discretisation.interpolation)
+    u = sweeps.discretisation.inputs(sweeps.model, data.t, data.u)
     xs, ys, code, at = sweeps.simulate(on_device(x0), on_device(p), on_device(data.t), on_device(u))
     xs, ys = np.asarray(xs), np.asarray(ys)
     status = Status.from_code(int(code))

@@ -228,7 +228,7 @@ def _predicted(sim, model, params, x0, record, disc, horizon, predictor) -> Simu
         raise ValueError(f"a prediction horizon needs measured outputs; {record.name!r} has none")
     check_horizon(horizon, record.P)
     sw = shared_sweeps(model, (), (), disc, *(predictor or ()))
-    u = model.delayed(record.t, record.u, disc.interpolation)
+    u = disc.inputs(model, record.t, record.u)
     args = (on_device(a) for a in (x0, model.params_array(params), record.t, u, record.y))
     y = np.asarray(sw.k_step(on_device(np.zeros(0)), *args, k=int(horizon)))
     return Simulation(model, record, sim.x, y, sim.status, sim.failed_at)
