@@ -21,6 +21,7 @@ from ..fitting.methods import fit
 from ..fitting.results import FitInterrupted
 from ..fitting.summary import coloured_residuals_line, summary_table
 from ..fitting.validation import Score, training_scores
+from ..population import PopulationResult
 from . import fleets
 from .after_fit import _after_fit, _gof_lines, _profile_figures
 from .cluster import _workers
@@ -46,6 +47,7 @@ from .keeping import (
 )
 from .output import check_destination, claimed, previous_outputs, write_atomic, write_text
 from .overrides import given_once, overridden
+from .population_run import report_population
 from .progress import _log_line, _progress_table
 from .provenance import provenance
 from .renderer import Renderer
@@ -194,6 +196,8 @@ def _fit_command(args, renderer: Renderer) -> int:
         except FitInterrupted as stop:
             with _no_interrupt():  # a second Ctrl-C while saving would lose it
                 return _save_interrupted(stop.result, out, old, _recorded(args))
+        if isinstance(res, PopulationResult):  # a fleet's population fit
+            return report_population(res, out, old, _recorded(args))
         kept: dict = {}  # where the complete fit.json went, once it is written
         try:
             return _report(res, val, args, out, old, kept, renderer)

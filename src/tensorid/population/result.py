@@ -6,6 +6,7 @@ with their own error bars."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -50,8 +51,10 @@ class PopulationResult:
     method: str
     seconds: float
     observations: int
-    problem: object = field(repr=False, default=None)
+    problem: Any = field(repr=False, default=None)
     history: list = field(repr=False, default_factory=list)
+    # the objective it was fitted with (its compiled programs: predictions, figures)
+    objective_function: Any = field(repr=False, default=None)
 
     @property
     def success(self) -> bool:
@@ -126,7 +129,7 @@ class PopulationResult:
             residual_sd={o: v["value"] for o, v in residual_sd.items()},
             units=units, nit=r.nit, nfev=r.nfev, status=status, method=obj.method,
             seconds=seconds, observations=int(obj.units.mask.sum()), problem=obj.problem,
-            history=list(getattr(r, "history", [])),
+            history=list(getattr(r, "history", [])), objective_function=obj,
         )  # fmt: skip
 
     def summary(self) -> str:

@@ -1,0 +1,98 @@
+"""The end of ``tensorid fit`` for a fleet's population fit: the console's table,
+fit.json (the population keys of app/fleet_report.py with the run's settings and
+provenance), report.md and the figures (every unit's data and fits, observed against
+predicted, the visual predictive check). Validation records, profiles and the
+single-system statistics do not apply to it and are not run."""
+
+from __future__ import annotations
+
+import json
+from functools import partial
+from pathlib import Path
+
+from .._config import __version__
+from ..fitting.figures import save_png
+from ..population.figures import observed_predicted_figure, units_figure, vpc_figure
+from .fleet_report import fleet_json, fleet_lines
+from .keeping import _replace_quietly
+from .output import write_atomic, write_kept, write_text
+from .provenance import markdown as provenance_lines
+
+
+def population_json(res, recorded: dict) -> dict:
+    """fit.json of a population fit (a contract: keys added, never renamed)."""
+    d = {
+        "kind": "population",
+        "method": res.method,
+        "status": res.status.name.lower(),
+        "success": res.success,
+        "message": res.message,
+        "objective": res.objective,
+        "objective_nlmixr": res.objective_nlmixr,
+        "observations": res.observations,
+        "iterations": res.nit,
+        "function_evaluations": res.nfev,
+        "seconds": res.seconds,
+        "params": res.params,
+        "shared": res.shared,
+        "unknowns": dict(zip(res.names, res.x.tolist(), strict=True)),
+        "model": res.problem.model.name,
+        "tensorid_version": __version__,
+    }
+    d.update(fleet_json(res))
+    for u, entry in zip(d["units"], res.units, strict=True):
+        u["eta"] = entry["eta"]
+    d.update(recorded)
+    return d
+
+
+def population_report(res, data: dict, figures: list[Path]) -> str:
+    lines = [
+        "# Population fit",
+        "",
+        f"{len(res.units)} units, {res.observations} observations; method "
+        f"{res.method.upper()}: {res.message} after {res.nit} iterations "
+        f"({res.seconds:.1f} s).",
+        "",
+        f"−2 log L = {res.objective:.4f} (less N log 2π, as nlmixr2 and NONMEM print it: "
+        f"{res.objective_nlmixr:.4f}).",
+        "",
+    ]
+    lines += fleet_lines(data)
+    if res.shared:
+        lines += ["Shared parameters: " + ", ".join(
+            f"{n} = {v['value']:.5g} ± {v['stderr']:.3g}" for n, v in res.shared.items()
+        ) + ".", ""]  # fmt: skip
+    lines += [f"![{p.stem}]({p.name})" for p in figures] + [""]
+    prov = data.get("provenance")
+    return "\n".join(lines + (provenance_lines(prov) if prov else []))
+
+
+def report_population(res, out: Path, old: set[Path], recorded: dict) -> int:
+    """Print, then write; every failing write is named, none loses the estimates."""
+    print(res.summary())
+    data = population_json(res, recorded)
+    path, failure = write_kept(out / "fit.json", json.dumps(data, indent=2, allow_nan=False))
+    if failure:  # the folder cannot be written: the estimates went elsewhere
+        print(f"tensorid: {failure}; fit.json written to {path}")
+        return 1
+    failures: list[str] = []
+    written, figures = [path], []
+    for stem, build in (
+        ("units", units_figure),
+        ("observed_predicted", observed_predicted_figure),
+        ("vpc", vpc_figure),
+    ):
+        try:
+            figures.append(write_atomic(out / f"{stem}.png", partial(save_png, build(res))))
+        except OSError as e:
+            failures.append(f"could not write {out / (stem + '.png')}: {e.strerror or e}")
+    try:
+        written.append(write_text(out / "report.md", population_report(res, data, figures)))
+    except OSError as e:
+        failures.append(f"could not write {out / 'report.md'}: {e.strerror or e}")
+    _replace_quietly(out, old, written + figures, failures)
+    for f in failures:
+        print(f"tensorid: {f}")
+    print(f"results in {out}/")
+    return 0 if res.success and not failures else 1

@@ -1,0 +1,125 @@
+"""A population fit's figures, built in memory (the app writes them): every unit's data
+with its own fit and the typical unit's (a grid of small panels), observed against
+predicted (population and individual), and a visual predictive check (the observed
+percentiles over time beside those of fleets simulated from the fitted population)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+GRID_MAX = 36  # units shown in the grid; the rest are in fit.json
+
+
+def _predictions(res):
+    obj = res.objective_function
+    typical = np.asarray(obj.predict_all(res.x, np.zeros_like(res.etas)))
+    own = np.asarray(obj.predict_all(res.x, res.etas))
+    return obj.units, typical, own
+
+
+def units_figure(res, output: int = 0):
+    """Each unit's observations, its own prediction (η̂) and the typical unit's (η = 0)."""
+    import matplotlib.pyplot as plt
+
+    units, typical, own = _predictions(res)
+    n = min(len(units.names), GRID_MAX)
+    cols = int(np.ceil(np.sqrt(n)))
+    rows = int(np.ceil(n / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(2.4 * cols, 1.9 * rows), squeeze=False,
+                             sharex=True, sharey=True)  # fmt: skip
+    name = res.problem.model.outputs[output]
+    for i, ax in enumerate(axes.flat):
+        if i >= n:
+            ax.set_visible(False)
+            continue
+        k = int(units.samples[i])
+        t = units.t[i, :k]
+        ax.plot(t, units.y[i, :k, output], "o", ms=3, color="k", label="observed")
+        ax.plot(t, own[i, :k, output], "-", color="C0", label="individual")
+        ax.plot(t, typical[i, :k, output], "--", color="C1", label="population")
+        ax.set_title(f"unit {units.names[i]}", fontsize=8)
+        ax.tick_params(labelsize=7)
+    axes.flat[0].legend(fontsize=6)
+    more = "" if len(units.names) <= n else f" (first {n} of {len(units.names)} units)"
+    fig.suptitle(f"{name}: data and fits{more}", fontsize=10)
+    fig.supxlabel("time", fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
+def observed_predicted_figure(res, output: int = 0):
+    """Observed against population (η = 0) and individual (η̂) predictions."""
+    import matplotlib.pyplot as plt
+
+    units, typical, own = _predictions(res)
+    seen = units.mask[..., output] > 0
+    y = units.y[..., output][seen]
+    fig, axes = plt.subplots(1, 2, figsize=(8, 3.8))
+    for ax, pred, what in ((axes[0], typical, "population"), (axes[1], own, "individual")):
+        p = pred[..., output][seen]
+        ax.plot(p, y, "o", ms=3, alpha=0.7)
+        lo, hi = float(min(p.min(), y.min())), float(max(p.max(), y.max()))
+        ax.plot([lo, hi], [lo, hi], "k-", lw=0.8, label="observed = predicted")
+        ax.set_xlabel(f"{what} prediction")
+        ax.set_ylabel("observed")
+        ax.set_title(f"{what} (η {'= 0' if what == 'population' else '= η̂'})")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def vpc(res, replicates: int = 200, seed: int = 0, bins: int = 8, output: int = 0):
+    """The visual predictive check's numbers: per time bin, the observed 5/50/95 %
+    percentiles and the 5/50/95 % range of each over ``replicates`` fleets simulated at
+    the observed times (η ~ N(0, Ω), additive noise of the fitted σ). Returns a dict
+    of arrays: centre (B,), observed (B, 3), simulated (B, 3, 3) [percentile, range]."""
+    obj = res.objective_function
+    units = obj.units
+    rng = np.random.default_rng(seed)
+    omega = np.array([v["omega"] for v in res.population.values()])
+    sigma = list(res.residual_sd.values())[output]
+    seen = units.mask[..., output] > 0
+    t = units.t[seen]
+    edges = np.unique(np.quantile(t, np.linspace(0, 1, bins + 1)))
+    which = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, len(edges) - 2)
+    levels = (5, 50, 95)
+
+    def percentiles(values):
+        return np.array(
+            [np.percentile(values[which == b], levels) if (which == b).any() else [np.nan] * 3
+             for b in range(len(edges) - 1)]
+        )  # fmt: skip
+
+    sims = []
+    for _ in range(replicates):
+        etas = rng.standard_normal(res.etas.shape) * omega
+        pred = np.asarray(obj.predict_all(res.x, etas))[..., output][seen]
+        sims.append(percentiles(pred + sigma * rng.standard_normal(pred.shape)))
+    sims_a = np.stack(sims)  # (R, B, 3)
+    centre = np.array([t[which == b].mean() if (which == b).any() else np.nan
+                       for b in range(len(edges) - 1)])  # fmt: skip
+    return {
+        "centre": centre,
+        "observed": percentiles(units.y[..., output][seen]),
+        "simulated": np.percentile(sims_a, levels, axis=0).transpose(1, 2, 0),
+    }
+
+
+def vpc_figure(res, output: int = 0):
+    import matplotlib.pyplot as plt
+
+    v = vpc(res, output=output)
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    c = v["centre"]
+    for j, (level, colour) in enumerate(((5, "C0"), (50, "C3"), (95, "C0"))):
+        band = v["simulated"][:, j]
+        ax.fill_between(c, band[:, 0], band[:, 2], color=colour, alpha=0.2,
+                        label=f"simulated {level} % (90 % range)")  # fmt: skip
+        ax.plot(c, v["observed"][:, j], "-o", color=colour, ms=3, label=f"observed {level} %")
+    name = res.problem.model.outputs[output]
+    ax.set_xlabel("time (bin mean)")
+    ax.set_ylabel(name)
+    ax.set_title("visual predictive check (200 simulated fleets)")
+    ax.legend(fontsize=6, ncol=2)
+    fig.tight_layout()
+    return fig
