@@ -65,8 +65,8 @@ def _plain_objective(obj: Objective, etas, newton_steps: int = 2):
     sw = obj.sweeps
 
     def yhat(psi, eta, unit):
-        t, u, _, _, x0 = unit
-        x0_, p_ = sw.expand(obj.theta(psi, eta), x0, obj.p)
+        t, u, _, _, x0, p = unit
+        x0_, p_ = sw.expand(obj.theta(psi, eta), x0, p)
         return sw._simulate(x0_, p_, t, u)[1]
 
     def ell(eta, psi, unit):
@@ -132,8 +132,8 @@ def test_the_inner_hessian_is_the_exact_one():
     sw = obj.sweeps
 
     def ell_plain(e):
-        t, u, y, mask, x0 = unit
-        x0_, p_ = sw.expand(obj.theta(psi, e), x0, obj.p)
+        t, u, y, mask, x0, p = unit
+        x0_, p_ = sw.expand(obj.theta(psi, e), x0, p)
         r = (y - sw._simulate(x0_, p_, t, u)[1]) * mask
         return 0.5 * (jnp.sum(r**2 / 0.4**2) + jnp.sum((e / jnp.exp(psi[2:4])) ** 2))
 
@@ -181,7 +181,11 @@ def test_theophylline_matches_nlmixr2s_published_fit():
     assert res.success
     assert res.objective_nlmixr == pytest.approx(116.804, abs=0.01)
     pop = res.population
-    for n, (typ, se) in {"ka": (0.4663, 0.1911), "cl": (1.012, 0.08366), "v": (3.460, 0.04654)}.items():
+    for n, (typ, se) in {
+        "ka": (0.4663, 0.1911),
+        "cl": (1.012, 0.08366),
+        "v": (3.460, 0.04654),
+    }.items():
         assert np.log(pop[n]["typical"]) == pytest.approx(typ, abs=0.01)
         assert pop[n]["typical_stderr"] / pop[n]["typical"] == pytest.approx(se, rel=0.03)
     for n, cv in {"ka": 70.00, "cl": 26.80, "v": 13.88}.items():
@@ -218,12 +222,68 @@ def test_population_with_a_fixed_parameter_or_a_filter_is_refused():
 
 def test_x0_expressions_are_evaluated_per_record():
     m, units = simulated_fleet(3)
-    pr = ti.Problem(m, units, p0={"ka": 1, "cl": 2, "v": 30}, x0={"depot": "2 * Dose", "center": 1.5})
+    pr = ti.Problem(
+        m, units, p0={"ka": 1, "cl": 2, "v": 30}, x0={"depot": "2 * Dose", "center": 1.5}
+    )
     np.testing.assert_allclose(pr.x0[:, 0], [2 * e.u[0, 0] for e in units])
     np.testing.assert_allclose(pr.x0[:, 1], 1.5)
     with pytest.raises(ValueError, match="names \\['Wt'\\], which are neither inputs"):
         ti.Problem(m, units, p0={"ka": 1, "cl": 2, "v": 30}, x0={"depot": "Dose * Wt"})
     with pytest.raises(ValueError, match="an x0 expression names \\['v'\\], which are estimated"):
         ti.Problem(m, units, p0={"ka": 1, "cl": 2, "v": 30}, x0={"depot": "Dose / v"})
-    fixed = ti.Problem(m, units, p0={"ka": 1, "cl": 2, "v": 30}, x0={"depot": "Dose / v"}, fixed=["v"])
+    fixed = ti.Problem(
+        m, units, p0={"ka": 1, "cl": 2, "v": 30}, x0={"depot": "Dose / v"}, fixed=["v"]
+    )
     np.testing.assert_allclose(fixed.x0[:, 0], [e.u[0, 0] / 30 for e in units])
+
+
+def test_individual_parameters_are_the_joint_least_squares_fit():
+    """Each unit its own cl, ka and v shared: the reduced fit's estimates are the joint
+    least-squares optimum, and its error bars those of the joint problem's dense
+    Hessian (jax.hessian of the plainly written cost over every unknown)."""
+    m, units = simulated_fleet(3)
+    pr = ti.Problem(
+        m, units, p0={"ka": 1.2, "cl": 2.0, "v": 25.0}, x0={"depot": "Dose", "center": 0.0},
+        substeps=20, individual=["cl"],
+    )  # fmt: skip
+    res = ti.fit(pr)
+    assert res.success and res.method == "joint" and res.population == {}
+    obj = res.objective_function
+    sw = obj.sweeps
+
+    def joint_cost(z):  # z = (cl of each unit, ka, v)
+        J = 0.0
+        for i in range(3):
+            t, u, y, mask, x0, p = (a[i] for a in obj.data)
+            x0_, p_ = sw.expand(jnp.stack([z[3], z[i], z[4]]), x0, p)
+            J = J + jnp.sum(((y - sw._simulate(x0_, p_, t, u)[1]) * mask) ** 2)
+        return J
+
+    z = jnp.asarray(
+        [u["params"]["cl"] for u in res.units]
+        + [res.shared["ka"]["value"], res.shared["v"]["value"]]
+    )
+    g = np.asarray(jax.grad(joint_cost)(z))
+    H = np.asarray(jax.hessian(joint_cost)(z))
+    assert float(joint_cost(z)) == pytest.approx(res.objective, rel=1e-12)
+    assert np.abs(g).max() < 1e-6 * np.abs(np.diag(H)).max() ** 0.5
+    N = sum(e.P for e in units)
+    cov = 2 * float(joint_cost(z)) / (N - 5) * np.linalg.inv(H)
+    se = np.sqrt(np.diag(cov))
+    np.testing.assert_allclose([u["stderr"]["cl"] for u in res.units], se[:3], rtol=1e-6)
+    np.testing.assert_allclose([res.shared[n]["stderr"] for n in ("ka", "v")], se[3:], rtol=1e-6)
+
+
+def test_bad_individual_is_one_clear_line():
+    m, units = simulated_fleet(2)
+    p0 = {"ka": 1, "cl": 2, "v": 30}
+    with pytest.raises(ValueError, match="not a parameter of the model"):
+        ti.Problem(m, units, p0=p0, individual=["kl"])
+    with pytest.raises(ValueError, match="both individual .* and in population"):
+        ti.Problem(m, units, p0=p0, individual=["ka"], population={"ka": 0.3})
+    with pytest.raises(ValueError, match="not supported yet"):
+        ti.Problem(m, units, p0=p0, individual=["cl"], population={"ka": 0.3})
+    with pytest.raises(TypeError, match="list of parameter names"):
+        ti.Problem(m, units, p0=p0, individual="cl")
+    with pytest.raises(ValueError, match="free_x0 is not supported"):
+        ti.Problem(m, units, p0=p0, individual=["cl"], free_x0=["center"])

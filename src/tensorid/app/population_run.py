@@ -38,6 +38,7 @@ def population_json(res, recorded: dict) -> dict:
         "unknowns": dict(zip(res.names, res.x.tolist(), strict=True)),
         "model": res.problem.model.name,
         "tensorid_version": __version__,
+        "notes": list(res.notes),
     }
     d.update(fleet_json(res))
     for u, entry in zip(d["units"], res.units, strict=True):
@@ -58,6 +59,7 @@ def population_report(res, data: dict, figures: list[Path]) -> str:
         f"{res.objective_nlmixr:.4f}).",
         "",
     ]
+    lines += [f"**Note:** {n}" for n in res.notes] + ([""] if res.notes else [])
     lines += fleet_lines(data)
     if res.shared:
         lines += ["Shared parameters: " + ", ".join(

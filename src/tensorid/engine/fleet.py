@@ -51,14 +51,55 @@ def check_population(problem, population, predictor, loss, segments) -> dict[str
                 "the typical value times exp(η))"
             )
         out[str(name)] = float(omega)
+    _fleet_settings(problem, "population", predictor, loss, segments)
+    return out
+
+
+def _fleet_settings(problem, what: str, predictor, loss, segments) -> None:
+    """What a fleet's fit does not (yet) combine with, one line each."""
     if predictor != "simulation" or segments not in (None, 1) or loss != "squared":
         raise ValueError(
-            "a population fit is of output error with additive Gaussian noise: leave "
+            f"a fit with {what} parameters is of output error with Gaussian noise: leave "
             "predictor, segments and loss at their defaults"
         )
     if problem.priors:
-        raise ValueError("a population fit takes no priors: its Ω is the units' prior")
-    return out
+        raise ValueError(f"a fit with {what} parameters takes no priors")
+    if problem.free_x0:
+        raise ValueError(
+            f"a fit with {what} parameters starts each unit from its x0 (a number or an "
+            "expression such as 'Dose * Wt'): free_x0 is not supported there; drop it"
+        )
+
+
+def check_individual(problem, individual, predictor, loss, segments) -> list[str]:
+    """The parameters each unit has its own value of, checked; [] for none."""
+    if individual is None or (not isinstance(individual, str) and len(individual) == 0):
+        return []
+    if isinstance(individual, str) or not all(isinstance(n, str) for n in individual):
+        raise TypeError(f"individual must be a list of parameter names, got {individual!r}")
+    m = problem.model
+    for name in individual:
+        if name not in m.params or name.startswith("log_sigma_"):
+            raise ValueError(
+                f"individual names {name!r}, which is not a parameter of the model "
+                f"{list(m.params)}{did_you_mean(name, list(m.params))}"
+            )
+        if name in problem.fixed:
+            raise ValueError(f"{name!r} is both fixed and individual: drop it from one of them")
+        if name in problem.population:
+            raise ValueError(
+                f"{name!r} is both individual (each unit its own value, no distribution) "
+                "and in population (log-normal over the units): choose one"
+            )
+    if len(set(individual)) != len(individual):
+        raise ValueError(f"individual names a parameter twice: {list(individual)}")
+    if problem.population:
+        raise ValueError(
+            "individual and population parameters in one fit are not supported yet: fit "
+            "the individual ones as population parameters, or fix the population"
+        )
+    _fleet_settings(problem, "individual", predictor, loss, segments)
+    return list(individual)
 
 
 def fixed_x0_parameters(problem) -> None:

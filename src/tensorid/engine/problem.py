@@ -30,7 +30,7 @@ from .checks import (
 from .compiled import on_device
 from .data import Experiment
 from .discretisation import Discretisation, DiscretisationSettings
-from .fleet import check_population, fixed_x0_parameters
+from .fleet import check_individual, check_population, fixed_x0_parameters
 from .integrators import Scheme
 from .layout import ThetaLayout
 from .losses import GAUSSIAN, Loss, make_loss
@@ -127,6 +127,9 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
             estimates the typical values, the ω, the parameters not named (shared by
             the fleet) and each output's residual SD by the marginal likelihood (see
             :mod:`tensorid.population`).
+        individual: parameter names each unit (experiment) has its own value of, with
+            no distribution; :func:`tensorid.fit` estimates them with the shared ones
+            by least squares, in time linear in the number of units.
     """
 
     def __init__(
@@ -157,6 +160,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
         process_noise: Mapping[str, float] | None = None,
         measurement_noise: Mapping[str, float] | None = None,
         population: Mapping[str, float] | None = None,
+        individual: Sequence[str] | None = None,
     ):
         if not isinstance(model, Model):
             raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
@@ -191,6 +195,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
         self._set_priors(priors, noise)
         # a fleet's random effects: {param: ω start}; tensorid.fit estimates them
         self.population = check_population(self, population, predictor, loss, segments)
+        self.individual = check_individual(self, individual, predictor, loss, segments)
         if self.K == 0:
             raise ValueError("nothing to estimate: every parameter is fixed and free_x0 is empty")
         self._sweeps = shared_sweeps(

@@ -97,7 +97,7 @@ def fit(
     :class:`tensorid.population.PopulationResult` (see docs: Fleets and populations).
     """
     started = time.perf_counter()
-    if getattr(problem, "population", None):  # a fleet's random effects
+    if problem.population or problem.individual:  # a fleet's own kinds of parameter
         kind = "focei" if method == "auto" else str(method)
         # typed as FitResult for the many callers of ordinary problems; documented above
         return cast(FitResult, fit_population(problem, kind, maxiter=maxiter, callback=callback))

@@ -31,8 +31,6 @@ derivative comes from the sweeps (units.py), none from finite differences.
 
 from __future__ import annotations
 
-import functools
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -41,6 +39,7 @@ from ..engine.sweeps import shared_sweeps
 from .units import Units, outputs
 
 METHODS = ("focei", "laplace")
+_PROGRAMS: dict = {}  # compiled programs per structure (Objective.key)
 LOG_2PI = float(np.log(2 * np.pi))
 
 
@@ -55,45 +54,62 @@ class Objective:
             )
         m = problem.model
         self.problem, self.method = problem, method
-        self.pop = list(problem.population)
-        self.shared = [n for n in problem.free_params if n not in problem.population]
+        # individual parameters (no distribution): the joint least-squares problem,
+        # reduced to the shared ones (variable projection; see fit_population)
+        self.joint = bool(problem.individual)
+        self.pop = list(problem.individual or problem.population)
+        self.shared = [n for n in problem.free_params if n not in self.pop]
         free = [m.params.index(n) for n in problem.free_params]
         self.sweeps = shared_sweeps(m, (), tuple(free), problem.discretisation)
         self.pop_pos = jnp.array([problem.free_params.index(n) for n in self.pop], dtype=int)
         self.sh_pos = jnp.array([problem.free_params.index(n) for n in self.shared], dtype=int)
         self.q, self.ns, self.S = len(self.pop), len(self.shared), m.S
         self.units = Units.of(problem)
-        self.data = self.units.arrays()
-        self.p = jnp.asarray(problem.p0, dtype=float)
+        # per unit (t, u, y, mask, x0, p): the fixed parameters travel with the data, so
+        # that a fleet of another size or other fixed values reuses the compiled programs
+        p = np.tile(np.asarray(problem.p0, dtype=float), (len(self.units.names), 1))
+        self.data = (*self.units.arrays(), jnp.asarray(p))
+        self.weights = tuple(float(w) for w in problem.weights)
+        self.key = (self.sweeps, tuple(self.pop), tuple(self.shared), method, self.joint)
+        self.key += (self.weights,) if self.joint else ()
         self.Y = outputs(self.sweeps)
         self.names = (
-            [f"log_{n}" for n in self.pop]
-            + [f"log_omega_{n}" for n in self.pop]
-            + self.shared
-            + [f"log_sigma_{o}" for o in m.outputs]
+            self.shared
+            if self.joint
+            else (
+                [f"log_{n}" for n in self.pop]
+                + [f"log_omega_{n}" for n in self.pop]
+                + self.shared
+                + [f"log_sigma_{o}" for o in m.outputs]
+            )
         )
         self.size = len(self.names)
 
     # -- pieces -----------------------------------------------------------------------
     def split(self, psi):
+        if self.joint:  # ψ holds the shared parameters alone
+            return psi[:0], psi[:0], psi, psi[:0]
         q, ns = self.q, self.ns
         return psi[:q], psi[q : 2 * q], psi[2 * q : 2 * q + ns], psi[2 * q + ns :]
 
     def theta(self, psi, eta):
         """The unit's free parameters (natural units, model order)."""
         mu, _, s, _ = self.split(psi)
-        th = jnp.zeros(self.q + self.ns, dtype=psi.dtype)
-        return th.at[self.pop_pos].set(jnp.exp(mu + eta)).at[self.sh_pos].set(s)
+        th = jnp.zeros(self.q + self.ns, dtype=jnp.result_type(psi, eta))
+        own = eta if self.joint else jnp.exp(mu + eta)
+        return th.at[self.pop_pos].set(own).at[self.sh_pos].set(s)
 
     def predict(self, psi, eta, unit):
-        t, u, _, _, x0 = unit
-        return self.Y(self.theta(psi, eta), x0, self.p, t, u)
+        t, u, _, _, x0, p = unit
+        return self.Y(self.theta(psi, eta), x0, p, t, u)
 
     def ell(self, eta, psi, unit):
         """ℓ_i(η): half the unit's weighted squared residuals plus half its prior."""
         _, logw, _, logsig = self.split(psi)
         y, mask = unit[2], unit[3]
         r = (y - self.predict(psi, eta, unit)) * mask
+        if self.joint:  # least squares, J_i / 2 with the Problem's weights
+            return 0.5 * jnp.sum(r**2 * jnp.asarray(self.weights))
         return 0.5 * (jnp.sum(r**2 * jnp.exp(-2 * logsig)) + jnp.sum((eta * jnp.exp(-logw)) ** 2))
 
     def curvature(self, eta, psi, unit):
@@ -106,7 +122,10 @@ class Objective:
         return jnp.einsum("psj,psk->jk", Aw, Aw) + jnp.diag(jnp.exp(-2 * logw))
 
     def unit_objective(self, psi, eta, unit):
-        """O_i: −2 log of the unit's approximate marginal likelihood."""
+        """O_i: −2 log of the unit's approximate marginal likelihood (for individual
+        parameters, the unit's least-squares cost J_i)."""
+        if self.joint:
+            return 2 * self.ell(eta, psi, unit)
         _, logw, _, logsig = self.split(psi)
         n = jnp.sum(unit[3], axis=0)  # observations per output
         sign, logdet = jnp.linalg.slogdet(self.curvature(eta, psi, unit))
@@ -153,31 +172,80 @@ class Objective:
         return eta, lam, jnp.where(ok, f_new, f), size
 
     # -- compiled, over all units -------------------------------------------------------
-    @functools.cached_property
+    # kept per structure (model, discretisation, which parameters are random effects,
+    # method): each function reads only that structure from self, the rest from its
+    # arguments, so a later Objective of the same structure reuses them
+    def _program(self, name: str, build):
+        programs = _PROGRAMS.setdefault(self.key, {})
+        if name not in programs:
+            programs[name] = build()
+        return programs[name]
+
+    @property
     def _steps(self):
+        return self._program("steps", self._build_steps)
+
+    @property
+    def _value_grad(self):
+        return self._program("value_grad", self._build_value_grad)
+
+    @property
+    def _hessian(self):
+        return self._program("hessian", self._build_hessian)
+
+    @property
+    def _inner_hessians(self):
+        return self._program("inner_hessians", self._build_inner_hessians)
+
+    @property
+    def _predict_all(self):
+        return self._program("predict_all", self._build_predict_all)
+
+    def predict_all(self, psi, etas):
+        """ŷ (E, P, S) of every unit at (ψ, η (E, q))."""
+        return self._predict_all(jnp.asarray(psi), jnp.asarray(etas), self.data)
+
+    def _build_predict_all(self):
+        return jax.jit(jax.vmap(self.predict, in_axes=(None, 0, 0)))
+
+    def _build_steps(self):
         return jax.jit(jax.vmap(self.inner_step, in_axes=(0, 0, None, 0)))
 
-    @functools.cached_property
-    def _value_grad(self):
+    def _build_value_grad(self):
         def total(psi, etas, data):
             O, g = jax.vmap(self.unit_value_grad, in_axes=(None, 0, 0))(psi, etas, data)
             return O, g
 
         return jax.jit(total)
 
-    @functools.cached_property
-    def _hessian(self):
+    def _build_hessian(self):
         return jax.jit(jax.vmap(self.unit_hessian, in_axes=(None, 0, 0)))
 
-    @functools.cached_property
-    def predict_all(self):
-        """ŷ (E, P, S) of every unit at (ψ, η (E, q))."""
-        return jax.jit(
-            lambda psi, etas: jax.vmap(self.predict, in_axes=(None, 0, 0))(psi, etas, self.data)
-        )
+    @property
+    def _inner_blocks(self):
+        return self._program("inner_blocks", self._build_inner_blocks)
 
-    @functools.cached_property
-    def _inner_hessians(self):
+    def _build_inner_blocks(self):
+        def blocks(eta, psi, unit):  # ∇²_ηη ℓ_i and ∇²_ηψ ℓ_i
+            L = jax.jacfwd(jax.grad(self.ell), argnums=1)(eta, psi, unit)
+            return jax.hessian(self.ell)(eta, psi, unit), L
+
+        return jax.jit(jax.vmap(blocks, in_axes=(0, None, 0)))
+
+    def inner_blocks(self, psi, etas) -> tuple[np.ndarray, np.ndarray]:
+        """(∇²_ηη ℓ_i (E, q, q), ∇²_ηψ ℓ_i (E, q, ψ)) at η̂."""
+        H, L = self._inner_blocks(jnp.asarray(etas), jnp.asarray(psi), self.data)
+        return np.asarray(H), np.asarray(L)
+
+    def start_etas(self) -> np.ndarray:
+        """The inner problems' start: η = 0, or an individual parameter's p0."""
+        E, pr = len(self.units.names), self.problem
+        if not self.joint:
+            return np.zeros((E, self.q))
+        p0 = [pr.p0[pr.model.params.index(n)] for n in self.pop]
+        return np.tile(np.asarray(p0, dtype=float), (E, 1))
+
+    def _build_inner_hessians(self):
         return jax.jit(jax.vmap(jax.hessian(self.ell), in_axes=(0, None, 0)))
 
     def solve_inner(self, psi, etas, maxiter: int = 100, tol: float = 1e-11):

@@ -55,6 +55,7 @@ class PopulationResult:
     history: list = field(repr=False, default_factory=list)
     # the objective it was fitted with (its compiled programs: predictions, figures)
     objective_function: Any = field(repr=False, default=None)
+    notes: list = field(default_factory=list)  # warnings the fit raised, for the files
 
     @property
     def success(self) -> bool:
@@ -85,6 +86,8 @@ class PopulationResult:
 
     @classmethod
     def build(cls, obj, r, etas, status, seconds) -> PopulationResult:
+        if obj.joint:
+            return cls._joint(obj, r, etas, status, seconds)
         q, ns, x = obj.q, obj.ns, np.asarray(r.x, dtype=float)
         H = np.asarray(r.hess, dtype=float)
         cov = 2.0 * _inverse(H)  # O = −2 log L: the information is H / 2
@@ -132,8 +135,48 @@ class PopulationResult:
             history=list(getattr(r, "history", [])), objective_function=obj,
         )  # fmt: skip
 
+    @classmethod
+    def _joint(cls, obj, r, etas, status, seconds) -> PopulationResult:
+        """Individual parameters: least squares over the shared and every unit's own
+        parameters. Covariance 2 s² H⁻¹ of the joint problem (s² = J / (N − K)), by
+        blocks: the shared ones' from the Schur complement (the outer Hessian), each
+        unit's s² (∇²_bb ℓ)⁻¹ + Z cov_s Zᵀ with Z = dη̂/dψ = −(∇²_bb ℓ)⁻¹ ∇²_bs ℓ."""
+        x, H = np.asarray(r.x, dtype=float), np.asarray(r.hess, dtype=float)
+        u = obj.units
+        N, K = int(u.mask.sum()), obj.ns + len(u.names) * obj.q
+        s2 = float(r.fun) / (N - K) if N > K else float("nan")
+        cov = 2.0 * s2 * _inverse(H) if obj.ns else np.zeros((0, 0))
+        se = np.sqrt(np.abs(np.diag(cov)))
+        shared = {
+            n: {"value": float(x[j]), "stderr": float(se[j])} for j, n in enumerate(obj.shared)
+        }
+        resid = (u.y - np.asarray(obj.predict_all(x, etas))) * u.mask
+        n_out = np.maximum(u.mask.sum((0, 1)), 1)
+        sd = np.sqrt((resid**2).sum((0, 1)) / n_out * (N / (N - K) if N > K else np.nan))
+        Hb, L = obj.inner_blocks(x, etas)
+        units = []
+        for i, uid in enumerate(u.names):
+            Hi = _inverse(Hb[i])
+            Z = -Hi @ L[i]
+            ci = s2 * Hi + Z @ cov @ Z.T
+            vals = {n: float(etas[i, k]) for k, n in enumerate(obj.pop)}
+            errs = {n: float(np.sqrt(abs(ci[k, k]))) for k, n in enumerate(obj.pop)}
+            vals.update({n: v["value"] for n, v in shared.items()})
+            errs.update({n: v["stderr"] for n, v in shared.items()})
+            units.append({"id": uid, "params": vals, "stderr": errs, "eta": {}})
+        return cls(
+            x=x, names=list(obj.names), objective=float(r.fun), jac=np.asarray(r.jac), hess=H,
+            cov=cov, etas=np.asarray(etas), population={}, shared=shared,
+            residual_sd=dict(zip(obj.problem.model.outputs, sd.tolist(), strict=True)),
+            units=units, nit=r.nit, nfev=r.nfev, status=status, method="joint",
+            seconds=seconds, observations=N, problem=obj.problem,
+            history=list(getattr(r, "history", [])), objective_function=obj,
+        )  # fmt: skip
+
     def summary(self) -> str:
         """The population table, the shared parameters and the residual SD."""
+        if self.method == "joint":
+            return self._joint_summary()
         lines = [
             f"Population fit ({self.method.upper()}), {len(self.units)} units, "
             f"{self.observations} observations: {self.message}",
@@ -151,7 +194,26 @@ class PopulationResult:
             lines.append(f"  {n:<12}{v['value']:>12.5g}{v['stderr']:>11.3g}   (shared)")
         for o, s in self.residual_sd.items():
             lines.append(f"  residual SD of {o}: {s:.5g}")
-        return "\n".join(lines)
+        return "\n".join(lines + [f"  note: {n}" for n in self.notes])
+
+    def _joint_summary(self) -> str:
+        own = [n for n in self.units[0]["params"] if n not in self.shared] if self.units else []
+        lines = [
+            f"Fleet fit (individual {', '.join(own)}), {len(self.units)} units, "
+            f"{self.observations} observations: {self.message}",
+            f"  cost {self.objective:.6g}; {self.nit} iterations, {self.seconds:.1f} s",
+        ]
+        for n, v in self.shared.items():
+            lines.append(f"  {n:<12}{v['value']:>12.5g} ± {v['stderr']:.3g}   (shared)")
+        for n in own:
+            vals = np.array([u["params"][n] for u in self.units])
+            lines.append(
+                f"  {n:<12} per unit: median {np.median(vals):.5g}, range "
+                f"{vals.min():.5g} to {vals.max():.5g} (each unit's in .units)"
+            )
+        for o, s in self.residual_sd.items():
+            lines.append(f"  residual SD of {o}: {s:.5g}")
+        return "\n".join(lines + [f"  note: {n}" for n in self.notes])
 
     def __str__(self) -> str:
         return self.summary()

@@ -1,0 +1,155 @@
+"""Population fits of simulated fleets: coverage of the error bars, and how the cost
+grows with the number of units.
+
+    python benchmarks/bench_population.py coverage --draws 200 --units 50
+    python benchmarks/bench_population.py scale --sizes 100 1000 10000
+
+coverage: each draw simulates a fleet of one-compartment units (first-order absorption,
+log-normal random effects on ka, cl and v, additive noise; truth below) at the same
+eight sample times, fits it by FOCEI from a start 20 % off, and checks whether the
+95 % intervals (on the log scale: μ̂ ± 1.96 SE, log ω̂ ± 1.96 SE) hold the truth;
+ω's relative bias is reported. scale: one outer iteration (every unit's inner solve,
+the exact gradient and Hessian) and a whole fit, timed per fleet size, with the
+process's peak memory; the exponent is the slope of log time against log units.
+Seeded; results to benchmarks/results/population.json (--json).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import tensorid as ti
+from tensorid.population.objective import Objective
+
+TRUTH = {"ka": 1.5, "cl": 2.7, "v": 31.5}
+OMEGA = {"ka": 0.5, "cl": 0.3, "v": 0.15}
+SIGMA = 0.5
+TIMES = np.array([0.0, 0.5, 1.0, 2.0, 4.0, 7.0, 12.0, 24.0])
+DOSE = 320.0
+
+
+def model() -> ti.Model:
+    def rhs(x, p, u):
+        ka, cl, v = p
+        return jnp.stack([-ka * x[0], ka * x[0] - cl / v * x[1]])
+
+    return ti.Model(rhs=rhs, output=lambda x, p: x[1:] / p[2], states=["depot", "center"],
+                    params=["ka", "cl", "v"], inputs=["Dose"], outputs=["cp"],
+                    name="one-compartment")  # fmt: skip
+
+
+MODEL = model()
+
+
+def fleet(n: int, seed: int) -> list[ti.Experiment]:
+    """n units drawn from the truth, simulated in one vmapped call."""
+    rng = np.random.default_rng(seed)
+    eta = rng.standard_normal((n, 3)) * np.array(list(OMEGA.values()))
+    params = np.array(list(TRUTH.values())) * np.exp(eta)
+    u = np.full((TIMES.size, 1), DOSE)
+    probe = ti.Problem(MODEL, [ti.Experiment(TIMES, u, np.zeros((TIMES.size, 1)))] * 2,
+                       p0=TRUTH, x0={"depot": "Dose", "center": 0.0}, substeps=40,
+                       population={"ka": 0.5})  # fmt: skip
+    obj = Objective(probe)
+    one = tuple(a[0] for a in obj.data)
+    data = tuple(jnp.broadcast_to(a, (n, *a.shape)) for a in one)
+    sw = obj.sweeps
+    sim = jax.jit(jax.vmap(lambda th, d: sw._simulate(d[4], th, d[0], d[1])[1]))
+    x0 = np.tile([DOSE, 0.0], (n, 1))
+    sims = np.asarray(sim(jnp.asarray(params), (*data[:4], jnp.asarray(x0))))
+    y = sims + SIGMA * rng.standard_normal(sims.shape)
+    return [ti.Experiment(TIMES, u, y[i], name=str(i)) for i in range(n)]
+
+
+def problem(units, start=1.2):
+    return ti.Problem(MODEL, units, p0={k: v * start for k, v in TRUTH.items()},
+                      x0={"depot": "Dose", "center": 0.0}, substeps=40,
+                      population={k: 0.3 for k in OMEGA})  # fmt: skip
+
+
+def coverage(draws: int, n_units: int) -> dict:
+    hits = {f"typical {k}": 0 for k in TRUTH} | {f"omega {k}": 0 for k in OMEGA}
+    rel_bias: dict[str, list] = {k: [] for k in OMEGA}
+    failed, seconds = 0, []
+    for d in range(draws):
+        t0 = time.perf_counter()
+        res = ti.fit(problem(fleet(n_units, seed=d)))
+        seconds.append(time.perf_counter() - t0)
+        if not res.success:
+            failed += 1
+            continue
+        se = res.stderr
+        for k, name in enumerate(TRUTH):
+            hits[f"typical {name}"] += abs(res.x[k] - np.log(TRUTH[name])) < 1.96 * se[k]
+            j = 3 + k
+            hits[f"omega {name}"] += abs(res.x[j] - np.log(OMEGA[name])) < 1.96 * se[j]
+            rel_bias[name].append(np.exp(res.x[j]) / OMEGA[name] - 1)
+        if (d + 1) % 20 == 0:
+            print(f"{d + 1} draws, {failed} failed, median {np.median(seconds):.2f} s per fit")
+    ok = draws - failed
+    return {
+        "draws": draws, "units": n_units, "failed": failed,
+        "coverage_95": {k: v / ok for k, v in hits.items()},
+        "omega_relative_bias": {k: float(np.mean(v)) for k, v in rel_bias.items()},
+        "median_fit_seconds": float(np.median(seconds[1:] or seconds)),
+        "truth": {"typical": TRUTH, "omega": OMEGA, "sigma": SIGMA},
+    }  # fmt: skip
+
+
+def scale(sizes: list[int]) -> dict:
+    rows = []
+    for n in sizes:
+        pr = problem(fleet(n, seed=1))
+        obj = Objective(pr)
+        psi = np.r_[np.log(list(TRUTH.values())), np.log(list(OMEGA.values())), np.log(SIGMA)]
+        etas = np.zeros((n, 3))
+        obj.solve_inner(psi, etas)  # compiles
+        obj.value_grad(psi, etas), obj.hessian(psi, etas)
+        t0 = time.perf_counter()
+        etas, _ = obj.solve_inner(psi, etas)
+        t1 = time.perf_counter()
+        obj.value_grad(psi, etas)
+        t2 = time.perf_counter()
+        obj.hessian(psi, etas)
+        t3 = time.perf_counter()
+        res = ti.fit(pr)
+        t4 = time.perf_counter()
+        rows.append({
+            "units": n, "inner_solve_s": t1 - t0, "gradient_s": t2 - t1, "hessian_s": t3 - t2,
+            "iteration_s": t3 - t0, "fit_s": t4 - t3, "fit_iterations": res.nit,
+            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        })  # fmt: skip
+        print(rows[-1])
+    u = np.log([r["units"] for r in rows])
+    out = {"rows": rows}
+    if len(rows) > 1:
+        out["exponent_iteration"] = float(np.polyfit(u, np.log([r["iteration_s"] for r in rows]), 1)[0])
+        out["exponent_fit"] = float(np.polyfit(u, np.log([r["fit_s"] for r in rows]), 1)[0])
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("study", choices=["coverage", "scale"])
+    ap.add_argument("--draws", type=int, default=200)
+    ap.add_argument("--units", type=int, default=50)
+    ap.add_argument("--sizes", type=int, nargs="+", default=[100, 1000, 10000])
+    ap.add_argument("--json", type=Path, default=Path(__file__).parent / "results" / "population.json")
+    a = ap.parse_args()
+    out = coverage(a.draws, a.units) if a.study == "coverage" else scale(a.sizes)
+    print(json.dumps(out, indent=2))
+    old = json.loads(a.json.read_text()) if a.json.exists() else {}
+    old[a.study] = out
+    a.json.write_text(json.dumps(old, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
