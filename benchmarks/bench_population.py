@@ -131,7 +131,9 @@ def scale(sizes: list[int]) -> dict:
     u = np.log([r["units"] for r in rows])
     out = {"rows": rows}
     if len(rows) > 1:
-        out["exponent_iteration"] = float(np.polyfit(u, np.log([r["iteration_s"] for r in rows]), 1)[0])
+        out["exponent_iteration"] = float(
+            np.polyfit(u, np.log([r["iteration_s"] for r in rows]), 1)[0]
+        )
         out["exponent_fit"] = float(np.polyfit(u, np.log([r["fit_s"] for r in rows]), 1)[0])
     return out
 
@@ -142,7 +144,9 @@ def main() -> None:
     ap.add_argument("--draws", type=int, default=200)
     ap.add_argument("--units", type=int, default=50)
     ap.add_argument("--sizes", type=int, nargs="+", default=[100, 1000, 10000])
-    ap.add_argument("--json", type=Path, default=Path(__file__).parent / "results" / "population.json")
+    ap.add_argument(
+        "--json", type=Path, default=Path(__file__).parent / "results" / "population.json"
+    )
     a = ap.parse_args()
     out = coverage(a.draws, a.units) if a.study == "coverage" else scale(a.sizes)
     print(json.dumps(out, indent=2))

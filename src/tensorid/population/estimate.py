@@ -111,15 +111,24 @@ def fit_population(
     else:
         r = minimize_trust_region(
             fun, psi0, lo, hi, maxiter=maxiter, gtol=gtol, ftol=ftol, xtol=xtol,
-            callback=callback, radius=1.0,
+            callback=callback, radius=1.0, fatol=-np.inf,  # a likelihood has no floor
         )  # fmt: skip
     etas, ok = obj.solve_inner(r.x, state["etas"])
     status = r.status if ok else Status.SOLVER_FAILED
     res = PopulationResult.build(obj, r, etas, status, time.perf_counter() - began)
-    note = coarse_steps(obj, res.x, etas, np.array(list(res.residual_sd.values())))
-    if note:
-        warnings.warn(note, UserWarning, stacklevel=2)
-    return replace(res, notes=[note] if note else [])
+    notes = [coarse_steps(obj, res.x, etas, np.array(list(res.residual_sd.values())))]
+    if obj.unconverged:
+        units = obj.unconverged
+        notes.append(
+            f"the inner problems of {len(units)} unit(s) {units[:10]}"
+            f"{' ...' if len(units) > 10 else ''} did not converge from their starts (a "
+            "plateau or a point that is not a minimum of their own parameters): start "
+            "them closer (p0), or leave those units out"
+        )
+    notes = [n for n in notes if n]
+    for n in notes:
+        warnings.warn(n, UserWarning, stacklevel=2)
+    return replace(res, notes=notes)
 
 
 def coarse_steps(obj: Objective, x, etas, sigma) -> str | None:
@@ -134,11 +143,15 @@ def coarse_steps(obj: Objective, x, etas, sigma) -> str | None:
         obj.sweeps.model, (), obj.sweeps.free_params, replace(d, substeps=2 * d.substeps)
     )
 
-    def simulate(eta, unit):
-        x0, p = fine.expand(obj.theta(jnp.asarray(x), eta), unit[4], unit[5])
-        return fine._simulate(x0, p, unit[0], unit[1])[1]
+    def build():
+        def simulate(psi, eta, unit):
+            x0, p = fine.expand(obj.theta(psi, eta), unit[4], unit[5])
+            return fine._simulate(x0, p, unit[0], unit[1])[1]
 
-    finer = np.asarray(jax.jit(jax.vmap(simulate))(jnp.asarray(etas), obj.data))
+        return jax.jit(jax.vmap(simulate, in_axes=(None, 0, 0)))
+
+    program = obj._program(("finer", d.substeps), build)
+    finer = np.asarray(program(jnp.asarray(x), jnp.asarray(etas), obj.data))
     coarse = np.asarray(obj.predict_all(x, etas))
     worst = float(np.max(np.abs(finer - coarse) * obj.units.mask / np.maximum(sigma, 1e-300)))
     if not worst > 0.1:

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import jax.scipy.linalg
 import numpy as np
 
 from ..engine.sweeps import shared_sweeps
@@ -61,6 +62,7 @@ class Objective:
         self.shared = [n for n in problem.free_params if n not in self.pop]
         free = [m.params.index(n) for n in problem.free_params]
         self.sweeps = shared_sweeps(m, (), tuple(free), problem.discretisation)
+        self.own_index = [m.params.index(n) for n in self.pop]
         self.pop_pos = jnp.array([problem.free_params.index(n) for n in self.pop], dtype=int)
         self.sh_pos = jnp.array([problem.free_params.index(n) for n in self.shared], dtype=int)
         self.q, self.ns, self.S = len(self.pop), len(self.shared), m.S
@@ -161,21 +163,37 @@ class Objective:
         H = jax.hessian(self.ell)(eta, psi, unit)
         scale = jnp.maximum(jnp.max(jnp.abs(jnp.diag(H))), 1e-300)
         d = jnp.linalg.solve(H + lam * scale * jnp.eye(self.q), -g)
+        # steps kept within reach: an e-fold of a random effect, half an individual
+        # parameter's size (its start's where it is near 0), so that a far Newton step
+        # cannot throw a unit onto a flat plateau (an oscillator stiffened past its input)
+        size_of = self._sizes(eta, unit)
+        d = d * jnp.minimum(1.0, 1.0 / jnp.maximum(jnp.max(jnp.abs(d) / size_of), 1e-300))
         f_new = self.ell(eta + d, psi, unit)
         # rounding may lift ℓ by an ulp at the optimum: that step is still taken
         ok = jnp.isfinite(f_new) & (f_new <= f + 1e-14 * jnp.abs(f)) & jnp.all(jnp.isfinite(d))
-        newton = lam == 0  # the undamped step: its size says how far the optimum is
         eta = jnp.where(ok, eta + d, eta)
         lam = jnp.where(ok, lam * 0.1, jnp.maximum(lam * 10, 1e-6))
         lam = jnp.where(lam < 1e-12, 0.0, lam)
-        size = jnp.where(newton & jnp.all(jnp.isfinite(d)), jnp.max(jnp.abs(d)), jnp.inf)
+        # how far the optimum is: the undamped Newton step where the Hessian is positive
+        # definite (rounding in ℓ may refuse a step that small, at the optimum itself)
+        newton = -jax.scipy.linalg.cho_solve((jnp.linalg.cholesky(H), True), g)
+        small = jnp.max(jnp.abs(newton) / size_of)  # relative to each entry's own size
+        size = jnp.where(jnp.all(jnp.isfinite(newton)), small, jnp.inf)
         return eta, lam, jnp.where(ok, f_new, f), size
+
+    def _sizes(self, eta, unit):
+        """The size a step on η is measured against: 1 for random effects (log scale),
+        half the larger of |η| and |its start| for individual parameters."""
+        if not self.joint:
+            return jnp.ones_like(eta)
+        start = unit[5][jnp.asarray(self.own_index)]
+        return 0.5 * jnp.maximum(jnp.maximum(jnp.abs(eta), jnp.abs(start)), 1e-300)
 
     # -- compiled, over all units -------------------------------------------------------
     # kept per structure (model, discretisation, which parameters are random effects,
     # method): each function reads only that structure from self, the rest from its
     # arguments, so a later Objective of the same structure reuses them
-    def _program(self, name: str, build):
+    def _program(self, name: str | tuple, build):
         programs = _PROGRAMS.setdefault(self.key, {})
         if name not in programs:
             programs[name] = build()
@@ -256,9 +274,12 @@ class Objective:
         for _ in range(maxiter):
             eta, lam, f, step = self._steps(eta, lam, psi, self.data)
             if not np.isfinite(np.asarray(f)).all():
-                return np.asarray(eta), False
+                break
             if (np.asarray(step) < tol).all():  # every unit's Newton step negligible
+                self.unconverged = []
                 return np.asarray(eta), True
+        done = np.isfinite(np.asarray(f)) & (np.asarray(step) < tol)
+        self.unconverged = [n for n, ok in zip(self.units.names, done, strict=True) if not ok]
         return np.asarray(eta), False
 
     def value_grad(self, psi, etas) -> tuple[np.ndarray, np.ndarray]:
