@@ -218,7 +218,7 @@ def _report(res, val, args, out: Path, old: set[Path], kept: dict, renderer) -> 
     print(summary_table(res, everything))
     for line in _gof_lines(everything):
         print(line)
-    if residual is not None and res.has_uncertainty and False in residual.whiteness_passed:
+    if residual is not None and res.has_uncertainty and residual.not_shown_white:
         print(f"residuals: {coloured_residuals_line(res)}")
     extras.update(_recorded(args))
     figures, failures = _write_results(res, out, scores, old, extras, kept, (renderer, stems))

@@ -110,7 +110,7 @@ def _error_bars(res, u, names: list[str], residual) -> dict:
     d = u.as_dicts()
     gn = res.uncertainty("gauss-newton").stderr.tolist()
     d["stderr_gauss_newton"] = dict(zip(names, gn, strict=True))
-    coloured = residual is not None and False in residual.whiteness_passed
+    coloured = residual is not None and residual.not_shown_white
     loss = res.problem.loss
     wanted = (coloured and not loss.likelihood) or loss.robust
     robust = res.uncertainty("robust") if wanted else None
@@ -335,7 +335,7 @@ def fit_report(
             "",
         ]
         lines += [f"- {line}" for line in residual.lines()]
-        if res.has_uncertainty and False in residual.whiteness_passed:
+        if res.has_uncertainty and residual.not_shown_white:
             lines += ["", coloured_residuals_line(res) + "."]
     if "aic" in data:
         lines += ["", criteria_text(data) + "."]

@@ -323,31 +323,41 @@ def noise_intensities(res, u=None) -> dict | None:
 
 def collapsed_noise(res) -> list[str]:
     """A warning for each estimated measurement noise of a filter fit that went to
-    (almost) zero: below 1e-6 of its output's spread, no sensor's. The filter then
-    follows that output exactly, a corner where fits stop at a local optimum (a tester's
-    Silverbox fit ended there at cost -12807, where a larger starting noise reached
-    -13136)."""
-    noise = noise_intensities(res)
-    if noise is None:
-        return []
+    (almost) zero (:func:`collapsed_outputs`). The filter then follows that output
+    exactly, a corner where fits stop at a local optimum (a tester's Silverbox fit
+    ended there at cost -12807, where a larger starting noise reached -13136)."""
     out = []
-    model, exps = res.problem.model, res.problem.experiments
-    for o, e in noise["measurement"].items():
-        j = model.outputs.index(o)
-        ys = np.concatenate([np.asarray(x.measured)[:, j] for x in exps])
-        spread = float(np.nanstd(ys))
-        if e["fixed"] or not spread > 0 or e["sigma"] >= 1e-6 * spread:
-            continue
-        q = _resolution(ys)
-        if q > 0 and e["sigma"] >= 0.5 * q / np.sqrt(12):
-            continue  # a quantised sensor's own noise (EMPS's encoder: 5e-8 m steps)
+    for o, (sigma, spread) in collapsed_outputs(res, spread=True).items():
         out.append(
-            f"the measurement noise of {o} went to σ_e = {e['sigma']:.2g}, "
-            f"{e['sigma'] / spread:.0e} of the output's spread: the filter then follows "
+            f"the measurement noise of {o} went to σ_e = {sigma:.2g}, "
+            f"{sigma / spread:.0e} of the output's spread: the filter then follows "
             f"{o} exactly, a corner of the likelihood where fits often stop at a worse "
             f"optimum; start from a sensor's noise (--measurement-noise {o}=σ, "
             f"measurement_noise= in Python) or fix it (--fix log_sigma_e_{o}=log σ)"
         )
+    return out
+
+
+def collapsed_outputs(res, spread: bool = False) -> dict:
+    """{output: σ_e} (with ``spread``: {output: (σ_e, the output's spread)}) for each
+    estimated measurement noise of a filter fit that sits at its floor: below 1e-6 of
+    its output's spread, and below a quantised sensor's own noise q/√12 (EMPS's
+    encoder: 5e-8 m steps). Empty for output error."""
+    noise = noise_intensities(res)
+    if noise is None:
+        return {}
+    out: dict = {}
+    model, exps = res.problem.model, res.problem.experiments
+    for o, e in noise["measurement"].items():
+        j = model.outputs.index(o)
+        ys = np.concatenate([np.asarray(x.measured)[:, j] for x in exps])
+        sd = float(np.nanstd(ys))
+        if e["fixed"] or not sd > 0 or e["sigma"] >= 1e-6 * sd:
+            continue
+        q = _resolution(ys)
+        if q > 0 and e["sigma"] >= 0.5 * q / np.sqrt(12):
+            continue  # a quantised sensor's own noise
+        out[o] = (e["sigma"], sd) if spread else e["sigma"]
     return out
 
 
