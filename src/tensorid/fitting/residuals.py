@@ -259,11 +259,11 @@ def residual_tests(res, max_lag: int = 25, level: float = 0.99) -> ResidualTests
             if lag_limit(N)
             else "they need at least 4 samples"
         )
-        why = (
+        missing = (
             f"not available: {max_lag} lags on {N} samples (the test statistic is χ² only "
             f"for lags well below N; at most N/4); {fix}"
         )
-        return ResidualTests(level, max_lag, N, np.nan, [], [], [], why)
+        return ResidualTests(level, max_lag, N, np.nan, [], [], [], missing)
     errors = [a[first:] for a in _errors(res)]
     inputs = [e.u[first:] for e in exps]
     constant = [
