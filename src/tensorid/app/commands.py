@@ -16,10 +16,10 @@ from rich.live import Live
 from ..engine.checks import same_step, step
 from ..engine.problem import Problem
 from ..engine.status import Status
+from ..fitting.display import summary_table
 from ..fitting.figures import figure_jobs, save_png
 from ..fitting.methods import fit
 from ..fitting.results import FitInterrupted
-from ..fitting.summary import coloured_residuals_line, summary_table
 from ..fitting.validation import Score, training_scores
 from .after_fit import _after_fit, _gof_lines, _profile_figures
 from .cluster import _workers
@@ -215,11 +215,9 @@ def _report(res, val, args, out: Path, old: set[Path], kept: dict, renderer) -> 
         stems += renderer.submit(out, [job])
     everything = training_scores(res) + scores
     # the estimates reach the terminal before any file is written
-    print(summary_table(res, everything))
+    print(summary_table(res, everything, residual, extras.get("model_check")))
     for line in _gof_lines(everything):
         print(line)
-    if residual is not None and res.has_uncertainty and residual.not_shown_white:
-        print(f"residuals: {coloured_residuals_line(res)}")
     extras.update(_recorded(args))
     figures, failures = _write_results(res, out, scores, old, extras, kept, (renderer, stems))
     failures = missing + failures

@@ -349,6 +349,16 @@ def skipped_samples(problem) -> int:
     return 1 if problem.loss.likelihood and len(problem.free_x0) else 0
 
 
+DEFAULT_LAGS = 25  # MATLAB resid's
+
+
+def default_lags(problem) -> int:
+    """The lags the tests take unless told: MATLAB's 25, fewer on a short record (at
+    most N/4, at least 1: below 4 samples the tests say not available)."""
+    samples = sum(e.P - skipped_samples(problem) for e in problem.experiments)
+    return max(min(DEFAULT_LAGS, lag_limit(samples)), 1)
+
+
 def lag_limit(samples: int) -> int:
     """The most lags the residual tests take on ``samples`` samples: N/4 (Q is χ² only
     for M well below N)."""
