@@ -348,6 +348,14 @@ def honest_options(f) -> None:
         "each record, compared with their robust error bars), which a fit whose "
         "residuals are not white makes by default: two or more extra fits",
     )
+    f.add_argument(
+        "--start-from",
+        default=None,
+        metavar="FIT.json",
+        help="start from an earlier fit's fit.json: its parameters (checked against the "
+        "model file's), initial states and noise intensities, in place of the model "
+        "file's p0 and x0 (the same model, data and settings start at its cost)",
+    )
 
 
 def _one_line(message, category, filename, lineno, file=None, line=None) -> None:
