@@ -75,7 +75,8 @@ def test_a_filter_fit_with_white_innovations_has_robust_bars_like_the_white_ones
     assert "robust std. error" not in res.summary()  # white: the white bars stand
 
 
-def test_flat_directions_are_one_ranked_line():
+@pytest.mark.parametrize("predictor", ["simulation", "ekf"])
+def test_flat_directions_are_one_ranked_line(predictor):
     """Two products a·b and c·d pinned, their factors not: two flat directions, one
     warning, the flattest first, each naming its unknowns (a filter fit of the tanks
     gave 11 warnings, one per direction)."""
@@ -89,7 +90,10 @@ def test_flat_directions_are_one_ranked_line():
     truth = {"a": 1.0, "b": 2.0, "c": 0.5, "d": 3.0}
     y = ti.simulate(model, truth, [0.0], ti.Experiment(t, u)).y
     y = y + 0.01 * np.random.default_rng(0).standard_normal(y.shape)
-    res = ti.fit(ti.Problem(model, ti.Experiment(t, u, y), p0=truth, x0=[0.0]))
+    noise = dict(process_noise={"x": 0.01}, measurement_noise={"y": 0.01})
+    kw = noise if predictor == "ekf" else {}
+    record = ti.Experiment(t, u, y)
+    res = ti.fit(ti.Problem(model, record, p0=truth, x0=[0.0], predictor=predictor, **kw))
     flat = [w for w in res.warnings if "not identifiable" in w]
     assert len(flat) == 1
     assert "flat along 2 directions, the flattest first: (1) " in flat[0]
