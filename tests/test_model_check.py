@@ -49,6 +49,7 @@ def test_a_right_model_passes_and_a_wrong_one_fails():
     assert check.parts == ["samples 0-499", "samples 500-999"]
     assert check.statistic < check.threshold and not check.left_out
     text = right.summary()
+    assert text.rstrip() == str(right) and "residuals: whiteness of y: FAILS" in text
     assert "model-error check: passes" in text
     assert "The model-error check passes: trust the robust ones" in text
     assert "robust std. error" in text  # beside the white ones

@@ -41,8 +41,8 @@ def fit_blocks(res, scores=None, residual=None, check=None) -> list:
     table (with ``scores``), noise intensities, information, criteria, the residual
     verdicts, notes, warnings."""
     u = res.uncertainty() if res.has_uncertainty else None
-    if residual is None and math.isfinite(res.cost):
-        residual = _tests(res)
+    if residual is None and math.isfinite(res.cost) and res.derivatives:
+        residual = _tests(res)  # not for an interrupted fit: it must end at once
     robust = _robust(res) if u is not None and _doubtful(residual) else None
     title = f"{res.problem.model.name}: {'converged' if res.success else 'NOT converged'}"
     names = res.problem.theta_names
