@@ -107,3 +107,17 @@ def test_given_records_are_the_parts_and_a_short_record_says_not_made():
     none = short.model_check()
     assert none.passed is None and "halves (15 samples) are shorter than 20" in none.line()
     assert "could not be made" in trust_advice(none)
+
+
+def test_a_filter_fit_at_its_sigma_e_floor_is_not_checked():
+    """The two-tank filter whose σ_e went to 3.5e-10: its halves' σ_e would be compared
+    at their floors (±1e14 in one half); the check says why it is not made instead."""
+    from tensorid import benchmarks
+
+    pr = benchmarks.two_tank_problem(
+        predictor="ekf", process_noise={"x2": 0.01}, free_x0=["x1", "x2"]
+    )
+    res = ti.fit(pr)
+    check = res.model_check()
+    assert check.passed is None and "σ_e(y) = 3.5e-10 sits at its floor" in check.line()
+    assert "could not be made (the measurement noise" in trust_advice(check)

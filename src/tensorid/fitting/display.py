@@ -141,7 +141,7 @@ def trust_advice(check) -> str:
     if check.passed is None:
         return (
             "They cover coloured noise, not a wrong model, and the model-error check could "
-            "not be made"
+            f"not be made ({check.not_available})"
         )
     return check.advice()
 

@@ -38,7 +38,10 @@ left out and named. The second half's initial state: the states the fit estimate
 (free_x0) are estimated again; the others start where the full fit's trajectory
 (a filter's: its state estimate) is at the cut. Each part is fitted by the trust
 region on the exact Hessian from the full estimate, by single shooting, with the
-full problem's loss, weights, noise level and priors.
+full problem's loss, weights, noise level and priors; a part whose trust region
+collapsed in a flat valley (nothing decreases further) is compared on the
+parameters it determines, and a part that ends otherwise unconverged stops the
+check ("not made", with the reason).
 """
 
 from __future__ import annotations
@@ -49,10 +52,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..engine.compiled import on_device
+from ..engine.status import Status
 from . import quantiles
 from .sandwich import score_covariance
 from .scaling import Tracker
-from .summary import Table, Tabular, significant, stderr_text
+from .summary import Table, Tabular, collapsed_outputs, significant, stderr_text
 from .trust_region import minimize_trust_region
 from .uncertainty import uncertainty
 
@@ -167,7 +171,7 @@ def model_check(res, level: float = 0.99, maxiter: int = 100) -> ModelCheck:
         raise ValueError(f"level must be between 0 and 1, got {level!r}")
     problem = res.problem
     how = "records" if len(problem.experiments) > 1 else "halves"
-    short = _too_short(problem)
+    short = _too_short(problem) or _floor(res)
     if short or not res.has_uncertainty:
         why = short or f"the fit ended as {res.status}, without derivatives at its end"
         return ModelCheck(level, how, not_available=why)
@@ -222,6 +226,19 @@ def _too_short(problem) -> str | None:
     if P // 2 < need:
         return f"the record's halves ({P // 2} samples) are shorter than {need} samples"
     return None
+
+
+def _floor(res) -> str | None:
+    """Why a filter fit whose measurement noise sits at its floor cannot be checked:
+    its likelihood is in a corner, and its parts' σ_e would be compared at theirs."""
+    collapsed = collapsed_outputs(res)
+    if not collapsed:
+        return None
+    o, sigma = next(iter(collapsed.items()))
+    return (
+        f"the measurement noise σ_e({o}) = {sigma:.2g} sits at its floor; fix it at the "
+        f"sensor's noise (--fix log_sigma_e_{o}=log σ) and fit again first"
+    )
 
 
 def _parts(res):
@@ -284,7 +301,10 @@ def _fit_part(part, theta0, maxiter: int):
     r = minimize_trust_region(fun, tr.phi(theta0), lo, hi, fatol=tr.fatol, maxiter=maxiter)
     theta = tr.theta(r.x if tr.best_phi is None else tr.best_phi)
     J, g, H = part.cost_grad_hess(theta)
-    if not (r.success and np.isfinite(J)):
+    # a trust region that collapsed where nothing decreases further ended in a flat
+    # valley: its flat directions' unknowns get unbounded error bars and are left out
+    flat_end = r.status in (Status.RADIUS_COLLAPSED, Status.NO_PREDICTED_DECREASE)
+    if not ((r.success or flat_end) and np.isfinite(J)):
         return f"did not converge ({r.message})"
     meat = score_covariance(part, theta, "auto")[0]
     u = uncertainty(
