@@ -175,3 +175,66 @@ def test_the_command_line_writes_null_and_the_reason(tmp_path, capsys):
     # asked for more lags than the record supports: refused before any work
     assert cli.main(args + ["--no-progress", "--residual-lags", "151"]) == 2
     assert "--residual-lags 151: the training records have 600 samples" in capsys.readouterr().err
+
+
+# -- verdicts the series cannot carry (issue 40, item 2) ---------------------------------
+
+
+def test_a_series_swamped_by_a_few_samples_cannot_pass():
+    """One outlier of 1e3 among residuals of 0.01 holds all of Σe²: r(τ) ≈ 0 at every
+    lag and Q ≈ 0 "passed" whatever the rest did. Now no verdict, and why."""
+    from tensorid.fitting.residuals import swamped
+
+    rng = np.random.default_rng(0)
+    white = rng.standard_normal(1000)
+    assert swamped([white]) is None and swamped([white[:500], white[500:]]) is None
+    heavy = rng.standard_t(3, 1000)  # heavy tails are not swamping
+    assert swamped([heavy]) is None
+    spiked = white.copy()
+    spiked[0] = -1e37  # the tanks filter's first innovation
+    assert "largest sample holds 100%" in swamped([spiked])
+    assert "constant" in swamped([np.zeros(50)])
+    assert "not finite" in swamped([np.array([1.0, np.inf, 2.0])])
+    # through a fit: a record with one wild sample
+    e = _record(2)
+    y = e.y.copy()
+    y[300] += 1e3
+    res = ti.fit(ti.Problem(SECOND, ti.Experiment(T, e.u, y), p0={"k": 3.0, "c": 0.5, "g": 1.2}))
+    tests = res.residual_tests(10)
+    white_y = tests.whiteness[0]
+    assert white_y.statistic < 1.0 and white_y.passed is None  # was: passes, Q = 0.0
+    assert tests.passed is None and tests.not_shown_white
+    assert all(c.passed is None for c in tests.independence)
+    assert "cannot be trusted (Q = " in white_y.line() and "swamped" in white_y.line()
+    saved = tests.as_dict()["whiteness"][0]
+    assert saved["passed"] is None and saved["trusted"] is False and "swamped" in saved["untrusted"]
+    assert "cannot be trusted" in str(tests)
+    tests.figure()  # draws a verdict of None
+
+
+def test_a_filter_s_tests_leave_out_the_sample_its_likelihood_leaves_out():
+    """The two-tank record by a filter with process noise on the lower tank: σ_e went
+    to 3.5e-10 and the first standardised innovation, left out of the likelihood but
+    not of the tests, was 1.5e8: "passes, Q = 0.0". The tests now use samples 1..500,
+    and σ_e at its floor makes the verdict "cannot be trusted", saying why."""
+    from tensorid import benchmarks
+    from tensorid.fitting.residuals import _correlation
+
+    pr = benchmarks.two_tank_problem(
+        predictor="ekf", process_noise={"x2": 0.01}, free_x0=["x1", "x2"]
+    )
+    res = ti.fit(pr)
+    assert res.params["log_sigma_e_y"] < -15  # the floor this test is about
+    innov = pr.predict(res.theta)[0].innovations[:, 0]
+    assert abs(innov[0]) > 1e6  # what swamped the statistic
+    tests = res.residual_tests(25)
+    assert tests.samples == 500
+    r = _correlation([innov[1:]], [innov[1:]], 25)
+    np.testing.assert_allclose(tests.whiteness[0].values, r, rtol=1e-12)
+    white_y = tests.whiteness[0]
+    assert white_y.statistic > white_y.threshold  # no longer 0.0
+    assert white_y.passed is None and "σ_e(y) = 3.5e-10 sits at its floor" in white_y.untrusted
+    assert "--fix log_sigma_e_y=log σ" in white_y.untrusted
+    lines = tests.lines()
+    assert lines[1].endswith(": as whiteness of y")  # the reason once
+    assert "passes" not in str(tests)

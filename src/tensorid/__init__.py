@@ -25,6 +25,7 @@ from .engine.metrics import gof, nrmse, rmse
 from .engine.model import Model
 from .engine.problem import Problem
 from .engine.simulate import Simulation, simulate
+from .engine.start import Start
 from .engine.status import Status
 from .fitting.design import InputDesign, design_input
 from .fitting.methods import METHODS, fit, fit_batch
@@ -63,6 +64,7 @@ __all__ = [
     "Problem",
     "Profile",
     "Score",
+    "Start",
     "Simulation",
     "Status",
     "Uncertainty",

@@ -11,7 +11,7 @@ import numpy as np
 from ..engine.diagnostics import describe_failure
 from ..engine.status import Status
 from ..fitting.figures import file_name, profile_figure
-from ..fitting.residuals import lag_limit
+from ..fitting.residuals import default_lags
 from ..fitting.summary import gof_text
 from ..fitting.validation import Score
 
@@ -47,6 +47,7 @@ def _after_fit(res, val, args) -> tuple[list, dict, list[str], bool]:
     steps += [("profiles", lambda: _profiles(res, args))]
     steps += [("data sensitivity", lambda: _influence(res, args))]
     steps += [("residual tests", lambda: _residual_tests(res, args))]
+    steps += [("model-error check", lambda: _model_check(res, args, extras.get("residual")))]
     missing: list[str] = []
     for name, step in steps:
         try:
@@ -60,7 +61,8 @@ def _after_fit(res, val, args) -> tuple[list, dict, list[str], bool]:
             scores = value
             _blown_up(res, scores)
         else:
-            keys = {"profiles": "profiles", "data sensitivity": "influence"}
+            keys = {"profiles": "profiles", "data sensitivity": "influence",
+                    "model-error check": "model_check"}  # fmt: skip
             extras[keys.get(name, "residual")] = value
     return scores, extras, missing, False
 
@@ -76,21 +78,23 @@ def _blown_up(res, scores: list[Score]) -> None:
                   f"{why}", file=sys.stderr)  # fmt: skip
 
 
-DEFAULT_LAGS = 25  # MATLAB resid's
-
-
 def _residual_tests(res, args):
-    """Whiteness and independence of the residuals, one line each (a fit with a
-    finite cost only)."""
+    """Whiteness and independence of the residuals (a fit with a finite cost only);
+    the summary prints them, one line each."""
     if not np.isfinite(res.cost):
         return None
-    samples = sum(e.P for e in res.problem.experiments)
     # the default shrinks on a short record; below 4 samples the tests say not available
-    lags = args.residual_lags or max(min(DEFAULT_LAGS, lag_limit(samples)), 1)
-    tests = res.residual_tests(lags)
-    for line in tests.lines():
-        print(f"residuals: {line}")
-    return tests
+    return res.residual_tests(args.residual_lags or default_lags(res.problem))
+
+
+def _model_check(res, args, residual):
+    """The model-error check (fitting/model_check.py), where the residuals are not
+    shown white (the robust error bars are then offered) and not --no-model-check."""
+    if getattr(args, "no_model_check", False) or not res.has_uncertainty:
+        return None
+    if residual is None or residual.not_available or not residual.not_shown_white:
+        return None
+    return res.model_check()
 
 
 def _profiles(res, args) -> dict | None:

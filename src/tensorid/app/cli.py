@@ -334,10 +334,30 @@ def register(sub) -> None:
     fleet_options(f)  # fleets (issue 42): --records, --individual, --population
     integration_options(f)
     f.add_argument("--no-progress", action="store_true", help="no live progress display")
+    honest_options(f)
     f.set_defaults(func=_fit)
 
     register_simulate(sub)
     register_compare(sub)
+
+
+def honest_options(f) -> None:
+    """fit's options for what its error bars can be trusted with (issue 40)."""
+    f.add_argument(
+        "--no-model-check",
+        action="store_true",
+        help="skip the model-error check (the estimates of the record's halves, or of "
+        "each record, compared with their robust error bars), which a fit whose "
+        "residuals are not white makes by default: two or more extra fits",
+    )
+    f.add_argument(
+        "--start-from",
+        default=None,
+        metavar="FIT.json",
+        help="start from an earlier fit's fit.json: its parameters (checked against the "
+        "model file's), initial states and noise intensities, in place of the model "
+        "file's p0 and x0 (the same model, data and settings start at its cost)",
+    )
 
 
 def _one_line(message, category, filename, lineno, file=None, line=None) -> None:

@@ -16,10 +16,10 @@ from rich.live import Live
 from ..engine.checks import same_step, step
 from ..engine.problem import Problem
 from ..engine.status import Status
+from ..fitting.display import summary_table
 from ..fitting.figures import figure_jobs, save_png
 from ..fitting.methods import fit
 from ..fitting.results import FitInterrupted
-from ..fitting.summary import coloured_residuals_line, summary_table
 from ..fitting.validation import Score, training_scores
 from ..population import PopulationResult
 from . import fleets
@@ -98,7 +98,8 @@ def _write_results(res, out: Path, scores: list[Score], old, extras, kept: dict,
     profiles, influence = extras.get("profiles"), extras.get("influence")
     residual = extras.get("residual")
     data = fit_json(res, scores, profiles, influence, residual)
-    data.update({k: extras[k] for k in ("provenance", "overrides") if k in extras})
+    recorded = ("provenance", "overrides", "samples", "validate_samples")  # _recorded's
+    data.update({k: extras[k] for k in recorded if k in extras})
     failures = _keep(out, data, kept)
     if kept.get("fit.json") != out / "fit.json":
         return [], failures  # the folder cannot be written: the rest would fail as well
@@ -161,11 +162,7 @@ def _fit_command(args, renderer: Renderer) -> int:
     _check_options(args, train, val)
     for e in val:  # a discrete-time model at another rate: refused before the fit
         same_step(m, e, step(train[0]), f"the validation record {e.name!r}")
-    args.provenance = provenance(
-        args.model,
-        _data_entries(m, args.data, train_maps) + _data_entries(m, args.validate, val_maps),
-        getattr(args, "argv", None),
-    )
+    args.provenance = _provenance(args, m, train_maps, val_maps)
     fix, bounds = given_once("--fix", args.fix), given_once("--bounds", args.bounds)
     spec, args.overrides = overridden(spec, fix, args.free, bounds)
     spec = fleets.from_command_line(spec, args)  # --individual, --population
@@ -207,9 +204,31 @@ def _fit_command(args, renderer: Renderer) -> int:
 
 
 def _recorded(args) -> dict:
-    """What fit.json records of the command itself: the files' provenance and the
-    command line's overrides of the model file."""
-    return {"provenance": args.provenance, "overrides": args.overrides}
+    """What fit.json records of the command itself: the files' provenance, the
+    command line's overrides of the model file and the slices of the records used."""
+    return {
+        "provenance": args.provenance,
+        "overrides": args.overrides,
+        "samples": _window(getattr(args, "samples", None)),
+        "validate_samples": _window(getattr(args, "validate_samples", None)),
+    }
+
+
+def _window(samples) -> list[int] | None:
+    return list(samples) if samples else None
+
+
+def _provenance(args, m, train_maps, val_maps) -> dict:
+    """The files' provenance: each data file's role (training or validation), the
+    slice of it used (--samples, --validate-samples) and its time base."""
+    train = _data_entries(m, args.data, train_maps)
+    val = _data_entries(m, args.validate, val_maps)
+    for entries, window in ((train, args.samples), (val, args.validate_samples)):
+        for entry in entries:
+            entry["samples"] = _window(window)
+    roles = ["training"] * len(train) + ["validation"] * len(val)
+    argv = getattr(args, "argv", None)
+    return provenance(args.model, train + val, argv, ts=args.ts, roles=roles)
 
 
 def _report(res, val, args, out: Path, old: set[Path], kept: dict, renderer) -> int:
@@ -229,11 +248,9 @@ def _report(res, val, args, out: Path, old: set[Path], kept: dict, renderer) -> 
         stems += renderer.submit(out, [job])
     everything = training_scores(res) + scores
     # the estimates reach the terminal before any file is written
-    print(summary_table(res, everything))
+    print(summary_table(res, everything, residual, extras.get("model_check")))
     for line in _gof_lines(everything):
         print(line)
-    if residual is not None and res.has_uncertainty and False in residual.whiteness_passed:
-        print(f"residuals: {coloured_residuals_line(res)}")
     extras.update(_recorded(args))
     figures, failures = _write_results(res, out, scores, old, extras, kept, (renderer, stems))
     failures = missing + failures

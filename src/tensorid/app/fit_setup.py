@@ -14,6 +14,7 @@ from ..engine.integrators import SCHEMES
 from ..engine.predictors import NOISE_PREFIXES
 from ..engine.problem import Problem
 from ..engine.shooting import resolve_segments
+from ..engine.start import Start
 from ..fitting.methods import check_method
 from ..fitting.registry import exact_derivatives
 from ..fitting.residuals import lag_limit
@@ -36,7 +37,10 @@ def discretisation(args, spec: ModelSpec | None = None) -> Discretisation:
 
 
 def _problem(spec: ModelSpec, train, args) -> Problem:
-    if spec.p0 is None:
+    start = None  # --start-from: an earlier fit's values, --fix's in place of its own
+    if getattr(args, "start_from", None):
+        start = Start.read(args.start_from).overridden(dict(args.fix), spec.model)
+    if spec.p0 is None and start is None:
         raise ValueError(
             f"{spec.path} defines no p0: add p0 = {{name: start value}} for "
             f"{list(spec.model.params)}"
@@ -59,8 +63,8 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
         return Problem(
             spec.model,
             train,
-            p0=spec.p0,
-            x0=spec.x0_given(),
+            p0=spec.p0 if start is None else start,  # --start-from: its x0 too
+            x0=spec.x0_given() if start is None or start.x0 is None else None,
             free_x0=spec.free_x0,
             fixed=spec.fixed,
             bounds=spec.bounds,

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import datetime
 import hashlib
+import os
 import platform
 import shlex
 import sys
@@ -25,7 +26,16 @@ def sha256(path) -> str | None:
 
 
 def _file(path) -> dict:
-    return {"path": str(path), "sha256": sha256(path)}
+    """The path as given, its SHA-256 and, since a relative path means nothing without
+    the folder it was given in, the absolute path."""
+    return {"path": str(path), "sha256": sha256(path), "absolute_path": _absolute(path)}
+
+
+def _absolute(path) -> str:
+    try:
+        return str(Path(path).resolve())
+    except (OSError, RuntimeError):
+        return str(Path.cwd() / str(path))
 
 
 def _versions() -> dict:
@@ -52,16 +62,59 @@ def data_entries(specs: list, columns: list) -> list[dict]:
     return out
 
 
-def provenance(model_path, data: list[dict], argv: list[str] | None) -> dict:
-    """fit.json's and compare.json's "provenance"."""
+def provenance(
+    model_path,
+    data: list[dict],
+    argv: list[str] | None,
+    *,
+    ts: float | None = None,
+    roles: list[str] | None = None,
+    fit=None,
+) -> dict:
+    """fit.json's and compare.json's "provenance": with ``ts`` (--ts), each data
+    entry's time base; ``roles`` names each entry "training", "validation" or
+    "scored"; ``fit``: the fit.json a compare scored (path and SHA-256)."""
     words = ["tensorid", *(sys.argv[1:] if argv is None else argv)]
-    return {
+    for k, entry in enumerate(data):
+        _time_base(entry, ts)
+        if roles is not None:
+            entry["role"] = roles[k]
+    out = {
         "model": _file(model_path),
         "data": data,
         "command": shlex.join(words),
         "versions": _versions(),
         "time": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "working_directory": os.getcwd(),
     }
+    return out | ({"fit": _file(fit)} if fit is not None else {})
+
+
+def _time_base(entry: dict, ts: float | None) -> None:
+    """Where a data file's sample times came from ("time" in its entry): --ts, its time
+    column, or its own sampling time Ts; the column map names "t" only where a column
+    was read for it (it said t=t of files without one)."""
+    columns = entry.get("columns", {})
+    source = columns.get("t", "t")
+    if ts is not None:
+        entry["time"] = f"--ts {ts:g}"
+    elif _has_column(entry["path"], source):
+        entry["time"] = f"column {source}"
+        return
+    else:
+        entry["time"] = "the file's sampling time Ts"
+    columns.pop("t", None)
+
+
+def _has_column(path, name) -> bool:
+    """Whether the data file holds a signal ``name`` (read again: the loaders keep no
+    note of it; a file that cannot be read is taken to hold it)."""
+    from .readers import _read
+
+    try:
+        return str(name) in _read(Path(path)).values
+    except (OSError, ValueError):
+        return True
 
 
 def markdown(prov: dict) -> list[str]:
@@ -71,11 +124,16 @@ def markdown(prov: dict) -> list[str]:
         "",
         f"- model file: `{prov['model']['path']}` (SHA-256 `{prov['model']['sha256']}`)",
     ]
+    if prov.get("fit"):
+        lines.append(f"- fit scored: `{prov['fit']['path']}` (SHA-256 `{prov['fit']['sha256']}`)")
     for d in prov["data"]:
         cols = ", ".join(f"{k}={v}" for k, v in d["columns"].items())
+        role = f"{d['role']} data file" if d.get("role") else "data file"
         lines.append(
-            f"- data file: `{d['path']}` (SHA-256 `{d['sha256']}`)"
+            f"- {role}: `{d['path']}` (SHA-256 `{d['sha256']}`)"
             + (f", columns {cols}" if cols else "")
+            + (f", time from {d['time']}" if d.get("time") else "")
+            + (f", samples {d['samples'][0]}:{d['samples'][1]}" if d.get("samples") else "")
         )
     v = prov["versions"]
     lines += [
@@ -83,6 +141,8 @@ def markdown(prov: dict) -> list[str]:
         f"- tensorid {v['tensorid']}, JAX {v['jax']}, NumPy {v['numpy']}, "
         f"Python {v['python']}; {prov['time']}",
     ]
+    if prov.get("working_directory"):
+        lines.append(f"- working directory: `{prov['working_directory']}`")
     return lines
 
 

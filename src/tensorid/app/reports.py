@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 
 from ..engine.checks import step
+from ..fitting.display import coloured_residuals_line
 from ..fitting.figures import new_figure, save_png
 from ..fitting.summary import (
-    coloured_residuals_line,
     criteria_text,
     headline,
     interval,
@@ -111,9 +111,9 @@ def _error_bars(res, u, names: list[str], residual) -> dict:
     d = u.as_dicts()
     gn = res.uncertainty("gauss-newton").stderr.tolist()
     d["stderr_gauss_newton"] = dict(zip(names, gn, strict=True))
-    coloured = residual is not None and False in residual.whiteness_passed
+    coloured = residual is not None and residual.not_shown_white
     loss = res.problem.loss
-    wanted = (coloured and not loss.likelihood) or loss.robust
+    wanted = coloured or loss.robust
     robust = res.uncertainty("robust") if wanted else None
     d["stderr_robust"] = dict(zip(names, robust.stderr.tolist(), strict=True)) if robust else None
     d["robust_lags"] = robust.lags if robust else None
@@ -194,13 +194,20 @@ def fit_json(
         c = res.criteria()
         d.update({k: v for k, v in c.items() if k in ("aic", "aicc", "bic")})
         d["criteria_not_available"] = c["not_available"]
-    if residual is not None:
-        d["residual_tests"] = residual.as_dict()
+    d.update(_verdicts(res, residual))
     if influence is not None:
         d["influential_samples"] = {
             n: [list(row) for row in influence.most_influential(n, 10)] for n in influence.names
         }
     return d
+
+
+def _verdicts(res, residual) -> dict:
+    """The residual tests and the model-error check (made after the fit where the
+    residuals are not white; null otherwise)."""
+    check = res.cached_model_check()
+    d = {"model_check": check.as_dict() if check is not None else None}
+    return d | ({"residual_tests": residual.as_dict()} if residual is not None else {})
 
 
 def _profile_lines(profiles: dict | None, data: dict) -> list[str]:
@@ -337,8 +344,11 @@ def fit_report(
             "",
         ]
         lines += [f"- {line}" for line in residual.lines()]
-        if res.has_uncertainty and False in residual.whiteness_passed:
-            lines += ["", coloured_residuals_line(res) + "."]
+        check = res.cached_model_check()
+        if check is not None:
+            lines += ["", f"Model-error check ({check.how}): {check.line()}."]
+        if res.has_uncertainty and residual.not_shown_white:
+            lines += ["", coloured_residuals_line(res, residual, check) + "."]
     if "aic" in data:
         lines += ["", criteria_text(data) + "."]
     lines += _profile_lines(profiles, data)

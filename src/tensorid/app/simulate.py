@@ -411,7 +411,10 @@ def run_compare(args) -> int:
             args.model,
             data_entries([args.data], [effective_columns(m, args.columns)]),
             getattr(args, "argv", None),
-        ),
+            ts=args.ts,
+            roles=["scored"],
+            fit=args.params[0],
+        ),  # fmt: skip
     }
     out.mkdir(parents=True, exist_ok=True)
     old = previous_outputs(out, COMPARE_MANIFEST)

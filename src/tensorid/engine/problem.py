@@ -40,6 +40,7 @@ from .predictors import make_predictor
 from .priors import PriorTerms
 from .shooting import Shooting, resolve_segments
 from .simulate import Simulation, run_simulation
+from .start import Start, resolve_start
 from .sweeps import Sweeps, shared_sweeps
 
 
@@ -53,6 +54,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
             Each experiment has its own initial state; all share the parameters.
         p0: dict {name: value} or array (M,)
             Parameter values: the start for free parameters, the value of fixed ones.
+            Or an earlier fit to start from: a FitResult or a Start (tensorid.engine.start).
         x0: array (N,), array (E, N), dict {state: value} or list of dicts; default zeros
             Initial states: the start for free entries, the value of fixed ones.
         free_x0: list of state names whose initial value is estimated (in every experiment).
@@ -136,7 +138,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
         self,
         model: Model,
         data: Experiment | Sequence[Experiment],
-        p0: Mapping[str, float] | Sequence[float] | np.ndarray | None = None,
+        p0: Mapping[str, float] | Sequence[float] | np.ndarray | Start | None = None,
         x0: Mapping[str, float] | Sequence | np.ndarray | None = None,
         free_x0: Sequence[str] | None = None,
         fixed: Sequence[str] | None = None,
@@ -169,10 +171,11 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
             segments=segments, segment_length=segment_length, hessian=hessian,
         )  # fmt: skip
         no_noise_without_filter(model, predictor, fixed, bounds)
+        p0, x0, filt = resolve_start(model, p0, x0, predictor, process_noise, measurement_noise)
         self.model = model
         self.experiments = check_data(self, data)
         self.p0 = check_p0(self, p0)
-        model = self._with_predictor(predictor, process_noise, measurement_noise)
+        model = self._with_predictor(predictor, *filt)
         self.x0 = check_x0(self, x0)
         self.free_x0 = name_list("free_x0", free_x0, model.states, "states")
         self.fixed = name_list("fixed", fixed, model.params, "params")

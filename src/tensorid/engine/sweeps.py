@@ -238,10 +238,11 @@ class Sweeps:
         return self.loss.residual(y, pis, w).reshape(-1)
 
     # -- first order: (J, ∇J) and the Gauss-Newton Hessian -----------------------------
-    def _first_order(self, theta, x0, p, t, u, y, w, gauss_newton=True, end=False):
+    def _first_order(self, theta, x0, p, t, u, y, w, gauss_newton=True, end=False, scores=False):
         """(J, ∇J, Σ (C_z Z)ᵀ γ (C_z Z)) with γ the loss's Gauss-Newton weights (2w for
         the squared loss); the last is None when not ``gauss_newton``.
-        With ``end``, also (x, dx) at the last sample (see _weighted for y and w)."""
+        With ``end``, also (x, dx) at the last sample (see _weighted for y and w).
+        With ``scores``, instead each sample's share (C_z Z)ᵀ ℓ_π of ∇J (P, K)."""
         x0, p = self._start(theta, x0, p)
         K = self.K
         dx0, Psel = self.seeds()
@@ -267,13 +268,15 @@ class Sweeps:
             D = columns(self._pi, x, dxT)  # (K, outputs) = (C_z Z)ᵀ
             if gauss_newton:
                 H = H + quadratic_full(D, gamma)
-            return (J + ell, g + D @ l1, H), None
+            return (J + ell, g + D @ l1, H), (D @ l1 if scores else None)
 
         acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros((K, K)) if gauss_newton else None)
         w_all = w
         state0 = lay.pack(x0, jnp.asarray(dx0.T))
         update = self._update(push)
-        acc, _, _ = self._march(field, observe, state0, acc0, t, u, y, p, end, update)
+        acc, shares, _ = self._march(field, observe, state0, acc0, t, u, y, p, end, update)
+        if scores:
+            return shares
         return (*acc[0], lay.tuple(acc[1])) if end else acc
 
     # -- second order: (J, ∇J, ∇²J) or (J, ∇J, ∇²J v) by transition tensors ------------
@@ -306,6 +309,11 @@ class Sweeps:
     def _gradient(self, theta, x0, p, t, u, y, w):
         return self._first_order(theta, x0, p, t, u, y, w, gauss_newton=False)[:2]
 
+    def _scores(self, theta, x0, p, t, u, y, w):
+        """(P, K): each sample's share of ∇J, through the predictor (a filter's update
+        included); a sample the march leaves out of J (skip_first) is still a row."""
+        return self._first_order(theta, x0, p, t, u, y, w, gauss_newton=False, scores=True)
+
     # -- compiled entry points ---------------------------------------------------------
     _own_simulate = Compiled("_simulate")
 
@@ -329,6 +337,7 @@ class Sweeps:
     first_order = Compiled("_first_order")
     second_order = Compiled("_second_order")
     gradient = Compiled("_gradient")
+    scores = Compiled("_scores")
     hessp = Compiled("_hessp")
     # one start per row of theta: multi-start in lock-step, one call for all
     first_order_batch = Compiled("_first_order", batched=True)

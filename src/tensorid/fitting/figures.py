@@ -367,11 +367,12 @@ def residual_figure(bound: float, panels: list[dict]):
             back = -np.arange(1, c["feedback"].size + 1)
             ax.vlines(back, 0, c["feedback"], color="0.6")
             ax.plot(back, c["feedback"], "o", ms=3, color="0.6")
-        colour = "C3" if not c["passed"] else "C0"
+        colour = {True: "C0", False: "C3", None: "C1"}[c["passed"]]
         ax.vlines(c["lags"], 0, c["values"], color=colour)
         ax.plot(c["lags"], c["values"], "o", ms=3, color=colour)
         ax.axhline(0, color="k", lw=0.6)
-        ax.set_title(f"{c['what']}: {'passes' if c['passed'] else 'fails'}", fontsize=9)
+        verdict = {True: "passes", False: "fails", None: "cannot be trusted"}[c["passed"]]
+        ax.set_title(f"{c['what']}: {verdict}", fontsize=9)
         ax.set_ylabel("r(τ)")
         ax.set_xlabel("lag τ (samples)")  # each panel has its own lags
         ax.grid(alpha=0.3)

@@ -18,6 +18,24 @@ N/4 lags (``lag_limit``) the tests are not made and ``not_available`` says so (a
 summed over lags with almost no products under a threshold that grows with M
 "passes" any model).
 
+The tests use the samples the likelihood uses: a filter (predictor="ekf") with
+estimated initial states leaves each record's first sample out of its likelihood
+(its standardised innovation divides by √R alone and may be anything), so the tests
+leave it out too. A verdict is only given where the series can carry one; otherwise
+the test "cannot be trusted" (``passed`` None) and ``untrusted`` says why:
+
+* a swamped series: when the largest 1 % of the samples (at least one) hold more
+  than half of its sum of squares, r(τ) = Σ e_k e_{k−τ} / Σ e² is the correlation
+  of those few samples with their neighbours over their own squares, ≈ 0 at every
+  lag whatever the rest does, and Q ≈ 0 "passes" any model. For white Gaussian
+  residuals that share is about 10 % (one sample of twenty holding half is a
+  1-in-100 event); a constant or non-finite series is untrusted the same way.
+* a filter whose measurement noise σ_e went to its floor (below 10⁻⁶ of the output's
+  spread, see :func:`tensorid.fitting.summary.collapsed_outputs`): the filter then
+  follows the output exactly, its innovations' covariance comes from the process
+  noise alone, and the likelihood sits in a corner, not at a noise model the test
+  could check; fix σ_e at the sensor's noise and fit again.
+
 Information criteria, with Gaussian residuals of unknown variance: for n residuals
 and K unknowns, −2 log L = n (log(2π J/n) + 1), AIC = −2 log L + 2K,
 AICc = AIC + 2K(K + 1)/(n − K − 1), BIC = −2 log L + K log n. Lower is better; only
@@ -31,7 +49,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import quantiles
-from .summary import Table, Tabular
+from .summary import Table, Tabular, collapsed_outputs
+
+# a series whose largest 1 % of samples (at least one) hold more than this share of
+# its sum of squares is swamped by them (white Gaussian: about 0.1)
+SWAMPED = 0.5
 
 
 @dataclass
@@ -43,22 +65,32 @@ class Correlation:
     values: np.ndarray
     statistic: float
     threshold: float
-    passed: bool
+    passed: bool | None  # None: the test cannot be trusted (``untrusted`` says why)
     # the cross-correlation at lags -1..-M (later inputs: feedback), not tested
     feedback: np.ndarray | None = None
+    untrusted: str | None = None  # why the series cannot carry a verdict, or None
 
-    def line(self) -> str:
-        """The test in words."""
-        verdict = "passes" if self.passed else "FAILS"
-        side = "below" if self.passed else "above"
+    @property
+    def verdict(self) -> str:
+        """ "passes", "FAILS" or "cannot be trusted"."""
+        return {True: "passes", False: "FAILS", None: "cannot be trusted"}[self.passed]
+
+    def line(self, said: dict[str, str] | None = None) -> str:
+        """The test in words; ``said`` maps a reason already given to the test that
+        gave it (then named instead of the reason again), and is filled in."""
+        side = "below" if self.statistic <= self.threshold else "above"
         back = (
             ""
             if self.feedback is None
             else f"; at negative lags (feedback) {np.max(np.abs(self.feedback)):.3f}"
         )
+        why = f": {self.untrusted}" if self.untrusted else ""
+        if said is not None and self.untrusted:
+            why = f": as {said[self.untrusted]}" if self.untrusted in said else why
+            said.setdefault(self.untrusted, self.what)
         return (
-            f"{self.what}: {verdict} (Q = {self.statistic:.1f}, {side} "
-            f"{self.threshold:.1f}; largest |r| {self.largest:.3f}{back})"
+            f"{self.what}: {self.verdict} (Q = {self.statistic:.1f}, {side} "
+            f"{self.threshold:.1f}; largest |r| {self.largest:.3f}{back}){why}"
         )
 
     @property
@@ -84,21 +116,31 @@ class ResidualTests(Tabular):
 
     @property
     def passed(self) -> bool | None:
-        """Whether every test passed; None where none could be made."""
+        """Whether every test passed: False where one failed, None where none could be
+        made or one cannot be trusted."""
         if self.not_available:
             return None
-        return all(c.passed for c in self.whiteness + self.independence)
+        verdicts = [c.passed for c in self.whiteness + self.independence]
+        return False if False in verdicts else (None if None in verdicts else True)
 
     @property
     def whiteness_passed(self) -> list[bool | None]:
-        """Per output, whether its residuals passed the whiteness test (None: not made)."""
+        """Per output, whether its residuals passed the whiteness test (None: it cannot
+        be trusted)."""
         return [c.passed for c in self.whiteness]
+
+    @property
+    def not_shown_white(self) -> bool:
+        """Whether some output's residuals failed whiteness or could not be tested for
+        it (swamped, σ_e at its floor): the white-noise error bars are then unproven."""
+        return any(c.passed is not True for c in self.whiteness)
 
     def lines(self) -> list[str]:
         """One line per test, in words."""
         if self.not_available:
             return [f"tests {self.not_available}"]
-        return [c.line() for c in self.whiteness + self.independence] + [
+        said: dict[str, str] = {}
+        return [c.line(said) for c in self.whiteness + self.independence] + [
             f"input {name}: not tested (constant on every record, so nothing to correlate)"
             for name in self.constant_inputs
         ]
@@ -110,8 +152,7 @@ class ResidualTests(Tabular):
         tests = self.whiteness + self.independence
         header = ["test", "Q", "threshold", "largest |r|", "verdict"]
         rows = [
-            [c.what, f"{c.statistic:.1f}", f"{c.threshold:.1f}", f"{c.largest:.3f}"]
-            + ["passes" if c.passed else "FAILS"]
+            [c.what, f"{c.statistic:.1f}", f"{c.threshold:.1f}", f"{c.largest:.3f}"] + [c.verdict]
             for c in tests
         ]
         if any(c.feedback is not None for c in tests):  # feedback: shown, not tested
@@ -123,7 +164,12 @@ class ResidualTests(Tabular):
         constant = [
             f"input {n}: not tested (constant on every record)" for n in self.constant_inputs
         ]
-        return [head, Table(None, header, rows), *constant]
+        reasons: dict[str, list[str]] = {}
+        for c in tests:
+            if c.untrusted:
+                reasons.setdefault(c.untrusted, []).append(c.what)
+        why = [f"{', '.join(w)}: cannot be trusted: {r}" for r, w in reasons.items()]
+        return [head, Table(None, header, rows), *why, *constant]
 
     def __repr__(self) -> str:
         return f"ResidualTests(passed={self.passed}, level={self.level}, max_lag={self.max_lag})"
@@ -137,6 +183,8 @@ class ResidualTests(Tabular):
                 "threshold": c.threshold,
                 "correlation": c.values.tolist(),
                 "lags": c.lags.tolist(),
+                "trusted": c.untrusted is None,
+                "untrusted": c.untrusted,
             } | ({} if c.feedback is None else {"correlation_negative_lags": c.feedback.tolist()})
 
         return {
@@ -185,7 +233,8 @@ def _correlation(a: list[np.ndarray], b: list[np.ndarray], lags: int) -> np.ndar
 
 
 def residual_tests(res, max_lag: int = 25, level: float = 0.99) -> ResidualTests:
-    """Whiteness of each output's residuals and their independence from each input.
+    """Whiteness of each output's residuals and their independence from each input, on
+    the samples the likelihood uses (see the module's docstring).
 
     Arguments:
       res : a FitResult with a finite cost.
@@ -201,46 +250,113 @@ def residual_tests(res, max_lag: int = 25, level: float = 0.99) -> ResidualTests
         raise ValueError(f"level must be between 0 and 1, got {level!r}")
     problem = res.problem
     model = problem.model
+    first = skipped_samples(problem)
     exps = problem.experiments
-    N = sum(e.P for e in exps)
+    N = sum(e.P - first for e in exps)
     if max_lag > lag_limit(N):
         fix = (
             f"give max_lag (--residual-lags) {lag_limit(N)} or fewer"
             if lag_limit(N)
             else "they need at least 4 samples"
         )
-        why = (
+        missing = (
             f"not available: {max_lag} lags on {N} samples (the test statistic is χ² only "
             f"for lags well below N; at most N/4); {fix}"
         )
-        return ResidualTests(level, max_lag, N, np.nan, [], [], [], why)
-    if problem.loss.likelihood:  # a filter's: its standardised innovations
-        errors = [np.asarray(o.innovations) for o in problem.predict(res.theta)]
-    else:
-        errors = [e.measured - s.y for e, s in zip(exps, res.simulate(), strict=True)]
-    white, indep = [], []
+        return ResidualTests(level, max_lag, N, np.nan, [], [], [], missing)
+    errors = [a[first:] for a in _errors(res)]
+    inputs = [e.u[first:] for e in exps]
     constant = [
-        name for i, name in enumerate(model.inputs) if all(np.ptp(e.u[:, i]) == 0 for e in exps)
+        name for i, name in enumerate(model.inputs) if all(np.ptp(u[:, i]) == 0 for u in inputs)
     ]
+    collapsed = collapsed_outputs(res)
+    white, indep = [], []
     q_white = quantiles.chi2(max_lag, level)
     q_cross = quantiles.chi2(max_lag + 1, level)
+    lags = np.arange(max_lag + 1)
     for j, out in enumerate(model.outputs):
         err = [a[:, j] for a in errors]
+        why: str | None = _floor_reason(out, collapsed[out]) if out in collapsed else swamped(err)
         r = _correlation(err, err, max_lag)
         Q = float(N * np.sum(r[1:] ** 2))
-        lags = np.arange(max_lag + 1)
-        white.append(Correlation(f"whiteness of {out}", lags, r, Q, q_white, Q <= q_white))
+        verdict = None if why else bool(Q <= q_white)
+        white.append(Correlation(f"whiteness of {out}", lags, r, Q, q_white, verdict, None, why))
         for i, name in enumerate(model.inputs):
             if name in constant:
                 continue
-            u = [e.u[:, i] for e in exps]
+            u = [a[:, i] for a in inputs]
             c = _correlation(err, u, max_lag)
             Qc = float(N * np.sum(c**2))
             back = _correlation(u, err, max_lag)[1:]  # Σ e[k] u[k + τ]: later inputs
             what = f"{out} against input {name}"
-            indep.append(Correlation(what, lags, c, Qc, q_cross, Qc <= q_cross, back))
+            verdict = None if why else bool(Qc <= q_cross)
+            indep.append(Correlation(what, lags, c, Qc, q_cross, verdict, back, why))
     bound = float(quantiles.normal(0.5 + level / 2) / np.sqrt(N))
     return ResidualTests(level, max_lag, N, bound, white, indep, constant)
+
+
+def _errors(res) -> list[np.ndarray]:
+    """Per record (P, S): a filter's standardised innovations, or the output error's
+    residuals y − ŷ."""
+    problem = res.problem
+    if problem.loss.likelihood:
+        return [np.asarray(o.innovations) for o in problem.predict(res.theta)]
+    sims = res.simulate()
+    return [e.measured - s.y for e, s in zip(problem.experiments, sims, strict=True)]
+
+
+def swamped(series: list[np.ndarray]) -> str | None:
+    """Why a residual series (one per record) cannot carry a correlation test, or None:
+    not finite, constant, or swamped by a few samples (the largest 1 %, at least one,
+    holding more than ``SWAMPED`` of the sum of squares about each record's mean)."""
+    x = np.concatenate([a - a.mean() if np.isfinite(a).all() else a for a in series])
+    if not np.isfinite(x).all():
+        return f"{int((~np.isfinite(x)).sum())} of its {x.size} values are not finite"
+    top = np.abs(x).max()
+    if not top > 0:
+        return "the series is constant: there is nothing to correlate (Q = 0 is no test)"
+    ss = np.sort((x / top) ** 2)  # scaled: a value of 1e200 must not overflow
+    few = max(1, int(np.ceil(0.01 * x.size)))
+    shares = np.cumsum(ss[::-1][:few]) / ss.sum()
+    if shares[-1] <= SWAMPED:
+        return None
+    k = int(np.argmax(shares > SWAMPED))  # the fewest samples holding that much
+    median = float(np.median(np.abs(x)))
+    which = "largest sample holds" if k == 0 else f"{k + 1} largest samples hold"
+    return (
+        f"the series is swamped: its {which} {shares[k]:.0%} of its sum of squares "
+        f"(|value| up to {top:.3g} against a median of {median:.3g}), so every r(τ) "
+        "measures those samples alone and Q is no test of the rest; find what makes them "
+        "(an outlier in the record, a start the model cannot follow) and fit again"
+    )
+
+
+def _floor_reason(output: str, sigma: float) -> str:
+    return (
+        f"the measurement noise σ_e({output}) = {sigma:.2g} sits at its floor: the filter "
+        f"follows {output} exactly, so its innovations carry the sensor's noise twice (this "
+        "sample's, and the last one's through the state) and are coloured whatever the "
+        "model; the fit sits in a corner of the likelihood, not at a noise model this test "
+        f"could check. Fix σ_e at the sensor's noise (--fix log_sigma_e_{output}=log σ, "
+        "fixed= in Python) and fit again"
+    )
+
+
+def skipped_samples(problem) -> int:
+    """How many samples at the start of each record the likelihood leaves out: one for
+    a filter with estimated initial states (tensorid.engine.sweeps, Sweeps._march),
+    else none."""
+    return 1 if problem.loss.likelihood and len(problem.free_x0) else 0
+
+
+DEFAULT_LAGS = 25  # MATLAB resid's
+
+
+def default_lags(problem) -> int:
+    """The lags the tests take unless told: MATLAB's 25, fewer on a short record (at
+    most N/4, at least 1: below 4 samples the tests say not available)."""
+    samples = sum(e.P - skipped_samples(problem) for e in problem.experiments)
+    return max(min(DEFAULT_LAGS, lag_limit(samples)), 1)
 
 
 def lag_limit(samples: int) -> int:
@@ -252,8 +368,8 @@ def lag_limit(samples: int) -> int:
 def residual_count(problem) -> int:
     """n: the weighted residuals, samples times the outputs that carry weight; a
     filter with estimated initial states leaves each record's first sample out of its
-    likelihood (tensorid.engine.sweeps, Sweeps._march)."""
-    first = 1 if problem.loss.likelihood and len(problem.free_x0) else 0
+    likelihood (:func:`skipped_samples`)."""
+    first = skipped_samples(problem)
     return sum(e.P - first for e in problem.experiments) * int((problem.weights > 0).sum())
 
 

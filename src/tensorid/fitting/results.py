@@ -8,7 +8,6 @@ only when asked (``plot(folder)``).
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -17,53 +16,13 @@ from ..engine.metrics import gof
 from ..engine.problem import Problem
 from ..engine.status import Status
 from .priors import NoiseCheck, move_lines, prior_moves
+from .stats import Stats
 from .summary import Tabular, collapsed_noise
 from .uncertainty import Information, Uncertainty, information, uncertainty
 
 
 def _squeeze(a: np.ndarray) -> np.ndarray:
     return a[:, 0] if a.ndim == 2 and a.shape[1] == 1 else a
-
-
-@dataclass(frozen=True)
-class Stats(Mapping):
-    """A fit's counters, read-only: a mapping (``res.stats["nit"]``) and attributes.
-
-    nit, nfev, nhev : iterations, cost evaluations, Hessian-vector products.
-    nit_total, nfev_best : with several starts, every start's iterations and the best
-        start's evaluations (for one start, nit and nfev: the default).
-    """
-
-    nit: int = 0
-    nfev: int = 0
-    nhev: int = 0
-    nit_total: int | None = None
-    nfev_best: int | None = None
-
-    def __post_init__(self) -> None:
-        default = {"nit_total": self.nit, "nfev_best": self.nfev}
-        for k in self:
-            v = getattr(self, k)
-            object.__setattr__(self, k, int(default[k] if v is None else v))
-
-    def __getitem__(self, key: str) -> int:
-        if key not in self.__dataclass_fields__:
-            raise KeyError(key)
-        return getattr(self, key)
-
-    def __iter__(self):
-        return iter(self.__dataclass_fields__)
-
-    def __len__(self) -> int:
-        return len(self.__dataclass_fields__)
-
-    def then(self, later: Stats) -> Stats:
-        """The counts of this run followed by ``later`` (a refit, a polish): summed."""
-        return Stats(**{k: self[k] + later[k] for k in self})
-
-    def plus(self, **more: int) -> Stats:
-        """These counts with ``more`` added to the ones named."""
-        return replace(self, **{k: self[k] + int(v) for k, v in more.items()})
 
 
 @dataclass(frozen=True)
@@ -256,7 +215,8 @@ class FitResult(Tabular):
         """Standard errors, 95 % intervals, correlations (see tensorid.fitting.uncertainty);
         ``kind`` "hessian" uses the exact Hessian, "gauss-newton" its first-order form,
         "robust" the sandwich H⁻¹ B H⁻¹ with the scores' Newey-West covariance B
-        (honest when the residuals are coloured; see tensorid.fitting.sandwich). With
+        (honest when the residuals are coloured; see tensorid.fitting.sandwich; for a
+        filter, the scores of −2 log L, for innovations that are not white). With
         a robust loss every kind is a sandwich (the 2σ² H⁻¹ form assumes the squared
         loss), with independent samples for "hessian" and "gauss-newton"."""
         if kind not in ("hessian", "gauss-newton", "robust"):
@@ -279,11 +239,6 @@ class FitResult(Tabular):
             return problem.cost_grad_gn(theta)[2]
 
         meat, lags = None, None
-        if kind == "robust" and problem.loss.likelihood:
-            raise ValueError(
-                "kind='robust' is for output error, whose residuals may be coloured; a "
-                "filter's innovations are white where its model is right: use 'hessian'"
-            )
         if kind == "robust" or problem.loss.robust:
             from .sandwich import score_covariance
 
@@ -372,10 +327,30 @@ class FitResult(Tabular):
 
     def residual_tests(self, max_lag: int = 25, level: float = 0.99):
         """Whiteness of the residuals and their independence from the inputs, as
-        MATLAB's ``resid`` (see :mod:`tensorid.fitting.residuals`)."""
+        MATLAB's ``resid`` (see :mod:`tensorid.fitting.residuals`), on the samples
+        the likelihood uses; a verdict the series cannot carry is "cannot be trusted"."""
         from .residuals import residual_tests
 
-        return residual_tests(self, max_lag, level)
+        key = ("residual tests", max_lag, level, self.cost, self.theta.tobytes())
+        if key not in self._uncertainty:
+            self._uncertainty[key] = residual_tests(self, max_lag, level)
+        return self._uncertainty[key]
+
+    def model_check(self, level: float = 0.99, **options):
+        """Whether the estimates from separate parts of the record (its halves, or the
+        given records) agree within their robust error bars: where they do not, no
+        error bar covers the model's error (see :mod:`tensorid.fitting.model_check`).
+        Fits each part from this estimate; kept, so that the summary shows it."""
+        from .model_check import model_check
+
+        key = ("model check", self.cost, self.theta.tobytes())
+        if key not in self._uncertainty or self._uncertainty[key].level != level or options:
+            self._uncertainty[key] = model_check(self, level, **options)
+        return self._uncertainty[key]
+
+    def cached_model_check(self):
+        """The model-error check if :meth:`model_check` was made at this estimate, else None."""
+        return self._uncertainty.get(("model check", self.cost, self.theta.tobytes()))
 
     def criteria(self) -> dict:
         """AIC, AICc and BIC (Gaussian residuals of unknown variance), with n and K:
@@ -399,15 +374,17 @@ class FitResult(Tabular):
         return profile(self, names, level, **options)
 
     def summary(self) -> str:
-        """A plain-text table of the estimates with standard errors and intervals."""
-        from .summary import summary_table
+        """A plain-text table of the estimates with standard errors and intervals, the
+        residual tests' verdicts and, where the residuals are not shown white, the
+        robust standard errors beside the white ones and which to trust."""
+        from .display import summary_table
 
         return summary_table(self)
 
     def blocks(self) -> list:
-        """The summary's content (headline, estimates, information, criteria, warnings)
-        as text and tables, for ``str()`` and a notebook's ``_repr_html_``."""
-        from .summary import fit_blocks
+        """The summary's content (headline, estimates, information, criteria, residual
+        verdicts, warnings) as text and tables, for ``str()`` and ``_repr_html_``."""
+        from .display import fit_blocks
 
         return fit_blocks(self)
 

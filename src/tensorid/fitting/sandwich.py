@@ -34,18 +34,40 @@ import jax
 import numpy as np
 
 from ..engine.compiled import on_device
+from .residuals import skipped_samples
 
 
 def scores(problem, theta) -> list[np.ndarray]:
     """(P, K) per experiment: each sample's share s_h = D_hᵀ ℓ_ŷ,h of ∇J (the priors
-    aside), exact for the discretised model."""
+    aside), exact for the discretised model. For a filter (a likelihood), the shares
+    of −2 log L from the first-order sweep through the filter, on the samples the
+    likelihood uses."""
     theta = problem.check_theta(theta)
+    if problem.loss.likelihood:
+        return _filter_scores(problem, theta)
     loss, w = problem.loss, on_device(problem.loss_weights)
     out = []
     sens, sims = problem.output_sensitivities(theta), problem.simulate(theta)
     for D, e, sim in zip(sens, problem.experiments, sims, strict=True):
         l1 = np.asarray(_output_gradients(loss, on_device(e.y), on_device(sim.y), w))  # (P, S)
         out.append(np.einsum("hsk,hs->hk", D, l1))
+    return out
+
+
+def _filter_scores(problem, theta) -> list[np.ndarray]:
+    """s_h = ∂ℓ_h/∂θ, ℓ_h = log det S_h + ε_hᵀ S_h⁻¹ ε_h, per record (P − skipped, K):
+    the filter's sensitivities carried through its updates (Sweeps.scores), so that
+    they sum to its gradient exactly."""
+    sw, w = problem.sweeps, on_device(problem.loss_weights)
+    first = skipped_samples(problem)
+    out = []
+    for e, (t, u, y) in enumerate(problem.arrays):
+        idx = problem._slices(e)
+        x0, p = on_device(problem.x0[e]), on_device(problem.p0)
+        s = np.asarray(sw.scores(on_device(theta[idx]), x0, p, t, u, y, w))
+        full = np.zeros((s.shape[0], problem.K))
+        full[:, idx] = s
+        out.append(full[first:])
     return out
 
 

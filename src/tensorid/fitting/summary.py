@@ -253,9 +253,12 @@ class Tabular(ABC):
         return as_html(self.blocks())
 
 
-def estimates_table(names: list[str], theta, u=None, title: str | None = None) -> Table:
+def estimates_table(
+    names: list[str], theta, u=None, title: str | None = None, robust=None
+) -> Table:
     """Estimate, standard error, 95 % interval and note per unknown (``u``: an
-    Uncertainty, or None for a fit without error bars)."""
+    Uncertainty, or None for a fit without error bars); with ``robust`` (the sandwich's
+    Uncertainty) its standard errors beside the white ones."""
     notes = [interval_note(u, n) for n in names] if u else [""] * len(names)
     header = ["unknown", "estimate", "std. error", "95 % interval"]
     rows = []
@@ -263,35 +266,14 @@ def estimates_table(names: list[str], theta, u=None, title: str | None = None) -
         se = float(u.stderr[k]) if u else math.nan
         ci = interval(*u.ci95[k]) if u else "–"
         rows.append([name, significant(float(theta[k]), se), stderr_text(se), ci])
+        if robust is not None:
+            rows[-1].insert(3, stderr_text(float(robust.stderr[k])))
+    if robust is not None:
+        header.insert(3, "robust std. error")
     if any(notes):
         header.append("note")
         rows = [r + [n] for r, n in zip(rows, notes, strict=True)]
     return Table(title, header, rows)
-
-
-def fit_blocks(res, scores=None) -> list:
-    """A FitResult's display: the headline, the estimates, the metric table (with
-    ``scores``, see tensorid.fitting.validation), information, criteria, notes,
-    warnings."""
-    u = res.uncertainty() if res.has_uncertainty else None
-    title = f"{res.problem.model.name}: {'converged' if res.success else 'NOT converged'}"
-    blocks: list = [headline(res), estimates_table(res.problem.theta_names, res.theta, u, title)]
-    if scores:
-        blocks.append(Table(None, *metric_rows(scores)))
-        blocks += metric_notes(scores)
-    noise = noise_intensities(res, u)
-    if noise:
-        blocks.append(noise_text(noise, res.problem.model.discrete))
-    if u is not None:
-        blocks.append("information: " + res.information().describe())
-        c = res.criteria()
-        shown = any(c.get(k) is not None and math.isfinite(c[k]) for k in ("aic", "aicc", "bic"))
-        better = "; lower is better, for models of the same data" if shown else ""
-        blocks.append(criteria_text(c) + f" (n = {c['n']}, K = {c['K']}{better})")
-    # what happened on the way (a robust loss's stages, rejected trial points); a fit
-    # that did not converge has them among its warnings already
-    notes = [f"note: {n}" for n in res.notes] if res.success else []
-    return blocks + notes + [f"warning: {w}" for w in res.warnings]
 
 
 def noise_intensities(res, u=None) -> dict | None:
@@ -323,31 +305,41 @@ def noise_intensities(res, u=None) -> dict | None:
 
 def collapsed_noise(res) -> list[str]:
     """A warning for each estimated measurement noise of a filter fit that went to
-    (almost) zero: below 1e-6 of its output's spread, no sensor's. The filter then
-    follows that output exactly, a corner where fits stop at a local optimum (a tester's
-    Silverbox fit ended there at cost -12807, where a larger starting noise reached
-    -13136)."""
-    noise = noise_intensities(res)
-    if noise is None:
-        return []
+    (almost) zero (:func:`collapsed_outputs`). The filter then follows that output
+    exactly, a corner where fits stop at a local optimum (a tester's Silverbox fit
+    ended there at cost -12807, where a larger starting noise reached -13136)."""
     out = []
-    model, exps = res.problem.model, res.problem.experiments
-    for o, e in noise["measurement"].items():
-        j = model.outputs.index(o)
-        ys = np.concatenate([np.asarray(x.measured)[:, j] for x in exps])
-        spread = float(np.nanstd(ys))
-        if e["fixed"] or not spread > 0 or e["sigma"] >= 1e-6 * spread:
-            continue
-        q = _resolution(ys)
-        if q > 0 and e["sigma"] >= 0.5 * q / np.sqrt(12):
-            continue  # a quantised sensor's own noise (EMPS's encoder: 5e-8 m steps)
+    for o, (sigma, spread) in collapsed_outputs(res, spread=True).items():
         out.append(
-            f"the measurement noise of {o} went to σ_e = {e['sigma']:.2g}, "
-            f"{e['sigma'] / spread:.0e} of the output's spread: the filter then follows "
+            f"the measurement noise of {o} went to σ_e = {sigma:.2g}, "
+            f"{sigma / spread:.0e} of the output's spread: the filter then follows "
             f"{o} exactly, a corner of the likelihood where fits often stop at a worse "
             f"optimum; start from a sensor's noise (--measurement-noise {o}=σ, "
             f"measurement_noise= in Python) or fix it (--fix log_sigma_e_{o}=log σ)"
         )
+    return out
+
+
+def collapsed_outputs(res, spread: bool = False) -> dict:
+    """{output: σ_e} (with ``spread``: {output: (σ_e, the output's spread)}) for each
+    estimated measurement noise of a filter fit that sits at its floor: below 1e-6 of
+    its output's spread, and below a quantised sensor's own noise q/√12 (EMPS's
+    encoder: 5e-8 m steps). Empty for output error."""
+    noise = noise_intensities(res)
+    if noise is None:
+        return {}
+    out: dict = {}
+    model, exps = res.problem.model, res.problem.experiments
+    for o, e in noise["measurement"].items():
+        j = model.outputs.index(o)
+        ys = np.concatenate([np.asarray(x.measured)[:, j] for x in exps])
+        sd = float(np.nanstd(ys))
+        if e["fixed"] or not sd > 0 or e["sigma"] >= 1e-6 * sd:
+            continue
+        q = _resolution(ys)
+        if q > 0 and e["sigma"] >= 0.5 * q / np.sqrt(12):
+            continue  # a quantised sensor's own noise
+        out[o] = (e["sigma"], sd) if spread else e["sigma"]
     return out
 
 
@@ -386,36 +378,3 @@ def _noise_interval(ci) -> str:
     if any(c is None or np.isnan(c) for c in ci):
         return " [interval not available]"
     return f" [{ci[0]:.3g}, {ci[1]:.3g}]"
-
-
-def summary_table(res, scores=None) -> str:
-    """The estimates of a FitResult as a plain-text table, then the warnings and, with
-    ``scores`` (see tensorid.fitting.validation), the metric table."""
-    return as_text(fit_blocks(res, scores))
-
-
-def coloured_residuals_line(res) -> str:
-    """One line for residuals that fail whiteness: the standard errors robust to that
-    (Newey-West, tensorid.fitting.sandwich) beside the white ones, and which to trust."""
-    if res.problem.loss.likelihood:
-        return (
-            "the filter's innovations are not white: the model or its noise misses "
-            "something (process noise on another state, or the model's structure), and the "
-            "error bars, which assume white innovations, are optimistic"
-        )
-    white, robust = res.uncertainty(), res.uncertainty("robust")
-    with np.errstate(divide="ignore", invalid="ignore"):  # inf/inf: a flat direction
-        ratio = robust.stderr / white.stderr
-    finite = ratio[np.isfinite(ratio)]
-    if not finite.size:
-        return "the residuals are not white; no finite standard error to compare"
-    pairs = ", ".join(
-        f"{n} ±{w:.3g} → ±{r:.3g}"
-        for n, w, r in zip(white.names, white.stderr, robust.stderr, strict=True)
-    )
-    return (
-        f"the residuals are not white, so the white-noise standard errors are not to be "
-        f"trusted; those robust to coloured residuals (Newey-West, {robust.lags} lags) are "
-        f"{finite.min():.2g} to {finite.max():.2g} times them: {pairs} (fit.json "
-        "stderr_robust). Trust the robust ones, or model the disturbance"
-    )

@@ -139,6 +139,37 @@ def negative_directions(
     return _directions(H, names, lambda r: r < -threshold)
 
 
+SHOWN = 6  # flat directions named one by one in the identifiability line
+
+
+def flat_line(flat: list[tuple[float, list[str]]]) -> str:
+    """One line for every flat direction (``flat_directions``), the flattest first,
+    each naming the unknowns it moves: a fit of many unknowns that the data do not
+    pin down gave one warning per direction (11 for a two-tank filter)."""
+    if len(flat) == 1:
+        rel, involved = flat[0]
+        return (
+            f"not identifiable from these data: the cost is flat (relative curvature "
+            f"{rel:.1e}) along a direction that moves {', '.join(involved)} together; "
+            "fix one of them, add data that excites them differently, or reparametrise"
+        )
+    ranked = sorted(flat, key=lambda d: abs(d[0]))
+    items = [
+        f"({i}) {', '.join(inv)} (relative curvature {rel:.1e})"
+        for i, (rel, inv) in enumerate(ranked[:SHOWN], 1)
+    ]
+    rest = ranked[SHOWN:]
+    if rest:
+        more = sorted({n for _, inv in rest for n in inv})
+        items.append(f"and {len(rest)} more moving {', '.join(more)}")
+    return (
+        f"not identifiable from these data: the cost is flat along {len(flat)} directions, "
+        f"the flattest first: {'; '.join(items)}. Their unknowns get unbounded error bars; "
+        "fix one unknown of each direction, add data that excites them differently, or "
+        "reparametrise"
+    )
+
+
 def _variances(H: np.ndarray, sigma2: float, names: list[str], unbounded, meat=None) -> tuple:
     """(covariance, variances) from the positive part of H in Jacobi-scaled units (relative
     eigenvalue above FLAT); the unknowns in ``unbounded`` directions get infinite variance.
@@ -276,12 +307,7 @@ def uncertainty(
     on, held = on_bounds(problem, theta, grad, scale)
     H_used, form, unbounded, warnings = _indefinite(H, names, held, kind, gauss_newton)
     flat = flat_directions(H_used, names)
-    for rel, involved in flat:
-        warnings.append(
-            f"not identifiable from these data: the cost is flat (relative curvature "
-            f"{rel:.1e}) along a direction that moves {', '.join(involved)} together; "
-            "fix one of them, add data that excites them differently, or reparametrise"
-        )
+    warnings += [flat_line(flat)] if flat else []
     cov, var = _variances(H_used, sigma2, names, flat + unbounded, meat)
     forms = [form] * K
     if held.any() and form == "hessian" and gauss_newton is not None:

@@ -1,0 +1,315 @@
+"""A check for model error: do separate parts of the record give the same estimates?
+
+Robust (sandwich) error bars cover coloured noise, not a wrong model: a model that
+cannot follow the system leaves an error that no noise model explains, and the
+estimates absorb it (a Bouc–Wen fit's mass sat 34 robust standard errors from the
+truth). Whiteness cannot tell the two apart: both colour the residuals.
+
+The check. The record is cut into parts: the given records when there are several,
+else the record's two halves. The model is fitted to each part alone, from the full
+fit's estimate. Where the model is right, every part estimates the same θ and the
+parts' estimates differ by noise only, θ̂_i ≈ N(θ, Σ_i) with Σ_i each part's robust
+covariance (Newey-West: coloured noise included), nearly independent between parts
+(the scores' correlation dies out within the bandwidth, far shorter than a part).
+The homogeneity statistic
+
+    Q = Σ_i (θ̂_i − θ̄)ᵀ Σ_i⁻¹ (θ̂_i − θ̄),      θ̄ = (Σ_i Σ_i⁻¹)⁻¹ Σ_i Σ_i⁻¹ θ̂_i
+
+is then χ² with (m − 1)·p degrees of freedom (m parts, p parameters compared); for
+two parts Q = dᵀ (Σ_1 + Σ_2)⁻¹ d, d = θ̂_1 − θ̂_2. Where the model is wrong, each
+part's estimate is its best approximation to that part's excitation and response,
+and these differ by more than noise: Q exceeds its quantile and the check fails.
+
+Why this check: it puts the robust error bars' own claim — that they cover the
+estimates' error — to the test, on the data, with nothing but the fit's own
+machinery (Chow's and Hausman's tests are of this kind). A validation record would
+say how well the model predicts, not whether its error bars are honest; a
+whiteness test cannot separate noise from model error.
+
+What it cannot see: a wrong model whose best approximation is the same on every
+part. Parts with the same excitation (periods of one periodic input, a stationary
+random input) can agree although the model is wrong: the check then passes, and
+says only that the estimates do not drift along the record. Records with different
+excitations give it power; give them as separate records where you have them.
+
+Details. Only parameters are compared (each part estimates its own initial states);
+a parameter that some part cannot determine (an unbounded robust standard error) is
+left out and named. The second half's initial state: the states the fit estimates
+(free_x0) are estimated again; the others start where the full fit's trajectory
+(a filter's: its state estimate) is at the cut. Each part is fitted by the trust
+region on the exact Hessian from the full estimate, by single shooting, with the
+full problem's loss, weights, noise level and priors; a part whose trust region
+collapsed in a flat valley (nothing decreases further) is compared on the
+parameters it determines, and a part that ends otherwise unconverged stops the
+check ("not made", with the reason).
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..engine.compiled import on_device
+from ..engine.status import Status
+from . import quantiles
+from .sandwich import score_covariance
+from .scaling import Tracker
+from .summary import Table, Tabular, collapsed_outputs, significant, stderr_text
+from .trust_region import minimize_trust_region
+from .uncertainty import uncertainty
+
+MIN_PART = 20  # samples a part needs (and more than twice its unknowns)
+
+
+@dataclass(repr=False)
+class ModelCheck(Tabular):
+    """The estimates of separate parts of the record compared with their robust error
+    bars (see the module's docstring).
+
+    parts : the parts' labels; names : the parameters compared; estimates, stderr :
+    (parts, parameters), the robust standard errors; statistic Q, dof, threshold
+    (the χ² quantile at ``level``); passed : True, False, or None where the check
+    could not be made (``not_available`` says why); left_out : parameters some part
+    cannot determine, not compared.
+    """
+
+    level: float
+    how: str  # "halves" or "records"
+    parts: list[str] = field(default_factory=list)
+    names: list[str] = field(default_factory=list)
+    estimates: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    stderr: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    statistic: float = np.nan
+    dof: int = 0
+    threshold: float = np.nan
+    passed: bool | None = None
+    left_out: list[str] = field(default_factory=list)
+    not_available: str | None = None
+
+    def spread(self) -> list[tuple[str, float]]:
+        """(parameter, largest distance between two parts in robust standard errors of
+        their difference), the most discordant first."""
+        out = []
+        for k, name in enumerate(self.names):
+            th, se = self.estimates[:, k], self.stderr[:, k]
+            i, j = np.triu_indices(len(th), 1)
+            z = np.abs(th[i] - th[j]) / np.sqrt(se[i] ** 2 + se[j] ** 2)
+            out.append((name, float(z.max())))
+        return sorted(out, key=lambda a: -a[1])
+
+    def line(self) -> str:
+        """The verdict in one line."""
+        if self.passed is None:
+            return f"not made: {self.not_available}"
+        verdict = "passes" if self.passed else "FAILS"
+        side = "below" if self.passed else "above"
+        worst = ", ".join(f"{n} {z:.1f}" for n, z in self.spread()[:3])
+        out = (
+            f"{verdict}: the estimates of {' and '.join(self.parts)} differ by Q = "
+            f"{self.statistic:.1f}, {side} {self.threshold:.1f} (χ², {self.dof} degrees of "
+            f"freedom, {self.level:.0%}); the widest apart, in robust standard errors of "
+            f"their difference: {worst}"
+        )
+        if self.left_out:
+            out += f"; not compared (a part cannot determine them): {', '.join(self.left_out)}"
+        return out
+
+    def advice(self) -> str:
+        """What a failed check means and what to try."""
+        return (
+            "But the model-error check FAILS (separate parts of the record give estimates "
+            "further apart than their robust error bars allow): the error bars, robust ones "
+            "included, do not cover the model's error. Try a richer model (a missing "
+            "dynamic or nonlinearity), the input's intersample setting (interpolation), or "
+            "process noise (predictor='ekf', --predictor ekf --process-noise)"
+        )
+
+    def blocks(self) -> list:
+        head = f"model-error check ({self.how}, {self.level:.0%}): {self.line()}"
+        if self.passed is None:
+            return [head]
+        header = ["unknown"] + [f"{p}" for p in self.parts]
+        rows = [
+            [n]
+            + [
+                f"{significant(float(self.estimates[i, k]), float(self.stderr[i, k]))} "
+                f"± {stderr_text(float(self.stderr[i, k]))}"
+                for i in range(len(self.parts))
+            ]
+            for k, n in enumerate(self.names)
+        ]
+        return [head, Table("estimates ± robust standard errors, per part", header, rows)]
+
+    def as_dict(self) -> dict:
+        return {
+            "passed": self.passed,
+            "how": self.how,
+            "level": self.level,
+            "parts": self.parts,
+            "names": self.names,
+            "estimates": self.estimates.tolist(),
+            "stderr_robust": self.stderr.tolist(),
+            "statistic": self.statistic,
+            "dof": self.dof,
+            "threshold": self.threshold,
+            "left_out": self.left_out,
+            "not_available": self.not_available,
+            "text": self.line(),
+        }
+
+    def __repr__(self) -> str:
+        return f"ModelCheck(passed={self.passed}, statistic={self.statistic:.4g}, dof={self.dof})"
+
+
+def model_check(res, level: float = 0.99, maxiter: int = 100) -> ModelCheck:
+    """The model-error check of a fit (see the module's docstring): each part fitted
+    from ``res``'s estimate (at most ``maxiter`` iterations), its robust covariance,
+    and the homogeneity statistic Q against its χ² quantile at ``level``."""
+    if not 0 < level < 1:
+        raise ValueError(f"level must be between 0 and 1, got {level!r}")
+    problem = res.problem
+    how = "records" if len(problem.experiments) > 1 else "halves"
+    short = _too_short(problem) or _floor(res)
+    if short or not res.has_uncertainty:
+        why = short or f"the fit ended as {res.status}, without derivatives at its end"
+        return ModelCheck(level, how, not_available=why)
+    p = len(problem.free_params)
+    if p == 0:
+        return ModelCheck(level, how, not_available="no parameter is estimated")
+    labels, est, covs, ses = [], [], [], []
+    for label, part, theta0 in _parts(res):
+        fitted = _fit_part(part, theta0, maxiter)
+        if isinstance(fitted, str):
+            return ModelCheck(level, how, not_available=f"the fit of {label} {fitted}")
+        labels.append(label)
+        est.append(fitted.theta[-p:])
+        covs.append(fitted.covariance[-p:, -p:])
+        ses.append(fitted.stderr[-p:])
+    return _compare(level, how, labels, list(problem.free_params), est, covs, np.array(ses))
+
+
+def _compare(level, how, labels, names, est, covs, ses) -> ModelCheck:
+    """Q = Σ_i (θ̂_i − θ̄)ᵀ Σ_i⁻¹ (θ̂_i − θ̄) over the parameters every part determines,
+    in units of their typical standard error (Q does not depend on units; the
+    pseudo-inverses' cutoff would)."""
+    keep = (np.isfinite(ses) & (ses > 0)).all(axis=0)
+    left = [n for n, k in zip(names, keep, strict=True) if not k]
+    if not keep.any():
+        why = "no parameter is determined by every part"
+        return ModelCheck(level, how, labels, not_available=why)
+    idx = np.nonzero(keep)[0]
+    ref = ses[:, idx].mean(axis=0)
+    z = [e[idx] / ref for e in est]
+    W = [np.linalg.pinv(c[np.ix_(idx, idx)] / np.outer(ref, ref), hermitian=True) for c in covs]
+    mean = np.linalg.pinv(sum(W), hermitian=True) @ sum(w @ t for w, t in zip(W, z, strict=True))
+    Q = float(sum((t - mean) @ w @ (t - mean) for w, t in zip(W, z, strict=True)))
+    dof = (len(labels) - 1) * idx.size
+    threshold = float(quantiles.chi2(dof, level))
+    estimates = np.array(est)[:, idx]
+    return ModelCheck(
+        level, how, labels, [names[i] for i in idx], estimates, ses[:, idx], Q, dof,
+        threshold, bool(Q <= threshold), left,
+    )  # fmt: skip
+
+
+def _too_short(problem) -> str | None:
+    """Why the record cannot be cut into parts that each determine the unknowns."""
+    need = max(MIN_PART, 2 * problem.K + 2)
+    if len(problem.experiments) > 1:
+        short = [e.name or str(i) for i, e in enumerate(problem.experiments) if e.P < need]
+        if short:
+            return f"records {short} are shorter than {need} samples, too short to fit alone"
+        return None
+    P = problem.experiments[0].P
+    if P // 2 < need:
+        return f"the record's halves ({P // 2} samples) are shorter than {need} samples"
+    return None
+
+
+def _floor(res) -> str | None:
+    """Why a filter fit whose measurement noise sits at its floor cannot be checked:
+    its likelihood is in a corner, and its parts' σ_e would be compared at theirs."""
+    collapsed = collapsed_outputs(res)
+    if not collapsed:
+        return None
+    o, sigma = next(iter(collapsed.items()))
+    return (
+        f"the measurement noise σ_e({o}) = {sigma:.2g} sits at its floor; fix it at the "
+        f"sensor's noise (--fix log_sigma_e_{o}=log σ) and fit again first"
+    )
+
+
+def _parts(res):
+    """(label, the part as a Problem, its θ to start from) for each part."""
+    problem = res.problem
+    exps = problem.experiments
+    _, x0 = problem.unpack(res.theta)
+    if len(exps) > 1:
+        for e, rec in enumerate(exps):
+            keep = problem._slices(e)
+            label = f"record '{rec.name}'" if rec.name else f"record {e}"
+            yield label, _part(problem, [rec], x0[e], keep), res.theta[keep]
+        return
+    rec, cut, keep = exps[0], exps[0].P // 2, np.arange(problem.K)
+    yield f"samples 0-{cut - 1}", _part(problem, [rec.window(0, cut)], x0[0], keep), res.theta
+    at_cut = _state_at(problem, res.theta, cut)
+    theta = res.theta.copy()
+    free = [problem.model.states.index(n) for n in problem.free_x0]
+    theta[: len(free)] = at_cut[free]
+    second = _part(problem, [rec.window(cut, rec.P)], at_cut, keep)
+    yield f"samples {cut}-{rec.P - 1}", second, theta
+
+
+def _state_at(problem, theta, h: int) -> np.ndarray:
+    """The state at sample h: the simulation's (output error), or the filter's estimate
+    before its update there."""
+    sw = problem.sweeps
+    t, u, y = problem.arrays[0]
+    local = on_device(theta[problem._slices(0)])
+    zs, _ = sw.predictions(local, on_device(problem.x0[0]), on_device(problem.p0), t, u, y)
+    _, x0 = problem.unpack(theta)
+    x = np.asarray(sw.predictor.states(np.asarray(zs)))[h]
+    return x if np.isfinite(x).all() else x0[0]
+
+
+def _part(problem, records, x0, keep):
+    """``problem`` on ``records`` alone (a shallow copy sharing its compiled sweeps):
+    initial states ``x0``, θ's entries ``keep`` of the full θ (bounds and priors
+    with them), single shooting."""
+    out = copy.copy(problem)
+    out.experiments = list(records)
+    out.x0 = np.atleast_2d(np.asarray(x0, dtype=float)).copy()
+    out._arrays = [(on_device(e.t), on_device(out.inputs(e)), on_device(e.y)) for e in records]
+    out.shooting = None
+    out.lower, out.upper = problem.lower[keep], problem.upper[keep]
+    where = {int(old): new for new, old in enumerate(keep)}
+    out.priors = {where[i]: v for i, v in problem.priors.items() if i in where}
+    return out
+
+
+def _fit_part(part, theta0, maxiter: int):
+    """The part's Uncertainty (robust) at its optimum from ``theta0``, or why not (text)."""
+    theta0 = np.clip(theta0, part.lower, part.upper)
+    J0, _, H_gn = part.cost_grad_gn(theta0)
+    if not np.isfinite(J0):
+        return "could not start: the model is not finite there from the full fit's estimate"
+    tr = Tracker.start(part, theta0, J0, H_gn, "auto")
+    lo, hi = tr.box()
+    fun = tr.derivs(part.cost_grad_hess)
+    r = minimize_trust_region(fun, tr.phi(theta0), lo, hi, fatol=tr.fatol, maxiter=maxiter)
+    theta = tr.theta(r.x if tr.best_phi is None else tr.best_phi)
+    J, g, H = part.cost_grad_hess(theta)
+    # a trust region that collapsed where nothing decreases further ended in a flat
+    # valley: its flat directions' unknowns get unbounded error bars and are left out
+    flat_end = r.status in (Status.RADIUS_COLLAPSED, Status.NO_PREDICTED_DECREASE)
+    if not ((r.success or flat_end) and np.isfinite(J)):
+        return f"did not converge ({r.message})"
+    meat = score_covariance(part, theta, "auto")[0]
+    u = uncertainty(
+        part, theta, J, H, "hessian", gauss_newton=lambda: part.cost_grad_gn(theta)[2],
+        grad=g, scale=tr.scale, meat=meat,
+    )  # fmt: skip
+    u.kind = "robust"
+    return u

@@ -1,0 +1,123 @@
+"""The model-error check (issue 40, item 4): separate parts of the record fitted alone,
+their estimates compared with their robust error bars. A right model with coloured
+noise (residuals not white, robust bars honest) must pass; a linear model of a
+hardening spring driven by a growing input (its best linear stiffness changes along
+the record) must fail, and the summary must then say that no error bar covers it."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import tensorid as ti
+from tensorid.fitting.display import trust_advice
+
+DUFFING = ti.Model(
+    rhs=lambda x, p, u: jnp.stack(
+        [x[1], -p[0] * x[0] - p[1] * x[1] - p[3] * x[0] ** 3 + p[2] * u[0]]
+    ),
+    states=["x", "v"], params=["k", "c", "g", "a"], inputs=["u"],
+    output=lambda x, p: x[:1], outputs=["y"], name="duffing",
+)  # fmt: skip
+LINEAR = ti.Model(
+    rhs=lambda x, p, u: jnp.stack([x[1], -p[0] * x[0] - p[1] * x[1] + p[2] * u[0]]),
+    states=["x", "v"], params=["k", "c", "g"], inputs=["u"],
+    output=lambda x, p: x[:1], outputs=["y"], name="linear",
+)  # fmt: skip
+T = np.arange(1000) * 0.05
+TRUTH = {"k": 4.0, "c": 0.8, "g": 1.0, "a": 4.0}
+
+
+def record(seed: int, ar: float = 0.8, sd: float = 0.01) -> ti.Experiment:
+    """A growing random input; the output with AR(1) coloured noise."""
+    rng = np.random.default_rng(seed)
+    u = rng.standard_normal(T.size) * np.linspace(0.2, 4.0, T.size)
+    y = ti.simulate(DUFFING, TRUTH, [0, 0], ti.Experiment(T, u)).y[:, 0]
+    e, w = np.zeros(T.size), sd * rng.standard_normal(T.size)
+    for k in range(1, T.size):
+        e[k] = ar * e[k - 1] + w[k]
+    return ti.Experiment(T, u, y + e)
+
+
+def test_a_right_model_passes_and_a_wrong_one_fails():
+    data = record(1)
+    right = ti.fit(ti.Problem(DUFFING, data, p0={"k": 3.0, "c": 0.5, "g": 1.2, "a": 0.5}))
+    assert right.residual_tests().not_shown_white  # coloured: the robust bars are offered
+    check = right.model_check()
+    assert check.passed is True and check.how == "halves" and check.dof == 4
+    assert check.parts == ["samples 0-499", "samples 500-999"]
+    assert check.statistic < check.threshold and not check.left_out
+    text = right.summary()
+    assert text.rstrip() == str(right) and "residuals: whiteness of y: FAILS" in text
+    assert "model-error check: passes" in text
+    assert "The model-error check passes: trust the robust ones" in text
+    assert "robust std. error" in text  # beside the white ones
+    wrong = ti.fit(ti.Problem(LINEAR, data, p0={"k": 3.0, "c": 0.5, "g": 1.2}))
+    assert "They cover coloured noise, not a wrong model" in wrong.summary()  # not made yet
+    check = wrong.model_check()
+    assert check.passed is False and check.statistic > 3 * check.threshold
+    assert check.spread()[0][0] == "k"  # the stiffness drifts with the amplitude
+    text = wrong.summary()
+    assert "model-error check: FAILS" in text and "do not cover the model's error" in text
+    assert "trust the robust ones" not in text.lower()
+    assert "interpolation" in text and "process noise" in text
+    saved = check.as_dict()
+    assert saved["passed"] is False and saved["names"] == ["k", "c", "g"]
+
+
+def test_the_statistic_is_the_textbook_homogeneity_test():
+    """Q = dᵀ (Σ_1 + Σ_2)⁻¹ d for two parts, whatever the units (a parameter in units
+    a million times smaller gives the same Q)."""
+    from tensorid.fitting.model_check import _compare
+
+    rng = np.random.default_rng(0)
+    A = rng.standard_normal((3, 3))
+    c1, c2 = A @ A.T + np.eye(3), 0.5 * np.eye(3) + 0.1
+    e1, e2 = np.array([1.0, 2.0, 3.0]), np.array([1.5, 1.0, 3.2])
+    se = np.sqrt(np.array([np.diag(c1), np.diag(c2)]))
+    chk = _compare(0.99, "halves", ["a", "b"], ["p", "q", "r"], [e1, e2], [c1, c2], se)
+    d = e1 - e2
+    assert chk.statistic == pytest.approx(d @ np.linalg.solve(c1 + c2, d), rel=1e-10)
+    assert chk.dof == 3
+    s = np.array([1.0, 1e-6, 1.0])  # q in other units
+    scaled = _compare(0.99, "halves", ["a", "b"], ["p", "q", "r"], [e1 * s, e2 * s],
+                      [c1 * np.outer(s, s), c2 * np.outer(s, s)], se * s)  # fmt: skip
+    assert scaled.statistic == pytest.approx(chk.statistic, rel=1e-8)
+    # a parameter one part cannot determine is left out, and named
+    se_inf = se.copy()
+    se_inf[1, 2] = np.inf
+    part = _compare(0.99, "halves", ["a", "b"], ["p", "q", "r"], [e1, e2], [c1, c2], se_inf)
+    assert part.left_out == ["r"] and part.names == ["p", "q"] and part.dof == 2
+    assert "not compared (a part cannot determine them): r" in part.line()
+    same = _compare(0.99, "halves", ["a", "b"], ["p", "q", "r"], [e1, e1], [c1, c2], se_inf)
+    assert same.passed is True and same.statistic == pytest.approx(0.0, abs=1e-20)
+    advice = trust_advice(same)
+    assert "passes for p, q: trust their robust ones" in advice
+    assert "r could not be checked" in advice
+
+
+def test_given_records_are_the_parts_and_a_short_record_says_not_made():
+    data = [record(2).window(0, 500, "a"), record(3).window(0, 500, "b")]
+    res = ti.fit(ti.Problem(DUFFING, data, p0={"k": 3.0, "c": 0.5, "g": 1.2, "a": 0.5}))
+    check = res.model_check()
+    assert check.how == "records" and check.parts == ["record 'a'", "record 'b'"]
+    assert check.passed is True
+    short = ti.fit(ti.Problem(LINEAR, record(4).window(0, 30), p0={"k": 3.0, "c": 0.5, "g": 1}))
+    none = short.model_check()
+    assert none.passed is None and "halves (15 samples) are shorter than 20" in none.line()
+    assert "could not be made" in trust_advice(none)
+
+
+def test_a_filter_fit_at_its_sigma_e_floor_is_not_checked():
+    """The two-tank filter whose σ_e went to 3.5e-10: its halves' σ_e would be compared
+    at their floors (±1e14 in one half); the check says why it is not made instead."""
+    from tensorid import benchmarks
+
+    pr = benchmarks.two_tank_problem(
+        predictor="ekf", process_noise={"x2": 0.01}, free_x0=["x1", "x2"]
+    )
+    res = ti.fit(pr)
+    check = res.model_check()
+    assert check.passed is None and "σ_e(y) = 3.5e-10 sits at its floor" in check.line()
+    assert "could not be made (the measurement noise" in trust_advice(check)
