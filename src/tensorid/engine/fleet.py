@@ -111,3 +111,12 @@ def fixed_x0_parameters(problem) -> None:
             "moves with an estimated parameter is not supported; add them to fixed, or "
             "write the dependence into the model's equations"
         )
+
+
+def check_fleet(problem, population, individual, predictor, loss, segments):
+    """(population, individual) checked, and the x0 expressions' parameters fixed."""
+    fixed_x0_parameters(problem)
+    return (
+        check_population(problem, population, predictor, loss, segments),
+        check_individual(problem, individual, predictor, loss, segments),
+    )

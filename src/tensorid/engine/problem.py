@@ -7,7 +7,6 @@ units. Every check of the user's input happens here, before anything compiles.
 
 from __future__ import annotations
 
-import copy
 import functools
 from collections.abc import Mapping, Sequence
 
@@ -30,7 +29,7 @@ from .checks import (
 from .compiled import on_device
 from .data import Experiment
 from .discretisation import Discretisation, DiscretisationSettings
-from .fleet import check_individual, check_population, fixed_x0_parameters
+from .fleet import check_fleet
 from .integrators import Scheme
 from .layout import ThetaLayout
 from .losses import GAUSSIAN, Loss, make_loss
@@ -38,13 +37,14 @@ from .model import Model
 from .packing import unpack_symmetric
 from .predictors import make_predictor
 from .priors import PriorTerms
+from .problem_loss import LossSettings
 from .shooting import Shooting, resolve_segments
 from .simulate import Simulation, run_simulation
 from .start import Start, resolve_start
 from .sweeps import Sweeps, shared_sweeps
 
 
-class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
+class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
     """An identification problem: a model, measured records and the unknowns, with its
     cost (least squares, a robust loss, or an extended Kalman filter's likelihood).
 
@@ -180,11 +180,9 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
         self.free_x0 = name_list("free_x0", free_x0, model.states, "states")
         self.fixed = name_list("fixed", fixed, model.params, "params")
         self.free_params = [n for n in model.params if n not in self.fixed]
-        fixed_x0_parameters(self)
-        discretisation = Discretisation.resolve(
+        self.discretisation = discretisation = Discretisation.resolve(
             discretisation, scheme, substeps, interpolation, rtol, atol
         ).for_model(model)
-        self.discretisation = discretisation
         self.weights = check_weights(self, weights)
         self.loss, scale = make_loss(
             loss if predictor == "simulation" else GAUSSIAN,
@@ -196,19 +194,15 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
         self.loss_scale_estimated = self.loss.robust and loss_scale is None
         self.lower, self.upper = check_bounds(self, bounds or {})
         self._set_priors(priors, noise)
-        # a fleet's random effects: {param: ω start}; tensorid.fit estimates them
-        self.population = check_population(self, population, predictor, loss, segments)
-        self.individual = check_individual(self, individual, predictor, loss, segments)
+        fleet = (population, individual, predictor, loss, segments)  # a fleet's kinds
+        self.population, self.individual = check_fleet(self, *fleet)  # (engine/fleet.py)
         if self.K == 0:
             raise ValueError("nothing to estimate: every parameter is fixed and free_x0 is empty")
         self._sweeps = shared_sweeps(
-            model,
-            tuple(model.states.index(n) for n in self.free_x0),
-            tuple(model.params.index(n) for n in self.free_params),
-            discretisation,
-            self.loss,
+            model, tuple(model.states.index(n) for n in self.free_x0),
+            tuple(model.params.index(n) for n in self.free_params), discretisation, self.loss,
             self.predictor,
-        )
+        )  # fmt: skip
         self._arrays = [
             (on_device(e.t), on_device(self.inputs(e)), on_device(e.y)) for e in self.experiments
         ]
@@ -251,43 +245,6 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings):
     def segments(self) -> list[int]:
         """The number of shooting segments of each experiment (all 1: single shooting)."""
         return self.shooting.counts if self.shooting else [1] * len(self.experiments)
-
-    @property
-    def loss_scale(self) -> dict[str, float] | None:
-        """A robust loss's scale per output, in the outputs' units (None: squared loss)."""
-        if not self.loss.robust:
-            return None
-        w = np.where(self.weights > 0, self.weights, 1.0)
-        c = self.loss_weights[1] / np.sqrt(w)
-        return dict(zip(self.model.outputs, c.tolist(), strict=True))
-
-    def with_loss(self, loss: str | Loss, scale: Mapping[str, float] | None = None) -> Problem:
-        """This problem with another loss, or another scale {output: value} (outputs'
-        units) for a robust one: a copy that shares the data and settings (and the
-        compiled sweeps, where the loss is the same)."""
-        new = copy.copy(self)
-        measured = [e.y for e in self.experiments]
-        new.loss, c = make_loss(loss, scale, list(self.model.outputs), self.weights, measured)
-        new.loss_weights = np.stack([self.weights, c])
-        new.loss_scale_estimated = new.loss.robust and scale is None
-        sw = self._sweeps
-        new._sweeps = shared_sweeps(
-            self.model, sw.free_states, sw.free_params, self.discretisation, new.loss,
-            self.predictor,
-        )  # fmt: skip
-        new.shooting = Shooting(new, self.shooting.counts) if self.shooting else None
-        return new
-
-    @property
-    def rounding_floor(self) -> float:
-        """The cost of residuals at 1e-13 of the data (double precision leaves a few
-        digits to the simulation): a fit that reaches it has matched the data exactly
-        (-inf for a likelihood, which has no floor)."""
-        if self.loss.likelihood:
-            return -np.inf
-        return 1e-26 * sum(
-            float(np.sum(self.weights * np.asarray(y) ** 2)) for _, _, y in self._arrays
-        )
 
     # -- cost and derivatives ------------------------------------------------------------
     def _assemble(self, sweep, theta, *more, parts: str):

@@ -78,11 +78,8 @@ def fit(
         ranked in ``result.starts``. The local pool spawns fresh processes, which
         re-import the calling script: guard a script's top level with
         ``if __name__ == "__main__":``.
-    batch : with starts, fit this many starts per task in lock-step, evaluated in one
-        jax.vmap call (see fit_batch; auto, newton, gauss-newton; 16 Silverbox starts,
-        fresh pool of 2 workers: 1.71 s in batches of 8, 2.09 s one start per task).
-        Default: the starts shared evenly over the local workers (at most 16 per
-        task) for those methods, one start per task otherwise.
+    batch : with starts, this many per task in lock-step, in one jax.vmap call (see
+        fit_batch); default: shared evenly over the local workers, at most 16 per task.
     timeout : seconds to wait for the next start to finish on workers; then the best
         finished start is returned, status ``WORKERS_LOST``. Default: wait.
     polish : with segments (multiple shooting: "auto", "newton" and "newton-cg" by
@@ -90,17 +87,11 @@ def fit(
         from its solution (default); ``result.shooting`` reports the stage.
     Ctrl-C stops the fit at once, workers included, raising :class:`FitInterrupted`
     (a KeyboardInterrupt) whose ``result`` is the best point so far.
-
-    A Problem with ``population`` (a fleet's random effects) is fitted by its marginal
-    likelihood instead: method "auto"/"focei" or "laplace", ``maxiter`` and
-    ``callback`` apply, and the result is a
-    :class:`tensorid.population.PopulationResult` (see docs: Fleets and populations).
+    A fleet's Problem (``population``, ``individual``) goes to :func:`fit_population`.
     """
     started = time.perf_counter()
     if problem.population or problem.individual:  # a fleet's own kinds of parameter
-        kind = "focei" if method == "auto" else str(method)
-        # typed as FitResult for the many callers of ordinary problems; documented above
-        return cast(FitResult, fit_population(problem, kind, maxiter=maxiter, callback=callback))
+        return _fleet(problem, method, maxiter, callback)
     solver = check_method(problem, method)
     options = _options(options, x_scale, maxiter, gtol, ftol, xtol, callback, polish)
     theta0 = _check_start(problem, problem.theta0 if theta0 is None else theta0, "theta0")
@@ -122,6 +113,13 @@ def fit(
     if res.status is Status.INTERRUPTED:
         raise FitInterrupted(res)
     return res
+
+
+def _fleet(problem, method, maxiter, callback) -> FitResult:
+    kind = "focei" if method == "auto" else str(method)
+    # typed as FitResult for the many callers of ordinary problems: method "auto" or
+    # "focei", or "laplace"; maxiter and callback apply; a PopulationResult comes back
+    return cast(FitResult, fit_population(problem, kind, maxiter=maxiter, callback=callback))
 
 
 def _starts(problem, method, thetas, options, where, started) -> FitResult:

@@ -1,0 +1,56 @@
+"""The part of a :class:`tensorid.Problem` that knows its loss: the robust scale per
+output, a copy with another loss (``with_loss``), and the rounding floor of the cost.
+It reads ``loss``, ``loss_weights``, ``weights``, ``model``, ``experiments``,
+``discretisation``, ``predictor``, ``shooting`` and the sweeps of the Problem."""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Mapping
+
+import numpy as np
+
+from .losses import Loss, make_loss
+from .shooting import Shooting
+from .sweeps import shared_sweeps
+
+
+class LossSettings:
+    """A Problem's loss (see the module docstring)."""
+
+    @property
+    def loss_scale(self) -> dict[str, float] | None:
+        """A robust loss's scale per output, in the outputs' units (None: squared loss)."""
+        if not self.loss.robust:
+            return None
+        w = np.where(self.weights > 0, self.weights, 1.0)
+        c = self.loss_weights[1] / np.sqrt(w)
+        return dict(zip(self.model.outputs, c.tolist(), strict=True))
+
+    def with_loss(self, loss: str | Loss, scale: Mapping[str, float] | None = None):
+        """This problem with another loss, or another scale {output: value} (outputs'
+        units) for a robust one: a copy that shares the data and settings (and the
+        compiled sweeps, where the loss is the same)."""
+        new = copy.copy(self)
+        measured = [e.y for e in self.experiments]
+        new.loss, c = make_loss(loss, scale, list(self.model.outputs), self.weights, measured)
+        new.loss_weights = np.stack([self.weights, c])
+        new.loss_scale_estimated = new.loss.robust and scale is None
+        sw = self._sweeps
+        new._sweeps = shared_sweeps(
+            self.model, sw.free_states, sw.free_params, self.discretisation, new.loss,
+            self.predictor,
+        )  # fmt: skip
+        new.shooting = Shooting(new, self.shooting.counts) if self.shooting else None
+        return new
+
+    @property
+    def rounding_floor(self) -> float:
+        """The cost of residuals at 1e-13 of the data (double precision leaves a few
+        digits to the simulation): a fit that reaches it has matched the data exactly
+        (-inf for a likelihood, which has no floor)."""
+        if self.loss.likelihood:
+            return -np.inf
+        return 1e-26 * sum(
+            float(np.sum(self.weights * np.asarray(y) ** 2)) for _, _, y in self._arrays
+        )
