@@ -287,3 +287,37 @@ def test_bad_individual_is_one_clear_line():
         ti.Problem(m, units, p0=p0, individual="cl")
     with pytest.raises(ValueError, match="free_x0 is not supported"):
         ti.Problem(m, units, p0=p0, individual=["cl"], free_x0=["center"])
+
+
+class _LostWorkers:
+    """An executor whose every worker is lost: each future fails."""
+
+    def __init__(self):
+        self.submitted = 0
+
+    def submit(self, fn, *args):
+        from concurrent.futures import Future
+
+        self.submitted += 1
+        f: Future = Future()
+        f.set_exception(ConnectionError("worker lost"))
+        return f
+
+
+def test_lost_workers_cost_time_not_the_fit():
+    pr = fleet_problem(6)
+    here = ti.fit(pr)
+    lost = _LostWorkers()
+    there = ti.fit(pr, executor=lost)
+    assert lost.submitted >= 4  # each chunk sent twice before it was computed here
+    assert there.success and there.objective == pytest.approx(here.objective, rel=1e-12)
+    np.testing.assert_allclose(there.x, here.x, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.slow  # two spawned workers compile their own programs
+def test_units_on_a_local_pool_give_the_fit_made_here():
+    pr = fleet_problem(6)
+    here = ti.fit(pr)
+    pooled = ti.fit(pr, workers=2)
+    assert pooled.success and pooled.objective == pytest.approx(here.objective, rel=1e-12)
+    np.testing.assert_allclose(pooled.x, here.x, rtol=1e-9, atol=1e-12)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 
@@ -17,6 +18,18 @@ from .sweeps import shared_sweeps
 
 class LossSettings:
     """A Problem's loss (see the module docstring)."""
+
+    loss: Loss
+    loss_weights: np.ndarray
+    loss_scale_estimated: bool
+    weights: np.ndarray
+    model: Any
+    experiments: list
+    discretisation: Any
+    predictor: Any
+    shooting: Any
+    _sweeps: Any
+    _arrays: list
 
     @property
     def loss_scale(self) -> dict[str, float] | None:

@@ -90,8 +90,8 @@ def fit(
     A fleet's Problem (``population``, ``individual``) goes to :func:`fit_population`.
     """
     started = time.perf_counter()
-    if problem.population or problem.individual:  # a fleet's own kinds of parameter
-        return _fleet(problem, method, maxiter, callback)
+    if getattr(problem, "population", None) or getattr(problem, "individual", None):
+        return _fleet(problem, method, maxiter, callback, executor, workers, timeout)
     solver = check_method(problem, method)
     options = _options(options, x_scale, maxiter, gtol, ftol, xtol, callback, polish)
     theta0 = _check_start(problem, problem.theta0 if theta0 is None else theta0, "theta0")
@@ -115,11 +115,14 @@ def fit(
     return res
 
 
-def _fleet(problem, method, maxiter, callback) -> FitResult:
+def _fleet(problem, method, maxiter, callback, executor, workers, timeout) -> FitResult:
     kind = "focei" if method == "auto" else str(method)
+    where = dict(executor=executor, workers=workers, timeout=timeout)
     # typed as FitResult for the many callers of ordinary problems: method "auto" or
     # "focei", or "laplace"; maxiter and callback apply; a PopulationResult comes back
-    return cast(FitResult, fit_population(problem, kind, maxiter=maxiter, callback=callback))
+    return cast(
+        FitResult, fit_population(problem, kind, maxiter=maxiter, callback=callback, **where)
+    )
 
 
 def _starts(problem, method, thetas, options, where, started) -> FitResult:

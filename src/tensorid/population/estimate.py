@@ -19,6 +19,7 @@ from ..engine.integrators import ExplicitRungeKutta
 from ..engine.status import Status
 from ..engine.sweeps import shared_sweeps
 from ..fitting.trust_region import TRResult, minimize_trust_region
+from .distributed import UnitMap, evaluate_chunk
 from .objective import Objective
 from .result import PopulationResult
 
@@ -66,6 +67,9 @@ def fit_population(
     ftol: float = 1e-12,
     xtol: float = 1e-10,
     callback=None,
+    executor=None,
+    workers: int | None = None,
+    timeout: float | None = None,
 ) -> PopulationResult:
     """Estimate a fleet's population (see :mod:`tensorid.population`).
 
@@ -80,26 +84,59 @@ def fit_population(
         method: "focei" (default) or "laplace" (see objective.py for the difference).
         maxiter, gtol, ftol, xtol: the outer trust region's limits.
         callback: called with each outer iteration's record (dict).
+        executor, workers: the units' work (inner solves, their shares of O, ∇O, ∇²O)
+            in chunks on ``executor`` (e.g. a Dask ``client.get_executor()``) or a local
+            pool of ``workers`` processes (distributed.py); default: here, one
+            vectorised call. ``timeout``: seconds before a chunk's worker counts as
+            lost (its chunk is sent again once, then computed here).
 
     Returns:
         :class:`PopulationResult`.
     """
     began = time.perf_counter()
     obj = Objective(problem, method)
+    obj.unconverged = []
+    spread = executor is not None or (workers or 1) > 1
+    units = UnitMap(obj, executor, workers, timeout) if spread else None
+    complete = False
+    try:
+        r, etas = _outer(obj, units, maxiter=maxiter, gtol=gtol, ftol=ftol, xtol=xtol,
+                         callback=callback)  # fmt: skip
+        complete = True
+    finally:
+        if units is not None:
+            units.close(complete)
+    etas, ok = obj.solve_inner(r.x, etas)
+    status = r.status if ok else Status.SOLVER_FAILED
+    res = PopulationResult.build(obj, r, etas, status, time.perf_counter() - began)
+    coarse = coarse_steps(obj, res.x, etas, np.array(list(res.residual_sd.values())))
+    notes = [coarse] if coarse else []
+    if obj.unconverged:
+        names = obj.unconverged
+        notes.append(
+            f"the inner problems of {len(names)} unit(s) {names[:10]}"
+            f"{' ...' if len(names) > 10 else ''} did not converge from their starts (a "
+            "plateau or a point that is not a minimum of their own parameters): start "
+            "them closer (p0), or leave those units out"
+        )
+    for n in notes:
+        warnings.warn(n, UserWarning, stacklevel=2)
+    return replace(res, notes=notes)
+
+
+def _outer(obj: Objective, units: UnitMap | None, **options) -> tuple[TRResult, np.ndarray]:
+    """The outer trust region over ψ, each evaluation starting every unit's inner
+    problem from the last accepted point's η̂; (its result, the last η̂)."""
     psi0 = _start(obj)
     lo, hi = _bounds(obj)
     state = {"etas": obj.start_etas()}
 
     def fun(psi):
-        etas, ok = obj.solve_inner(psi, state["etas"])
-        if not ok:
-            return np.inf, np.zeros(obj.size), np.eye(obj.size)
-        O, g = obj.value_grad(psi, etas)
-        J, grad = float(O.sum()), g.sum(0)
-        if not (np.isfinite(J) and np.isfinite(grad).all()):
-            return np.inf, np.zeros(obj.size), np.eye(obj.size)
-        H = obj.hessian(psi, etas)
-        if not np.isfinite(H).all():
+        if units is None:
+            etas, _, J, grad, H = evaluate_chunk(obj, psi, state["etas"])
+        else:
+            etas, _, J, grad, H = units(psi, state["etas"])
+        if not (np.isfinite(J) and np.isfinite(grad).all() and np.isfinite(H).all()):
             return np.inf, np.zeros(obj.size), np.eye(obj.size)
         state["etas"] = etas
         return J, grad, H
@@ -107,28 +144,10 @@ def fit_population(
     if obj.size == 0:  # every parameter individual: the units' own fits are the fit
         J, g, H = fun(psi0)
         status = Status.GTOL if np.isfinite(J) else Status.NONFINITE_START
-        r = TRResult(psi0, J, g, H, nit=0, nfev=1, status=status)
-    else:
-        r = minimize_trust_region(
-            fun, psi0, lo, hi, maxiter=maxiter, gtol=gtol, ftol=ftol, xtol=xtol,
-            callback=callback, radius=1.0, fatol=-np.inf,  # a likelihood has no floor
-        )  # fmt: skip
-    etas, ok = obj.solve_inner(r.x, state["etas"])
-    status = r.status if ok else Status.SOLVER_FAILED
-    res = PopulationResult.build(obj, r, etas, status, time.perf_counter() - began)
-    notes = [coarse_steps(obj, res.x, etas, np.array(list(res.residual_sd.values())))]
-    if obj.unconverged:
-        units = obj.unconverged
-        notes.append(
-            f"the inner problems of {len(units)} unit(s) {units[:10]}"
-            f"{' ...' if len(units) > 10 else ''} did not converge from their starts (a "
-            "plateau or a point that is not a minimum of their own parameters): start "
-            "them closer (p0), or leave those units out"
-        )
-    notes = [n for n in notes if n]
-    for n in notes:
-        warnings.warn(n, UserWarning, stacklevel=2)
-    return replace(res, notes=notes)
+        return TRResult(psi0, J, g, H, nit=0, nfev=1, status=status), state["etas"]
+    # a likelihood has no rounding floor (fatol): −2 log L may be negative
+    r = minimize_trust_region(fun, psi0, lo, hi, radius=1.0, fatol=-np.inf, **options)
+    return r, state["etas"]
 
 
 def coarse_steps(obj: Objective, x, etas, sigma) -> str | None:

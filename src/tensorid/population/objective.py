@@ -31,6 +31,9 @@ derivative comes from the sweeps (units.py), none from finite differences.
 
 from __future__ import annotations
 
+import copy
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import jax.scipy.linalg
@@ -72,7 +75,7 @@ class Objective:
         p = np.tile(np.asarray(problem.p0, dtype=float), (len(self.units.names), 1))
         self.data = (*self.units.arrays(), jnp.asarray(p))
         self.weights = tuple(float(w) for w in problem.weights)
-        self.key = (self.sweeps, tuple(self.pop), tuple(self.shared), method, self.joint)
+        self.key: tuple = (self.sweeps, tuple(self.pop), tuple(self.shared), method, self.joint)
         self.key += (self.weights,) if self.joint else ()
         self.Y = outputs(self.sweeps)
         self.names = (
@@ -86,6 +89,19 @@ class Objective:
             )
         )
         self.size = len(self.names)
+
+    def subset(self, index) -> Objective:
+        """This objective over the units ``index`` alone (a worker's chunk): the same
+        structure, so the same compiled programs for chunks of one size."""
+        new = copy.copy(self)
+        u = self.units
+        new.units = dataclasses.replace(
+            u, t=u.t[index], u=u.u[index], y=u.y[index], mask=u.mask[index],
+            x0=u.x0[index], names=[u.names[i] for i in index], samples=u.samples[index],
+        )  # fmt: skip
+        new.data = tuple(a[np.asarray(index)] for a in self.data)
+        new.unconverged = []
+        return new
 
     # -- pieces -----------------------------------------------------------------------
     def split(self, psi):
