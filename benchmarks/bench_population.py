@@ -3,6 +3,7 @@ grows with the number of units.
 
     python benchmarks/bench_population.py coverage --draws 200 --units 50
     python benchmarks/bench_population.py scale --sizes 100 1000 10000
+    python benchmarks/bench_population.py workers --units 2000 --workers 1 2
 
 coverage: each draw simulates a fleet of one-compartment units (first-order absorption,
 log-normal random effects on ka, cl and v, additive noise; truth below) at the same
@@ -138,9 +139,37 @@ def scale(sizes: list[int]) -> dict:
     return out
 
 
+def workers(n_units: int, counts: list[int], repeats: int = 3) -> dict:
+    """One outer evaluation (every unit's inner solve, O, ∇O, ∇²O) on a local pool of
+    each count of workers, against the same in this process; after a warm-up call
+    that compiles in every worker."""
+    from tensorid.population.distributed import UnitMap, evaluate_chunk
+
+    obj = Objective(problem(fleet(n_units, seed=2)))
+    psi = np.r_[np.log(list(TRUTH.values())), np.log(list(OMEGA.values())), np.log(SIGMA)]
+    etas = obj.solve_inner(psi, obj.start_etas())[0]
+    rows = []
+    evaluate_chunk(obj, psi, etas)  # compiles here
+    t0 = time.perf_counter()
+    for _ in range(repeats):
+        evaluate_chunk(obj, psi, etas)
+    here = (time.perf_counter() - t0) / repeats
+    for n in counts:
+        units = UnitMap(obj, None, n)
+        units(psi, etas)  # compiles in the workers
+        t0 = time.perf_counter()
+        for _ in range(repeats):
+            units(psi, etas)
+        rows.append({"workers": n, "evaluation_s": (time.perf_counter() - t0) / repeats})
+        units.close()
+        print(rows[-1])
+    return {"units": n_units, "here_s": here, "rows": rows}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("study", choices=["coverage", "scale"])
+    ap.add_argument("study", choices=["coverage", "scale", "workers"])
+    ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--draws", type=int, default=200)
     ap.add_argument("--units", type=int, default=50)
     ap.add_argument("--sizes", type=int, nargs="+", default=[100, 1000, 10000])
@@ -148,7 +177,10 @@ def main() -> None:
         "--json", type=Path, default=Path(__file__).parent / "results" / "population.json"
     )
     a = ap.parse_args()
-    out = coverage(a.draws, a.units) if a.study == "coverage" else scale(a.sizes)
+    if a.study == "workers":
+        out = workers(2000 if a.units == 50 else a.units, a.workers)
+    else:
+        out = coverage(a.draws, a.units) if a.study == "coverage" else scale(a.sizes)
     print(json.dumps(out, indent=2))
     old = json.loads(a.json.read_text()) if a.json.exists() else {}
     old[a.study] = out

@@ -321,3 +321,16 @@ def test_units_on_a_local_pool_give_the_fit_made_here():
     pooled = ti.fit(pr, workers=2)
     assert pooled.success and pooled.objective == pytest.approx(here.objective, rel=1e-12)
     np.testing.assert_allclose(pooled.x, here.x, rtol=1e-9, atol=1e-12)
+
+
+def test_starts_with_a_fleet_fit_is_refused_before_any_work(tmp_path, capsys):
+    from tensorid import cli
+    from tensorid.datasets import theophylline_csv
+
+    example = Path(__file__).resolve().parents[1] / "examples" / "theophylline" / "model.py"
+    argv = ["fit", str(example), str(theophylline_csv()), "--records", "ID", "--columns",
+            "t=Time,cp=conc", "--starts", "3", "--out", str(tmp_path / "o")]  # fmt: skip
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--starts: a fit with individual or population" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "o").exists()

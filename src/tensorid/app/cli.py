@@ -278,7 +278,10 @@ def register(sub) -> None:
         "(log-uniformly where they span a decade or more), else ±0.2",
     )
     f.add_argument("--seed", type=int, default=0, help="seed of the starts")
-    f.add_argument("--workers", type=_count, default=None, help="local worker processes")
+    f.add_argument(
+        "--workers", type=_count, default=None,
+        help="local worker processes (for --starts, or a fleet's units)",
+    )  # fmt: skip
     f.add_argument(
         "--batch",
         type=_count,
@@ -290,7 +293,7 @@ def register(sub) -> None:
         "--scheduler",
         default=None,
         metavar="ADDRESS",
-        help="run the starts on a Dask distributed cluster at ADDRESS",
+        help="run the starts (or a fleet's units) on a Dask distributed cluster at ADDRESS",
     )
     f.add_argument(
         "--worker-timeout",

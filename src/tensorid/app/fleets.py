@@ -160,6 +160,12 @@ def from_command_line(spec, args):
         "fixed": f"fixed in {path}, or --fix",
     }
     kinds(ind, pop, spec.fixed, where)
+    if (ind or pop) and getattr(args, "starts", 1) > 1:
+        raise ValueError(
+            "--starts: a fit with individual or population parameters starts every unit "
+            "from the model file's p0 and is not run from several starts; drop --starts "
+            "(--workers and --scheduler spread its units instead)"
+        )
     return replace(spec, individual=list(ind), population=dict(pop))
 
 
