@@ -55,7 +55,7 @@ def fleet_problem(n_units=4, **kw):
     )  # fmt: skip
 
 
-def _plain_objective(obj: Objective, etas, newton_steps: int = 2):
+def _plain_objective(obj: Objective, etas, newton_steps: int = 2, laplace: bool = False):
     """O(ψ) written plainly: ŷ by the engine's simulation differentiated by JAX itself
     (no sensitivity sweeps), each η̂ by Newton steps inside the function from the
     converged η̂ held constant (two steps reproduce η̂(ψ) to fourth order in the change
@@ -83,6 +83,7 @@ def _plain_objective(obj: Objective, etas, newton_steps: int = 2):
         A = jax.jacfwd(lambda e: yhat(psi, e, unit))(eta)
         Aw = A * (jnp.sqrt(unit[3]) * jnp.exp(-logsig))[..., None]
         M = jnp.einsum("psj,psk->jk", Aw, Aw) + jnp.diag(jnp.exp(-2 * logw))
+        M = jax.hessian(ell)(eta, psi, unit) if laplace else M
         n = jnp.sum(unit[3], axis=0)
         return (
             2 * ell(eta, psi, unit) + jnp.sum(n * (jnp.log(2 * jnp.pi) + 2 * logsig))
@@ -96,8 +97,8 @@ def _plain_objective(obj: Objective, etas, newton_steps: int = 2):
     return total
 
 
-def _fleet_point(n_units=3):
-    obj = Objective(fleet_problem(n_units))
+def _fleet_point(n_units=3, method="focei"):
+    obj = Objective(fleet_problem(n_units), method)
     psi = np.array([np.log(1.3), np.log(2.2), np.log(0.5), np.log(0.35), 26.0, np.log(0.4)])
     etas, ok = obj.solve_inner(psi, np.zeros((n_units, 2)))
     assert ok
@@ -108,6 +109,16 @@ def test_the_outer_gradient_is_that_of_the_plain_objective():
     obj, psi, etas = _fleet_point()
     O, g = obj.value_grad(psi, etas)
     plain = _plain_objective(obj, etas, newton_steps=1)
+    assert O.sum() == pytest.approx(float(plain(jnp.asarray(psi))), rel=1e-12)
+    gp = np.asarray(jax.grad(plain)(jnp.asarray(psi)))
+    np.testing.assert_allclose(g.sum(0), gp, rtol=1e-8, atol=1e-8 * np.abs(gp).max())
+
+
+@pytest.mark.slow  # the Laplace determinant needs a third order: a minute of compiling
+def test_the_laplace_gradient_is_that_of_the_plain_objective():
+    obj, psi, etas = _fleet_point(2, "laplace")
+    O, g = obj.value_grad(psi, etas)
+    plain = _plain_objective(obj, etas, newton_steps=1, laplace=True)
     assert O.sum() == pytest.approx(float(plain(jnp.asarray(psi))), rel=1e-12)
     gp = np.asarray(jax.grad(plain)(jnp.asarray(psi)))
     np.testing.assert_allclose(g.sum(0), gp, rtol=1e-8, atol=1e-8 * np.abs(gp).max())
