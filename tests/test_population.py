@@ -14,7 +14,7 @@ import pytest
 import tensorid as ti
 from tensorid.population.objective import Objective
 
-THEOPH = Path(__file__).resolve().parents[2] / "shared" / "data" / "theophylline" / "Theoph.csv"
+THEOPH = Path(ti.__file__).parent / "datasets" / "theophylline.csv"  # bundled copy
 
 
 def one_compartment() -> ti.Model:
@@ -345,3 +345,16 @@ def test_starts_with_a_fleet_fit_is_refused_before_any_work(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert "--starts: a fit with individual or population" in err and len(err.splitlines()) == 1
     assert not (tmp_path / "o").exists()
+
+
+def test_a_fit_that_did_not_converge_gives_no_error_bars_and_a_whole_fit_json():
+    import json
+
+    from tensorid.app.population_run import population_json
+
+    res = ti.fit(fleet_problem(4), maxiter=1)
+    assert not res.success
+    assert all(np.isnan(v["typical_stderr"]) for v in res.population.values())
+    data = json.loads(json.dumps(population_json(res, {}), allow_nan=False))
+    assert data["population"]["ka"]["typical_stderr"] is None
+    assert data["population"]["ka"]["typical"] == pytest.approx(res.population["ka"]["typical"])

@@ -10,6 +10,8 @@ import json
 from functools import partial
 from pathlib import Path
 
+import numpy as np
+
 from .._config import __version__
 from ..fitting.figures import save_png
 from ..population.figures import observed_predicted_figure, units_figure, vpc_figure
@@ -44,7 +46,19 @@ def population_json(res, recorded: dict) -> dict:
     for u, entry in zip(d["units"], res.units, strict=True):
         u["eta"] = entry["eta"]
     d.update(recorded)
-    return d
+    return _finite(d)
+
+
+def _finite(value):
+    """Every number JSON can hold: a non-finite one (a failed fit's cost, an error bar
+    with no curvature behind it) becomes null, so that fit.json is always written."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    if isinstance(value, float | np.floating):
+        return float(value) if np.isfinite(value) else None
+    return value
 
 
 def population_report(res, data: dict, figures: list[Path]) -> str:
@@ -80,13 +94,17 @@ def report_population(res, out: Path, old: set[Path], recorded: dict) -> int:
         return 1
     failures: list[str] = []
     written, figures = [path], []
-    for stem, build in (
-        ("units", units_figure),
-        ("observed_predicted", observed_predicted_figure),
-        ("vpc", vpc_figure),
-    ):
+    drawn = [("units", units_figure), ("observed_predicted", observed_predicted_figure)]
+    if res.population and np.isfinite(res.objective):  # simulated fleets need an Ω
+        drawn.append(("vpc", vpc_figure))
+    for stem, build in drawn:
         try:
-            figures.append(write_atomic(out / f"{stem}.png", partial(save_png, build(res))))
+            fig = build(res)
+        except Exception as e:  # a figure is not worth the report: say so, go on
+            failures.append(f"could not draw {stem}.png: {e}")
+            continue
+        try:
+            figures.append(write_atomic(out / f"{stem}.png", partial(save_png, fig)))
         except OSError as e:
             failures.append(f"could not write {out / (stem + '.png')}: {e.strerror or e}")
     try:

@@ -52,6 +52,11 @@ def check_population(problem, population, predictor, loss, segments) -> dict[str
             )
         out[str(name)] = float(omega)
     _fleet_settings(problem, "population", predictor, loss, segments)
+    if not np.all(problem.weights == 1.0):
+        raise ValueError(
+            "a population fit estimates each output's residual SD, which is its weight: "
+            "leave weights out"
+        )
     return out
 
 
@@ -64,6 +69,16 @@ def _fleet_settings(problem, what: str, predictor, loss, segments) -> None:
         )
     if problem.priors:
         raise ValueError(f"a fit with {what} parameters takes no priors")
+    if problem.discretisation.interpolation not in ("linear", "zoh"):
+        raise ValueError(
+            f"a fit with {what} parameters reads its units' inputs between samples as "
+            "'linear' or 'zoh' (its units are padded to one length): interpolation "
+            f"{problem.discretisation.interpolation!r} is not supported there yet"
+        )
+    names = [e.name for e in problem.experiments]
+    twice = sorted({n for n in names if n and names.count(n) > 1})
+    if twice:
+        raise ValueError(f"units {twice} are named twice: give each unit its own name")
     if problem.free_x0:
         raise ValueError(
             f"a fit with {what} parameters starts each unit from its x0 (a number or an "
@@ -71,7 +86,7 @@ def _fleet_settings(problem, what: str, predictor, loss, segments) -> None:
         )
 
 
-def check_individual(problem, individual, predictor, loss, segments) -> list[str]:
+def check_individual(problem, individual, population, predictor, loss, segments) -> list[str]:
     """The parameters each unit has its own value of, checked; [] for none."""
     if individual is None or (not isinstance(individual, str) and len(individual) == 0):
         return []
@@ -86,17 +101,26 @@ def check_individual(problem, individual, predictor, loss, segments) -> list[str
             )
         if name in problem.fixed:
             raise ValueError(f"{name!r} is both fixed and individual: drop it from one of them")
-        if name in problem.population:
+        if name in population:
             raise ValueError(
                 f"{name!r} is both individual (each unit its own value, no distribution) "
                 "and in population (log-normal over the units): choose one"
             )
     if len(set(individual)) != len(individual):
         raise ValueError(f"individual names a parameter twice: {list(individual)}")
-    if problem.population:
+    if population:
         raise ValueError(
             "individual and population parameters in one fit are not supported yet: fit "
             "the individual ones as population parameters, or fix the population"
+        )
+    bounded = [n for n in individual if n in problem.theta_names and (
+        np.isfinite(problem.lower[problem.theta_names.index(n)])
+        or np.isfinite(problem.upper[problem.theta_names.index(n)]))]  # fmt: skip
+    if bounded:
+        raise ValueError(
+            f"bounds on the individual parameters {bounded} are not kept by each unit's "
+            "own fit: drop the bounds, or make them population parameters (positive by "
+            "construction)"
         )
     _fleet_settings(problem, "individual", predictor, loss, segments)
     return list(individual)
@@ -116,7 +140,5 @@ def fixed_x0_parameters(problem) -> None:
 def check_fleet(problem, population, individual, predictor, loss, segments):
     """(population, individual) checked, and the x0 expressions' parameters fixed."""
     fixed_x0_parameters(problem)
-    return (
-        check_population(problem, population, predictor, loss, segments),
-        check_individual(problem, individual, predictor, loss, segments),
-    )
+    pop = check_population(problem, population, predictor, loss, segments)
+    return pop, check_individual(problem, individual, pop, predictor, loss, segments)

@@ -27,7 +27,7 @@ def evaluate_chunk(obj: Objective, psi, etas, hessian: bool = True):
     """(η̂, unconverged unit names, Σ O_i, Σ ∇O_i, Σ ∇²O_i or None) of ``obj``'s units."""
     etas, ok = obj.solve_inner(psi, etas)
     if not ok:
-        return etas, list(obj.unconverged), np.inf, None, None
+        return etas, list(obj.unconverged) + list(obj.unfinite), np.inf, None, None
     O, g = obj.value_grad(psi, etas)
     H = obj.hessian(psi, etas) if hessian else None
     return etas, [], float(O.sum()), g.sum(0), H

@@ -95,7 +95,7 @@ def fit_population(
     """
     began = time.perf_counter()
     obj = Objective(problem, method)
-    obj.unconverged = []
+    obj.unconverged, obj.unfinite = [], []
     spread = executor is not None or (workers or 1) > 1
     units = UnitMap(obj, executor, workers, timeout) if spread else None
     complete = False
@@ -109,8 +109,17 @@ def fit_population(
     etas, ok = obj.solve_inner(r.x, etas)
     status = r.status if ok else Status.SOLVER_FAILED
     res = PopulationResult.build(obj, r, etas, status, time.perf_counter() - began)
-    coarse = coarse_steps(obj, res.x, etas, np.array(list(res.residual_sd.values())))
+    coarse = None
+    if np.isfinite(res.objective):
+        coarse = coarse_steps(obj, res.x, etas, np.array(list(res.residual_sd.values())))
     notes = [coarse] if coarse else []
+    if obj.unfinite:
+        names = obj.unfinite
+        notes.append(
+            f"the simulation of {len(names)} unit(s) {names[:10]}"
+            f"{' ...' if len(names) > 10 else ''} is not finite at these parameters: "
+            "check those units' data, or start closer (p0)"
+        )
     if obj.unconverged:
         names = obj.unconverged
         notes.append(
@@ -129,7 +138,7 @@ def _outer(obj: Objective, units: UnitMap | None, **options) -> tuple[TRResult, 
     problem from the last accepted point's η̂; (its result, the last η̂)."""
     psi0 = _start(obj)
     lo, hi = _bounds(obj)
-    state = {"etas": obj.start_etas()}
+    state = {"etas": obj.start_etas(), "best": np.inf}
 
     def fun(psi):
         if units is None:
@@ -138,7 +147,8 @@ def _outer(obj: Objective, units: UnitMap | None, **options) -> tuple[TRResult, 
             etas, _, J, grad, H = units(psi, state["etas"])
         if not (np.isfinite(J) and np.isfinite(grad).all() and np.isfinite(H).all()):
             return np.inf, np.zeros(obj.size), np.eye(obj.size)
-        state["etas"] = etas
+        if J < state["best"]:  # the next start: the best point's η̂ (a rejected trial
+            state["etas"], state["best"] = etas, J  # point's could pick another branch)
         return J, grad, H
 
     if obj.size == 0:  # every parameter individual: the units' own fits are the fit

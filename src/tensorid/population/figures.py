@@ -11,8 +11,11 @@ GRID_MAX = 36  # units shown in the grid; the rest are in fit.json
 
 
 def _predictions(res):
+    """(units, the typical unit's predictions, each unit's own): the typical unit is
+    η = 0, or for individual parameters the median of the units' values."""
     obj = res.objective_function
-    typical = np.asarray(obj.predict_all(res.x, np.zeros_like(res.etas)))
+    middle = np.median(res.etas, axis=0) if obj.joint else np.zeros(res.etas.shape[1])
+    typical = np.asarray(obj.predict_all(res.x, np.broadcast_to(middle, res.etas.shape)))
     own = np.asarray(obj.predict_all(res.x, res.etas))
     return obj.units, typical, own
 

@@ -100,7 +100,7 @@ class Objective:
             x0=u.x0[index], names=[u.names[i] for i in index], samples=u.samples[index],
         )  # fmt: skip
         new.data = tuple(a[np.asarray(index)] for a in self.data)
-        new.unconverged = []
+        new.unconverged, new.unfinite = [], []
         return new
 
     # -- pieces -----------------------------------------------------------------------
@@ -287,16 +287,17 @@ class Objective:
         psi = jnp.asarray(psi)
         eta = jnp.asarray(etas)
         lam = jnp.zeros(eta.shape[0])
+        done = failed = np.zeros(eta.shape[0], dtype=bool)
         for _ in range(maxiter):
             eta, lam, f, step = self._steps(eta, lam, psi, self.data)
-            if not np.isfinite(np.asarray(f)).all():
+            failed = ~np.isfinite(np.asarray(f))  # its simulation: not finite
+            done = ~failed & (np.asarray(step) < tol)  # its Newton step negligible
+            if (done | failed).all():
                 break
-            if (np.asarray(step) < tol).all():  # every unit's Newton step negligible
-                self.unconverged = []
-                return np.asarray(eta), True
-        done = np.isfinite(np.asarray(f)) & (np.asarray(step) < tol)
-        self.unconverged = [n for n, ok in zip(self.units.names, done, strict=True) if not ok]
-        return np.asarray(eta), False
+        names = self.units.names
+        self.unconverged = [n for n, d, x in zip(names, done, failed, strict=True) if not (d or x)]
+        self.unfinite = [n for n, x in zip(names, failed, strict=True) if x]
+        return np.asarray(eta), bool(done.all())
 
     def value_grad(self, psi, etas) -> tuple[np.ndarray, np.ndarray]:
         """(O_i (E,), dO_i/dψ (E, ψ)) per unit at η̂."""

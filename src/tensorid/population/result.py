@@ -15,11 +15,22 @@ from ..engine.status import Status
 
 def _inverse(H: np.ndarray) -> np.ndarray:
     """H⁻¹ where H is positive definite; inf where it is not (no error bars)."""
+    if not np.isfinite(H).all():
+        return np.full_like(H, np.nan)
     try:
         np.linalg.cholesky(H)
         return np.linalg.inv(H)
     except np.linalg.LinAlgError:
         return np.full_like(H, np.inf)
+
+
+def _measured(r, status) -> np.ndarray:
+    """The outer Hessian where the fit measured one at a finite cost; NaN otherwise (a
+    failed evaluation's placeholder must not become error bars)."""
+    H = np.asarray(r.hess, dtype=float)
+    if not (np.isfinite(r.fun) and status.success and np.isfinite(H).all()):
+        return np.full_like(H, np.nan)
+    return H
 
 
 @dataclass(frozen=True)
@@ -89,9 +100,9 @@ class PopulationResult:
         if obj.joint:
             return cls._joint(obj, r, etas, status, seconds)
         q, ns, x = obj.q, obj.ns, np.asarray(r.x, dtype=float)
-        H = np.asarray(r.hess, dtype=float)
+        H = _measured(r, status)
         cov = 2.0 * _inverse(H)  # O = −2 log L: the information is H / 2
-        se = np.sqrt(np.where(np.diag(cov) >= 0, np.diag(cov), np.inf))
+        se = np.sqrt(np.where(np.diag(cov) < 0, np.inf, np.diag(cov)))  # NaN: not measured
         population = {}
         for k, n in enumerate(obj.pop):
             typ, om = float(np.exp(x[k])), float(np.exp(x[q + k]))
@@ -141,12 +152,12 @@ class PopulationResult:
         parameters. Covariance 2 s² H⁻¹ of the joint problem (s² = J / (N − K)), by
         blocks: the shared ones' from the Schur complement (the outer Hessian), each
         unit's s² (∇²_bb ℓ)⁻¹ + Z cov_s Zᵀ with Z = dη̂/dψ = −(∇²_bb ℓ)⁻¹ ∇²_bs ℓ."""
-        x, H = np.asarray(r.x, dtype=float), np.asarray(r.hess, dtype=float)
+        x, H = np.asarray(r.x, dtype=float), _measured(r, status)
         u = obj.units
         N, K = int(u.mask.sum()), obj.ns + len(u.names) * obj.q
         s2 = float(r.fun) / (N - K) if N > K else float("nan")
         cov = 2.0 * s2 * _inverse(H) if obj.ns else np.zeros((0, 0))
-        se = np.sqrt(np.abs(np.diag(cov)))
+        se = np.sqrt(np.where(np.diag(cov) >= 0, np.diag(cov), np.nan))
         shared = {
             n: {"value": float(x[j]), "stderr": float(se[j])} for j, n in enumerate(obj.shared)
         }
@@ -160,7 +171,10 @@ class PopulationResult:
             Z = -Hi @ L[i]
             ci = s2 * Hi + Z @ cov @ Z.T
             vals = {n: float(etas[i, k]) for k, n in enumerate(obj.pop)}
-            errs = {n: float(np.sqrt(abs(ci[k, k]))) for k, n in enumerate(obj.pop)}
+            errs = {
+                n: float(np.sqrt(ci[k, k])) if ci[k, k] >= 0 else np.nan
+                for k, n in enumerate(obj.pop)
+            }
             vals.update({n: v["value"] for n, v in shared.items()})
             errs.update({n: v["stderr"] for n, v in shared.items()})
             units.append({"id": uid, "params": vals, "stderr": errs, "eta": {}})
