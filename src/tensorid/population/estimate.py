@@ -9,6 +9,7 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import replace
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -138,7 +139,7 @@ def _outer(obj: Objective, units: UnitMap | None, **options) -> tuple[TRResult, 
     problem from the last accepted point's η̂; (its result, the last η̂)."""
     psi0 = _start(obj)
     lo, hi = _bounds(obj)
-    state = {"etas": obj.start_etas(), "best": np.inf}
+    state: dict[str, Any] = {"etas": obj.start_etas(), "best": np.inf}
 
     def fun(psi):
         if units is None:
