@@ -70,3 +70,116 @@ def test_robust_fit_on_three_samples_names_the_sample_count():
     short = ti.Experiment(data.t[:3], data.u[:3], data.y[:3])
     with pytest.raises(ValueError, match="3 samples are too few to set the loss scale"):
         ti.Problem(model, short, p0={"k": 1.5}, x0=[0.0], loss="huber")
+
+
+# -- compare: a filter's noise terms ---------------------------------------------------
+FIRST = """rhs = {"x": "-a*x + b*u"}
+output = {"y": "x"}
+inputs = ["u"]
+params = ["a", "b"]
+p0 = {"a": 1.0, "b": 1.0}
+x0 = {"x": 0.0}
+"""
+FILTER_FIT = {
+    "params": {"a": 2.0, "b": 3.0, "log_sigma_w_x": -6.0, "log_sigma_e_y": -4.6},
+    "x0": [0.0],
+    "predictor": "ekf",
+}
+
+
+@pytest.fixture
+def first(tmp_path):
+    """(model file, data file) of the bad-input panel's first-order model."""
+    t = np.arange(200) * 0.05
+    u = np.sin(0.7 * t) + 0.5 * np.sign(np.sin(0.19 * t))
+    model = ti.Model(
+        rhs=lambda x, p, u: -p[0] * x + p[1] * u[0], states=["x"], params=["a", "b"],
+        inputs=["u"], output=lambda x, p: x, outputs=["y"],
+    )  # fmt: skip
+    y = ti.simulate(model, {"a": 2.0, "b": 3.0}, [0.0], ti.Experiment(t, u)).y[:, 0]
+    y = y + 0.01 * np.random.default_rng(0).standard_normal(y.shape)
+    (tmp_path / "first.py").write_text(FIRST)
+    rows = "".join(f"{a:.10g},{b:.10g},{c:.10g}\n" for a, b, c in zip(t, u, y, strict=True))
+    (tmp_path / "first.csv").write_text("t,u,y\n" + rows)
+    return tmp_path / "first.py", tmp_path / "first.csv"
+
+
+def _cli(capsys, *args) -> tuple[int, str, str]:
+    from tensorid import cli
+
+    capsys.readouterr()
+    code = cli.main([str(a) for a in args])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def _filter_fit(folder, **params) -> str:
+    import json
+
+    fit = {**FILTER_FIT, "params": {**FILTER_FIT["params"], **params}}
+    for k in [k for k, v in params.items() if v is None]:
+        del fit["params"][k]
+    path = folder / "fit.json"
+    path.write_text(json.dumps(fit))
+    return str(path)
+
+
+def _compare(capsys, first, fit, *extra):
+    model, data = first
+    out = model.parent / "cmp"
+    return (*_cli(capsys, "compare", model, data, "--params", fit, "--out", out, *extra), out)
+
+
+def test_compare_refuses_a_noise_level_no_filter_can_compute_with(first, capsys):
+    fit = _filter_fit(first[0].parent, log_sigma_e_y=800.0)
+    code, out, err, folder = _compare(capsys, first, fit, "--horizon", "1")
+    assert code == 2 and not (folder / "compare.json").exists()
+    assert err.count("\n") == 1 and "fit.json: its log_sigma_e_y = 800" in err
+
+
+def test_compare_s_status_is_not_ok_when_the_scores_are_not_finite(first, capsys, monkeypatch):
+    import json
+
+    from tensorid.app import simulate
+
+    monkeypatch.setattr(simulate, "LOG_SIGMA_RANGE", 1e4)  # past the check: the net below
+    fit = _filter_fit(first[0].parent, log_sigma_e_y=800.0)
+    code, out, err, folder = _compare(capsys, first, fit, "--horizon", "1")
+    saved = json.loads((folder / "compare.json").read_text())
+    assert code == 1 and saved["status"] == "scores_not_finite"
+    assert saved["outputs"]["y"]["rmse"] is None
+    assert "the scores are not finite although the simulation is" in err
+
+
+def test_a_filter_fit_json_without_noise_terms_is_refused_not_simulated(first, capsys):
+    fit = _filter_fit(first[0].parent, log_sigma_w_x=None, log_sigma_e_y=None)
+    code, out, err, _ = _compare(capsys, first, fit, "--horizon", "1")
+    assert code == 2 and 'says "predictor": "ekf" but holds no noise terms' in err
+    assert "not a --predictor ekf fit" not in err
+
+
+def test_a_filter_fit_json_s_noise_in_its_params_alone_is_a_filter(first, capsys):
+    code, out, err, _ = _compare(capsys, first, _filter_fit(first[0].parent), "--horizon", "1")
+    assert code == 0 and "1-step prediction" in out and "not a --predictor ekf" not in err
+
+
+def test_ctrl_c_while_the_exit_handlers_run_is_said_and_exits_130(tmp_path):
+    """Ctrl-C right after a command printed (JAX's exit handler running): one line and
+    exit status 130, as during the work, not 'Exception ignored in atexit callback'."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "late.py"
+    script.write_text(
+        "import atexit, os, signal, time\n"
+        "from tensorid import cli\n"
+        "def main():\n"
+        "    print('scores')\n"
+        "    atexit.register(lambda: (os.kill(os.getpid(), signal.SIGINT), time.sleep(0.5)))\n"
+        "    return 0\n"
+        "cli.main = main\n"
+        "cli.console()\n"
+    )
+    run = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 130, run
+    assert run.stderr.strip() == "tensorid: interrupted", run.stderr

@@ -7,8 +7,10 @@ from __future__ import annotations
 import argparse
 import atexit
 import os
+import signal
 import sys
 import threading
+from functools import partial
 
 from .app import cli as app_cli
 from .paper import command as paper_command
@@ -40,8 +42,16 @@ def console() -> None:
     code = main()
     if sys.getprofile() is not None or sys.gettrace() is not None:
         sys.exit(code)
-    getattr(threading, "_shutdown", lambda: None)()
-    atexit._run_exitfuncs()
+    pressed: list[int] = []
+    try:  # Ctrl-C from here on lands in the exit handlers (JAX's): said as in a command
+        signal.signal(signal.SIGINT, partial(_interrupted_late, pressed))
+        getattr(threading, "_shutdown", lambda: None)()
+        atexit._run_exitfuncs()
+    except KeyboardInterrupt:  # before the handler was in place
+        pressed.append(1)
+    if pressed:
+        print("tensorid: interrupted", file=sys.stderr)
+        code = 130
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
@@ -50,6 +60,17 @@ def console() -> None:
         except (OSError, ValueError):
             code = code or 120
     os._exit(code)
+
+
+def _interrupted_late(pressed: list[int], signum, frame) -> None:
+    """Ctrl-C after the command's work, while the exit handlers run: noted (the exit
+    status becomes 130, as Ctrl-C during the work gives), not raised into a handler
+    (Python would print "Exception ignored in atexit callback" and its traceback); a
+    second Ctrl-C leaves at once."""
+    pressed.append(signum)
+    if len(pressed) > 1:
+        print("tensorid: interrupted", file=sys.stderr, flush=True)
+        os._exit(130)
 
 
 if __name__ == "__main__":
