@@ -183,3 +183,46 @@ def test_ctrl_c_while_the_exit_handlers_run_is_said_and_exits_130(tmp_path):
     run = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
     assert run.returncode == 130, run
     assert run.stderr.strip() == "tensorid: interrupted", run.stderr
+
+
+# -- misleading: each names the real cause, before any work ------------------------------
+@pytest.mark.parametrize(
+    "flags, words",
+    [
+        (["--process-noise", "x=1e300"], "--process-noise x=1e+300 is out of the range"),
+        (["--process-noise", "x=0.1", "x=0.2"], "--process-noise gives x twice; give each once"),
+        (["--fix", "log_sigma_w_x=-3"], "--fix log_sigma_w_x: the state x has no process noise"),
+    ],
+)
+def test_filter_flags_refused_with_their_cause(first, capsys, flags, words):
+    model, data = first
+    out = model.parent / "o"
+    code, _, err = _cli(
+        capsys, "fit", model, data, "--predictor", "ekf", *flags, "--out", out, "--no-progress"
+    )
+    assert code == 2 and err.count("\n") == 1 and words in err, err
+    assert not out.exists()
+
+
+def test_a_filter_fit_with_more_unknowns_than_residuals_is_refused_first(first, capsys):
+    model, data = first
+    short = model.parent / "three.csv"
+    short.write_text("".join(data.read_text().splitlines(keepends=True)[:4]))
+    code, _, err = _cli(
+        capsys, "fit", model, short, "--predictor", "ekf", "--process-noise", "x=0.1",
+        "--measurement-noise", "y=0.01", "--out", model.parent / "o", "--no-progress",
+    )  # fmt: skip
+    assert code == 2 and err.count("\n") == 1
+    assert "3 residuals for 4 unknowns" in err and "fewer data than unknowns" in err
+
+
+def test_a_non_finite_value_in_a_fit_json_names_the_file(first, capsys):
+    fit = _filter_fit(first[0].parent, a=float("nan"))
+    code, _, err, _ = _compare(capsys, first, fit)
+    assert code == 2 and f"--params {fit}: params a=nan are not finite" in err
+
+
+def test_a_boolean_noise_level_is_refused():
+    model, data = _decay()
+    with pytest.raises(ValueError, match=r"process_noise\['x'\] must be a number .*got True"):
+        ti.Problem(model, data, p0={"k": 1.5}, x0=[0.0], predictor="ekf", process_noise={"x": True})

@@ -160,9 +160,12 @@ def _predictor(spec: ModelSpec, args) -> dict:
     out: dict = {"predictor": getattr(args, "predictor", None) or spec.predictor or "simulation"}
     for key in ("process_noise", "measurement_noise"):
         given = getattr(args, key, None)
+        _once(given, _FLAGS[key])
         out[key] = dict(given) if given else getattr(spec, key)
         if not given and getattr(args, "predictor", None) == "simulation":
             out[key] = None  # the file's filter noise goes with the file's predictor
+    if out["predictor"] != "simulation":  # before --fix's σ join it
+        _process_noise_named(args, out["process_noise"] or {})
     for name, value in dict(getattr(args, "fix", None) or []).items():
         for kind, prefix in NOISE_PREFIXES.items():  # --fix log_sigma_e_y=-7: σ_e = e^-7
             key = f"{kind}_noise"
@@ -170,22 +173,30 @@ def _predictor(spec: ModelSpec, args) -> dict:
                 out[key] = {**(out[key] or {}), name[len(prefix) :]: float(np.exp(value))}
     if out["predictor"] == "simulation":
         _no_noise_flags(args)
-    else:
-        _process_noise_named(args, out["process_noise"] or {})
     return out
+
+
+def _once(pairs, flag: str) -> None:
+    """NAME=VALUE pairs naming each name once (repeated, the last won without a word;
+    --fix and --bounds refuse a repeated name the same way)."""
+    names = [name for name, _ in pairs or []]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise ValueError(f"{flag} gives {', '.join(twice)} twice; give each once")
 
 
 def _process_noise_named(args, process: dict) -> None:
     """--free or --bounds on log σ_w of a state without process noise: one line with
     the way out (--free was ignored without a word, --bounds named no flag)."""
     prefix = NOISE_PREFIXES["process"]
-    for flag in ("free", "bounds"):
+    for flag in ("free", "bounds", "fix"):
         names = [n if isinstance(n, str) else n[0] for n in getattr(args, flag, None) or []]
         for name in names:
             state = name[len(prefix) :]
             if name.startswith(prefix) and state not in process:
                 raise ValueError(
-                    f"--{flag} {name}: the state {state} has no process noise to estimate; "
+                    f"--{flag} {name}: the state {state} has no process noise to "
+                    f"{'fix' if flag == 'fix' else 'estimate'}; "
                     f"give it a start with --process-noise {state}=σ (or process_noise in "
                     f"the model file), or drop --{flag} {name}"
                 )

@@ -117,6 +117,12 @@ def _fitted(path: Path, spec: ModelSpec) -> dict:
     bad = [k for k, v in fitted["params"].items() if not isinstance(v, int | float)]
     if bad:
         raise ValueError(f"--params {path}: params {bad} are not numbers")
+    bad = [f"{k}={v}" for k, v in fitted["params"].items() if not np.isfinite(v)]
+    if bad:  # NaN and Infinity are JSON to Python's reader
+        raise ValueError(
+            f"--params {path}: params {', '.join(bad)} are not finite (a fit never writes "
+            "one): give the fit.json of a finished fit, or correct the file"
+        )
     bad = [n for n in fitted.get("free_x0") or [] if n not in spec.model.states]
     if bad:  # a fit of another model file: it said "free_x0 names unknown states"
         raise ValueError(f"--params {path}: its free_x0 {bad} are not states of {spec.path}")
@@ -133,6 +139,8 @@ def _fitted(path: Path, spec: ModelSpec) -> dict:
                 f"--params {path}: its x0 has {x0.shape[1]} values, the model has "
                 f"{spec.model.N} states {list(spec.model.states)}"
             )
+        if not np.isfinite(x0).all():
+            raise ValueError(f"--params {path}: its x0 {fitted['x0']} is not finite; correct it")
     return fitted
 
 
