@@ -226,3 +226,13 @@ def test_a_boolean_noise_level_is_refused():
     model, data = _decay()
     with pytest.raises(ValueError, match=r"process_noise\['x'\] must be a number .*got True"):
         ti.Problem(model, data, p0={"k": 1.5}, x0=[0.0], predictor="ekf", process_noise={"x": True})
+
+
+def test_a_stiff_model_on_rk4_names_the_flags_and_no_raw_numpy_warning(first, capsys):
+    model, data = first
+    stiff = model.with_name("stiff.py")
+    stiff.write_text(FIRST.replace('{"a": 1.0, "b": 1.0}', '{"a": 1000.0, "b": 1000.0}'))
+    code, out, err = _cli(capsys, "simulate", stiff, data, "--out", model.parent / "s")
+    assert code == 1 and "overflow" not in err and "RuntimeWarning" not in err
+    assert "--scheme sdirk3" in err and "--substeps" in err
+    assert err.count("\n") == 1
