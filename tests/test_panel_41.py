@@ -236,3 +236,24 @@ def test_a_stiff_model_on_rk4_names_the_flags_and_no_raw_numpy_warning(first, ca
     assert code == 1 and "overflow" not in err and "RuntimeWarning" not in err
     assert "--scheme sdirk3" in err and "--substeps" in err
     assert err.count("\n") == 1
+
+
+def test_a_discrete_model_on_jittered_stamps_names_ts_not_another_rate(first, capsys):
+    import json
+
+    model, data = first
+    disc = model.with_name("disc.py")
+    disc.write_text(FIRST.replace('"-a*x + b*u"', '"0.5*x + b*u"') + "discrete = True\n")
+    fit = model.with_name("disc.json")
+    fit.write_text(json.dumps({"params": {"a": 1.0, "b": 1.0}, "x0": [0.0], "sample_time": 0.05}))
+    rows = data.read_text().splitlines()
+    rng = np.random.default_rng(0)
+    jittered = [rows[0]] + [
+        f"{0.05 * (k + 0.05 * rng.uniform(-1, 1)):.10g},{r.split(',', 1)[1]}"
+        for k, r in enumerate(rows[1:])
+    ]
+    path = model.with_name("jitter.csv")
+    path.write_text("\n".join(jittered) + "\n")
+    code, _, err = _cli(capsys, "compare", disc, path, "--params", fit, "--out", model.parent / "c")
+    assert code == 2 and err.count("\n") == 1
+    assert "sample times are not uniform" in err and "--ts" in err and "another rate" not in err
