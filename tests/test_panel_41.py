@@ -4,6 +4,8 @@ fit.json's counts, the docs' numbers)."""
 
 from __future__ import annotations
 
+import warnings
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -190,7 +192,7 @@ def test_ctrl_c_while_the_exit_handlers_run_is_said_and_exits_130(tmp_path):
     "flags, words",
     [
         (["--process-noise", "x=1e300"], "--process-noise x=1e+300 is out of the range"),
-        (["--process-noise", "x=0.1", "x=0.2"], "--process-noise gives x twice; give each once"),
+        (["--process-noise", "x=0.1", "x=0.2"], "--process-noise gives x twice; give it once"),
         (["--fix", "log_sigma_w_x=-3"], "--fix log_sigma_w_x: the state x has no process noise"),
     ],
 )
@@ -257,3 +259,19 @@ def test_a_discrete_model_on_jittered_stamps_names_ts_not_another_rate(first, ca
     code, _, err = _cli(capsys, "compare", disc, path, "--params", fit, "--out", model.parent / "c")
     assert code == 2 and err.count("\n") == 1
     assert "sample times are not uniform" in err and "--ts" in err and "another rate" not in err
+
+
+def test_fix_outside_the_model_file_s_bounds_is_said(tmp_path):
+    from tensorid.app.files import load_model
+    from tensorid.app.overrides import overridden
+
+    (tmp_path / "m.py").write_text(FIRST + 'bounds = {"a": (0.1, 50)}\n')
+    spec = load_model(tmp_path / "m.py")
+    with pytest.warns(
+        UserWarning, match=r"--fix a=100 is outside .*m.py's bounds for a \(0.1, 50\)"
+    ):
+        new, _ = overridden(spec, {"a": 100.0}, [], {})
+    assert new.p0["a"] == 100.0 and "a" in new.fixed
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        overridden(spec, {"a": 20.0}, [], {})  # inside: no word

@@ -20,6 +20,7 @@ from ..fitting.residuals import lag_limit
 from ..fitting.validation import check_init_window
 from .argtypes import tolerances_as_flags
 from .files import ModelSpec, load_data
+from .overrides import given_once
 from .provenance import data_entries
 from .simulate import effective_columns
 
@@ -160,8 +161,7 @@ def _predictor(spec: ModelSpec, args) -> dict:
     out: dict = {"predictor": getattr(args, "predictor", None) or spec.predictor or "simulation"}
     for key in ("process_noise", "measurement_noise"):
         given = getattr(args, key, None)
-        _once(given, _FLAGS[key])
-        out[key] = dict(given) if given else getattr(spec, key)
+        out[key] = given_once(_FLAGS[key], given) if given else getattr(spec, key)
         if not given and getattr(args, "predictor", None) == "simulation":
             out[key] = None  # the file's filter noise goes with the file's predictor
     if out["predictor"] != "simulation":  # before --fix's σ join it
@@ -174,15 +174,6 @@ def _predictor(spec: ModelSpec, args) -> dict:
     if out["predictor"] == "simulation":
         _no_noise_flags(args)
     return out
-
-
-def _once(pairs, flag: str) -> None:
-    """NAME=VALUE pairs naming each name once (repeated, the last won without a word;
-    --fix and --bounds refuse a repeated name the same way)."""
-    names = [name for name, _ in pairs or []]
-    twice = sorted({n for n in names if names.count(n) > 1})
-    if twice:
-        raise ValueError(f"{flag} gives {', '.join(twice)} twice; give each once")
 
 
 def _process_noise_named(args, process: dict) -> None:
