@@ -4,6 +4,7 @@ fit.json's counts, the docs' numbers)."""
 
 from __future__ import annotations
 
+import re
 import warnings
 
 import jax.numpy as jnp
@@ -275,3 +276,20 @@ def test_fix_outside_the_model_file_s_bounds_is_said(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         overridden(spec, {"a": 20.0}, [], {})  # inside: no word
+
+
+@pytest.mark.parametrize(
+    "y, words",
+    [
+        (np.ones(10) + 1j, "benchmark record 'benchmark': y is complex (complex128)"),
+        (np.array(["a"] * 10), "benchmark record 'benchmark': y holds values that are not numbers"),
+    ],
+)
+def test_from_benchmark_names_a_complex_or_text_y(y, words):
+    import types
+
+    record = types.SimpleNamespace(u=np.ones(10), y=y, sampling_time=0.1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no bare ComplexWarning on the way
+        with pytest.raises(ValueError, match=re.escape(words)):
+            ti.Experiment.from_benchmark(record)
