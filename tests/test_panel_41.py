@@ -293,3 +293,12 @@ def test_from_benchmark_names_a_complex_or_text_y(y, words):
         warnings.simplefilter("error")  # no bare ComplexWarning on the way
         with pytest.raises(ValueError, match=re.escape(words)):
             ti.Experiment.from_benchmark(record)
+
+
+def test_from_benchmark_refuses_a_column_twice():
+    import types
+
+    record = types.SimpleNamespace(u=np.ones(10), y=np.ones((10, 2)), sampling_time=0.1)
+    with pytest.raises(ValueError, match=r"outputs=\[0, 0\] names a column twice"):
+        ti.Experiment.from_benchmark(record, outputs=[0, 0])
+    assert ti.Experiment.from_benchmark(record, outputs=[1, 0]).y.shape == (10, 2)

@@ -86,6 +86,11 @@ def _columns(name: str, a, keep, record: str) -> np.ndarray:
             f"benchmark record {record!r}: {name}s={keep!r} must be column indices from 0 "
             f"to {arr.shape[1] - 1} ({name} has {arr.shape[1]} column(s))"
         )
+    if len(set(cols.tolist())) < cols.size:  # a column twice would count twice
+        raise ValueError(
+            f"benchmark record {record!r}: {name}s={keep!r} names a column twice; give each "
+            "once"
+        )
     return arr[:, cols]
 
 
