@@ -143,9 +143,9 @@ def test_compare_refuses_a_noise_level_no_filter_can_compute_with(first, capsys)
 def test_compare_s_status_is_not_ok_when_the_scores_are_not_finite(first, capsys, monkeypatch):
     import json
 
-    from tensorid.app import simulate
+    from tensorid.app import filter_fits
 
-    monkeypatch.setattr(simulate, "LOG_SIGMA_RANGE", 1e4)  # past the check: the net below
+    monkeypatch.setattr(filter_fits, "LOG_SIGMA_RANGE", 1e4)  # past the check: the net below
     fit = _filter_fit(first[0].parent, log_sigma_e_y=800.0)
     code, out, err, folder = _compare(capsys, first, fit, "--horizon", "1")
     saved = json.loads((folder / "compare.json").read_text())
@@ -302,3 +302,56 @@ def test_from_benchmark_refuses_a_column_twice():
     with pytest.raises(ValueError, match=r"outputs=\[0, 0\] names a column twice"):
         ti.Experiment.from_benchmark(record, outputs=[0, 0])
     assert ti.Experiment.from_benchmark(record, outputs=[1, 0]).y.shape == (10, 2)
+
+
+# -- the newcomer's list: what a user expects of the command line -------------------------
+def test_version_and_the_out_defaults_are_said(capsys):
+    from tensorid import _config, cli
+
+    with pytest.raises(SystemExit) as end:
+        cli.main(["--version"])
+    assert end.value.code == 0
+    assert capsys.readouterr().out.startswith(f"tensorid {_config.__version__} (JAX ")
+    defaults = {"fit": "fit-results", "simulate": "simulation-results",
+                "compare": "compare-results", "paper": "paper-results"}  # fmt: skip
+    for command, default in defaults.items():
+        with pytest.raises(SystemExit):
+            cli.main([command, "--help"])
+        text = " ".join(capsys.readouterr().out.split())
+        assert f"(default: {default})" in text, command
+
+
+def test_iteration_limits_priors_noise_and_weights_from_the_command_line(first, capsys):
+    import json
+
+    model, data = first
+    out = model.parent / "o"
+    code, _, err = _cli(
+        capsys, "fit", model, data, "--maxiter", "1", "--gtol", "0", "--prior", "a=2,0.1",
+        "--noise", "0.01", "--weights", "y=2", "--out", out, "--no-progress",
+    )  # fmt: skip
+    assert code == 1  # not converged, as documented: the iteration limit
+    d = json.loads((out / "fit.json").read_text())
+    assert d["iterations"] == 1 and d["status"] == "maxiter"
+    assert d["priors"] == {"a": [2.0, 0.1]}
+    assert d["prior_noise_variance"] == pytest.approx(1e-4)
+    assert d["weights"] == {"y": 2.0}
+
+
+@pytest.mark.parametrize(
+    "flags, words",
+    [
+        (["--prior", "c=2,1"], "--prior names ['c'], not parameters"),
+        (["--prior", "a=2,0"], "--prior: a prior's SD is a standard deviation"),
+        (["--weights", "q=1"], "--weights names ['q'], not outputs"),
+        (["--maxiter", "0"], "--maxiter: expected a whole number >= 1"),
+        (["--gtol", "-1"], "--gtol"),
+    ],
+)
+def test_the_new_flags_refuse_a_bad_value_in_one_line(first, capsys, flags, words):
+    model, data = first
+    try:
+        code, _, err = _cli(capsys, "fit", model, data, *flags, "--out", model.parent / "o")
+    except SystemExit as end:  # argparse
+        code, err = end.code, capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and words in err, err

@@ -22,10 +22,26 @@ def build_parser() -> argparse.ArgumentParser:
         description="Grey-box system identification with exact gradients and Hessians "
         "from state/parameter transition tensors.",
     )
+    ap.add_argument("--version", action="version", version=_version())
     sub = ap.add_subparsers(dest="command", required=True)
     paper_command.register(sub)
     app_cli.register(sub)
     return ap
+
+
+def _version() -> str:
+    """tensorid's version, with the versions its numbers rest on."""
+    import platform
+
+    import jax
+    import numpy
+
+    from ._config import __version__
+
+    return (
+        f"tensorid {__version__} (JAX {jax.__version__}, NumPy {numpy.__version__}, "
+        f"Python {platform.python_version()})"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -25,6 +25,7 @@ from .argtypes import (
     _samples,
     _value,
 )
+from .fit_flags import add_fit_flags
 from .options import (
     _TS_HELP,
     integration_options,
@@ -100,7 +101,7 @@ def register(sub) -> None:
         help="data files (.csv, .mat, .npz), one experiment each; u.mat+y.mat joins files "
         "holding the inputs and the outputs",
     )
-    f.add_argument("--out", default="fit-results", help="output folder")
+    f.add_argument("--out", default="fit-results", help="output folder (default: %(default)s)")
     f.add_argument(
         "--method",
         default="auto",
@@ -331,6 +332,7 @@ def register(sub) -> None:
         "the samples that pulled each estimate most (influential_samples in fit.json)",
     )
     integration_options(f)
+    add_fit_flags(f)  # --maxiter, --gtol, --ftol, --xtol, --prior, --noise, --weights
     f.add_argument("--no-progress", action="store_true", help="no live progress display")
     f.set_defaults(func=_fit)
 

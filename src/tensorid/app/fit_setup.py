@@ -20,6 +20,7 @@ from ..fitting.residuals import lag_limit
 from ..fitting.validation import check_init_window
 from .argtypes import tolerances_as_flags
 from .files import ModelSpec, load_data
+from .fit_flags import statistics
 from .overrides import given_once
 from .provenance import data_entries
 from .simulate import effective_columns
@@ -63,9 +64,7 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
             free_x0=spec.free_x0,
             fixed=spec.fixed,
             bounds=spec.bounds,
-            weights=spec.weights,
-            priors=spec.priors or None,
-            noise=spec.noise,
+            **statistics(spec, args),  # priors, noise, weights: --prior, --noise, --weights
             discretisation=disc,
             segments=args.segments,
             segment_length=args.segment_length,

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import sys
-from dataclasses import replace
 from functools import partial
 from pathlib import Path
 
@@ -23,6 +22,7 @@ from ..fitting.validation import Score, check_init_window, score_record
 from .after_fit import SIMULATED_HORIZON
 from .argtypes import tolerances_as_flags
 from .files import ModelSpec, load_data, load_model
+from .filter_fits import NOT_SCORED, filter_of, noise_levels, scores_finite
 from .output import (
     COMPARE_MANIFEST,
     SIMULATE_MANIFEST,
@@ -278,12 +278,12 @@ def _score(args, require_outputs: bool):
     if fitted is not None and other_model(fitted, args.model):
         print(other_model(fitted, args.model), file=sys.stderr)
     try:
-        spec, predictor = _filter(spec, fitted, e)
+        spec, predictor = filter_of(spec, fitted, e)
     except ValueError as err:  # a fit.json of another model: say which file
         raise ValueError(f"--params {args.params[0]}, a filter fit's noise: {err}") from None
     params, defaults = _parameters(spec, args.params, fitted)
-    if predictor is not None:
-        _noise_levels(params, args.params, fitted)
+    if predictor is not None:  # (a filter's fit.json)
+        noise_levels(params, _assignments(args.params[1:], "--params"), args.params[0])
     disc = _integration(args, fitted)
     x0, free, source = _start(spec, args, e, fitted)
     horizon = getattr(args, "horizon", None)
@@ -294,60 +294,6 @@ def _score(args, require_outputs: bool):
         horizon=horizon, predictor=predictor,
     )  # fmt: skip
     return spec, params, score, source, disc.for_model(spec.model), defaults
-
-
-def _filter(spec: ModelSpec, fitted: dict | None, record) -> tuple[ModelSpec, tuple | None]:
-    """For a fit.json of a filter (predictor "ekf"): the spec with the filter's model
-    (its noise intensities among the parameters) and (loss, predictor) to predict
-    with; otherwise ``spec`` and None."""
-    if fitted is None or fitted.get("predictor") != "ekf":
-        return spec, None
-    from ..engine.losses import GAUSSIAN
-    from ..engine.predictors import make_predictor
-
-    q, r = _noise_terms(fitted)
-    model, filt, _ = make_predictor(spec.model, "ekf", q, r, [record.y])
-    return replace(spec, model=model), (GAUSSIAN, filt)
-
-
-# a noise level's log within these: σ² and the innovations' covariance stay finite
-LOG_SIGMA_RANGE = 300.0
-
-
-def _noise_terms(fitted: dict) -> tuple[dict, dict]:
-    """A filter fit's noise intensities {state: σ_w}, {output: σ_e}: its params'
-    log_sigma_w_<state>, log_sigma_e_<output> (what --params NAME=VALUE may change),
-    else its noise_intensities; each one a filter can compute with."""
-    params = fitted["params"]
-    logs = {k: v for k, v in params.items() if k.startswith(("log_sigma_w_", "log_sigma_e_"))}
-    if logs:
-        # which terms the filter has (their values are these params, checked later)
-        q = {k[12:]: 1.0 for k in logs if k[:12] == "log_sigma_w_"}
-        return q, {k[12:]: 1.0 for k in logs if k[:12] == "log_sigma_e_"}
-    noise = fitted.get("noise_intensities")
-    if not isinstance(noise, dict) or not noise.get("process"):
-        raise ValueError(
-            'it says "predictor": "ekf" but holds no noise terms (no log_sigma_w_<state> '
-            "in its params, no noise_intensities): a filter cannot be run from it; give the "
-            "fit.json tensorid fit --predictor ekf wrote"
-        )
-    q = {s: v["sigma"] for s, v in noise["process"].items()}
-    r = {o: v["sigma"] for o, v in (noise.get("measurement") or {}).items()}
-    return q, r
-
-
-def _noise_levels(params: dict, given: list[str], fitted: dict | None) -> None:
-    """A filter's noise levels (log σ) ones it can compute with, named where they came
-    from (a NAME=VALUE after the fit.json, or the fit.json)."""
-    pairs = _assignments(given[1:], "--params") if fitted is not None else {}
-    for k, v in params.items():
-        if k.startswith(("log_sigma_w_", "log_sigma_e_")) and not abs(v) <= LOG_SIGMA_RANGE:
-            where = f"--params {k}={v:g}" if k in pairs else f"--params {given[0]}: its {k} = {v:g}"
-            raise ValueError(
-                f"{where} is no noise level a filter can compute with (σ = e^{v:g} "
-                f"{'overflows' if v > 0 else 'underflows'}); a fit gives |log σ| well below "
-                f"{LOG_SIGMA_RANGE:g}: refit, or correct the file"
-            )
 
 
 def run_simulate(args) -> int:
@@ -451,7 +397,7 @@ def run_compare(args) -> int:
         "x0_source": source,
         "params": {n: float(params[n]) for n in m.params},
         "integration": disc.as_dict(),
-        "status": str(sim.status) if _scored(score) else NOT_SCORED,
+        "status": str(sim.status) if scores_finite(score) else NOT_SCORED,
         # why a gof is null although the simulation is finite (a constant output)
         "gof_notes": [n[len("note: ") :] for n in metric_notes([score])],
         "provenance": provenance(
@@ -472,7 +418,7 @@ def run_compare(args) -> int:
         print(defaults)
     _print_x0(m, score.x0, source)
     print("wrote " + ", ".join(map(str, written)))
-    if sim.status is Status.OK and not _scored(score):
+    if sim.status is Status.OK and not scores_finite(score):
         print(
             f"tensorid: error: the scores are not finite although the simulation is "
             f"(compare.json status {NOT_SCORED!r}): the {score.horizon}-step predictions of "
@@ -481,15 +427,6 @@ def run_compare(args) -> int:
         )
         return 1
     return _finite(score, disc, args.data)
-
-
-NOT_SCORED = "scores_not_finite"
-
-
-def _scored(score: Score) -> bool:
-    """Whether every output's RMSE is finite (a filter whose predictions are not finite
-    leaves a finite simulation but no score)."""
-    return all(np.isfinite(v["rmse"]) for v in score.metrics().values())
 
 
 def _print_scores(score: Score) -> None:

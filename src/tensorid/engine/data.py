@@ -88,8 +88,7 @@ def _columns(name: str, a, keep, record: str) -> np.ndarray:
         )
     if len(set(cols.tolist())) < cols.size:  # a column twice would count twice
         raise ValueError(
-            f"benchmark record {record!r}: {name}s={keep!r} names a column twice; give each "
-            "once"
+            f"benchmark record {record!r}: {name}s={keep!r} names a column twice; give each once"
         )
     return arr[:, cols]
 

@@ -91,7 +91,6 @@ def fit(
     """
     started = time.perf_counter()
     solver = check_method(problem, method)
-    _check_enough_data(problem)
     options = _options(options, x_scale, maxiter, gtol, ftol, xtol, callback, polish)
     theta0 = _check_start(problem, problem.theta0 if theta0 is None else theta0, "theta0")
     if starts is not None:
@@ -220,6 +219,7 @@ def check_method(problem, method) -> Method:
             f"cost (predictor='ekf') is −2 log L, which is not one: use "
             f"{listed('supports_likelihood')}"
         )
+    _check_enough_data(problem)
     return method
 
 

@@ -78,7 +78,7 @@ def register(sub) -> None:
         "comparison on the bundled data; write results.json, "
         "report.md and figures.",
     )
-    p.add_argument("--out", default="paper-results", help="output folder")
+    p.add_argument("--out", default="paper-results", help="output folder (default: %(default)s)")
     p.add_argument(
         "--starts",
         type=int,
