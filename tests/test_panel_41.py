@@ -355,3 +355,42 @@ def test_the_new_flags_refuse_a_bad_value_in_one_line(first, capsys, flags, word
     except SystemExit as end:  # argparse
         code, err = end.code, capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and words in err, err
+
+
+def test_multi_start_counts_in_fit_json_have_one_meaning(first, capsys):
+    import json
+
+    model, data = first
+    out = model.parent / "ms"
+    code, _, err = _cli(
+        capsys, "fit", model, data, "--starts", "3", "--workers", "1", "--out", out,
+        "--no-progress",
+    )  # fmt: skip
+    assert code == 0, err
+    d = json.loads((out / "fit.json").read_text())
+    best, starts = d["starts"][0], d["starts"]
+    # iterations and function_evaluations: both the best start's run and its refinement
+    assert d["iterations"] == best["nit"] + d["iterations_after_starts"]
+    assert d["history"][-1]["iteration"] == d["iterations"]
+    assert d["function_evaluations"] == best["nfev"] + d["function_evaluations_after_starts"]
+    assert d["function_evaluations_best_start"] == d["function_evaluations"]
+    # the totals: every start's, the refinement included
+    assert d["iterations_total"] == sum(s["nit"] for s in starts) + d["iterations_after_starts"]
+    assert d["function_evaluations_total"] == (
+        sum(s["nfev"] for s in starts) + d["function_evaluations_after_starts"]
+    )
+    # each start's own time (they shared one lock-step batch and ended one by one)
+    assert len({s["seconds"] for s in starts}) == len(starts)
+
+
+def test_the_paper_console_does_not_read_converged_and_failed_as_a_contradiction():
+    from tensorid.fitting.summary import as_text
+    from tensorid.paper.command import _robustness_table
+
+    row = dict(dataset="silverbox", accuracy="rk4x4", method="fd-bfgs", converged=6, starts=6,
+               failed=6, median_seconds=0.39)  # fmt: skip
+    table = _robustness_table([row], 1e-6)
+    assert table.header[4] == "reported failure" and "failed" not in table.header
+    assert "BFGS often reaches the optimum and then fails its line search" in " ".join(
+        as_text([table]).split()
+    )

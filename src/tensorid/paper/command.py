@@ -56,15 +56,16 @@ def _paper(args) -> int:
 def _robustness_table(rows: list[dict], rtol: float) -> Table:
     """The robustness comparison as report.md has it (fewer columns): one row per data
     set, accuracy level and method, its columns named."""
-    header = ["dataset", "accuracy", "method", "converged", "failed"]
+    header = ["dataset", "accuracy", "method", "converged", "reported failure"]
     body = [
         [r["dataset"], r["accuracy"], r["method"], f"{r['converged']}/{r['starts']}",
          str(r["failed"]), f"{r['median_seconds'] * 1e3:.1f}"]
         for r in rows
     ]  # fmt: skip
     title = (
-        f"robustness: starts that converged (cost within {rtol:g} of the best found) and "
-        "that failed (the optimizer said so); report.md has the rest"
+        f"robustness: starts that converged (cost within {rtol:g} of the best found), and "
+        "those whose optimizer reported failure (not the opposite: BFGS often reaches the "
+        "optimum and then fails its line search); report.md has the rest"
     )
     return Table(title, [*header, "median ms"], body)
 
