@@ -43,3 +43,23 @@ def test_an_example_s_header_command_is_the_docs_own(script, page):
             re.findall(r"```bash\n(.*?)```", (ROOT / page).read_text(), flags=re.S)]  # fmt: skip
     assert " ".join(command.split()) in docs
     assert "../shared" not in (ROOT / script).read_text()
+
+
+@pytest.mark.slow
+def test_the_multi_start_example_prints_the_line_the_docs_show(tmp_path, capsys, monkeypatch):
+    """docs/your-own-model.md's multi-start example, run as written (about 30 s)."""
+    import shlex
+
+    from tensorid import cli
+
+    text = (ROOT / "docs/your-own-model.md").read_text()
+    command = re.search(r"\(`(tensorid fit\s+examples/silverbox/.*?)`\):", text, flags=re.S)
+    shown = re.search(r"```text\n(auto: converged.*?best of 4 starts.*?)\n```", text, re.S)
+    assert command and shown
+    args = shlex.split(" ".join(command[1].split()))[1:]
+    monkeypatch.chdir(ROOT)
+    capsys.readouterr()
+    assert cli.main([*args, "--no-progress", "--out", str(tmp_path / "fit")]) == 0
+    captured = capsys.readouterr()
+    printed = [ln for ln in (captured.out + captured.err).splitlines() if "best of 4" in ln]
+    assert printed == [shown[1]]
