@@ -394,3 +394,18 @@ def test_the_paper_console_does_not_read_converged_and_failed_as_a_contradiction
     assert "BFGS often reaches the optimum and then fails its line search" in " ".join(
         as_text([table]).split()
     )
+
+
+def test_figure_names_do_not_repeat_the_record_s_kind():
+    from dataclasses import replace
+
+    from tensorid.fitting.figures import figure_jobs
+
+    model, data = _decay()
+    train = replace(data, name="train")
+    res = ti.fit(ti.Problem(model, train, p0={"k": 1.5}, x0=[0.0]))
+    stems = [stem for stem, kind, _ in figure_jobs(res) if kind == "compare"]
+    assert stems == ["train_y"]  # was train_train_y
+    both = res.validate([replace(data, name="validate"), replace(data, name="test")])
+    stems = [stem for stem, kind, _ in figure_jobs(res, both) if kind == "compare"]
+    assert stems == ["train_y", "validation_validate_y", "validation_test_y"]  # two: named

@@ -288,6 +288,17 @@ def file_name(s: str) -> str:
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in s)
 
 
+def _record_stem(score) -> str:
+    """The record's part of a figure's file name: its name and "_", none where the name
+    only repeats the kind and it is the only record of its kind (train.csv's training
+    figure is train_y.png, not train_train_y.png); "data_" for a record without a name."""
+    from .validation import repeats_kind
+
+    name = score.experiment.name
+    alone = getattr(score, "alone", True)  # two "validate"/"test" records keep their names
+    return "" if name and alone and repeats_kind(score.kind, name) else f"{name or 'data'}_"
+
+
 def figure_jobs(res, validation=None, training: bool = True, convergence: bool = True) -> list:
     """What :func:`fit_figures` draws, as plain data: (file stem, kind, arguments) per
     figure, ``draw(kind, arguments)`` making it. Plain data (arrays, strings) can be
@@ -300,7 +311,7 @@ def figure_jobs(res, validation=None, training: bool = True, convergence: bool =
     for s in train + list(validation or []):
         e = s.experiment
         for j, name in enumerate(res.problem.model.outputs):
-            stem = f"{s.kind[:5] if s.kind == 'training' else s.kind}_{e.name or 'data'}_{name}"
+            stem = f"{s.kind[:5] if s.kind == 'training' else s.kind}_{_record_stem(s)}{name}"
             title = f"{s.label}, output {name}: GOF {gof_text(s, name)}"
             if s.start:
                 title += f" (scored after the first {s.start} samples)"
