@@ -409,3 +409,32 @@ def test_figure_names_do_not_repeat_the_record_s_kind():
     both = res.validate([replace(data, name="validate"), replace(data, name="test")])
     stems = [stem for stem, kind, _ in figure_jobs(res, both) if kind == "compare"]
     assert stems == ["train_y", "validation_validate_y", "validation_test_y"]  # two: named
+
+
+def test_figures_say_what_their_bands_lines_and_axes_are():
+    from tensorid.fitting.figures import compare_figure, prediction_figure, residual_figure
+
+    lags = np.arange(6)
+    panel = dict(what="y against input u", passed=False, lags=lags, values=0.5**lags,
+                 feedback=0.1 * np.ones(5))  # fmt: skip
+    ax = residual_figure(0.2, [panel]).axes[0]
+    legend = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert legend == ["±0.2: where uncorrelated samples fall",
+                      "negative lags: against later inputs (feedback; not tested)",
+                      "tested lags (the test fails)"]  # fmt: skip
+    t = np.linspace(0, 1, 20)
+    assert compare_figure(t, t, t, title="", ylabel="q").axes[1].get_ylabel() == (
+        "residual [units of q]"
+    )
+    fig = prediction_figure(t, t, t, t, None, t, title="", ylabel="q")
+    assert "dotted: ±2" in fig.axes[1].get_ylabel()
+
+
+def test_a_filter_s_residual_tests_name_its_innovations():
+    model, data = _decay()
+    problem = ti.Problem(
+        model, data, p0={"k": 2.0}, x0=[0.0], predictor="ekf", process_noise={"x": 0.01}
+    )
+    res = ti.fit(problem)
+    tests = res.residual_tests(5)
+    assert tests.whiteness[0].what == "whiteness of y's innovations"

@@ -88,8 +88,9 @@ def _residual_tests(res, args):
     # the default shrinks on a short record; below 4 samples the tests say not available
     lags = args.residual_lags or max(min(DEFAULT_LAGS, lag_limit(samples)), 1)
     tests = res.residual_tests(lags)
+    what = "filter" if res.problem.loss.likelihood else "residuals"  # (its innovations)
     for line in tests.lines():
-        print(f"residuals: {line}")
+        print(f"{what}: {line}")
     return tests
 
 

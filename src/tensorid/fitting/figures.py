@@ -151,7 +151,7 @@ def compare_figure(
     titled_with_legend(ax, title)
     ax.grid(alpha=0.3)
     axr.plot(t, y_meas - y_sim, color="tab:blue", lw=0.8)
-    axr.set_ylabel("residual")
+    axr.set_ylabel(f"residual [units of {ylabel}]")
     axr.set_xlabel(xlabel)
     axr.grid(alpha=0.3)
     fixed_layout(fig, top=_TITLE + _LEGEND)
@@ -252,7 +252,8 @@ def prediction_figure(t, measured, simulated, predicted, sd, innovations, *, tit
     axr.plot(t, innovations, color="tab:blue", lw=0.6)
     for level in (-2, 2):
         axr.axhline(level, color="k", lw=0.6, ls=":")
-    axr.set_ylabel("innovation / σ")
+    # the dotted lines named here: a legend in so short a panel covered the innovations
+    axr.set_ylabel("innovation / σ\n(dotted: ±2, 95 %\nof white ones)", fontsize=8)
     axr.set_xlabel("t [s]")
     axr.grid(alpha=0.3)
     fixed_layout(fig, top=_TITLE + _LEGEND)
@@ -373,15 +374,19 @@ def residual_figure(bound: float, panels: list[dict]):
     fig = new_figure(figsize=(9, 1.2 + 2.0 * len(panels)))
     axes = fig.subplots(len(panels), 1, squeeze=False)[:, 0]
     for ax, c in zip(axes, panels, strict=True):
-        ax.axhspan(-bound, bound, color="C0", alpha=0.15, lw=0)
+        ax.axhspan(-bound, bound, color="C0", alpha=0.15, lw=0,
+                   label=f"±{bound:.2g}: where uncorrelated samples fall")  # fmt: skip
         if c["feedback"] is not None:  # not tested: drawn grey
             back = -np.arange(1, c["feedback"].size + 1)
             ax.vlines(back, 0, c["feedback"], color="0.6")
-            ax.plot(back, c["feedback"], "o", ms=3, color="0.6")
+            ax.plot(back, c["feedback"], "o", ms=3, color="0.6",
+                    label="negative lags: against later inputs (feedback; not tested)")  # fmt: skip
         colour = "C3" if not c["passed"] else "C0"
         ax.vlines(c["lags"], 0, c["values"], color=colour)
-        ax.plot(c["lags"], c["values"], "o", ms=3, color=colour)
+        ax.plot(c["lags"], c["values"], "o", ms=3, color=colour,
+                label="tested lags" + (" (the test fails)" if not c["passed"] else ""))  # fmt: skip
         ax.axhline(0, color="k", lw=0.6)
+        ax.legend(fontsize=7, loc="upper right", framealpha=0.8)
         ax.set_title(f"{c['what']}: {'passes' if c['passed'] else 'fails'}", fontsize=9)
         ax.set_ylabel("r(τ)")
         ax.set_xlabel("lag τ (samples)")  # each panel has its own lags

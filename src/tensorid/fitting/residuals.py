@@ -229,6 +229,7 @@ def residual_tests(res, max_lag: int = 25, level: float = 0.99) -> ResidualTests
         r = _correlation(err, err, max_lag)
         Q = float(N * np.sum(r[1:] ** 2))
         lags = np.arange(max_lag + 1)
+        out = f"{out}'s innovations" if problem.loss.likelihood else out  # what was tested
         white.append(Correlation(f"whiteness of {out}", lags, r, Q, q_white, Q <= q_white))
         for i, name in enumerate(model.inputs):
             if name in constant:
