@@ -63,3 +63,24 @@ def test_the_multi_start_example_prints_the_line_the_docs_show(tmp_path, capsys,
     captured = capsys.readouterr()
     printed = [ln for ln in (captured.out + captured.err).splitlines() if "best of 4" in ln]
     assert printed == [shown[1]]
+
+
+def test_the_quick_study_s_time_is_said_the_same_everywhere(capsys):
+    """README.md, docs/index.md and `tensorid paper --help` gave 35, 40 and 50 s."""
+    from tensorid import cli
+    from tensorid.paper.command import QUICK_SECONDS
+
+    cold, warm = QUICK_SECONDS["empty cache"], QUICK_SECONDS["warm cache"]
+    with pytest.raises(SystemExit):
+        cli.main(["paper", "--help"])
+    pages = {
+        "README.md": (ROOT / "README.md").read_text(),
+        "docs/index.md": (ROOT / "docs/index.md").read_text(),
+        "paper --help": capsys.readouterr().out,
+    }
+    for where, text in pages.items():
+        flat = " ".join(text.split())
+        assert f"about {cold} s" in flat and f"{warm} s" in flat, where
+        assert "2026-11-28 on 2 cores" in flat, where
+        said = {int(x) for x in re.findall(r"about (\d+) s\b", flat)}
+        assert said <= {cold, warm, 30}, (where, said)  # 30: the README's pip install
