@@ -84,3 +84,23 @@ def test_the_quick_study_s_time_is_said_the_same_everywhere(capsys):
         assert "2026-11-28 on 2 cores" in flat, where
         said = {int(x) for x in re.findall(r"about (\d+) s\b", flat)}
         assert said <= {cold, warm, 30}, (where, said)  # 30: the README's pip install
+
+
+def test_the_prediction_error_example_recovers_what_its_page_says(capsys):
+    """docs/prediction-error.md's example, run as written: the estimates it states,
+    each within two standard errors of the truth, and no np.float64(...) printed."""
+    import numpy as np
+
+    ns: dict = {}
+    exec(compile(_python_blocks("docs/prediction-error.md")[0], "prediction-error", "exec"), ns)
+    res, u95 = ns["res"], ns["u95"]
+    printed = capsys.readouterr().out
+    assert "np.float64" not in printed
+    text = " ".join((ROOT / "docs/prediction-error.md").read_text().split())
+    se = dict(zip(u95.names, u95.stderr, strict=True))
+    truth = {"k": 2.0, "c": 0.3, "a": 0.5}
+    for n, v in truth.items():
+        assert abs(res.params[n] - v) < 2 * se[n], n
+        assert f"{n} = {res.params[n]:.3g} ± {se[n]:.3g}" in text, n
+    sw, sev = np.exp(res.params["log_sigma_w_v"]), np.exp(res.params["log_sigma_e_y"])
+    assert f"σ_w = {sw:.3g} per √s" in text and f"σ_e = {sev:.3g}" in text
