@@ -249,8 +249,9 @@ def make_loss(
         if y.shape[0] < 4:
             raise ValueError(
                 f"loss={name!r}: {y.shape[0]} samples are too few to set the loss scale from "
-                "(the noise level from second differences needs at least 4); give "
-                "loss_scale= (in the outputs' units), or fit a longer record"
+                "(the noise level from second differences needs at least 4); give a scale "
+                "in the outputs' units (loss_scale=; --loss-scale on the command line), or "
+                "fit a longer record"
             )
         if not (sigma > 0).all():
             flat = [o for o, s in zip(outputs, sigma, strict=True) if not s > 0]
@@ -302,13 +303,13 @@ def _check_resolvable(name: str, c: np.ndarray, outputs: list[str], measured: li
         hint = f" (the data's noise level is about {noise[k]:.3g})" if noise[k] > 0 else ""
         if c[k] < floor[k]:
             raise ValueError(
-                f"loss_scale {c[k]:g} for {o} is below what the data resolve (their rounding "
+                f"loss_scale={c[k]:g} for {o} is below what the data resolve (their rounding "
                 f"is about {floor[k]:.2g}): give a scale near the noise level{hint}, or "
-                f"drop loss_scale to have it estimated"
+                f"drop loss_scale= to have it estimated"
             )
         if c[k] > SCALE_RANGE[1]:
             raise ValueError(
-                f"loss_scale {c[k]:g} for {o} is too large to compute with (c² overflows); a "
+                f"loss_scale={c[k]:g} for {o} is too large to compute with (c² overflows); a "
                 f"scale far above every residual makes {name!r} the squared loss: use "
                 f"loss='squared', or a scale near the noise level{hint}"
             )
