@@ -11,7 +11,7 @@ import numpy as np
 
 from ..engine.checks import step
 from ..fitting.figures import new_figure, save_png
-from ..fitting.starts import after_starts
+from ..fitting.starts import fit_counts
 from ..fitting.summary import (
     coloured_residuals_line,
     criteria_text,
@@ -145,14 +145,7 @@ def fit_json(
         "success": res.success,
         "status": str(res.status),
         "message": res.message,
-        # the best start's run (its refinement included), as history; *_total: every
-        # start's (docs/your-own-model.md); equal for one start
-        "iterations": res.nit,
-        "function_evaluations": res.nfev_best,
-        "iterations_total": res.nit_total,
-        "function_evaluations_total": res.nfev,
-        "function_evaluations_best_start": res.nfev_best,
-        **after_starts(res),
+        **fit_counts(res),  # iterations, function_evaluations and their totals over starts
         "hessian_vector_products": res.nhev,
         "method": res.method,
         "integration": res.problem.discretisation.as_dict(),

@@ -114,6 +114,20 @@ def _refined(problem, method, best: FitResult, options: FitOptions, started) -> 
     return replace(res, shooting=best.shooting)
 
 
+def fit_counts(res) -> dict:
+    """fit.json's counts, one meaning each (docs/your-own-model.md): ``iterations`` and
+    ``function_evaluations`` the best start's run, its refinement included (what
+    ``history`` shows); ``*_total`` every start's; equal for one start."""
+    return {
+        "iterations": res.nit,
+        "function_evaluations": res.nfev_best,
+        "iterations_total": res.nit_total,
+        "function_evaluations_total": res.nfev,
+        "function_evaluations_best_start": res.nfev_best,
+        **after_starts(res),
+    }
+
+
 def after_starts(res) -> dict:
     """With several starts, what the best start's counts in ``res`` (nit and nfev_best)
     hold beyond its own entry in ``res.starts``: the refinement here (and the priors'
