@@ -75,7 +75,7 @@ def _robustness_table(rows: list[dict], rtol: float) -> Table:
 QUICK_SECONDS = {
     "empty cache": 100,
     "warm cache": 70,
-    "measured": "measured 2026-11-28 on 2 cores shared with another job",
+    "measured": "measured 2026-11-28 on 2 cores shared with other jobs",
 }
 
 
