@@ -59,7 +59,7 @@ def test_outputs_written(study):
 def test_the_console_summary_names_its_columns(study):
     out, r = study
     text = (out / "console.txt").read_text()
-    for column in ("dataset", "accuracy", "method", "converged", "failed", "median ms"):
+    for column in ("dataset", "accuracy", "method", "converged", "reported failure", "median ms"):
         assert column in text
     # one row per data set, accuracy level and method, as results.json has them
     for row in r["robustness"]:

@@ -4,9 +4,11 @@
 # sign is smoothed (tensorid.coulomb_friction, eps = 1 mm/s: the record moves at up to
 # 0.2 m/s) so the cost has the derivatives the fit needs.
 # A double integrator: position errors accumulate, so fit it with multiple shooting:
-#   tensorid fit examples/emps/open_loop.py ../shared/data/emps/DATA_EMPS.mat \
-#       --validate ../shared/data/emps/DATA_EMPS_PULSES.mat --init-window 20 \
-#       --segments 100 --substeps 1 --method gauss-newton --out emps-open-loop
+#   tensorid fit examples/emps/open_loop.py src/tensorid/datasets/emps.npz --ts 1e-3 \
+#       --columns vir=estimation_vir,qm=estimation_qm \
+#       --validate src/tensorid/datasets/emps.npz --validate-columns vir=test_vir,qm=test_qm \
+#       --init-window 20 --segments 100 --substeps 1 --method gauss-newton --out emps-open-loop
+# (docs/emps.md; the record ships with tensorid)
 import jax.numpy as jnp
 
 import tensorid as ti

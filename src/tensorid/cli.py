@@ -7,8 +7,10 @@ from __future__ import annotations
 import argparse
 import atexit
 import os
+import signal
 import sys
 import threading
+from functools import partial
 
 from .app import cli as app_cli
 from .paper import command as paper_command
@@ -20,10 +22,26 @@ def build_parser() -> argparse.ArgumentParser:
         description="Grey-box system identification with exact gradients and Hessians "
         "from state/parameter transition tensors.",
     )
+    ap.add_argument("--version", action="version", version=_version())
     sub = ap.add_subparsers(dest="command", required=True)
     paper_command.register(sub)
     app_cli.register(sub)
     return ap
+
+
+def _version() -> str:
+    """tensorid's version, with the versions its numbers rest on."""
+    import platform
+
+    import jax
+    import numpy
+
+    from ._config import __version__
+
+    return (
+        f"tensorid {__version__} (JAX {jax.__version__}, NumPy {numpy.__version__}, "
+        f"Python {platform.python_version()})"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -40,8 +58,16 @@ def console() -> None:
     code = main()
     if sys.getprofile() is not None or sys.gettrace() is not None:
         sys.exit(code)
-    getattr(threading, "_shutdown", lambda: None)()
-    atexit._run_exitfuncs()
+    pressed: list[int] = []
+    try:  # Ctrl-C from here on lands in the exit handlers (JAX's): said as in a command
+        signal.signal(signal.SIGINT, partial(_interrupted_late, pressed))
+        getattr(threading, "_shutdown", lambda: None)()
+        atexit._run_exitfuncs()
+    except KeyboardInterrupt:  # before the handler was in place
+        pressed.append(1)
+    if pressed:
+        print("tensorid: interrupted", file=sys.stderr)
+        code = 130
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
@@ -50,6 +76,17 @@ def console() -> None:
         except (OSError, ValueError):
             code = code or 120
     os._exit(code)
+
+
+def _interrupted_late(pressed: list[int], signum, frame) -> None:
+    """Ctrl-C after the command's work, while the exit handlers run: noted (the exit
+    status becomes 130, as Ctrl-C during the work gives), not raised into a handler
+    (Python would print "Exception ignored in atexit callback" and its traceback); a
+    second Ctrl-C leaves at once."""
+    pressed.append(signum)
+    if len(pressed) > 1:
+        print("tensorid: interrupted", file=sys.stderr, flush=True)
+        os._exit(130)
 
 
 if __name__ == "__main__":

@@ -25,6 +25,7 @@ from .argtypes import (
     _samples,
     _value,
 )
+from .fit_flags import add_fit_flags
 from .options import (
     _TS_HELP,
     fleet_options,
@@ -101,7 +102,7 @@ def register(sub) -> None:
         help="data files (.csv, .mat, .npz), one experiment each; u.mat+y.mat joins files "
         "holding the inputs and the outputs",
     )
-    f.add_argument("--out", default="fit-results", help="output folder")
+    f.add_argument("--out", default="fit-results", help="output folder (default: %(default)s)")
     f.add_argument(
         "--method",
         default="auto",
@@ -336,6 +337,7 @@ def register(sub) -> None:
     )
     fleet_options(f)  # fleets (issue 42): --records, --individual, --population
     integration_options(f)
+    add_fit_flags(f)  # --maxiter, --gtol, --ftol, --xtol, --prior, --noise, --weights
     f.add_argument("--no-progress", action="store_true", help="no live progress display")
     honest_options(f)
     f.set_defaults(func=_fit)

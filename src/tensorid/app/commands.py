@@ -26,6 +26,7 @@ from . import fleets
 from .after_fit import _after_fit, _gof_lines, _profile_figures
 from .cluster import _workers
 from .files import load_data, load_model
+from .fit_flags import fit_options
 from .fit_setup import (  # _problem and _data_entries are also patched and read by tests here
     _check_options,
     _data_entries,
@@ -66,6 +67,7 @@ def _run(problem: Problem, args, console: Console, executor, timeout):
         batch=args.batch,
         timeout=timeout,
         polish=not args.no_polish,
+        **fit_options(args),  # --maxiter, --gtol, --ftol, --xtol
     )
     rows: list[dict] = []
     if args.no_progress:

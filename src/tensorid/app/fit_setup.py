@@ -22,6 +22,8 @@ from ..fitting.validation import check_init_window
 from . import fleets
 from .argtypes import tolerances_as_flags
 from .files import ModelSpec, load_data
+from .fit_flags import statistics
+from .overrides import given_once
 from .provenance import data_entries
 from .simulate import effective_columns
 
@@ -68,9 +70,7 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
             free_x0=spec.free_x0,
             fixed=spec.fixed,
             bounds=spec.bounds,
-            weights=spec.weights,
-            priors=spec.priors or None,
-            noise=spec.noise,
+            **statistics(spec, args),  # priors, noise, weights: --prior, --noise, --weights
             discretisation=disc,
             segments=args.segments,
             segment_length=args.segment_length,
@@ -167,9 +167,11 @@ def _predictor(spec: ModelSpec, args) -> dict:
     out: dict = {"predictor": getattr(args, "predictor", None) or spec.predictor or "simulation"}
     for key in ("process_noise", "measurement_noise"):
         given = getattr(args, key, None)
-        out[key] = dict(given) if given else getattr(spec, key)
+        out[key] = given_once(_FLAGS[key], given) if given else getattr(spec, key)
         if not given and getattr(args, "predictor", None) == "simulation":
             out[key] = None  # the file's filter noise goes with the file's predictor
+    if out["predictor"] != "simulation":  # before --fix's σ join it
+        _process_noise_named(args, out["process_noise"] or {})
     for name, value in dict(getattr(args, "fix", None) or []).items():
         for kind, prefix in NOISE_PREFIXES.items():  # --fix log_sigma_e_y=-7: σ_e = e^-7
             key = f"{kind}_noise"
@@ -177,8 +179,6 @@ def _predictor(spec: ModelSpec, args) -> dict:
                 out[key] = {**(out[key] or {}), name[len(prefix) :]: float(np.exp(value))}
     if out["predictor"] == "simulation":
         _no_noise_flags(args)
-    else:
-        _process_noise_named(args, out["process_noise"] or {})
     return out
 
 
@@ -186,13 +186,14 @@ def _process_noise_named(args, process: dict) -> None:
     """--free or --bounds on log σ_w of a state without process noise: one line with
     the way out (--free was ignored without a word, --bounds named no flag)."""
     prefix = NOISE_PREFIXES["process"]
-    for flag in ("free", "bounds"):
+    for flag in ("free", "bounds", "fix"):
         names = [n if isinstance(n, str) else n[0] for n in getattr(args, flag, None) or []]
         for name in names:
             state = name[len(prefix) :]
             if name.startswith(prefix) and state not in process:
                 raise ValueError(
-                    f"--{flag} {name}: the state {state} has no process noise to estimate; "
+                    f"--{flag} {name}: the state {state} has no process noise to "
+                    f"{'fix' if flag == 'fix' else 'estimate'}; "
                     f"give it a start with --process-noise {state}=σ (or process_noise in "
                     f"the model file), or drop --{flag} {name}"
                 )

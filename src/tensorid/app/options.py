@@ -157,8 +157,8 @@ def register_simulate(sub) -> None:
     s.add_argument(
         "--out",
         default="simulation-results",
-        help="output folder (as for fit); a path ending in .csv writes only the table of "
-        "states and simulated outputs there",
+        help="output folder (default: %(default)s); a path ending in .csv writes only the "
+        "table of states and simulated outputs there",
     )
     s.set_defaults(func=_simulate)
 
@@ -193,5 +193,5 @@ def register_compare(sub) -> None:
         "by the model; for output error every horizon is the simulation. Without it the "
         "record is simulated (an infinite horizon)",
     )
-    c.add_argument("--out", default="compare-results", help="output folder")
+    c.add_argument("--out", default="compare-results", help="output folder (default: %(default)s)")
     c.set_defaults(func=_compare)

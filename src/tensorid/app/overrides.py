@@ -5,6 +5,7 @@ file; what it changed is recorded in fit.json ("overrides")."""
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import replace
 
 from ..engine.predictors import noise_names as predictor_noise_names
@@ -51,6 +52,19 @@ def _check_names(spec: ModelSpec, fix: dict, free: list, bounds: dict) -> None:
             raise ValueError(f"--bounds {name}={lo:g}:{hi:g}: LO must be below HI")
 
 
+def _outside(spec: ModelSpec, name: str, value: float, bound) -> None:
+    """--fix outside the model file's bounds: held there as asked, with a word (a
+    fixed parameter drops its bounds, so the file's would not have said it)."""
+    lo, hi = bound if bound is not None else (None, None)
+    if (lo is not None and value < lo) or (hi is not None and value > hi):
+        warnings.warn(
+            f"--fix {name}={value:g} is outside {spec.path}'s bounds for {name} "
+            f"({lo}, {hi}): held there as asked; fix it inside them if they are physical",
+            UserWarning,
+            stacklevel=2,
+        )
+
+
 def overridden(spec: ModelSpec, fix: dict, free: list, bounds: dict) -> tuple[ModelSpec, dict]:
     """(the model file's settings with the command line's changes, those changes as
     fit.json records them). A fixed parameter loses the file's bounds; bounds on a
@@ -68,7 +82,7 @@ def overridden(spec: ModelSpec, fix: dict, free: list, bounds: dict) -> tuple[Mo
         elif name in m.params and p0 is not None:
             p0[name] = value
             fixed += [name] if name not in fixed else []
-            box.pop(name, None)
+            _outside(spec, name, value, box.pop(name, None))
         else:
             x0[name] = value
             free_x0 = [n for n in free_x0 if n != name]

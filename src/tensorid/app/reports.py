@@ -12,6 +12,7 @@ import numpy as np
 from ..engine.checks import step
 from ..fitting.display import coloured_residuals_line
 from ..fitting.figures import new_figure, save_png
+from ..fitting.starts import fit_counts
 from ..fitting.summary import (
     criteria_text,
     headline,
@@ -145,11 +146,7 @@ def fit_json(
         "success": res.success,
         "status": str(res.status),
         "message": res.message,
-        "iterations": res.nit,
-        "function_evaluations": res.nfev,
-        "iterations_total": res.nit_total,
-        "function_evaluations_total": res.nfev,
-        "function_evaluations_best_start": res.nfev_best,
+        **fit_counts(res),  # iterations, function_evaluations and their totals over starts
         "hessian_vector_products": res.nhev,
         "method": res.method,
         "integration": res.problem.discretisation.as_dict(),

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import sys
-from dataclasses import replace
 from functools import partial
 from pathlib import Path
 
@@ -23,6 +22,7 @@ from ..fitting.validation import Score, check_init_window, score_record
 from .after_fit import SIMULATED_HORIZON
 from .argtypes import tolerances_as_flags
 from .files import ModelSpec, load_data, load_model
+from .filter_fits import NOT_SCORED, filter_of, noise_levels, scores_finite
 from .output import (
     COMPARE_MANIFEST,
     SIMULATE_MANIFEST,
@@ -118,6 +118,12 @@ def _fitted(path: Path, spec: ModelSpec) -> dict:
     bad = [k for k, v in fitted["params"].items() if not isinstance(v, int | float)]
     if bad:
         raise ValueError(f"--params {path}: params {bad} are not numbers")
+    bad = [f"{k}={v}" for k, v in fitted["params"].items() if not np.isfinite(v)]
+    if bad:  # NaN and Infinity are JSON to Python's reader
+        raise ValueError(
+            f"--params {path}: params {', '.join(bad)} are not finite (a fit never writes "
+            "one): give the fit.json of a finished fit, or correct the file"
+        )
     bad = [n for n in fitted.get("free_x0") or [] if n not in spec.model.states]
     if bad:  # a fit of another model file: it said "free_x0 names unknown states"
         raise ValueError(f"--params {path}: its free_x0 {bad} are not states of {spec.path}")
@@ -134,6 +140,8 @@ def _fitted(path: Path, spec: ModelSpec) -> dict:
                 f"--params {path}: its x0 has {x0.shape[1]} values, the model has "
                 f"{spec.model.N} states {list(spec.model.states)}"
             )
+        if not np.isfinite(x0).all():
+            raise ValueError(f"--params {path}: its x0 {fitted['x0']} is not finite; correct it")
     return fitted
 
 
@@ -271,10 +279,12 @@ def _score(args, require_outputs: bool):
     if fitted is not None and other_model(fitted, args.model):
         print(other_model(fitted, args.model), file=sys.stderr)
     try:
-        spec, predictor = _filter(spec, fitted, e)
+        spec, predictor = filter_of(spec, fitted, e)
     except ValueError as err:  # a fit.json of another model: say which file
         raise ValueError(f"--params {args.params[0]}, a filter fit's noise: {err}") from None
     params, defaults = _parameters(spec, args.params, fitted)
+    if predictor is not None:  # (a filter's fit.json)
+        noise_levels(params, _assignments(args.params[1:], "--params"), args.params[0])
     disc = _integration(args, fitted, spec)
     x0, free, source = _start(spec, args, e, fitted)
     horizon = getattr(args, "horizon", None)
@@ -285,22 +295,6 @@ def _score(args, require_outputs: bool):
         horizon=horizon, predictor=predictor,
     )  # fmt: skip
     return spec, params, score, source, disc.for_model(spec.model), defaults
-
-
-def _filter(spec: ModelSpec, fitted: dict | None, record) -> tuple[ModelSpec, tuple | None]:
-    """For a fit.json of a filter (predictor "ekf"): the spec with the filter's model
-    (its noise intensities among the parameters) and (loss, predictor) to predict
-    with; otherwise ``spec`` and None."""
-    noise = (fitted or {}).get("noise_intensities")
-    if fitted is None or fitted.get("predictor") != "ekf" or not noise:
-        return spec, None
-    from ..engine.losses import GAUSSIAN
-    from ..engine.predictors import make_predictor
-
-    q = {s: v["sigma"] for s, v in noise["process"].items()}
-    r = {o: v["sigma"] for o, v in noise["measurement"].items()}
-    model, filt, _ = make_predictor(spec.model, "ekf", q, r, [record.y])
-    return replace(spec, model=model), (GAUSSIAN, filt)
 
 
 def run_simulate(args) -> int:
@@ -404,7 +398,7 @@ def run_compare(args) -> int:
         "x0_source": source,
         "params": {n: float(params[n]) for n in m.params},
         "integration": disc.as_dict(),
-        "status": str(sim.status),
+        "status": str(sim.status) if scores_finite(score) else NOT_SCORED,
         # why a gof is null although the simulation is finite (a constant output)
         "gof_notes": [n[len("note: ") :] for n in metric_notes([score])],
         "provenance": provenance(
@@ -428,6 +422,14 @@ def run_compare(args) -> int:
         print(defaults)
     _print_x0(m, score.x0, source)
     print("wrote " + ", ".join(map(str, written)))
+    if sim.status is Status.OK and not scores_finite(score):
+        print(
+            f"tensorid: error: the scores are not finite although the simulation is "
+            f"(compare.json status {NOT_SCORED!r}): the {score.horizon}-step predictions of "
+            f"--params {args.params[0]} are not finite; check its noise terms",
+            file=sys.stderr,
+        )
+        return 1
     return _finite(score, disc, args.data)
 
 

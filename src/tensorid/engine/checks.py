@@ -76,15 +76,8 @@ def check_data(problem, data) -> list[Experiment]:
                 f"{where} has {e.u.shape[1]} input column(s) but the model "
                 f"has {m.U} inputs {list(m.inputs)}"
             )
-        if m.discrete and e.P > 2:
-            dt = np.diff(e.t)
-            if np.abs(dt - dt.mean()).max() > 1e-6 * abs(dt.mean()):
-                raise ValueError(
-                    f"{where}: a discrete-time model steps once per sample, but the "
-                    "sample times are not uniform; resample the record to one rate, "
-                    "or take the samples as uniform with the sampling time (--ts on "
-                    "the command line, ts= in load_data)"
-                )
+        if m.discrete:
+            uniform_steps(e, where)
         if e.y.shape[1] != m.S:
             raise ValueError(
                 f"{where} has {e.y.shape[1]} output column(s) but the model "
@@ -101,11 +94,25 @@ def step(e: Experiment) -> float:
     return float((e.t[-1] - e.t[0]) / (e.P - 1))
 
 
+def uniform_steps(e: Experiment, where: str) -> None:
+    """A discrete-time model's record sampled at one rate (it steps once per sample)."""
+    if e.P > 2:
+        dt = np.diff(e.t)
+        if np.abs(dt - dt.mean()).max() > 1e-6 * abs(dt.mean()):
+            raise ValueError(
+                f"{where}: a discrete-time model steps once per sample, but the "
+                f"sample times are not uniform (steps {dt.min():.6g} to {dt.max():.6g} s); "
+                "resample the record to one rate, or take the samples as uniform with the "
+                "sampling time (--ts on the command line, ts= in load_data)"
+            )
+
+
 def same_step(model, e: Experiment, fitted: float | None, where: str) -> None:
     """A discrete-time model steps once per sample: a record sampled at another rate
     than the model was fitted at is another model (it ran, silently)."""
     if not model.discrete or fitted is None or e.P < 2:
         return
+    uniform_steps(e, where)  # uneven stamps first: their mean step is no rate at all
     if abs(step(e) - fitted) > 1e-6 * fitted:
         raise ValueError(
             f"{where} is sampled every {step(e):.6g} s, the discrete-time model's records "

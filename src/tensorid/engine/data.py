@@ -7,8 +7,38 @@ from dataclasses import dataclass
 import numpy as np
 
 
+def _real(name: str, a, where: str = "") -> np.ndarray:
+    """``a`` as floats, or one line naming ``name``: complex values (NumPy drops the
+    imaginary part with a bare warning) and text (a bare conversion error) refused."""
+    try:
+        arr = np.asarray(a)
+    except ValueError:  # ragged
+        arr = np.asarray(a, dtype=object)
+    if arr.dtype.kind == "c":
+        raise ValueError(
+            f"{where}{name} is complex ({arr.dtype}); tensorid fits real signals: pass its "
+            f"real part (np.real({name})) or its magnitude (np.abs({name}))"
+        )
+    try:
+        return np.asarray(arr, dtype=float)
+    except (TypeError, ValueError):
+        bad = next((v for v in arr.ravel() if not _number(v)), None)
+        raise ValueError(
+            f"{where}{name} holds values that are not numbers (e.g. {str(bad)!r:.40}); convert "
+            "them to numbers first"
+        ) from None
+
+
+def _number(v) -> bool:
+    try:
+        float(v)
+    except (TypeError, ValueError):
+        return False
+    return True
+
+
 def _as_2d(name: str, a, P: int | None) -> np.ndarray:
-    arr = np.asarray(a, dtype=float)
+    arr = _real(name, a)
     if arr.ndim == 1:
         arr = arr[:, None]
     elif arr.ndim == 0:
@@ -40,7 +70,7 @@ def _init_window(n, P: int, what: str = "init_window") -> int:
 
 def _columns(name: str, a, keep, record: str) -> np.ndarray:
     """``a`` as (P, channels), only the columns ``keep`` (an index or indices) where given."""
-    arr = np.asarray(a, dtype=float)
+    arr = _real({"input": "u", "output": "y"}[name], a, f"benchmark record {record!r}: ")
     if arr.ndim == 1:
         arr = arr[:, None]
     if arr.ndim != 2 or arr.shape[0] < 2:
@@ -55,6 +85,10 @@ def _columns(name: str, a, keep, record: str) -> np.ndarray:
         raise ValueError(
             f"benchmark record {record!r}: {name}s={keep!r} must be column indices from 0 "
             f"to {arr.shape[1] - 1} ({name} has {arr.shape[1]} column(s))"
+        )
+    if len(set(cols.tolist())) < cols.size:  # a column twice would count twice
+        raise ValueError(
+            f"benchmark record {record!r}: {name}s={keep!r} names a column twice; give each once"
         )
     return arr[:, cols]
 

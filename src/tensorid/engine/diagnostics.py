@@ -18,6 +18,9 @@ _DOMAIN = (
     "model with tensorid.functions.safe_sqrt"
 )
 _DIVERGE = "dynamics that really diverge at these values: start closer"
+# remedies in both spellings: the same words reach a script and the command line
+_IMPLICIT = "use the implicit scheme sdirk3 (scheme='sdirk3'; on the command line --scheme sdirk3)"
+_SUBSTEPS = "raise substeps (on the command line --substeps)"
 
 
 def _hints(sim: Simulation, scheme) -> list[str]:
@@ -26,18 +29,18 @@ def _hints(sim: Simulation, scheme) -> list[str]:
         limit = getattr(scheme, "max_steps", "its limit of")
         return [
             f"a stiff model: the adaptive scheme {scheme.name!r} gave up after "
-            f"{limit} steps within one sample; use scheme='sdirk3'",
+            f"{limit} steps within one sample; {_IMPLICIT}",
             _DOMAIN,
         ]
     if sim.status is Status.STEP_UNDERFLOW:
         return [
             "the error-controlled step size shrank to nothing: a singularity, a state "
-            "leaving the model's domain, or a stiff model (use scheme='sdirk3')",
+            f"leaving the model's domain, or a stiff model: {_IMPLICIT}",
             _DOMAIN,
         ]
     if sim.status is Status.NEWTON_FAILED:
         return [
-            "an implicit stage's Newton iteration did not converge: raise substeps",
+            f"an implicit stage's Newton iteration did not converge: {_SUBSTEPS}",
             _DOMAIN,
             _DIVERGE,
         ]
@@ -52,8 +55,8 @@ def _hints(sim: Simulation, scheme) -> list[str]:
         hints.append("a singularity that the adaptive steps ran into")
     else:
         hints.append(
-            "a stiff model, or a step too large for an explicit scheme: raise "
-            "substeps, or use scheme='sdirk3'"
+            f"a stiff model, or a step too large for an explicit scheme: {_SUBSTEPS}, or "
+            f"{_IMPLICIT}"
         )
     return hints + [_DIVERGE]
 

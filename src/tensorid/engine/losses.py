@@ -246,6 +246,13 @@ def make_loss(
     if scale is None:
         y = np.concatenate([np.asarray(m, dtype=float) for m in measured])
         sigma = robust_noise(y)
+        if y.shape[0] < 4:
+            raise ValueError(
+                f"loss={name!r}: {y.shape[0]} samples are too few to set the loss scale from "
+                "(the noise level from second differences needs at least 4); give a scale "
+                "in the outputs' units (loss_scale=; --loss-scale on the command line), or "
+                "fit a longer record"
+            )
         if not (sigma > 0).all():
             flat = [o for o, s in zip(outputs, sigma, strict=True) if not s > 0]
             raise ValueError(
@@ -271,5 +278,38 @@ def make_loss(
             ) from None
     if not (np.isfinite(c).all() and (c > 0).all()):
         raise ValueError(f"loss_scale must be finite and > 0 for every output, got {c.tolist()}")
+    if scale is not None:
+        _check_resolvable(name, c, outputs, measured)
     # in the weighted residual's units; an output of weight 0 never counts
     return loss, np.where(weights > 0, np.sqrt(np.where(weights > 0, weights, 1.0)) * c, 1.0)
+
+
+# c² must be a normal float: beyond these a robust loss's ℓ = c² ρ(e/c) is 0 or ∞
+SCALE_RANGE = (1e-150, 1e150)
+
+
+def _check_resolvable(name: str, c: np.ndarray, outputs: list[str], measured: list) -> None:
+    """A given scale the data can resolve: not below the outputs' rounding (about 1e-15
+    of their size, where no residual could lie inside it: the cost would be the
+    outputs' rounding), nor so large that c² overflows (the loss is then the squared
+    loss, computed as ∞ · 0)."""
+    y = np.concatenate([np.asarray(m, dtype=float) for m in measured])
+    with np.errstate(all="ignore"):
+        size = np.nanmax(np.abs(np.where(np.isfinite(y), y, np.nan)), axis=0)
+        noise = robust_noise(y) if y.shape[0] >= 4 else np.full(len(outputs), np.nan)
+    size = np.where(np.isfinite(size), size, 0.0)
+    floor = np.maximum(8 * np.finfo(float).eps * size, SCALE_RANGE[0])
+    for k, o in enumerate(outputs):
+        hint = f" (the data's noise level is about {noise[k]:.3g})" if noise[k] > 0 else ""
+        if c[k] < floor[k]:
+            raise ValueError(
+                f"loss_scale={c[k]:g} for {o} is below what the data resolve (their rounding "
+                f"is about {floor[k]:.2g}): give a scale near the noise level{hint}, or "
+                f"drop loss_scale= to have it estimated"
+            )
+        if c[k] > SCALE_RANGE[1]:
+            raise ValueError(
+                f"loss_scale={c[k]:g} for {o} is too large to compute with (c² overflows); a "
+                f"scale far above every residual makes {name!r} the squared loss: use "
+                f"loss='squared', or a scale near the noise level{hint}"
+            )

@@ -23,11 +23,13 @@ def nrmse(y_obs, y_sim):
     """||y_obs - y_sim|| / ||y_obs - mean(y_obs)|| (0 is perfect); inf where y_obs is
     constant (no spread to divide by) and y_sim differs from it."""
     a, b, scalar = _pair(y_obs, y_sim)
-    den = np.linalg.norm(a - a.mean(axis=0), axis=0)
+    # a simulation that blew up (1e297, inf) overflows the norms: inf, not a warning
+    with np.errstate(over="ignore", invalid="ignore"):
+        den = np.linalg.norm(a - a.mean(axis=0), axis=0)
+        num = np.linalg.norm(a - b, axis=0)
     # a constant record has no spread, though its mean's rounding leaves ~1e-16: that
     # read as a spread made a constant 0.1 score GOF -1e15, printed as a number
     den = np.where(np.ptp(a, axis=0) == 0, 0.0, den)
-    num = np.linalg.norm(a - b, axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
         v = np.where(den > 0, num / den, np.where(num > 0, np.inf, 0.0))
     return _out(v, scalar)
@@ -47,10 +49,12 @@ def gof(y_obs, y_sim):
 def rmse(y_obs, y_sim):
     """Root-mean-square error, in the units of y."""
     a, b, scalar = _pair(y_obs, y_sim)
-    return _out(np.sqrt(np.mean((a - b) ** 2, axis=0)), scalar)
+    with np.errstate(over="ignore", invalid="ignore"):  # a blown-up simulation: inf
+        return _out(np.sqrt(np.mean((a - b) ** 2, axis=0)), scalar)
 
 
 def r2(y_obs, y_sim):
     """Coefficient of determination 1 - ||y_obs - y_sim||² / ||y_obs - mean(y_obs)||²
     (the nonlinear benchmarks' R²; 1 is perfect, 0 no better than the mean)."""
-    return 1.0 - np.square(nrmse(y_obs, y_sim))
+    with np.errstate(over="ignore"):
+        return 1.0 - np.square(nrmse(y_obs, y_sim))

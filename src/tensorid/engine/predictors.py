@@ -183,6 +183,11 @@ def noise_names(model, process, measurement) -> tuple[list[str], list[str]]:
     return [w + s for s in process], [e + o for o in measurement]
 
 
+# a noise intensity's start: its square, in the filter's covariances, far from over- or
+# underflow
+SIGMA_RANGE = (1e-100, 1e100)
+
+
 def _intensities(what: str, given, names: tuple[str, ...], kind: str) -> dict[str, float]:
     if given is None:
         return {}
@@ -195,6 +200,8 @@ def _intensities(what: str, given, names: tuple[str, ...], kind: str) -> dict[st
         )
     out = {}
     for k, v in given.items():
+        if isinstance(v, bool | np.bool_):  # True is 1.0 to float(): a flag, not a level
+            raise ValueError(f"{what}[{k!r}] must be a number (a standard deviation), got {v!r}")
         try:
             v = float(v)
         except (TypeError, ValueError):
@@ -203,6 +210,13 @@ def _intensities(what: str, given, names: tuple[str, ...], kind: str) -> dict[st
             raise ValueError(
                 f"{what}[{k!r}] = {v}: a noise intensity is a standard deviation, give a "
                 "finite number > 0 (it is estimated on a log scale from there)"
+            )
+        if not SIGMA_RANGE[0] <= v <= SIGMA_RANGE[1]:
+            raise ValueError(
+                f"{what}[{k!r}] = {v:g} is out of the range a filter can compute with "
+                f"({SIGMA_RANGE[0]:g} to {SIGMA_RANGE[1]:g}: its square enters the "
+                "covariances); give a start near the noise you expect (it is estimated "
+                "from there)"
             )
         out[k] = v
     return out

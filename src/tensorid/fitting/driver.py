@@ -7,8 +7,6 @@ best finite point seen.
 
 from __future__ import annotations
 
-import time
-from dataclasses import replace
 from functools import partial
 
 import numpy as np
@@ -39,11 +37,8 @@ def fit_many(problem, method: Method, thetas, options: FitOptions, started) -> l
             results[i] = failed_start(problem, method.name, th, started)
     evaluate = partial(_together, problem, len(thetas)) if batched else partial(_one, problem)
     march(list(runs.values()), evaluate, partial(fit_result, started=started))
-    for i, run in runs.items():
-        results[i] = run.result
-    if batched:  # each start's time is the batch's
-        seconds = time.perf_counter() - started
-        return [replace(r, seconds=seconds) for r in results if r is not None]
+    for i, run in runs.items():  # each made as its run ended: its seconds are its own
+        results[i] = run.result  # (in lock-step, from the batch's start to its end)
     return [r for r in results if r is not None]
 
 

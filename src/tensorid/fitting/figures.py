@@ -151,7 +151,7 @@ def compare_figure(
     titled_with_legend(ax, title)
     ax.grid(alpha=0.3)
     axr.plot(t, y_meas - y_sim, color="tab:blue", lw=0.8)
-    axr.set_ylabel("residual")
+    axr.set_ylabel(f"residual [units of {ylabel}]")
     axr.set_xlabel(xlabel)
     axr.grid(alpha=0.3)
     fixed_layout(fig, top=_TITLE + _LEGEND)
@@ -252,7 +252,8 @@ def prediction_figure(t, measured, simulated, predicted, sd, innovations, *, tit
     axr.plot(t, innovations, color="tab:blue", lw=0.6)
     for level in (-2, 2):
         axr.axhline(level, color="k", lw=0.6, ls=":")
-    axr.set_ylabel("innovation / σ")
+    # the dotted lines named here: a legend in so short a panel covered the innovations
+    axr.set_ylabel("innovation / σ\n(dotted: ±2, 95 %\nof white ones)", fontsize=8)
     axr.set_xlabel("t [s]")
     axr.grid(alpha=0.3)
     fixed_layout(fig, top=_TITLE + _LEGEND)
@@ -288,6 +289,17 @@ def file_name(s: str) -> str:
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in s)
 
 
+def _record_stem(score) -> str:
+    """The record's part of a figure's file name: its name and "_", none where the name
+    only repeats the kind and it is the only record of its kind (train.csv's training
+    figure is train_y.png, not train_train_y.png); "data_" for a record without a name."""
+    from .validation import repeats_kind
+
+    name = score.experiment.name
+    alone = getattr(score, "alone", True)  # two "validate"/"test" records keep their names
+    return "" if name and alone and repeats_kind(score.kind, name) else f"{name or 'data'}_"
+
+
 def figure_jobs(res, validation=None, training: bool = True, convergence: bool = True) -> list:
     """What :func:`fit_figures` draws, as plain data: (file stem, kind, arguments) per
     figure, ``draw(kind, arguments)`` making it. Plain data (arrays, strings) can be
@@ -300,7 +312,7 @@ def figure_jobs(res, validation=None, training: bool = True, convergence: bool =
     for s in train + list(validation or []):
         e = s.experiment
         for j, name in enumerate(res.problem.model.outputs):
-            stem = f"{s.kind[:5] if s.kind == 'training' else s.kind}_{e.name or 'data'}_{name}"
+            stem = f"{s.kind[:5] if s.kind == 'training' else s.kind}_{_record_stem(s)}{name}"
             title = f"{s.label}, output {name}: GOF {gof_text(s, name)}"
             if s.start:
                 title += f" (scored after the first {s.start} samples)"
@@ -362,15 +374,20 @@ def residual_figure(bound: float, panels: list[dict]):
     fig = new_figure(figsize=(9, 1.2 + 2.0 * len(panels)))
     axes = fig.subplots(len(panels), 1, squeeze=False)[:, 0]
     for ax, c in zip(axes, panels, strict=True):
-        ax.axhspan(-bound, bound, color="C0", alpha=0.15, lw=0)
+        ax.axhspan(-bound, bound, color="C0", alpha=0.15, lw=0,
+                   label=f"±{bound:.2g}: where uncorrelated samples fall")  # fmt: skip
         if c["feedback"] is not None:  # not tested: drawn grey
             back = -np.arange(1, c["feedback"].size + 1)
             ax.vlines(back, 0, c["feedback"], color="0.6")
-            ax.plot(back, c["feedback"], "o", ms=3, color="0.6")
+            ax.plot(back, c["feedback"], "o", ms=3, color="0.6",
+                    label="negative lags: against later inputs (feedback; not tested)")  # fmt: skip
         colour = {True: "C0", False: "C3", None: "C1"}[c["passed"]]
         ax.vlines(c["lags"], 0, c["values"], color=colour)
-        ax.plot(c["lags"], c["values"], "o", ms=3, color=colour)
+        ax.plot(c["lags"], c["values"], "o", ms=3, color=colour,
+                label="tested lags" + {True: "", False: " (the test fails)",
+                                       None: " (no verdict)"}[c["passed"]])  # fmt: skip
         ax.axhline(0, color="k", lw=0.6)
+        ax.legend(fontsize=7, loc="upper right", framealpha=0.8)
         verdict = {True: "passes", False: "fails", None: "cannot be trusted"}[c["passed"]]
         ax.set_title(f"{c['what']}: {verdict}", fontsize=9)
         ax.set_ylabel("r(τ)")

@@ -280,7 +280,8 @@ def residual_tests(res, max_lag: int = 25, level: float = 0.99) -> ResidualTests
         r = _correlation(err, err, max_lag)
         Q = float(N * np.sum(r[1:] ** 2))
         verdict = None if why else bool(Q <= q_white)
-        white.append(Correlation(f"whiteness of {out}", lags, r, Q, q_white, verdict, None, why))
+        tested = f"{out}'s innovations" if problem.loss.likelihood else out  # what was tested
+        white.append(Correlation(f"whiteness of {tested}", lags, r, Q, q_white, verdict, None, why))
         for i, name in enumerate(model.inputs):
             if name in constant:
                 continue

@@ -239,11 +239,14 @@ class FitResult(Tabular):
             return problem.cost_grad_gn(theta)[2]
 
         meat, lags = None, None
+        bread, why = None, None
         if kind == "robust" or problem.loss.robust:
-            from .sandwich import score_covariance
+            from .sandwich import score_covariance, unresolved_scale
 
             meat, lags = score_covariance(problem, theta, "auto" if kind == "robust" else 0)
+            bread, why = unresolved_scale(problem, theta)
         H = gauss_newton() if kind == "gauss-newton" else self.hess
+        H = H if bread is None else bread
         u = uncertainty(
             problem,
             theta,
@@ -254,7 +257,10 @@ class FitResult(Tabular):
             grad=self.jac,
             scale=self.scale,
             meat=meat,
+            refused=why if bread is None else None,
         )
+        if bread is not None and why:
+            u.warnings.insert(0, why)
         u.kind, u.lags = kind, lags
         return u
 

@@ -112,3 +112,33 @@ def _refined(problem, method, best: FitResult, options: FitOptions, started) -> 
         return replace(best.attached(problem), history=[], stats=Stats(nfev=0))
     res = fit_many(problem, method, best.theta[None, :], options, started)[0]
     return replace(res, shooting=best.shooting)
+
+
+def fit_counts(res) -> dict:
+    """fit.json's counts, one meaning each (docs/your-own-model.md): ``iterations`` and
+    ``function_evaluations`` the best start's run, its refinement included (what
+    ``history`` shows); ``*_total`` every start's; equal for one start."""
+    return {
+        "iterations": res.nit,
+        "function_evaluations": res.nfev_best,
+        "iterations_total": res.nit_total,
+        "function_evaluations_total": res.nfev,
+        "function_evaluations_best_start": res.nfev_best,
+        **after_starts(res),
+    }
+
+
+def after_starts(res) -> dict:
+    """With several starts, what the best start's counts in ``res`` (nit and nfev_best)
+    hold beyond its own entry in ``res.starts``: the refinement here (and the priors'
+    refits): fit.json's iterations_after_starts, function_evaluations_after_starts.
+    Empty for one start, and for a robust loss (its starts ranked the least-squares
+    stage, whose counts are not the robust fit's)."""
+    if not res.starts or res.problem.loss.robust:
+        return {}
+    best = res.starts[0]
+    more = {"iterations": res.nit - best["nit"]}
+    more["function_evaluations"] = res.nfev_best - best["nfev"]
+    if min(more.values()) < 0:  # no best start to count from (every start failed)
+        return {}
+    return {f"{k}_after_starts": v for k, v in more.items()}

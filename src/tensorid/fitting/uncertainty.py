@@ -290,17 +290,19 @@ def uncertainty(
     grad=None,
     scale=None,
     meat=None,
+    refused: str | None = None,
 ) -> Uncertainty:
     """Uncertainty of θ at an optimum with cost J, gradient ``grad`` and Hessian H
     (exact or Gauss-Newton, as ``kind`` says). ``gauss_newton``: the Gauss-Newton
     Hessian (or a function returning it) to fall back on where H is indefinite, and
     for the unknowns that a bound holds. ``meat``: the scores' covariance for the
-    sandwich form H⁻¹ B H⁻¹ (sandwich.py) in place of 2σ² H⁻¹."""
+    sandwich form H⁻¹ B H⁻¹ (sandwich.py) in place of 2σ² H⁻¹. ``refused``: why there
+    are no error bars although there are samples enough ("not available: ...")."""
     names = problem.theta_names
     K = theta.size
     n = residual_count(problem)
     dof = max(n - K, 1)
-    missing = too_few(n, K)  # then no σ², and no number derived from it
+    missing = too_few(n, K) or refused  # then no σ², and no number derived from it
     sigma2 = np.nan if missing else (J - problem.prior_cost(theta)) / dof  # data's share
     if problem.loss.likelihood and not missing:  # J = −2 log L: cov = 2 H⁻¹
         sigma2 = 1.0

@@ -118,6 +118,11 @@ def record_label(kind: str, name: str, alone: bool = True) -> str:
     return f"{kind} '{name}'"
 
 
+def repeats_kind(kind: str, name: str) -> bool:
+    """Whether a record's name only repeats its kind ("train" for training)."""
+    return name.lower() in _KIND_WORDS[kind]
+
+
 _KIND_WORDS = {
     "training": ("training", "train", "estimation", "est"),
     "validation": ("validation", "validate", "valid", "test"),

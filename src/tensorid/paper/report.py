@@ -204,7 +204,7 @@ def _robustness(r: dict) -> list[str]:
         "accuracy",
         "method",
         "converged",
-        "failed",
+        "reported failure",
         "best val GOF",
         "median val GOF",
         "median iterations",
