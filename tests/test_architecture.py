@@ -143,10 +143,11 @@ def test_the_command_lines_spelled_out_choices_are_the_registries():
     from tensorid.cli import build_parser
     from tensorid.engine.losses import LOSSES
     from tensorid.engine.predictors import PREDICTORS
+    from tensorid.fitting.methods import FLEET_METHODS
     from tensorid.fitting.registry import METHODS
 
     fit = build_parser()._subparsers._group_actions[0].choices["fit"]
     choices = {a.dest: a.choices for a in fit._actions if a.choices}
-    assert list(choices["method"]) == list(METHODS)
+    assert list(choices["method"]) == list(METHODS) + list(FLEET_METHODS)
     assert list(choices["loss"]) == list(LOSSES)
     assert list(choices["predictor"]) == list(PREDICTORS)

@@ -358,3 +358,38 @@ def test_a_fit_that_did_not_converge_gives_no_error_bars_and_a_whole_fit_json():
     data = json.loads(json.dumps(population_json(res, {}), allow_nan=False))
     assert data["population"]["ka"]["typical_stderr"] is None
     assert data["population"]["ka"]["typical"] == pytest.approx(res.population["ka"]["typical"])
+
+
+def test_ctrl_c_keeps_the_best_point_so_far(tmp_path):
+    import json
+
+    from tensorid.app.population_run import save_interrupted
+
+    def stop(entry):
+        if entry["iteration"] >= 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(ti.FitInterrupted) as stopped:
+        ti.fit(fleet_problem(4), callback=stop)
+    res = stopped.value.result
+    assert isinstance(res, ti.PopulationResult) and res.status is ti.Status.INTERRUPTED
+    assert np.isfinite(res.objective) and len(res.units) == 4
+    assert all(np.isnan(v["typical_stderr"]) for v in res.population.values())
+    assert save_interrupted(res, tmp_path, set(), {}) == 130
+    data = json.loads((tmp_path / "fit.json").read_text())
+    assert data["status"] == "interrupted" and data["population"]["ka"]["typical"] > 0
+
+
+def test_methods_of_a_fleet_and_of_one_system_are_told_apart():
+    m, units = simulated_fleet(2)
+    p0 = {"ka": 1, "cl": 2, "v": 30}
+    one = ti.Problem(m, units[:1], p0=p0, x0={"depot": "Dose", "center": 0.0})
+    with pytest.raises(ValueError, match="method 'focei' is a population fit's"):
+        ti.fit(one, "focei")
+    fleet = ti.Problem(m, units, p0=p0, x0={"depot": "Dose", "center": 0.0},
+                       population={"ka": 0.3})  # fmt: skip
+    with pytest.raises(ValueError, match="'newton' is not one for a fit with population"):
+        ti.fit(fleet, "newton")
+    own = ti.Problem(m, units, p0=p0, x0={"depot": "Dose", "center": 0.0}, individual=["cl"])
+    with pytest.raises(ValueError, match="'laplace' is not one for a fit with individual"):
+        ti.fit(own, "laplace")

@@ -107,11 +107,21 @@ def register(sub) -> None:
         "--method",
         default="auto",
         # tensorid.METHODS, spelled out so that --help need not import JAX
-        choices=["auto", "newton", "newton-cg", "gauss-newton", "fd-bfgs", "fd-lsq"],
+        choices=[
+            "auto",
+            "newton",
+            "newton-cg",
+            "gauss-newton",
+            "fd-bfgs",
+            "fd-lsq",
+            "focei",
+            "laplace",
+        ],  # fmt: skip
         help="auto (default): Gauss-Newton while it converges fast, the exact Hessian "
         "where it turns slow or at a saddle; newton: exact Hessian; newton-cg: exact "
         "Hessian-vector products with truncated CG, for many unknowns; gauss-newton; "
-        "fd-bfgs and fd-lsq: finite-difference baselines",
+        "fd-bfgs and fd-lsq: finite-difference baselines; for a population fit, auto "
+        "or focei (first-order conditional estimation) or laplace",
     )
     f.add_argument(
         "--hessian",

@@ -48,7 +48,7 @@ from .keeping import (
 )
 from .output import check_destination, claimed, previous_outputs, write_atomic, write_text
 from .overrides import given_once, overridden
-from .population_run import report_population
+from .population_run import report_population, save_interrupted
 from .progress import _log_line, _progress_table
 from .provenance import provenance
 from .renderer import Renderer
@@ -194,6 +194,8 @@ def _fit_command(args, renderer: Renderer) -> int:
             res = _run(problem, args, console, executor, timeout)
         except FitInterrupted as stop:
             with _no_interrupt():  # a second Ctrl-C while saving would lose it
+                if isinstance(stop.result, PopulationResult):
+                    return save_interrupted(stop.result, out, old, _recorded(args))
                 return _save_interrupted(stop.result, out, old, _recorded(args))
         if isinstance(res, PopulationResult):  # a fleet's population fit
             return report_population(res, out, old, _recorded(args))

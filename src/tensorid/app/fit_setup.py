@@ -15,7 +15,7 @@ from ..engine.predictors import NOISE_PREFIXES
 from ..engine.problem import Problem
 from ..engine.shooting import resolve_segments
 from ..engine.start import Start
-from ..fitting.methods import check_method
+from ..fitting.methods import check_fleet_method, check_method
 from ..fitting.registry import exact_derivatives
 from ..fitting.residuals import lag_limit
 from ..fitting.validation import check_init_window
@@ -134,7 +134,10 @@ def checked_method(problem, method: str, origin: str = "--predictor ekf") -> Non
     flags ("method 'fd-lsq' ... (predictor='ekf')" as "--method fd-lsq ... (--predictor
     ekf)"); ``origin``: where the filter was chosen (:func:`predictor_origin`)."""
     try:
-        check_method(problem, method)
+        if problem.population or problem.individual:  # a fleet's own methods
+            check_fleet_method(problem, method)
+        else:
+            check_method(problem, method)
     except ValueError as e:
         message = re.sub(r"^method '([\w-]+)'", r"--method \1", str(e))
         message = message.replace("predictor='ekf'", origin)

@@ -116,3 +116,18 @@ def report_population(res, out: Path, old: set[Path], recorded: dict) -> int:
         print(f"tensorid: {f}")
     print(f"results in {out}/")
     return 0 if res.success and not failures else 1
+
+
+def save_interrupted(res, out: Path, old: set[Path], recorded: dict) -> int:
+    """Ctrl-C during a population fit: the best point so far to fit.json (status
+    "interrupted", no error bars), no figures (the user is waiting); exit 130."""
+    print(res.summary())
+    data = population_json(res, recorded)
+    path, failure = write_kept(out / "fit.json", json.dumps(data, indent=2, allow_nan=False))
+    failures = [failure] if failure else []
+    if not failure:
+        _replace_quietly(out, old, [path], failures)
+    for f in failures:
+        print(f"tensorid: {f}")
+    print(f"tensorid: interrupted; the best point so far is in {path}")
+    return 130

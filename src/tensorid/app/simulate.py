@@ -59,9 +59,8 @@ def _assignments(items: list[str], what: str) -> dict[str, float]:
 
 
 def _read_json(path: Path):
-    """The JSON in ``path``, or one line saying how the file is not a fit.json: empty,
-    not text, cut short, text before or after the JSON (json's own message, "Expecting
-    value: line 1 column 1 (char 0)", said none of this)."""
+    """The JSON in ``path``, or one line saying how the file is not a fit.json (empty,
+    not text, cut short, text around it), which json's own message did not say."""
     fix = "give the fit.json that tensorid fit --out wrote, or run the fit again"
     try:
         text = path.read_text(encoding="utf-8")
@@ -88,8 +87,8 @@ def _read_json(path: Path):
 
 
 def _same_time(path: Path, fitted: dict, spec: ModelSpec) -> None:
-    """A fit of a discrete-time model scored with a continuous-time model file (or the
-    reverse): refused; it ran, the parameters of one read by the other (GOF -0.59)."""
+    """A discrete-time fit scored with a continuous-time model file, or the reverse:
+    refused (it ran, one's parameters read by the other: GOF -0.59)."""
     scheme = (fitted.get("integration") or {}).get("scheme")
     if scheme is None or (scheme == "discrete") == bool(spec.model.discrete):
         return
@@ -187,9 +186,8 @@ def _parameters(spec: ModelSpec, given: list[str], fitted: dict | None) -> tuple
 
 
 def _integration(args, fitted: dict | None, spec: ModelSpec | None = None) -> Discretisation:
-    """The command line's integration settings; those it leaves out are the fit.json's
-    (a fit is scored as it was fitted), else the model file's interpolation, else the
-    defaults."""
+    """The command line's integration settings, else the fit.json's (a fit is scored as
+    it was fitted), else the model file's interpolation, else the defaults."""
     saved = dict((fitted or {}).get("integration") or {})
     if saved.get("scheme") == "discrete":  # a discrete-time model: the defaults say so
         saved = {}

@@ -115,8 +115,25 @@ def fit(
     return res
 
 
+FLEET_METHODS = ("focei", "laplace")  # a population fit's approximations (population/)
+
+
+def check_fleet_method(problem, method) -> str:
+    """The approximation a fleet's fit uses for ``method``: "auto" is FOCEI; individual
+    parameters alone are least squares, which "auto" names."""
+    if problem.population and method in ("auto", *FLEET_METHODS):
+        return "focei" if method == "auto" else method
+    if not problem.population and method == "auto":
+        return "focei"  # (unused: individual parameters are fitted by least squares)
+    which = "'auto', 'focei' or 'laplace'" if problem.population else "'auto'"
+    raise ValueError(
+        f"method {method!r} is not one for a fit with "
+        f"{'population' if problem.population else 'individual'} parameters: use {which}"
+    )
+
+
 def _fleet(problem, method, maxiter, callback, executor, workers, timeout) -> FitResult:
-    kind = "focei" if method == "auto" else str(method)
+    kind = check_fleet_method(problem, method)
     where = dict(executor=executor, workers=workers, timeout=timeout)
     # typed as FitResult for the many callers of ordinary problems: method "auto" or
     # "focei", or "laplace"; maxiter and callback apply; a PopulationResult comes back
@@ -219,6 +236,11 @@ def check_method(problem, method) -> Method:
     """The method object named ``method`` (registry.py), checked against ``problem``."""
     if not isinstance(problem, Problem):
         raise TypeError(f"fit needs a tensorid.Problem, got {type(problem).__name__}")
+    if method in FLEET_METHODS:
+        raise ValueError(
+            f"method {method!r} is a population fit's (Problem(population=...)); this "
+            "problem has no random effects: use 'auto' or another of tensorid.METHODS"
+        )
     method = resolve(method)
     if problem.shooting is not None and not method.supports_segments:
         raise ValueError(

@@ -19,6 +19,7 @@ from ..engine.implicit import DiagonallyImplicitRungeKutta
 from ..engine.integrators import ExplicitRungeKutta
 from ..engine.status import Status
 from ..engine.sweeps import shared_sweeps
+from ..fitting.results import FitInterrupted
 from ..fitting.trust_region import TRResult, minimize_trust_region
 from .distributed import UnitMap, evaluate_chunk
 from .objective import Objective
@@ -99,14 +100,18 @@ def fit_population(
     obj.unconverged, obj.unfinite = [], []
     spread = executor is not None or (workers or 1) > 1
     units = UnitMap(obj, executor, workers, timeout) if spread else None
-    complete = False
+    complete, state = False, dict[str, Any]()  # state: the best point so far
     try:
-        r, etas = _outer(obj, units, maxiter=maxiter, gtol=gtol, ftol=ftol, xtol=xtol,
-                         callback=callback)  # fmt: skip
+        r, etas = _outer(obj, units, state, maxiter=maxiter, gtol=gtol, ftol=ftol,
+                         xtol=xtol, callback=callback)  # fmt: skip
         complete = True
-    finally:
+    except KeyboardInterrupt:  # Ctrl-C: the best point so far, kept and handed up
         if units is not None:
-            units.close(complete)
+            units.close(False)
+        raise FitInterrupted(_interrupted(obj, state, began)) from None  # type: ignore[arg-type]
+    finally:
+        if units is not None and complete:
+            units.close(True)
     etas, ok = obj.solve_inner(r.x, etas)
     status = r.status if ok else Status.SOLVER_FAILED
     res = PopulationResult.build(obj, r, etas, status, time.perf_counter() - began)
@@ -134,12 +139,28 @@ def fit_population(
     return replace(res, notes=notes)
 
 
-def _outer(obj: Objective, units: UnitMap | None, **options) -> tuple[TRResult, np.ndarray]:
+def _interrupted(obj: Objective, state: dict, began: float) -> PopulationResult:
+    """The result at the best point evaluated before Ctrl-C (status INTERRUPTED; no
+    error bars: the fit had not ended)."""
+    state.setdefault("etas", obj.start_etas())
+    state.setdefault("best", np.inf)
+    state.setdefault("n", 0)
+    if "x" not in state:  # nothing evaluated yet
+        psi0 = _start(obj)
+        state.update(x=psi0, g=np.full(obj.size, np.nan), H=np.full((obj.size,) * 2, np.nan))
+    r = TRResult(state["x"], state["best"], state["g"], state["H"], nit=state["n"],
+                 nfev=state["n"], status=Status.INTERRUPTED)  # fmt: skip
+    return PopulationResult.build(obj, r, state["etas"], Status.INTERRUPTED,
+                                  time.perf_counter() - began)  # fmt: skip
+
+
+def _outer(obj: Objective, units: UnitMap | None, state: dict, **options):
     """The outer trust region over ψ, each evaluation starting every unit's inner
-    problem from the last accepted point's η̂; (its result, the last η̂)."""
+    problem from the best point's η̂; (its TRResult, that η̂). ``state`` keeps the best
+    point evaluated, for an interrupt."""
     psi0 = _start(obj)
     lo, hi = _bounds(obj)
-    state: dict[str, Any] = {"etas": obj.start_etas(), "best": np.inf}
+    state.update(etas=obj.start_etas(), best=np.inf, n=0)
 
     def fun(psi):
         if units is None:
@@ -148,8 +169,9 @@ def _outer(obj: Objective, units: UnitMap | None, **options) -> tuple[TRResult, 
             etas, _, J, grad, H = units(psi, state["etas"])
         if not (np.isfinite(J) and np.isfinite(grad).all() and np.isfinite(H).all()):
             return np.inf, np.zeros(obj.size), np.eye(obj.size)
+        state["n"] += 1
         if J < state["best"]:  # the next start: the best point's η̂ (a rejected trial
-            state["etas"], state["best"] = etas, J  # point's could pick another branch)
+            state.update(etas=etas, best=J, x=np.array(psi), g=grad, H=H)  # (its branch)
         return J, grad, H
 
     if obj.size == 0:  # every parameter individual: the units' own fits are the fit
