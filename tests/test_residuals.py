@@ -236,5 +236,5 @@ def test_a_filter_s_tests_leave_out_the_sample_its_likelihood_leaves_out():
     assert white_y.passed is None and "σ_e(y) = 3.5e-10 sits at its floor" in white_y.untrusted
     assert "--fix log_sigma_e_y=log σ" in white_y.untrusted
     lines = tests.lines()
-    assert lines[1].endswith(": as whiteness of y")  # the reason once
+    assert lines[1].endswith(": as whiteness of y's innovations")  # the reason once
     assert "passes" not in str(tests)
