@@ -1,0 +1,73 @@
+"""The console says what it compiles while it waits (issue 43, item 1): the engine
+announces each program's first call through jax.monitoring; the command line's
+CompileWatch turns that into a line."""
+
+import io
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from rich.console import Console
+
+from tensorid.app.compile_progress import CompileWatch
+from tensorid.engine.compilation import BEGIN, END, announced, describe
+
+
+def test_describe_names_the_sweeps():
+    assert describe("_second_order batched=False axes=(0,)") == (
+        "the second-order sweep (J, ∇J, ∇²J)"
+    )
+    assert describe("_first_order batched=True axes=(0,)").endswith(", batched")
+    assert describe("adjoint phase 1 batched=False 4 256") == "the second-order adjoint"
+
+
+def test_a_log_gets_a_line_when_a_long_compilation_starts_and_ends():
+    out = io.StringIO()
+    console = Console(file=out, force_terminal=False, width=200)
+    with CompileWatch(console, log_after=0.2):
+        with announced("the second-order sweep (J, ∇J, ∇²J)"):
+            time.sleep(1.0)
+        with announced("the simulation"):  # quick: nothing said
+            pass
+    lines = out.getvalue().splitlines()
+    assert lines[0].startswith("compiling the second-order sweep (J, ∇J, ∇²J)")
+    assert lines[1].startswith("compiled the second-order sweep (J, ∇J, ∇²J) in ")
+    assert len(lines) == 2
+
+
+def test_the_live_line_counts_seconds_and_the_watch_lets_go():
+    console = Console(file=io.StringIO(), force_terminal=True, width=200)
+    watch = CompileWatch(console)
+    with watch:
+        watch.hosted = True  # as under the iteration table: only line() shows it
+        jax.monitoring.record_event(BEGIN, what="the cost J")
+        time.sleep(1.2)
+        assert str(watch.line()).startswith("compiling the cost J … 1 s")
+        jax.monitoring.record_event_duration_secs(END, 1.2, what="the cost J")
+        assert str(watch.line()) == ""
+    jax.monitoring.record_event(BEGIN, what="after")  # no longer listened to
+    assert str(watch.line()) == ""
+
+
+def test_a_programs_first_call_is_announced_once():
+    from tensorid.engine.programs import Program
+
+    seen = []
+
+    def listen(event, **kw):
+        if event == BEGIN:
+            seen.append(kw["what"])
+
+    class NoSweeps:  # no key can be made: the plain jit runs
+        pass
+
+    program = Program(jax.jit(lambda a: jnp.sin(a) * 2), NoSweeps(), "_cost batched=False")
+    jax.monitoring.register_event_listener(listen)
+    try:
+        a = np.arange(3.0)
+        np.testing.assert_array_equal(program(a), np.sin(a) * 2)
+        program(a)
+    finally:
+        jax.monitoring.unregister_event_listener(listen)
+    assert seen == ["the cost J"]
