@@ -3,11 +3,16 @@ announces each program's first call through jax.monitoring; the command line's
 CompileWatch turns that into a line."""
 
 import io
+import os
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from rich.console import Console
 
 from tensorid.app.compile_progress import CompileWatch
@@ -71,3 +76,33 @@ def test_a_programs_first_call_is_announced_once():
     finally:
         jax.monitoring.unregister_event_listener(listen)
     assert seen == ["the cost J"]
+
+
+CLI = """
+import sys
+import tensorid.app.compile_progress as progress
+progress.LOG_AFTER = float(sys.argv[1])
+from tensorid.cli import main
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+@pytest.mark.slow
+def test_a_first_command_line_fit_says_what_it_compiles_and_a_second_says_nothing(tmp_path):
+    example = Path(__file__).resolve().parent.parent / "examples" / "silverbox"
+    env = dict(os.environ, TENSORID_CACHE_DIR=str(tmp_path / "jax"), TENSORID_PROGRAMS="1")
+
+    def fit(log_after: str) -> list[str]:
+        args = ["fit", str(example / "model.py"), str(example / "train.csv")]
+        args += ["--out", str(tmp_path / "fit")]
+        done = subprocess.run(
+            [sys.executable, "-c", CLI, log_after, *args], capture_output=True, text=True, env=env
+        )
+        assert done.returncode == 0, done.stderr
+        return [line for line in done.stderr.splitlines() if line.startswith("compil")]
+
+    # an empty cache: every program is compiled (each line shown here, not only past 2 s)
+    cold = fit("0.01")
+    assert any(line.startswith("compiling the second-order sweep") for line in cold)
+    assert any(line.startswith("compiled the first-order sweep") for line in cold)
+    assert fit("2") == []  # the same fit again: read from the cache, nothing to say

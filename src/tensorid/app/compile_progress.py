@@ -32,8 +32,9 @@ class CompileWatch:
     it; otherwise, on a terminal, the watch shows it in a transient live line of its
     own."""
 
-    def __init__(self, console: Console, log_after: float = LOG_AFTER, enabled: bool = True):
-        self.console, self.log_after, self.enabled = console, log_after, enabled
+    def __init__(self, console: Console, log_after: float | None = None, enabled: bool = True):
+        self.console, self.enabled = console, enabled
+        self.log_after = LOG_AFTER if log_after is None else log_after
         self.terminal = console.is_terminal
         self.hosted = False
         self._open: dict[int, tuple[str, float, list]] = {}  # thread → (what, t0, [told])
@@ -85,7 +86,7 @@ class CompileWatch:
                 for what, told in late:
                     if not told:
                         told.append(True)
-                        self._print(f"compiling {what} (can take a minute for a new model) …")
+                        self._print(f"compiling {what} …")
             elif not self.hosted and showing and self._live is None:
                 self._live = Live(
                     get_renderable=self.line, console=self.console, transient=True,
