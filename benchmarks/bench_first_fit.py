@@ -242,9 +242,10 @@ def main() -> None:
     print(f"runs {min(load):.1f}-{max(load):.1f}; medians of {args.repeats} [range], seconds\n")
     print(
         "| model | first fit, wall | first iteration printed | compile (JAX) | XLA programs "
-        "compiled | second fit, wall | plain value_and_grad compile | plain hessian compile |"
+        "compiled | second fit, wall | its compile (loading included) | its XLA compilations "
+        "(cache hits) | plain value_and_grad compile | plain hessian compile |"
     )
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for name, runs in rows.items():
         c, w, p = ([x[k] for x in runs] for k in ("cold", "warm", "plain"))
         print(
