@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -35,9 +36,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-# Matplotlib's settings folder for the figure renderer, filled once before the runs: a
-# stale lock in the user's own (a killed process's) makes each import wait 5 s
-MPL = [""]
 SRC = ROOT / "src"
 
 TWO_TANK = """
@@ -167,9 +165,9 @@ def _cascade(folder: Path) -> tuple[Path, Path, dict]:
     return model, data, dict(kind="cascade", t=t, u=u, y=y, x0=np.zeros(2), theta=theta)
 
 
-def _cli(model: Path, data: Path, cache: Path, folder: Path) -> dict:
+def _cli(model: Path, data: Path, cache: Path, folder: Path, mpl: str) -> dict:
     env = {k: v for k, v in os.environ.items() if k != "TENSORID_CACHE"}
-    env.update(PYTHONPATH=str(SRC), TENSORID_CACHE_DIR=str(cache), MPLCONFIGDIR=MPL[0])
+    env.update(PYTHONPATH=str(SRC), TENSORID_CACHE_DIR=str(cache), MPLCONFIGDIR=mpl)
     counts = folder / "counts.json"
     cmd = [sys.executable, "-c", CLI, str(counts), "fit", str(model), str(data)]
     cmd += ["--out", str(folder / "fit")]
@@ -221,9 +219,11 @@ def main() -> None:
     sys.path.insert(0, str(SRC))
     os.environ["TENSORID_CACHE"] = "0"  # this process only makes the data: no cache
     work = Path(tempfile.mkdtemp(prefix="tensorid-first-fit-"))
-    MPL[0] = str(work / "matplotlib")
+    # Matplotlib's settings folder for the figure renderer, filled once before the
+    # runs: a stale lock in the user's own (a killed process's) makes each import wait 5 s
+    mpl = str(work / "matplotlib")
     prime = "import matplotlib; matplotlib.use('Agg'); import matplotlib.pyplot"
-    subprocess.run([sys.executable, "-c", prime], env={**os.environ, "MPLCONFIGDIR": MPL[0]})
+    subprocess.run([sys.executable, "-c", prime], env={**os.environ, "MPLCONFIGDIR": mpl})
     makers = {"two-tank": _two_tank, "cascade": _cascade}
     cases = {name: makers[name](work) for name in args.models.split(",")}
     rows: dict = {name: [] for name in cases}
@@ -231,8 +231,8 @@ def main() -> None:
     for r in range(args.repeats):
         for name, (model, data, plain) in cases.items():  # alternating: load falls alike
             folder = Path(tempfile.mkdtemp(prefix=f"{name}-{r}-", dir=work))
-            cold = _cli(model, data, folder / "cache", folder)
-            warm = _cli(model, data, folder / "cache", folder)
+            cold = _cli(model, data, folder / "cache", folder, mpl)
+            warm = _cli(model, data, folder / "cache", folder, mpl)
             rows[name].append(dict(cold=cold, warm=warm, plain=_plain(plain, folder)))
             load.append(os.getloadavg()[0])
             print(f"{name} #{r}: {json.dumps(rows[name][-1])}", file=sys.stderr)
@@ -260,6 +260,7 @@ def main() -> None:
         print(f"\n{name}, the first fit's compile lines (last repeat):")
         for line in runs[-1]["cold"]["lines"]:
             print(f"    {line}")
+    shutil.rmtree(work, ignore_errors=True)
 
 
 if __name__ == "__main__":
