@@ -92,7 +92,7 @@ class CompileWatch:
                     get_renderable=self.line, console=self.console, transient=True,
                     refresh_per_second=1,
                 )  # fmt: skip
-                self._live.start()
+                self._live.start(refresh=True)
             elif self._live is not None and (self.hosted or not showing):
                 self._live.stop()
                 self._live = None
