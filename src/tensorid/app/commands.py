@@ -10,7 +10,7 @@ import sys
 from functools import partial
 from pathlib import Path
 
-from rich.console import Console
+from rich.console import Console, Group
 from rich.live import Live
 
 from ..engine.checks import same_step, step
@@ -25,6 +25,7 @@ from ..population import PopulationResult
 from . import fleets
 from .after_fit import _after_fit, _gof_lines, _profile_figures
 from .cluster import _workers
+from .compile_progress import CompileWatch
 from .files import load_data, load_model
 from .fit_flags import fit_options
 from .fit_setup import (  # _problem and _data_entries are also patched and read by tests here
@@ -57,7 +58,7 @@ from .reports import fit_json, fit_report
 __all__ = ["discretisation", "run_fit"]
 
 
-def _run(problem: Problem, args, console: Console, executor, timeout):
+def _run(problem: Problem, args, console: Console, executor, timeout, watch: CompileWatch):
     options = dict(
         starts=args.starts,
         spread=args.spread,
@@ -82,13 +83,23 @@ def _run(problem: Problem, args, console: Console, executor, timeout):
         )
     if not console.is_terminal:  # a log: one plain line per iteration, no live table
         return fit(problem, args.method, callback=_log_line(console), **options)
-    with Live(_progress_table(rows), console=console, refresh_per_second=8) as live:
+    table = [_progress_table(rows)]
 
-        def show(entry):
-            rows.append(entry)
-            live.update(_progress_table(rows))
+    def shown():  # the iterations, and under them what is being compiled
+        line = watch.line()
+        return Group(table[0], line) if line else table[0]
 
-        return fit(problem, args.method, callback=show, **options)
+    watch.hosted = True
+    try:
+        with Live(get_renderable=shown, console=console, refresh_per_second=8):
+
+            def show(entry):
+                rows.append(entry)
+                table[0] = _progress_table(rows)
+
+            return fit(problem, args.method, callback=show, **options)
+    finally:
+        watch.hosted = False
 
 
 def _write_results(res, out: Path, scores: list[Score], old, extras, kept: dict, drawn):
@@ -188,10 +199,11 @@ def _fit_command(args, renderer: Renderer) -> int:
             f"--profile: unknown names {unknown}; the unknowns are {problem.theta_names}"
         )
     out = Path(args.out)
-    with _workers(args) as (executor, timeout), claimed(out):
+    watch = CompileWatch(console, enabled=not args.no_progress)  # what XLA compiles
+    with _workers(args) as (executor, timeout), claimed(out), watch:
         old = previous_outputs(out)
         try:
-            res = _run(problem, args, console, executor, timeout)
+            res = _run(problem, args, console, executor, timeout, watch)
         except FitInterrupted as stop:
             with _no_interrupt():  # a second Ctrl-C while saving would lose it
                 if isinstance(stop.result, PopulationResult):

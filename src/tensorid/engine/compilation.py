@@ -5,6 +5,7 @@ its run time."""
 from __future__ import annotations
 
 import threading
+import time
 from contextlib import contextmanager
 
 import jax
@@ -36,3 +37,49 @@ def compile_clock():
         yield clock
     finally:
         _local.clocks = tuple(c for c in _local.clocks if c is not clock)
+
+
+# -- what is being compiled, as it starts and ends -----------------------------------
+# A compiled program's first call (programs.py) is announced through JAX's own event
+# registry (jax.monitoring), so that a caller above the engine (the command line's
+# progress line) can say what it waits for without the engine knowing of it. The
+# events are not under "/jax/core/compile/": compile_clock does not count them twice.
+BEGIN = "/tensorid/compile/begin"  # record_event(BEGIN, what=...)
+END = "/tensorid/compile/end"  # record_event_duration_secs(END, seconds, what=...)
+
+_WHAT = {
+    "_simulate": "the simulation",
+    "_cost": "the cost J",
+    "_predictions": "the predictions",
+    "_residuals": "the residuals",
+    "_output_jacobian": "the output sensitivities",
+    "_first_order": "the first-order sweep (J, ∇J, Gauss-Newton)",
+    "_second_order": "the second-order sweep (J, ∇J, ∇²J)",
+    "_second_order_both": "the second-order sweep (J, ∇J, ∇²J, Gauss-Newton)",
+    "_gradient": "the gradient sweep (J, ∇J)",
+    "_scores": "the per-sample scores",
+    "_hessp": "the Hessian-vector product",
+    "_segment": "the segments' second-order sweep",
+    "_segment_gn": "the segments' first-order sweep",
+    "_k_step": "the k-step-ahead predictions",
+    "adjoint": "the second-order adjoint",
+}
+
+
+def describe(entry: str) -> str:
+    """A program's entry point (``"_second_order batched=False axes=..."``) in words."""
+    name = entry.split(" ", 1)[0]
+    what = _WHAT.get(name, name.strip("_").replace("_", " "))
+    return what + (", batched" if "batched=True" in entry else "")
+
+
+@contextmanager
+def announced(what: str):
+    """Tells jax.monitoring's listeners that ``what`` is being compiled (BEGIN) and,
+    when the block ends however it ends, how many seconds that took (END)."""
+    jax.monitoring.record_event(BEGIN, what=what)
+    t0 = time.perf_counter()
+    try:
+        yield
+    finally:
+        jax.monitoring.record_event_duration_secs(END, time.perf_counter() - t0, what=what)

@@ -48,6 +48,8 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from .compilation import announced, describe
+
 _NOT_KEPT = ("custom_jvp", "custom_vjp", "custom_vmap", "callback", "debug", "<function", "0x")
 _SETTINGS = (
     "jax_enable_x64",
@@ -216,21 +218,27 @@ class Program:
         if run is not None:
             return run(*args)
         with self._lock:
-            run, path = self._runs.get(shapes), None
-            if run is None:
-                run, path = self._prepare(args, leaves, treedef)
-            if run is self.jitted:
-                self._runs[shapes] = run
+            run = self._runs.get(shapes)
+            if run is not None:  # another thread compiled it meanwhile
                 return run(*args)
-            try:  # the first call runs what was read: where even that fails, jit
-                out = jax.block_until_ready(run(*args))  # an executable's fails late
-            except Exception:
-                if path is not None:
-                    path.unlink(missing_ok=True)  # so that the next process traces anew
-                run = self.jitted
-                out = run(*args)
+            with announced(describe(self.entry)):  # the console's progress line
+                return self._first(args, leaves, treedef, shapes)
+
+    def _first(self, args, leaves, treedef, shapes):
+        """The first call for these shapes: compiled (or read), kept and run."""
+        run, path = self._prepare(args, leaves, treedef)
+        if run is self.jitted:
             self._runs[shapes] = run
-            return out
+            return run(*args)
+        try:  # the first call runs what was read: where even that fails, jit
+            out = jax.block_until_ready(run(*args))  # an executable's fails late
+        except Exception:
+            if path is not None:
+                path.unlink(missing_ok=True)  # so that the next process traces anew
+            run = self.jitted
+            out = run(*args)
+        self._runs[shapes] = run
+        return out
 
     def _prepare(self, args, leaves, treedef):
         """(what runs for these shapes, and its file): the executable kept by an

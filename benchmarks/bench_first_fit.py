@@ -1,0 +1,267 @@
+"""Time to a first fit (issue 43): a new model's first `tensorid fit`, from an empty
+cache folder in a new process, against plain JAX compiling the same cost.
+
+    python benchmarks/bench_first_fit.py [--repeats 3] [--models two-tank,cascade]
+
+For the bundled two-tank record (the paper's model, 501 samples, RK4 with 4
+substeps, the paper's guess) and a cascaded-tanks-like model of our own (2 states,
+10 parameters and both initial levels free: 12 unknowns, 1,024 samples, RK4 with 4
+substeps), each repeat runs, each in its own process:
+
+- ``tensorid fit`` with an empty cache folder (TENSORID_CACHE_DIR): its wall time,
+  when its first iteration was printed, the seconds JAX reports compiling
+  (jax.monitoring's ``/jax/core/compile/`` events, as ``FitResult.compile_seconds``)
+  and the number of XLA compilations (``backend_compile_duration`` events);
+- the same command again (the cache now filled);
+- plain JAX, no tensorid imported and no cache: the same RK4 cost written plainly,
+  the compile time (trace, lower, compile) of ``jax.jit(jax.value_and_grad(cost))``
+  and of ``jax.jit(jax.hessian(cost))``.
+
+Medians over the repeats, range in brackets; the load average is printed with them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+SRC = ROOT / "src"
+
+TWO_TANK = """
+rhs = {"x1": "-p1*sqrt(x1) + p2*u", "x2": "-p3*sqrt(x2) + p4*sqrt(x1)"}
+output = {"y": "x2"}
+inputs = ["u"]
+params = ["p1", "p2", "p3", "p4"]
+p0 = {"p1": 0.04, "p2": 0.02, "p3": 0.02, "p4": 0.04}
+x0 = {"x1": %r, "x2": %r}
+"""
+CASCADE = """
+rhs = {
+    "h1": "-k1*sqrt(h1) - q1*h1 + k4*u + o1",
+    "h2": "k2*sqrt(h1) - k3*sqrt(h2) - q2*h2 + o2 + c*u",
+}
+output = {"y": "h2 + y0"}
+inputs = ["u"]
+params = ["k1", "k2", "k3", "k4", "q1", "q2", "o1", "o2", "c", "y0"]
+p0 = %r
+x0 = {"h1": 4.0, "h2": 4.0}
+free_x0 = ["h1", "h2"]
+"""
+CASCADE_TRUE = dict(k1=0.05, k2=0.05, k3=0.04, k4=0.04, q1=0.002, q2=0.003, o1=0.01, o2=0.005)
+CASCADE_TRUE.update(c=0.01, y0=0.1)
+CASCADE_TS, CASCADE_SAMPLES = 4.0, 1024
+
+# the same cost written plainly: RK4, 4 substeps, the input linear between samples
+# (tensorid's default)
+PLAIN = """
+import json, sys, time
+import numpy as np
+import jax, jax.numpy as jnp
+jax.config.update("jax_enable_x64", True)
+d = np.load(sys.argv[1])
+kind, t, u, y, theta = str(d["kind"]), d["t"], d["u"], d["y"], jnp.asarray(d["theta"])
+step = (t[1] - t[0]) / 4
+
+def f(x, p, u):
+    if kind == "two-tank":
+        s1, s2 = jnp.sqrt(x[0]), jnp.sqrt(x[1])
+        return jnp.stack([-p[0] * s1 + p[1] * u, -p[2] * s2 + p[3] * s1])
+    k1, k2, k3, k4, q1, q2, o1, o2, c = p[:9]
+    s1, s2 = jnp.sqrt(x[0]), jnp.sqrt(x[1])
+    h2 = k2 * s1 - k3 * s2 - q2 * x[1] + o2 + c * u
+    return jnp.stack([-k1 * s1 - q1 * x[0] + k4 * u + o1, h2])
+
+def out(x, p):
+    return x[1] if kind == "two-tank" else x[1] + p[9]
+
+def cost(theta):
+    x0, p = (jnp.asarray(d["x0"]), theta) if kind == "two-tank" else (theta[:2], theta[2:])
+    def interval(x, uu):
+        ua, ub = uu
+        for i in range(4):
+            um, ue = ua + (ub - ua) * (i + 0.5) / 4, ua + (ub - ua) * (i + 1) / 4
+            k1 = f(x, p, ua + (ub - ua) * i / 4); k2 = f(x + step / 2 * k1, p, um)
+            k3 = f(x + step / 2 * k2, p, um); k4 = f(x + step * k3, p, ue)
+            x = x + step / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        return x, out(x, p)
+    _, yh = jax.lax.scan(interval, x0, (u[:-1], u[1:]))
+    r = jnp.concatenate([jnp.atleast_1d(out(x0, p)), yh]) - y
+    return 0.5 * jnp.sum(r * r)
+
+res = {}
+for name, fn in (("value_and_grad", jax.value_and_grad(cost)), ("hessian", jax.hessian(cost))):
+    t0 = time.perf_counter()
+    compiled = jax.jit(fn).lower(theta).compile()
+    res[name] = time.perf_counter() - t0
+    jax.block_until_ready(compiled(theta))
+print(json.dumps(res))
+"""
+
+# tensorid's command line with JAX's compile events counted
+CLI = """
+import json, sys, atexit
+import jax.monitoring as m
+n = {"xla": 0, "hits": 0, "loaded": 0, "compile_s": 0.0}
+def hit(event, **_):
+    n["hits"] += event == "/jax/compilation_cache/cache_hits"
+m.register_event_listener(hit)
+def on(event, secs, **_):
+    if event.startswith("/jax/core/compile/"):
+        n["compile_s"] += secs
+    if event == "/jax/core/compile/backend_compile_duration":
+        n["xla"] += 1
+    if event == "/jax/core/compile/tensorid_load":
+        n["loaded"] += 1
+m.register_event_duration_secs_listener(on)
+where = sys.argv[1]
+atexit.register(lambda: open(where, "w").write(json.dumps(n)))
+from tensorid.cli import main
+sys.argv = ["tensorid", *sys.argv[2:]]
+sys.exit(main())
+"""
+
+
+def _two_tank(folder: Path) -> tuple[Path, Path, dict]:
+    from tensorid import datasets
+
+    e, levels = datasets.two_tank(501), datasets.two_tank_levels(501)
+    model = folder / "two_tank.py"
+    model.write_text(TWO_TANK % (float(levels[0][0]), float(levels[0][1])))
+    data = folder / "two_tank.csv"
+    np.savetxt(data, np.c_[e.t, e.u[:, 0], e.y[:, 0]], delimiter=",", header="t,u,y", comments="")
+    plain = dict(kind="two-tank", t=e.t, u=e.u[:, 0], y=e.y[:, 0], x0=levels[0])
+    plain["theta"] = np.array([0.04, 0.02, 0.02, 0.04])
+    return model, data, plain
+
+
+def _cascade(folder: Path) -> tuple[Path, Path, dict]:
+    import tensorid as ti
+
+    rng = np.random.default_rng(43)
+    t = np.arange(CASCADE_SAMPLES) * CASCADE_TS
+    u = np.clip(np.repeat(rng.uniform(1.0, 6.0, CASCADE_SAMPLES // 32 + 1), 32), 0, None)
+    u = u[:CASCADE_SAMPLES]
+    guess = {k: v * (1.2 if i % 2 else 0.85) for i, (k, v) in enumerate(CASCADE_TRUE.items())}
+    model = folder / "cascade.py"
+    model.write_text(CASCADE % guess)
+    m = ti.load_model(model).model
+    e = ti.Experiment(t, u, np.zeros(CASCADE_SAMPLES))
+    x = ti.simulate(m, list(CASCADE_TRUE.values()), [4.0, 4.0], e).y[:, 0]
+    y = x + 0.02 * rng.standard_normal(CASCADE_SAMPLES)
+    data = folder / "cascade.csv"
+    np.savetxt(data, np.c_[t, u, y], delimiter=",", header="t,u,y", comments="")
+    theta = np.r_[4.0, 4.0, list(guess.values())]
+    return model, data, dict(kind="cascade", t=t, u=u, y=y, x0=np.zeros(2), theta=theta)
+
+
+def _cli(model: Path, data: Path, cache: Path, folder: Path, mpl: str) -> dict:
+    env = {k: v for k, v in os.environ.items() if k != "TENSORID_CACHE"}
+    env.update(PYTHONPATH=str(SRC), TENSORID_CACHE_DIR=str(cache), MPLCONFIGDIR=mpl)
+    counts = folder / "counts.json"
+    cmd = [sys.executable, "-c", CLI, str(counts), "fit", str(model), str(data)]
+    cmd += ["--out", str(folder / "fit")]
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(
+        cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
+    first, compile_lines = None, []
+    for line in proc.stdout or []:
+        if first is None and line.startswith("iteration 0"):
+            first = time.perf_counter() - t0
+        if line.startswith("compil"):
+            compile_lines.append(line.strip())
+    if proc.wait() not in (0, 1):
+        raise RuntimeError(f"tensorid fit failed: {' '.join(cmd)}")
+    wall = time.perf_counter() - t0
+    n = json.loads(counts.read_text())
+    return dict(wall=wall, first_iteration=first, **n, lines=compile_lines)
+
+
+def _plain(spec: dict, folder: Path) -> dict:
+    path = folder / "plain.npz"
+    np.savez(path, **spec)
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    done = subprocess.run(
+        [sys.executable, "-c", PLAIN, str(path)],
+        env=env,
+        check=True,
+        capture_output=True,
+        text=True,
+    )
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def _med(values) -> str:
+    values = [v for v in values if v is not None]
+    if not values:
+        return "-"
+    if isinstance(values[0], int):
+        return f"{statistics.median(values):g} [{min(values)}-{max(values)}]"
+    return f"{statistics.median(values):.1f} [{min(values):.1f}-{max(values):.1f}]"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--models", default="two-tank,cascade")
+    args = parser.parse_args()
+    sys.path.insert(0, str(SRC))
+    os.environ["TENSORID_CACHE"] = "0"  # this process only makes the data: no cache
+    work = Path(tempfile.mkdtemp(prefix="tensorid-first-fit-"))
+    # Matplotlib's settings folder for the figure renderer, filled once before the
+    # runs: a stale lock in the user's own (a killed process's) makes each import wait 5 s
+    mpl = str(work / "matplotlib")
+    prime = "import matplotlib; matplotlib.use('Agg'); import matplotlib.pyplot"
+    subprocess.run([sys.executable, "-c", prime], env={**os.environ, "MPLCONFIGDIR": mpl})
+    makers = {"two-tank": _two_tank, "cascade": _cascade}
+    cases = {name: makers[name](work) for name in args.models.split(",")}
+    rows: dict = {name: [] for name in cases}
+    load = [os.getloadavg()[0]]
+    for r in range(args.repeats):
+        for name, (model, data, plain) in cases.items():  # alternating: load falls alike
+            folder = Path(tempfile.mkdtemp(prefix=f"{name}-{r}-", dir=work))
+            cold = _cli(model, data, folder / "cache", folder, mpl)
+            warm = _cli(model, data, folder / "cache", folder, mpl)
+            rows[name].append(dict(cold=cold, warm=warm, plain=_plain(plain, folder)))
+            load.append(os.getloadavg()[0])
+            print(f"{name} #{r}: {json.dumps(rows[name][-1])}", file=sys.stderr)
+    import jax
+
+    print(f"JAX {jax.__version__}, {os.cpu_count()} cores; load average (1 min) during the")
+    print(f"runs {min(load):.1f}-{max(load):.1f}; medians of {args.repeats} [range], seconds\n")
+    print(
+        "| model | first fit, wall | first iteration printed | compile (JAX) | XLA programs "
+        "compiled | second fit, wall | its compile (loading included) | its XLA compilations "
+        "(cache hits) | plain value_and_grad compile | plain hessian compile |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name, runs in rows.items():
+        c, w, p = ([x[k] for x in runs] for k in ("cold", "warm", "plain"))
+        print(
+            f"| {name} | {_med([x['wall'] for x in c])} | {_med([x['first_iteration'] for x in c])}"
+            f" | {_med([x['compile_s'] for x in c])} | {_med([x['xla'] - x['hits'] for x in c])}"
+            f" | {_med([x['wall'] for x in w])} | {_med([x['compile_s'] for x in w])}"
+            f" | {_med([x['xla'] - x['hits'] for x in w])} ({_med([x['hits'] for x in w])})"
+            f" | {_med([x['value_and_grad'] for x in p])}"
+            f" | {_med([x['hessian'] for x in p])} |"
+        )
+    for name, runs in rows.items():
+        print(f"\n{name}, the first fit's compile lines (last repeat):")
+        for line in runs[-1]["cold"]["lines"]:
+            print(f"    {line}")
+    shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
