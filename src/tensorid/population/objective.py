@@ -215,29 +215,13 @@ class Objective:
             programs[name] = build()
         return programs[name]
 
-    @property
-    def _steps(self):
-        return self._program("steps", self._build_steps)
-
-    @property
-    def _value_grad(self):
-        return self._program("value_grad", self._build_value_grad)
-
-    @property
-    def _hessian(self):
-        return self._program("hessian", self._build_hessian)
-
-    @property
-    def _inner_hessians(self):
-        return self._program("inner_hessians", self._build_inner_hessians)
-
-    @property
-    def _predict_all(self):
-        return self._program("predict_all", self._build_predict_all)
+    def _compiled(self, name: str):
+        """The program ``_build_<name>`` makes, kept per structure."""
+        return self._program(name, getattr(self, f"_build_{name}"))
 
     def predict_all(self, psi, etas):
         """ŷ (E, P, S) of every unit at (ψ, η (E, q))."""
-        return self._predict_all(jnp.asarray(psi), jnp.asarray(etas), self.data)
+        return self._compiled("predict_all")(jnp.asarray(psi), jnp.asarray(etas), self.data)
 
     def _build_predict_all(self):
         return jax.jit(jax.vmap(self.predict, in_axes=(None, 0, 0)))
@@ -255,10 +239,6 @@ class Objective:
     def _build_hessian(self):
         return jax.jit(jax.vmap(self.unit_hessian, in_axes=(None, 0, 0)))
 
-    @property
-    def _inner_blocks(self):
-        return self._program("inner_blocks", self._build_inner_blocks)
-
     def _build_inner_blocks(self):
         def blocks(eta, psi, unit):  # ∇²_ηη ℓ_i and ∇²_ηψ ℓ_i
             L = jax.jacfwd(jax.grad(self.ell), argnums=1)(eta, psi, unit)
@@ -268,7 +248,7 @@ class Objective:
 
     def inner_blocks(self, psi, etas) -> tuple[np.ndarray, np.ndarray]:
         """(∇²_ηη ℓ_i (E, q, q), ∇²_ηψ ℓ_i (E, q, ψ)) at η̂."""
-        H, L = self._inner_blocks(jnp.asarray(etas), jnp.asarray(psi), self.data)
+        H, L = self._compiled("inner_blocks")(jnp.asarray(etas), jnp.asarray(psi), self.data)
         return np.asarray(H), np.asarray(L)
 
     def start_etas(self) -> np.ndarray:
@@ -289,7 +269,7 @@ class Objective:
         lam = jnp.zeros(eta.shape[0])
         done = failed = np.zeros(eta.shape[0], dtype=bool)
         for _ in range(maxiter):
-            eta, lam, f, step = self._steps(eta, lam, psi, self.data)
+            eta, lam, f, step = self._compiled("steps")(eta, lam, psi, self.data)
             failed = ~np.isfinite(np.asarray(f))  # its simulation: not finite
             done = ~failed & (np.asarray(step) < tol)  # its Newton step negligible
             if (done | failed).all():
@@ -301,13 +281,17 @@ class Objective:
 
     def value_grad(self, psi, etas) -> tuple[np.ndarray, np.ndarray]:
         """(O_i (E,), dO_i/dψ (E, ψ)) per unit at η̂."""
-        O, g = self._value_grad(jnp.asarray(psi), jnp.asarray(etas), self.data)
+        O, g = self._compiled("value_grad")(jnp.asarray(psi), jnp.asarray(etas), self.data)
         return np.asarray(O), np.asarray(g)
 
     def hessian(self, psi, etas) -> np.ndarray:
         """Σ_i d²O_i/dψ² at η̂."""
-        return np.asarray(self._hessian(jnp.asarray(psi), jnp.asarray(etas), self.data)).sum(0)
+        return np.asarray(
+            self._compiled("hessian")(jnp.asarray(psi), jnp.asarray(etas), self.data)
+        ).sum(0)
 
     def inner_hessians(self, psi, etas) -> np.ndarray:
         """∇²ℓ_i(η̂_i) (E, q, q): the inverse is each unit's η covariance."""
-        return np.asarray(self._inner_hessians(jnp.asarray(etas), jnp.asarray(psi), self.data))
+        return np.asarray(
+            self._compiled("inner_hessians")(jnp.asarray(etas), jnp.asarray(psi), self.data)
+        )
