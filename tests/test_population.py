@@ -132,6 +132,71 @@ def test_the_outer_hessian_is_that_of_the_plain_objective():
     np.testing.assert_allclose(H, Hp, rtol=1e-7, atol=1e-7 * np.abs(Hp).max())
 
 
+def _plain_combined(obj: Objective, etas):
+    """The FOCEI objective with a combined residual error (σ² = a² + b²ŷ², a and b the
+    last two entries of ψ, one output) and individual values beside the random
+    effects, written plainly: ŷ by the engine's simulation differentiated by JAX, the
+    inner optimum by one Newton step from the converged one held constant, σ² at η̂
+    in the determinant (FOCE with interaction)."""
+    sw, qp = obj.sweeps, obj.qp
+
+    def yhat(psi, z, unit):
+        t, u, _, _, x0, p = unit
+        x0_, p_ = sw.expand(obj.theta(psi, z), x0, p)
+        return sw._simulate(x0_, p_, t, u)[1]
+
+    def var(psi, f):
+        return jnp.exp(2 * psi[-2]) + jnp.exp(2 * psi[-1]) * f**2
+
+    def ell(z, psi, unit):
+        logw = psi[qp : 2 * qp]
+        f, mask = yhat(psi, z, unit), unit[3]
+        V = jnp.where(mask > 0, var(psi, f), 1.0)
+        data = jnp.sum(((unit[2] - f) * mask) ** 2 / V + mask * jnp.log(V))
+        return 0.5 * (data + jnp.sum((z[:qp] * jnp.exp(-logw)) ** 2))
+
+    def unit_O(psi, unit, z):
+        z = z - jnp.linalg.solve(jax.hessian(ell)(z, psi, unit), jax.grad(ell)(z, psi, unit))
+        logw = psi[qp : 2 * qp]
+        f = yhat(psi, z, unit)
+        A = jax.jacfwd(lambda e: yhat(psi, e, unit))(z)[..., :qp]
+        V = jnp.where(unit[3] > 0, var(psi, f), 1.0)
+        Aw = A * jnp.sqrt(unit[3] / V)[..., None]
+        M = jnp.einsum("psj,psk->jk", Aw, Aw) + jnp.diag(jnp.exp(-2 * logw))
+        n = jnp.sum(unit[3])
+        return (
+            2 * ell(z, psi, unit) + n * jnp.log(2 * jnp.pi) + 2 * jnp.sum(logw)
+            + jnp.linalg.slogdet(M)[1]
+        )  # fmt: skip
+
+    def total(psi):
+        units = range(len(obj.units.names))
+        return sum(unit_O(psi, tuple(a[i] for a in obj.data), jnp.asarray(etas[i])) for i in units)
+
+    return total
+
+
+def test_combined_error_and_individual_values_beside_random_effects_exact_gradient():
+    """ka log-normal over the units, cl each unit's own, v shared, σ² = a² + b²ŷ²: the
+    outer objective and its gradient (implicit-function theorem through (η̂, cl̂))
+    are those of the plainly written one."""
+    m, units = simulated_fleet(3)
+    pr = ti.Problem(
+        m, units, p0={"ka": 1.2, "cl": 2.0, "v": 25.0}, x0={"depot": "Dose", "center": 0.0},
+        substeps=20, population={"ka": 0.4}, individual=["cl"], residual_error="combined",
+    )  # fmt: skip
+    obj = Objective(pr, "focei")
+    assert obj.names == ["log_ka", "log_omega_ka", "v", "log_sigma_cp", "log_prop_cp"]
+    psi = np.array([np.log(1.3), np.log(0.5), 26.0, np.log(0.2), np.log(0.05)])
+    etas, ok = obj.solve_inner(psi, obj.start_etas())
+    assert ok and np.all(etas[:, 1] > 0.5)  # cl's own values, near the truth (2.5)
+    O, g = obj.value_grad(psi, etas)
+    plain = _plain_combined(obj, etas)
+    assert O.sum() == pytest.approx(float(plain(jnp.asarray(psi))), rel=1e-12)
+    gp = np.asarray(jax.grad(plain)(jnp.asarray(psi)))
+    np.testing.assert_allclose(g.sum(0), gp, rtol=1e-8, atol=1e-8 * np.abs(gp).max())
+
+
 def test_the_inner_hessian_is_the_exact_one():
     """The unit's ∇²ℓ from the tensors (the tower in units.py) equals jax.hessian of ℓ
     with ŷ differentiated by JAX through the simulation."""
@@ -292,8 +357,12 @@ def test_bad_individual_is_one_clear_line():
         ti.Problem(m, units, p0=p0, individual=["kl"])
     with pytest.raises(ValueError, match="both individual .* and in population"):
         ti.Problem(m, units, p0=p0, individual=["ka"], population={"ka": 0.3})
-    with pytest.raises(ValueError, match="not supported yet"):
-        ti.Problem(m, units, p0=p0, individual=["cl"], population={"ka": 0.3})
+    with pytest.raises(ValueError, match="must be one of"):
+        ti.Problem(m, units, p0=p0, population={"ka": 0.3}, residual_error="relative")
+    with pytest.raises(ValueError, match="not an output of the model"):
+        ti.Problem(m, units, p0=p0, population={"ka": 0.3}, residual_error={"cq": "combined"})
+    with pytest.raises(ValueError, match="estimated by a population fit"):
+        ti.Problem(m, units, p0=p0, individual=["cl"], residual_error="proportional")
     with pytest.raises(TypeError, match="list of parameter names"):
         ti.Problem(m, units, p0=p0, individual="cl")
     with pytest.raises(ValueError, match="free_x0 is not supported"):

@@ -9,7 +9,11 @@ fit.json keys (a contract, added to, never renamed):
   "cv_percent", "shrinkage_percent"}}; the typical value and its standard error in
   the parameter's units, ω the standard deviation of η (the log of the unit's value
   over the typical one);
-- ``residual_sd``: {output: standard deviation of the measurement noise};
+- ``residual_sd``: {output: standard deviation of the measurement noise} (its
+  additive part; 0 where the output's error is proportional alone);
+- ``residual_error``: {output: {"model": "additive" | "proportional" | "combined",
+  "additive", "additive_stderr", "proportional", "proportional_stderr"}} (a population
+  fit's; σ² = additive² + (proportional · prediction)², the terms its model has);
 - ``units``: [{"id", "params": {name: value}, "stderr": {name: value}}], in the order
   of the records.
 """
@@ -55,6 +59,12 @@ def fleet_json(res) -> dict:
     residual_sd = getattr(res, "residual_sd", None)
     if residual_sd is not None:
         out["residual_sd"] = _numbers(residual_sd)
+    errors = getattr(res, "residual_error", None)
+    if errors:
+        out["residual_error"] = {
+            str(o): {k: (v if k == "model" else _number(v)) for k, v in dict(e).items()}
+            for o, e in dict(errors).items()
+        }
     units = getattr(res, "units", None)
     if units is not None:
         out["units"] = [
@@ -136,8 +146,19 @@ def fleet_lines(data: dict) -> list[str]:
     """report.md's population table, residual standard deviations and units table,
     from fit.json's entries (none: no lines)."""
     lines = _population_lines(data)
-    sd = data.get("residual_sd")
-    if sd:
+    sd, errors = data.get("residual_sd"), data.get("residual_error")
+    if errors and any(e.get("model") != "additive" for e in errors.values()):
+        text = "; ".join(
+            f"{o} ({e['model']}): "
+            + ", ".join(
+                f"{w} {_pm(e.get(w), e.get(w + '_stderr'))}"
+                for w in ("additive", "proportional")
+                if w in e
+            )
+            for o, e in errors.items()
+        )
+        lines += [f"Residual error (σ² = additive² + (proportional · prediction)²): {text}.", ""]
+    elif sd:
         text = ", ".join(f"{o} {_text(v)}" for o, v in sd.items())
         lines += [f"Residual standard deviation (additive, per output): {text}.", ""]
     return lines + _units_lines(data)

@@ -91,6 +91,33 @@ def population(value, model: Model, key: str = "population") -> dict[str, float]
     return out
 
 
+def residual_error(value, model: Model, key: str = "residual_error") -> str | dict:
+    """``residual_error = "combined"`` (every output) or ``{"cp": "proportional"}``;
+    on the command line ``combined`` or ``cp=proportional`` (NAME=KIND pairs)."""
+    from ..engine.fleet import RESIDUAL_ERRORS
+
+    if isinstance(value, list | tuple):  # the command line's words
+        if len(value) == 1 and "=" not in value[0]:
+            value = value[0]
+        elif all("=" in v for v in value):
+            value = dict(v.split("=", 1) for v in value)
+    chosen = (
+        [value]
+        if isinstance(value, str)
+        else list(value.values())
+        if isinstance(value, dict)
+        else [None]
+    )
+    if not all(k in RESIDUAL_ERRORS for k in chosen):
+        raise ValueError(
+            f"{key} = {value!r}: give one of {list(RESIDUAL_ERRORS)} for every output, or "
+            "OUTPUT=KIND per output (e.g. cp=combined)"
+        )
+    if isinstance(value, dict):
+        _known(key, list(value), model.outputs, "outputs")
+    return value
+
+
 def kinds(individual: list[str], population: dict, fixed, where: dict[str, str]) -> None:
     """A parameter in both kinds, or fixed and varying over the units: one line each.
     ``where`` says where each setting came from ("--individual", "population in m.py")."""
@@ -160,13 +187,17 @@ def from_command_line(spec, args):
         "fixed": f"fixed in {path}, or --fix",
     }
     kinds(ind, pop, spec.fixed, where)
+    given_e = getattr(args, "residual_error", None)
+    err = spec.residual_error
+    if given_e is not None:
+        err = residual_error(given_e, m, "--residual-error")
     if (ind or pop) and getattr(args, "starts", 1) > 1:
         raise ValueError(
             "--starts: a fit with individual or population parameters starts every unit "
             "from the model file's p0 and is not run from several starts; drop --starts "
             "(--workers and --scheduler spread its units instead)"
         )
-    return replace(spec, individual=list(ind), population=dict(pop))
+    return replace(spec, individual=list(ind), population=dict(pop), residual_error=err)
 
 
 def problem_keywords(spec, problem: type) -> dict:
@@ -180,6 +211,8 @@ def problem_keywords(spec, problem: type) -> dict:
         out["individual"] = list(spec.individual)
     if spec.population:
         out["population"] = dict(spec.population)
+    if spec.residual_error:
+        out["residual_error"] = spec.residual_error
     taken = inspect.signature(problem).parameters
     lacking = [k for k in out if k not in taken]
     if lacking:

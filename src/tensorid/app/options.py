@@ -86,6 +86,15 @@ def fleet_options(f: argparse.ArgumentParser) -> None:
         "ω²)), each with the start of ω (> 0), e.g. ka=0.5 cl=0.3; replaces the model "
         "file's population",
     )
+    f.add_argument(
+        "--residual-error",
+        nargs="+",
+        default=None,
+        metavar="KIND",
+        help="a population fit's measurement error: additive (default, σ = a), "
+        "proportional (σ = b·|prediction|) or combined (σ² = a² + b²·prediction²), for "
+        "every output or OUTPUT=KIND each; replaces the model file's residual_error",
+    )
 
 
 def integration_options(p: argparse.ArgumentParser, inherit: bool = False) -> None:

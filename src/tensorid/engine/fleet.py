@@ -108,11 +108,6 @@ def check_individual(problem, individual, population, predictor, loss, segments)
             )
     if len(set(individual)) != len(individual):
         raise ValueError(f"individual names a parameter twice: {list(individual)}")
-    if population:
-        raise ValueError(
-            "individual and population parameters in one fit are not supported yet: fit "
-            "the individual ones as population parameters, or fix the population"
-        )
     bounded = [n for n in individual if n in problem.theta_names and (
         np.isfinite(problem.lower[problem.theta_names.index(n)])
         or np.isfinite(problem.upper[problem.theta_names.index(n)]))]  # fmt: skip
@@ -137,8 +132,47 @@ def fixed_x0_parameters(problem) -> None:
         )
 
 
-def check_fleet(problem, population, individual, predictor, loss, segments):
-    """(population, individual) checked, and the x0 expressions' parameters fixed."""
+RESIDUAL_ERRORS = ("additive", "proportional", "combined")
+
+
+def check_residual_error(problem, residual_error, population) -> dict[str, str]:
+    """{output: "additive" | "proportional" | "combined"} of a population fit, from one
+    kind for every output or a dict per output (the others additive); {} for the
+    default (additive everywhere)."""
+    if residual_error is None:
+        return {}
+    outs = list(problem.model.outputs)
+    given = {o: residual_error for o in outs} if isinstance(residual_error, str) else None
+    if given is None and isinstance(residual_error, Mapping):
+        given = dict(residual_error)
+    if given is None:
+        raise TypeError(
+            f"residual_error must be one of {RESIDUAL_ERRORS} or a dict {{output: kind}}, "
+            f"got {residual_error!r}"
+        )
+    for o, kind in given.items():
+        if o not in outs:
+            raise ValueError(
+                f"residual_error names {o!r}, which is not an output of the model {outs}"
+                f"{did_you_mean(str(o), outs)}"
+            )
+        if kind not in RESIDUAL_ERRORS:
+            raise ValueError(
+                f"residual_error[{o!r}] = {kind!r}: it must be one of {RESIDUAL_ERRORS} "
+                "(σ = a, σ = b·|ŷ| or σ² = a² + b²ŷ²)"
+            )
+    if not population and any(k != "additive" for k in given.values()):
+        raise ValueError(
+            "residual_error other than 'additive' is estimated by a population fit: give "
+            "population (random effects), or leave residual_error out"
+        )
+    return {o: str(k) for o, k in given.items() if k != "additive"}
+
+
+def check_fleet(problem, population, individual, predictor, loss, segments, residual_error=None):
+    """(population, individual, residual_error) checked, and the x0 expressions'
+    parameters fixed."""
     fixed_x0_parameters(problem)
     pop = check_population(problem, population, predictor, loss, segments)
-    return pop, check_individual(problem, individual, pop, predictor, loss, segments)
+    ind = check_individual(problem, individual, pop, predictor, loss, segments)
+    return pop, ind, check_residual_error(problem, residual_error, pop)

@@ -131,7 +131,11 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
             :mod:`tensorid.population`).
         individual: parameter names each unit (experiment) has its own value of, with
             no distribution; :func:`tensorid.fit` estimates them with the shared ones
-            by least squares, in time linear in the number of units.
+            by least squares (beside ``population``: by each unit's own maximum
+            likelihood, with its η̂), in time linear in the number of units.
+        residual_error: a population fit's residual error, "additive" (default: σ = a),
+            "proportional" (σ = b·|ŷ|) or "combined" (σ² = a² + b²ŷ²), for every output
+            or as {output: kind}; a and b estimated.
     """
 
     def __init__(
@@ -163,6 +167,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         measurement_noise: Mapping[str, float] | None = None,
         population: Mapping[str, float] | None = None,
         individual: Sequence[str] | None = None,
+        residual_error: str | Mapping[str, str] | None = None,
     ):
         if not isinstance(model, Model):
             raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
@@ -194,8 +199,9 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         self.loss_scale_estimated = self.loss.robust and loss_scale is None
         self.lower, self.upper = check_bounds(self, bounds or {})
         self._set_priors(priors, noise)
-        fleet = (population, individual, predictor, loss, segments)  # a fleet's kinds
-        self.population, self.individual = check_fleet(self, *fleet)  # (engine/fleet.py)
+        fleet = (population, individual, predictor, loss, segments, residual_error)
+        # a fleet's kinds of parameter and its residual error (engine/fleet.py)
+        self.population, self.individual, self.residual_error = check_fleet(self, *fleet)
         if self.K == 0:
             raise ValueError("nothing to estimate: every parameter is fixed and free_x0 is empty")
         self._sweeps = shared_sweeps(

@@ -28,32 +28,43 @@ from .result import PopulationResult
 
 def _start(obj: Objective) -> np.ndarray:
     """ψ0: the typical values from p0, ω as given, the shared parameters from p0, and
-    each output's σ from the residuals of the typical unit."""
+    each output's residual error from the residuals of the typical unit (additive: their
+    RMS; proportional: their RMS relative to the prediction; combined: half each)."""
     pr, m = obj.problem, obj.problem.model
     if obj.joint:  # the shared parameters alone
         return np.array([pr.p0[m.params.index(n)] for n in obj.shared], dtype=float)
-    mu = [np.log(pr.p0[m.params.index(n)]) for n in obj.pop]
-    logw = [np.log(pr.population[n]) for n in obj.pop]
+    random = obj.pop[: obj.qp]
+    mu = [np.log(pr.p0[m.params.index(n)]) for n in random]
+    logw = [np.log(pr.population[n]) for n in random]
     s = [pr.p0[m.params.index(n)] for n in obj.shared]
-    psi = np.array(mu + logw + s + [0.0] * obj.S, dtype=float)
+    noise = len(obj.additive) + len(obj.proportional)
+    psi = np.array(mu + logw + s + [0.0] * noise, dtype=float)
     u = obj.units
-    yhat = np.asarray(obj.predict_all(psi, np.zeros((len(u.names), obj.q))))
+    yhat = np.asarray(obj.predict_all(psi, obj.start_etas()))
     n = np.maximum(u.mask.sum((0, 1)), 1)
     sig = np.sqrt((((u.y - yhat) * u.mask) ** 2).sum((0, 1)) / n)
     scale = np.sqrt((u.y**2 * u.mask).sum((0, 1)) / n)
     typical = np.isfinite(sig) & (sig > 1e-8 * scale)
-    psi[-obj.S :] = np.log(np.where(typical, sig, np.maximum(0.1 * scale, 1e-12)))
+    log_a = np.log(np.where(typical, sig, np.maximum(0.1 * scale, 1e-12)))
+    seen = (u.mask > 0) & (np.abs(yhat) > 1e-12 * np.maximum(scale, 1e-300))
+    rel = (u.y - yhat) / np.where(seen, yhat, 1.0) * seen
+    rel_rms = np.sqrt((rel**2).sum((0, 1)) / np.maximum(seen.sum((0, 1)), 1))
+    log_b = np.log(np.where(np.isfinite(rel_rms) & (rel_rms > 1e-8), rel_rms, 0.1))
+    both = np.array([k == "combined" for k in obj.errors]) * np.log(0.5)
+    psi[2 * obj.qp + obj.ns :] = np.concatenate(
+        [(log_a + both)[obj.additive], (log_b + both)[obj.proportional]]
+    )
     return psi
 
 
 def _bounds(obj: Objective) -> tuple[np.ndarray, np.ndarray]:
     pr = obj.problem
     lo, hi = np.full(obj.size, -np.inf), np.full(obj.size, np.inf)
-    first = 0 if obj.joint else 2 * obj.q
+    first = 2 * obj.qp
     for j, n in enumerate(obj.shared):
         i = pr.theta_names.index(n)
         lo[first + j], hi[first + j] = pr.lower[i], pr.upper[i]
-    for k, n in enumerate([] if obj.joint else obj.pop):
+    for k, n in enumerate(obj.pop[: obj.qp]):
         i = pr.theta_names.index(n)
         lo[k] = np.log(pr.lower[i]) if pr.lower[i] > 0 else -np.inf
         hi[k] = np.log(pr.upper[i]) if np.isfinite(pr.upper[i]) and pr.upper[i] > 0 else np.inf
@@ -117,7 +128,7 @@ def fit_population(
     res = PopulationResult.build(obj, r, etas, status, time.perf_counter() - began)
     coarse = None
     if np.isfinite(res.objective):
-        coarse = coarse_steps(obj, res.x, etas, np.array(list(res.residual_sd.values())))
+        coarse = coarse_steps(obj, res.x, etas, _sd(obj, res))
     notes = [coarse] if coarse else []
     if obj.unfinite:
         names = obj.unfinite
@@ -137,6 +148,14 @@ def fit_population(
     for n in notes:
         warnings.warn(n, UserWarning, stacklevel=2)
     return replace(res, notes=notes)
+
+
+def _sd(obj: Objective, res: PopulationResult) -> np.ndarray:
+    """The residual SD against which predictions are measured: per output (individual
+    parameters alone), or per sample where it follows the prediction."""
+    if obj.joint or obj.plain:
+        return np.array(list(res.residual_sd.values()))
+    return obj.residual_sd(res.x, res.etas)
 
 
 def _interrupted(obj: Objective, state: dict, began: float) -> PopulationResult:

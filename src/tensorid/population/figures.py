@@ -12,9 +12,10 @@ GRID_MAX = 36  # units shown in the grid; the rest are in fit.json
 
 def _predictions(res):
     """(units, the typical unit's predictions, each unit's own): the typical unit is
-    η = 0, or for individual parameters the median of the units' values."""
+    η = 0, with the median of the units' values for individual parameters."""
     obj = res.objective_function
-    middle = np.median(res.etas, axis=0) if obj.joint else np.zeros(res.etas.shape[1])
+    middle = np.median(res.etas, axis=0)
+    middle[: obj.qp] = 0.0
     typical = np.asarray(obj.predict_all(res.x, np.broadcast_to(middle, res.etas.shape)))
     own = np.asarray(obj.predict_all(res.x, res.etas))
     return obj.units, typical, own
@@ -74,13 +75,14 @@ def observed_predicted_figure(res, output: int = 0):
 def vpc(res, replicates: int = 200, seed: int = 0, bins: int = 8, output: int = 0):
     """The visual predictive check's numbers: per time bin, the observed 5/50/95 %
     percentiles and the 5/50/95 % range of each over ``replicates`` fleets simulated at
-    the observed times (η ~ N(0, Ω), additive noise of the fitted σ). Returns a dict
-    of arrays: centre (B,), observed (B, 3), simulated (B, 3, 3) [percentile, range]."""
+    the observed times (η ~ N(0, Ω), individual parameters drawn from the fitted units'
+    values, noise of the fitted residual error). Returns a dict of arrays: centre (B,),
+    observed (B, 3), simulated (B, 3, 3) [percentile, range]."""
     obj = res.objective_function
     units = obj.units
     rng = np.random.default_rng(seed)
     omega = np.array([v["omega"] for v in res.population.values()])
-    sigma = list(res.residual_sd.values())[output]
+    qp, E = obj.qp, len(res.etas)
     seen = units.mask[..., output] > 0
     t = units.t[seen]
     edges = np.unique(np.quantile(t, np.linspace(0, 1, bins + 1)))
@@ -95,9 +97,14 @@ def vpc(res, replicates: int = 200, seed: int = 0, bins: int = 8, output: int = 
 
     sims = []
     for _ in range(replicates):
-        etas = rng.standard_normal(res.etas.shape) * omega
-        pred = np.asarray(obj.predict_all(res.x, etas))[..., output][seen]
-        sims.append(percentiles(pred + sigma * rng.standard_normal(pred.shape)))
+        etas = np.array(res.etas)
+        if obj.q > qp:  # individual values: drawn from the fitted units'
+            etas = etas[rng.integers(0, E, E)]
+        etas[:, :qp] = rng.standard_normal((E, qp)) * omega
+        pred = np.asarray(obj.predict_all(res.x, etas))[..., output]
+        sd = _noise_sd(res, obj, etas, pred.shape, output)
+        pred = pred[seen]
+        sims.append(percentiles(pred + sd[seen] * rng.standard_normal(pred.shape)))
     sims_a = np.stack(sims)  # (R, B, 3)
     centre = np.array([t[which == b].mean() if (which == b).any() else np.nan
                        for b in range(len(edges) - 1)])  # fmt: skip
@@ -106,6 +113,13 @@ def vpc(res, replicates: int = 200, seed: int = 0, bins: int = 8, output: int = 
         "observed": percentiles(units.y[..., output][seen]),
         "simulated": np.percentile(sims_a, levels, axis=0).transpose(1, 2, 0),
     }
+
+
+def _noise_sd(res, obj, etas, shape, output: int) -> np.ndarray:
+    """The residual SD of each simulated sample of ``output``."""
+    if obj.plain:
+        return np.full(shape, list(res.residual_sd.values())[output])
+    return obj.residual_sd(res.x, etas)[..., output]
 
 
 def vpc_figure(res, output: int = 0):

@@ -1,22 +1,25 @@
 r"""The marginal likelihood of a fleet and its exact derivatives.
 
-ψ = (μ, log ω, s, log σ): μ_k = log of the typical value of population parameter k,
-ω_k the standard deviation of its random effect η_k, s the shared free parameters
-(natural units), σ_g each output's residual standard deviation. Unit i's parameters
-are exp(μ + η_i) for the population ones and s for the rest.
+ψ = (μ, log ω, s, log a, log b): μ_k = log of the typical value of population
+parameter k, ω_k the standard deviation of its random effect η_k, s the shared free
+parameters (natural units), a_g and b_g output g's additive and proportional residual
+error (each where the output has it). Unit i's parameters are exp(μ + η_i) for the
+population ones, its own values b_i for individual ones (found beside η̂_i, no
+distribution), and s for the rest. The residual variance is σ²_hg = a_g² + b_g² ŷ_hg².
 
-Each unit's inner problem (its empirical Bayes estimate η̂_i) minimises
+Each unit's inner problem (its empirical Bayes estimate η̂_i, with b̂_i) minimises
 
-    ℓ_i(η) = ½ Σ_h Σ_g (y_hg − ŷ_hg)² / σ_g² + ½ ηᵀ Ω⁻¹ η,
+    ℓ_i(η) = ½ Σ_h Σ_g [(y_hg − ŷ_hg)² / σ²_hg + log σ²_hg] + ½ ηᵀ Ω⁻¹ η,
 
 solved by damped Newton steps with the exact Hessian. The outer objective is −2 log
 of the Laplace approximation of the unit's marginal likelihood ∫ p(y_i | η) p(η) dη:
 
-    O_i(ψ) = 2 ℓ_i(η̂_i) + Σ_g n_ig log(2π σ_g²) + log det Ω + log det M_i,
+    O_i(ψ) = 2 ℓ_i(η̂_i) + N_i log 2π + log det Ω + log det M_i,
 
-with M_i = ∇²ℓ_i(η̂_i) (``"laplace"``) or its first-order part
-Σ_h A_hᵀ diag(σ⁻²) A_h + Ω⁻¹, A = ∂ŷ/∂η (``"focei"``: first-order conditional
-estimation; with additive noise the interaction term is nil, so FOCE and FOCEI agree).
+with M_i = ∇²_ηη ℓ_i(η̂_i) (``"laplace"``) or its first-order part
+Σ_h A_hᵀ diag(σ_h⁻²) A_h + Ω⁻¹, A = ∂ŷ/∂η (``"focei"``: first-order conditional
+estimation with interaction, σ² evaluated at η̂_i, as NONMEM's FOCE INTER; with
+additive error alone σ does not depend on η, so FOCE and FOCEI agree).
 FOCEI is the default: its objective needs first-order output sensitivities, its exact
 gradient the second-order ones (the transition tensors) and its exact Hessian the
 third, one order fewer than Laplace everywhere, and it is what NONMEM and nlmixr2
@@ -58,10 +61,13 @@ class Objective:
             )
         m = problem.model
         self.problem, self.method = problem, method
-        # individual parameters (no distribution): the joint least-squares problem,
-        # reduced to the shared ones (variable projection; see fit_population)
-        self.joint = bool(problem.individual)
-        self.pop = list(problem.individual or problem.population)
+        # individual parameters alone (no distribution): the joint least-squares problem,
+        # reduced to the shared ones (variable projection; see fit_population). Beside
+        # random effects they are each unit's own fixed effects, found with its η̂
+        self.joint = bool(problem.individual) and not problem.population
+        # the inner unknowns per unit: the random effects' η, then the individual values
+        self.pop = list(problem.population) + list(problem.individual)
+        self.qp = 0 if self.joint else len(problem.population)
         self.shared = [n for n in problem.free_params if n not in self.pop]
         free = [m.params.index(n) for n in problem.free_params]
         self.sweeps = shared_sweeps(m, (), tuple(free), problem.discretisation)
@@ -69,23 +75,31 @@ class Objective:
         self.pop_pos = jnp.array([problem.free_params.index(n) for n in self.pop], dtype=int)
         self.sh_pos = jnp.array([problem.free_params.index(n) for n in self.shared], dtype=int)
         self.q, self.ns, self.S = len(self.pop), len(self.shared), m.S
+        # each output's residual error: σ² = a² + b² ŷ² (additive a, proportional b)
+        kinds = getattr(problem, "residual_error", None) or {}
+        self.errors = tuple(kinds.get(o, "additive") for o in m.outputs)
+        self.additive = [g for g, k in enumerate(self.errors) if k != "proportional"]
+        self.proportional = [g for g, k in enumerate(self.errors) if k != "additive"]
+        self.plain = not self.proportional  # σ constant in η: the additive form
         self.units = Units.of(problem)
         # per unit (t, u, y, mask, x0, p): the fixed parameters travel with the data, so
         # that a fleet of another size or other fixed values reuses the compiled programs
         p = np.tile(np.asarray(problem.p0, dtype=float), (len(self.units.names), 1))
         self.data = (*self.units.arrays(), jnp.asarray(p))
         self.weights = tuple(float(w) for w in problem.weights)
-        self.key: tuple = (self.sweeps, tuple(self.pop), tuple(self.shared), method, self.joint)
-        self.key += (self.weights,) if self.joint else ()
+        self.key: tuple = (self.sweeps, tuple(self.pop), self.qp, tuple(self.shared), method)
+        self.key += (self.weights,) if self.joint else (self.errors,)
         self.Y = outputs(self.sweeps)
+        outs = m.outputs
         self.names = (
             self.shared
             if self.joint
             else (
-                [f"log_{n}" for n in self.pop]
-                + [f"log_omega_{n}" for n in self.pop]
+                [f"log_{n}" for n in self.pop[: self.qp]]
+                + [f"log_omega_{n}" for n in self.pop[: self.qp]]
                 + self.shared
-                + [f"log_sigma_{o}" for o in m.outputs]
+                + [f"log_sigma_{outs[g]}" for g in self.additive]
+                + [f"log_prop_{outs[g]}" for g in self.proportional]
             )
         )
         self.size = len(self.names)
@@ -105,54 +119,86 @@ class Objective:
 
     # -- pieces -----------------------------------------------------------------------
     def split(self, psi):
+        """(log typical values, log ω, shared, residual error) of ψ."""
         if self.joint:  # ψ holds the shared parameters alone
             return psi[:0], psi[:0], psi, psi[:0]
-        q, ns = self.q, self.ns
-        return psi[:q], psi[q : 2 * q], psi[2 * q : 2 * q + ns], psi[2 * q + ns :]
+        qp, ns = self.qp, self.ns
+        return psi[:qp], psi[qp : 2 * qp], psi[2 * qp : 2 * qp + ns], psi[2 * qp + ns :]
 
     def theta(self, psi, eta):
         """The unit's free parameters (natural units, model order)."""
         mu, _, s, _ = self.split(psi)
         th = jnp.zeros(self.q + self.ns, dtype=jnp.result_type(psi, eta))
-        own = eta if self.joint else jnp.exp(mu + eta)
+        qp = self.qp
+        own = eta if self.joint else jnp.concatenate([jnp.exp(mu + eta[:qp]), eta[qp:]])
         return th.at[self.pop_pos].set(own).at[self.sh_pos].set(s)
+
+    def variance(self, noise, yhat):
+        """σ²_hg = a_g² + b_g² ŷ_hg² of each output's residual error (P, S)."""
+        na = len(self.additive)
+        a2 = (
+            jnp.zeros(self.S).at[jnp.asarray(self.additive, dtype=int)].set(jnp.exp(2 * noise[:na]))
+        )
+        b2 = (
+            jnp.zeros(self.S)
+            .at[jnp.asarray(self.proportional, dtype=int)]
+            .set(jnp.exp(2 * noise[na:]))
+        )
+        return a2 + b2 * yhat**2
 
     def predict(self, psi, eta, unit):
         t, u, _, _, x0, p = unit
         return self.Y(self.theta(psi, eta), x0, p, t, u)
 
     def ell(self, eta, psi, unit):
-        """ℓ_i(η): half the unit's weighted squared residuals plus half its prior."""
-        _, logw, _, logsig = self.split(psi)
+        """ℓ_i(η): half the unit's weighted squared residuals plus half its prior (and,
+        where σ depends on ŷ, half Σ log σ², which then moves with η)."""
+        _, logw, _, noise = self.split(psi)
         y, mask = unit[2], unit[3]
-        r = (y - self.predict(psi, eta, unit)) * mask
+        f = self.predict(psi, eta, unit)
+        r = (y - f) * mask
         if self.joint:  # least squares, J_i / 2 with the Problem's weights
             return 0.5 * jnp.sum(r**2 * jnp.asarray(self.weights))
-        return 0.5 * (jnp.sum(r**2 * jnp.exp(-2 * logsig)) + jnp.sum((eta * jnp.exp(-logw)) ** 2))
+        prior = jnp.sum((eta[: self.qp] * jnp.exp(-logw)) ** 2)
+        if self.plain:
+            return 0.5 * (jnp.sum(r**2 * jnp.exp(-2 * noise)) + prior)
+        V = jnp.where(mask > 0, self.variance(noise, f), 1.0)  # 1: no observation
+        return 0.5 * (jnp.sum(r**2 / V + mask * jnp.log(V)) + prior)
 
     def curvature(self, eta, psi, unit):
-        """M_i: the matrix whose log determinant the approximation adds."""
+        """M_i over the random effects: the matrix whose log determinant the
+        approximation adds (individual values are the unit's own optimum, not
+        integrated over)."""
+        qp = self.qp
         if self.method == "laplace":
-            return jax.hessian(self.ell)(eta, psi, unit)
-        _, logw, _, logsig = self.split(psi)
-        A = jax.jacfwd(lambda e: self.predict(psi, e, unit))(eta)  # (P, S, q)
-        Aw = A * (jnp.sqrt(unit[3]) * jnp.exp(-logsig))[..., None]
+            return jax.hessian(self.ell)(eta, psi, unit)[:qp, :qp]
+        _, logw, _, noise = self.split(psi)
+        A = jax.jacfwd(lambda e: self.predict(psi, e, unit))(eta)[..., :qp]  # (P, S, qp)
+        if self.plain:
+            Aw = A * (jnp.sqrt(unit[3]) * jnp.exp(-noise))[..., None]
+        else:  # FOCE with interaction: σ² at the unit's η̂
+            f = self.predict(psi, eta, unit)
+            V = jnp.where(unit[3] > 0, self.variance(noise, f), 1.0)
+            Aw = A * jnp.sqrt(unit[3] / V)[..., None]
         return jnp.einsum("psj,psk->jk", Aw, Aw) + jnp.diag(jnp.exp(-2 * logw))
 
     def unit_objective(self, psi, eta, unit):
         """O_i: −2 log of the unit's approximate marginal likelihood (for individual
-        parameters, the unit's least-squares cost J_i)."""
+        parameters alone, the unit's least-squares cost J_i)."""
         if self.joint:
             return 2 * self.ell(eta, psi, unit)
-        _, logw, _, logsig = self.split(psi)
+        _, logw, _, noise = self.split(psi)
         n = jnp.sum(unit[3], axis=0)  # observations per output
         sign, logdet = jnp.linalg.slogdet(self.curvature(eta, psi, unit))
-        O = (
-            2 * self.ell(eta, psi, unit)
-            + jnp.sum(n * (LOG_2PI + 2 * logsig))
-            + 2 * jnp.sum(logw)
-            + logdet
-        )
+        if self.plain:  # ℓ leaves out Σ log σ², constant in η
+            O = (
+                2 * self.ell(eta, psi, unit)
+                + jnp.sum(n * (LOG_2PI + 2 * noise))
+                + 2 * jnp.sum(logw)
+                + logdet
+            )
+        else:
+            O = 2 * self.ell(eta, psi, unit) + jnp.sum(n * LOG_2PI) + 2 * jnp.sum(logw) + logdet
         return jnp.where(sign > 0, O, jnp.inf)
 
     def unit_value_grad(self, psi, eta, unit):
@@ -199,11 +245,11 @@ class Objective:
 
     def _sizes(self, eta, unit):
         """The size a step on η is measured against: 1 for random effects (log scale),
-        half the larger of |η| and |its start| for individual parameters."""
-        if not self.joint:
-            return jnp.ones_like(eta)
-        start = unit[5][jnp.asarray(self.own_index)]
-        return 0.5 * jnp.maximum(jnp.maximum(jnp.abs(eta), jnp.abs(start)), 1e-300)
+        half the larger of |value| and |its start| for individual parameters."""
+        qp = self.qp
+        start = unit[5][jnp.asarray(self.own_index[qp:], dtype=int)]
+        own = 0.5 * jnp.maximum(jnp.maximum(jnp.abs(eta[qp:]), jnp.abs(start)), 1e-300)
+        return jnp.concatenate([jnp.ones_like(eta[:qp]), own])
 
     # -- compiled, over all units -------------------------------------------------------
     # kept per structure (model, discretisation, which parameters are random effects,
@@ -252,12 +298,22 @@ class Objective:
         return np.asarray(H), np.asarray(L)
 
     def start_etas(self) -> np.ndarray:
-        """The inner problems' start: η = 0, or an individual parameter's p0."""
-        E, pr = len(self.units.names), self.problem
-        if not self.joint:
-            return np.zeros((E, self.q))
-        p0 = [pr.p0[pr.model.params.index(n)] for n in self.pop]
-        return np.tile(np.asarray(p0, dtype=float), (E, 1))
+        """The inner problems' start: η = 0, and each individual parameter's p0."""
+        E, pr, qp = len(self.units.names), self.problem, self.qp
+        p0 = [0.0] * qp + [pr.p0[pr.model.params.index(n)] for n in self.pop[qp:]]
+        return np.tile(np.asarray(p0, dtype=float), (E, 1)).reshape(E, self.q)
+
+    def _build_residual_sd(self):
+        def sd(psi, eta, unit):
+            f = self.predict(psi, eta, unit)
+            return jnp.sqrt(self.variance(self.split(psi)[3], f))
+
+        return jax.jit(jax.vmap(sd, in_axes=(None, 0, 0)))
+
+    def residual_sd(self, psi, etas) -> np.ndarray:
+        """σ_hg (E, P, S) of every unit's residual error at (ψ, η)."""
+        program = self._compiled("residual_sd")
+        return np.asarray(program(jnp.asarray(psi), jnp.asarray(etas), self.data))
 
     def _build_inner_hessians(self):
         return jax.jit(jax.vmap(jax.hessian(self.ell), in_axes=(0, None, 0)))

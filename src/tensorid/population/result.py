@@ -33,6 +33,21 @@ def _measured(r, status) -> np.ndarray:
     return H
 
 
+def _residual_error(obj, x, se) -> dict:
+    """{output: {"model", "additive", "additive_stderr", "proportional", ...}}."""
+    out: dict = {o: {"model": k} for o, k in zip(obj.problem.model.outputs, obj.errors,
+                                                  strict=True)}  # fmt: skip
+    first = 2 * obj.qp + obj.ns
+    columns = [("additive", g) for g in obj.additive]
+    columns += [("proportional", g) for g in obj.proportional]
+    for j, (what, g) in enumerate(columns):
+        v = float(np.exp(x[first + j]))
+        out[obj.problem.model.outputs[g]].update(
+            {what: v, f"{what}_stderr": v * float(se[first + j])}
+        )
+    return out
+
+
 @dataclass(frozen=True)
 class PopulationResult:
     """The outcome of :func:`tensorid.population.fit_population` (``tensorid.fit`` of a
@@ -43,7 +58,10 @@ class PopulationResult:
     effect ``typical``, ``typical_stderr`` (same units), ``omega`` (SD of η),
     ``omega_stderr``, ``cv_percent`` (√(exp(ω²) − 1)) and ``shrinkage_percent``
     (1 − SD(η̂)/ω); ``shared`` the fleet's other parameters; ``residual_sd`` each
-    output's σ; ``units`` per unit its ``id``, ``params`` and their ``stderr``."""
+    output's additive σ (0 where its error is proportional alone); ``residual_error``
+    each output's error model and estimates; ``units`` per unit its ``id``, ``params``
+    (random effects' values and individual ones) and their ``stderr`` (conditional on
+    the population estimates)."""
 
     x: np.ndarray
     names: list[str]
@@ -67,6 +85,9 @@ class PopulationResult:
     # the objective it was fitted with (its compiled programs: predictions, figures)
     objective_function: Any = field(repr=False, default=None)
     notes: list = field(default_factory=list)  # warnings the fit raised, for the files
+    # per output: its model ("additive", "proportional", "combined") and the estimates
+    # "additive" (SD) and "proportional" (SD relative to the prediction), with stderrs
+    residual_error: dict = field(default_factory=dict)
 
     @property
     def success(self) -> bool:
@@ -99,48 +120,44 @@ class PopulationResult:
     def build(cls, obj, r, etas, status, seconds) -> PopulationResult:
         if obj.joint:
             return cls._joint(obj, r, etas, status, seconds)
-        q, ns, x = obj.q, obj.ns, np.asarray(r.x, dtype=float)
+        qp, x = obj.qp, np.asarray(r.x, dtype=float)
         H = _measured(r, status)
         cov = 2.0 * _inverse(H)  # O = −2 log L: the information is H / 2
         se = np.sqrt(np.where(np.diag(cov) < 0, np.inf, np.diag(cov)))  # NaN: not measured
         population = {}
-        for k, n in enumerate(obj.pop):
-            typ, om = float(np.exp(x[k])), float(np.exp(x[q + k]))
+        for k, n in enumerate(obj.pop[:qp]):
+            typ, om = float(np.exp(x[k])), float(np.exp(x[qp + k]))
             sd = float(np.std(etas[:, k], ddof=1)) if len(etas) > 1 else float("nan")
             population[n] = {
                 "typical": typ,
                 "typical_stderr": typ * float(se[k]),
                 "omega": om,
-                "omega_stderr": om * float(se[q + k]),
+                "omega_stderr": om * float(se[qp + k]),
                 "cv_percent": 100.0 * float(np.sqrt(np.expm1(om**2))),
                 "shrinkage_percent": 100.0 * (1.0 - sd / om),
             }
         shared = {
-            n: {"value": float(x[2 * q + j]), "stderr": float(se[2 * q + j])}
+            n: {"value": float(x[2 * qp + j]), "stderr": float(se[2 * qp + j])}
             for j, n in enumerate(obj.shared)
         }
-        sig = x[2 * q + ns :]
-        residual_sd = {
-            o: {
-                "value": float(np.exp(sig[g])),
-                "stderr": float(np.exp(sig[g]) * se[2 * q + ns + g]),
-            }
-            for g, o in enumerate(obj.problem.model.outputs)
-        }
+        residual_error = _residual_error(obj, x, se)
         inner = obj.inner_hessians(x, etas)
         units = []
         for i, uid in enumerate(obj.units.names):
             ci = _inverse(inner[i])
-            vals = {n: float(np.exp(x[k] + etas[i, k])) for k, n in enumerate(obj.pop)}
-            errs = {n: vals[n] * float(np.sqrt(ci[k, k])) for k, n in enumerate(obj.pop)}
+            vals, errs = {}, {}
+            for k, n in enumerate(obj.pop):  # a random effect's value, or its own
+                vals[n] = float(np.exp(x[k] + etas[i, k]) if k < qp else etas[i, k])
+                errs[n] = (vals[n] if k < qp else 1.0) * float(np.sqrt(ci[k, k]))
             vals.update({n: v["value"] for n, v in shared.items()})
             errs.update({n: v["stderr"] for n, v in shared.items()})
-            eta = {n: float(etas[i, k]) for k, n in enumerate(obj.pop)}
+            eta = {n: float(etas[i, k]) for k, n in enumerate(obj.pop[:qp])}
             units.append({"id": uid, "params": vals, "stderr": errs, "eta": eta})
+        residual_sd = {o: v.get("additive", 0.0) for o, v in residual_error.items()}
         return cls(
             x=x, names=list(obj.names), objective=float(r.fun), jac=np.asarray(r.jac),
             hess=H, cov=cov, etas=np.asarray(etas), population=population, shared=shared,
-            residual_sd={o: v["value"] for o, v in residual_sd.items()},
+            residual_sd=residual_sd, residual_error=residual_error,
             units=units, nit=r.nit, nfev=r.nfev, status=status, method=obj.method,
             seconds=seconds, observations=int(obj.units.mask.sum()), problem=obj.problem,
             history=list(getattr(r, "history", [])), objective_function=obj,
@@ -206,9 +223,32 @@ class PopulationResult:
             )
         for n, v in self.shared.items():
             lines.append(f"  {n:<12}{v['value']:>12.5g}{v['stderr']:>11.3g}   (shared)")
-        for o, s in self.residual_sd.items():
-            lines.append(f"  residual SD of {o}: {s:.5g}")
+        lines += self._own_lines()
+        for o, e in self.residual_error.items():
+            if e["model"] == "additive":
+                lines.append(f"  residual SD of {o}: {e['additive']:.5g}")
+                continue
+            parts = [
+                f"{what} {e[what]:.5g} (SE {e[what + '_stderr']:.3g})"
+                for what in ("additive", "proportional")
+                if what in e
+            ]
+            lines.append(f"  residual error of {o} ({e['model']}): {', '.join(parts)}")
         return "\n".join(lines + [f"  note: {n}" for n in self.notes])
+
+    def _own_lines(self) -> list[str]:
+        """The individual parameters' spread over the units (each unit's in .units)."""
+        if not self.units:
+            return []
+        own = [n for n in self.units[0]["params"] if n not in self.shared]
+        lines = []
+        for n in (k for k in own if k not in self.population):
+            vals = np.array([u["params"][n] for u in self.units])
+            lines.append(
+                f"  {n:<12} per unit: median {np.median(vals):.5g}, range "
+                f"{vals.min():.5g} to {vals.max():.5g} (each unit's in .units)"
+            )
+        return lines
 
     def _joint_summary(self) -> str:
         own = [n for n in self.units[0]["params"] if n not in self.shared] if self.units else []
@@ -219,12 +259,7 @@ class PopulationResult:
         ]
         for n, v in self.shared.items():
             lines.append(f"  {n:<12}{v['value']:>12.5g} ± {v['stderr']:.3g}   (shared)")
-        for n in own:
-            vals = np.array([u["params"][n] for u in self.units])
-            lines.append(
-                f"  {n:<12} per unit: median {np.median(vals):.5g}, range "
-                f"{vals.min():.5g} to {vals.max():.5g} (each unit's in .units)"
-            )
+        lines += self._own_lines()
         for o, s in self.residual_sd.items():
             lines.append(f"  residual SD of {o}: {s:.5g}")
         return "\n".join(lines + [f"  note: {n}" for n in self.notes])
