@@ -2,6 +2,7 @@
 grows with the number of units.
 
     python benchmarks/bench_population.py coverage --draws 200 --units 50
+    python benchmarks/bench_population.py coverage --draws 100 --units 50 --error combined
     python benchmarks/bench_population.py scale --sizes 100 1000 10000
     python benchmarks/bench_population.py workers --units 2000 --workers 1 2
 
@@ -9,9 +10,11 @@ coverage: each draw simulates a fleet of one-compartment units (first-order abso
 log-normal random effects on ka, cl and v, additive noise; truth below) at the same
 eight sample times, fits it by FOCEI from a start 20 % off, and checks whether the
 95 % intervals (on the log scale: μ̂ ± 1.96 SE, log ω̂ ± 1.96 SE) hold the truth;
-ω's relative bias is reported. scale: one outer iteration (every unit's inner solve,
-the exact gradient and Hessian) and a whole fit, timed per fleet size, with the
-process's peak memory; the exponent is the slope of log time against log units.
+ω's relative bias is reported. With --error combined the noise is σ² = a² + b²ŷ²
+(a = 0.3, b = 0.1), fitted as such, and a's and b's intervals are checked too.
+scale: one outer iteration (every unit's inner solve, the exact gradient and
+Hessian) and a whole fit, timed per fleet size, with the process's peak memory; the
+exponent is the slope of log time against log units.
 Seeded; results to benchmarks/results/population.json (--json).
 """
 
@@ -33,6 +36,7 @@ from tensorid.population.objective import Objective
 TRUTH = {"ka": 1.5, "cl": 2.7, "v": 31.5}
 OMEGA = {"ka": 0.5, "cl": 0.3, "v": 0.15}
 SIGMA = 0.5
+COMBINED = {"additive": 0.3, "proportional": 0.1}  # --error combined: σ² = a² + b²ŷ²
 TIMES = np.array([0.0, 0.5, 1.0, 2.0, 4.0, 7.0, 12.0, 24.0])
 DOSE = 320.0
 
@@ -50,7 +54,7 @@ def model() -> ti.Model:
 MODEL = model()
 
 
-def fleet(n: int, seed: int) -> list[ti.Experiment]:
+def fleet(n: int, seed: int, error: str = "additive") -> list[ti.Experiment]:
     """n units drawn from the truth, simulated in one vmapped call."""
     rng = np.random.default_rng(seed)
     eta = rng.standard_normal((n, 3)) * np.array(list(OMEGA.values()))
@@ -66,23 +70,28 @@ def fleet(n: int, seed: int) -> list[ti.Experiment]:
     sim = jax.jit(jax.vmap(lambda th, d: sw._simulate(d[4], th, d[0], d[1])[1]))
     x0 = np.tile([DOSE, 0.0], (n, 1))
     sims = np.asarray(sim(jnp.asarray(params), (*data[:4], jnp.asarray(x0))))
-    y = sims + SIGMA * rng.standard_normal(sims.shape)
+    sd = SIGMA
+    if error == "combined":
+        sd = np.sqrt(COMBINED["additive"] ** 2 + (COMBINED["proportional"] * sims) ** 2)
+    y = sims + sd * rng.standard_normal(sims.shape)
     return [ti.Experiment(TIMES, u, y[i], name=str(i)) for i in range(n)]
 
 
-def problem(units, start=1.2):
+def problem(units, start=1.2, error="additive"):
     return ti.Problem(MODEL, units, p0={k: v * start for k, v in TRUTH.items()},
                       x0={"depot": "Dose", "center": 0.0}, substeps=40,
-                      population={k: 0.3 for k in OMEGA})  # fmt: skip
+                      population={k: 0.3 for k in OMEGA}, residual_error=error)  # fmt: skip
 
 
-def coverage(draws: int, n_units: int) -> dict:
+def coverage(draws: int, n_units: int, error: str = "additive") -> dict:
     hits = {f"typical {k}": 0 for k in TRUTH} | {f"omega {k}": 0 for k in OMEGA}
+    noise = COMBINED if error == "combined" else {}
+    hits |= {f"residual {k}": 0 for k in noise}
     rel_bias: dict[str, list] = {k: [] for k in OMEGA}
     failed, seconds = 0, []
     for d in range(draws):
         t0 = time.perf_counter()
-        res = ti.fit(problem(fleet(n_units, seed=d)))
+        res = ti.fit(problem(fleet(n_units, seed=d, error=error), error=error))
         seconds.append(time.perf_counter() - t0)
         if not res.success:
             failed += 1
@@ -93,6 +102,8 @@ def coverage(draws: int, n_units: int) -> dict:
             j = 3 + k
             hits[f"omega {name}"] += abs(res.x[j] - np.log(OMEGA[name])) < 1.96 * se[j]
             rel_bias[name].append(np.exp(res.x[j]) / OMEGA[name] - 1)
+        for k, (name, value) in enumerate(noise.items()):
+            hits[f"residual {name}"] += abs(res.x[6 + k] - np.log(value)) < 1.96 * se[6 + k]
         if (d + 1) % 20 == 0:
             print(f"{d + 1} draws, {failed} failed, median {np.median(seconds):.2f} s per fit")
     ok = draws - failed
@@ -101,7 +112,8 @@ def coverage(draws: int, n_units: int) -> dict:
         "coverage_95": {k: v / ok for k, v in hits.items()},
         "omega_relative_bias": {k: float(np.mean(v)) for k, v in rel_bias.items()},
         "median_fit_seconds": float(np.median(seconds[1:] or seconds)),
-        "truth": {"typical": TRUTH, "omega": OMEGA, "sigma": SIGMA},
+        "truth": {"typical": TRUTH, "omega": OMEGA, "sigma": noise or SIGMA},
+        "error": error,
     }  # fmt: skip
 
 
@@ -171,6 +183,7 @@ def main() -> None:
     ap.add_argument("study", choices=["coverage", "scale", "workers"])
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--draws", type=int, default=200)
+    ap.add_argument("--error", choices=["additive", "combined"], default="additive")
     ap.add_argument("--units", type=int, default=50)
     ap.add_argument("--sizes", type=int, nargs="+", default=[100, 1000, 10000])
     ap.add_argument(
@@ -180,10 +193,11 @@ def main() -> None:
     if a.study == "workers":
         out = workers(2000 if a.units == 50 else a.units, a.workers)
     else:
-        out = coverage(a.draws, a.units) if a.study == "coverage" else scale(a.sizes)
+        out = coverage(a.draws, a.units, a.error) if a.study == "coverage" else scale(a.sizes)
     print(json.dumps(out, indent=2))
     old = json.loads(a.json.read_text()) if a.json.exists() else {}
-    old[a.study] = out
+    key = a.study if a.error == "additive" or a.study != "coverage" else "coverage_combined"
+    old[key] = out
     a.json.write_text(json.dumps(old, indent=2) + "\n")
 
 

@@ -197,6 +197,69 @@ def test_combined_error_and_individual_values_beside_random_effects_exact_gradie
     np.testing.assert_allclose(g.sum(0), gp, rtol=1e-8, atol=1e-8 * np.abs(gp).max())
 
 
+def test_an_initial_state_that_moves_with_estimated_parameters():
+    """x0["center"] = "v * c0" (a concentration c0 before the dose, c0 shared, v
+    log-normal over the units): each unit starts from its own v; the gradient through
+    the expression (every state's sensitivity seeded, chained by JAX) is that of the
+    plainly written objective, and a fit finds the c0 the data were made with."""
+    base = one_compartment()
+    m = ti.Model(rhs=lambda x, p, u: base.rhs(x, p[:3], u), output=lambda x, p: x[1:] / p[2],
+                 states=["depot", "center"], params=["ka", "cl", "v", "c0"], inputs=["Dose"],
+                 outputs=["cp"])  # fmt: skip
+    rng = np.random.default_rng(3)
+    units = []
+    for i in range(6):
+        t = np.array([0.0, 0.5, 1, 2, 4, 8, 12, 24])
+        v = 30.0 * np.exp(0.2 * rng.standard_normal())
+        u = np.full((t.size, 1), 300.0)
+        sim = ti.simulate(m, {"ka": 1.5, "cl": 2.5, "v": v, "c0": 2.0}, [300.0, 2.0 * v],
+                          ti.Experiment(t, u), substeps=20)  # fmt: skip
+        y = sim.y + 0.1 * rng.standard_normal(sim.y.shape)
+        units.append(ti.Experiment(t, u, y, name=f"u{i}"))
+    pr = ti.Problem(m, units, p0={"ka": 1.2, "cl": 2.0, "v": 25.0, "c0": 1.0},
+                    x0={"depot": "Dose", "center": "v * c0"}, substeps=20,
+                    population={"v": 0.3})  # fmt: skip
+    obj = Objective(pr, "focei")
+    psi = np.array([np.log(28.0), np.log(0.3), 1.4, 2.4, 1.5, np.log(0.2)])
+    etas, ok = obj.solve_inner(psi, obj.start_etas())
+    assert ok
+    O, g = obj.value_grad(psi, etas)
+    sw = obj.sweeps
+
+    def plain(psi_):
+        total = 0.0
+        for i in range(len(units)):
+            unit = tuple(a[i] for a in obj.data)
+
+            def yhat(e, unit=unit):
+                p = unit[5].at[jnp.arange(4)].set(obj.theta(psi_, e))
+                x0 = unit[4].at[1].set(p[2] * p[3])
+                return sw._simulate(x0, p, unit[0], unit[1])[1]
+
+            def ell(e, unit=unit):
+                r = (unit[2] - yhat(e)) * unit[3]
+                return 0.5 * (
+                    jnp.sum(r**2) * jnp.exp(-2 * psi_[-1]) + (e[0] / jnp.exp(psi_[1])) ** 2
+                )
+
+            e = jnp.asarray(etas[i])
+            e = e - jnp.linalg.solve(jax.hessian(ell)(e), jax.grad(ell)(e))
+            A = jax.jacfwd(yhat)(e) * jnp.exp(-psi_[-1])
+            M = jnp.einsum("psj,psk->jk", A, A) + jnp.exp(-2 * psi_[1])
+            n = jnp.sum(unit[3])
+            total = total + 2 * ell(e) + n * (jnp.log(2 * jnp.pi) + 2 * psi_[-1])
+            total = total + 2 * psi_[1] + jnp.linalg.slogdet(M)[1]
+        return total
+
+    assert O.sum() == pytest.approx(float(plain(jnp.asarray(psi))), rel=1e-12)
+    gp = np.asarray(jax.grad(plain)(jnp.asarray(psi)))
+    np.testing.assert_allclose(g.sum(0), gp, rtol=1e-8, atol=1e-8 * np.abs(gp).max())
+    res = ti.fit(pr)
+    assert res.success
+    c0 = res.shared["c0"]
+    assert abs(c0["value"] - 2.0) < 3 * c0["stderr"] and c0["stderr"] < 0.2
+
+
 def test_the_inner_hessian_is_the_exact_one():
     """The unit's ∇²ℓ from the tensors (the tower in units.py) equals jax.hessian of ℓ
     with ŷ differentiated by JAX through the simulation."""
@@ -307,6 +370,9 @@ def test_x0_expressions_are_evaluated_per_record():
         ti.Problem(m, units, p0={"ka": 1, "cl": 2, "v": 30}, x0={"depot": "Dose * Wt"})
     with pytest.raises(ValueError, match="an x0 expression names \\['v'\\], which are estimated"):
         ti.Problem(m, units, p0={"ka": 1, "cl": 2, "v": 30}, x0={"depot": "Dose / v"})
+    # in a fleet's fit it may move with them (test_an_initial_state_that_moves...)
+    ti.Problem(m, units, p0={"ka": 1, "cl": 2, "v": 30}, x0={"depot": "Dose / v"},
+               population={"v": 0.2})  # fmt: skip
     fixed = ti.Problem(
         m, units, p0={"ka": 1, "cl": 2, "v": 30}, x0={"depot": "Dose / v"}, fixed=["v"]
     )

@@ -227,6 +227,9 @@ def test_fit_reads_units_from_one_long_file_on_the_command_line(tmp_path, capsys
         (["--records", "ID", "--population", "ka=0.3", "ka=0.2"], "twice"),
         (["--records", "ID", "--individual", "ka", "--population", "ka=0.3"], "in both"),
         (["--records", "ID", "--fix", "cl=2", "--population", "cl=0.3"], "is fixed"),
+        (["--records", "ID", "--residual-error", "relative"], "give one of"),
+        (["--records", "ID", "--residual-error", "cq=combined"], "did you mean 'cp'"),
+        (["--records", "ID", "--residual-error", "combined"], "estimated by a population fit"),
     ],
 )
 def test_fleet_flags_refuse_bad_input_in_one_line(tmp_path, capsys, extra, expect):
@@ -288,14 +291,21 @@ def test_without_the_fleet_estimator_population_is_refused_in_one_line(tmp_path,
 
 @pytest.mark.skipif(not FLEET, reason="the fleet estimator (issue 42) is not in this tree")
 def test_theophylline_example_fits_from_the_command_line(tmp_path, capsys):
+    """The example with every kind at once: ka each subject's own, cl and v log-normal,
+    a combined residual error; fit.json and report.md say so."""
     out = tmp_path / "out"
     rc = _fit([EXAMPLE, theophylline_csv(), "--records", "ID", "--columns", "t=Time,cp=conc",
-               "--out", out])  # fmt: skip
+               "--individual", "ka", "--population", "cl=0.3", "v=0.1",
+               "--residual-error", "combined", "--out", out])  # fmt: skip
     assert rc in (0, 1), capsys.readouterr().err
     data = json.loads((out / "fit.json").read_text())
-    assert set(data["population"]) == {"ka", "cl", "v"}
+    assert set(data["population"]) == {"cl", "v"}
     assert [u["id"] for u in data["units"]] == [str(i) for i in range(1, 13)]
-    assert "cp" in data["residual_sd"]
+    assert len({u["params"]["ka"] for u in data["units"]}) == 12  # each its own ka
+    error = data["residual_error"]["cp"]
+    assert error["model"] == "combined" and error["additive"] > 0 and error["proportional"] > 0
+    assert data["residual_sd"]["cp"] == error["additive"]
+    assert "Residual error" in (out / "report.md").read_text()
 
 
 def test_a_unit_with_fewer_observations_than_its_own_unknowns_is_refused(tmp_path, capsys):

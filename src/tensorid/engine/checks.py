@@ -127,6 +127,7 @@ def check_x0(problem, x0) -> np.ndarray:
         return np.zeros((E, m.N))
     if has_expressions(x0):  # {"depot": "Dose * Wt"}: per record, at its first sample
         arr, problem.x0_uses = evaluate(m, problem.experiments, x0, problem.p0)
+        problem.x0_expressions = dict(x0)  # a fleet's fit may move them with θ
         return arr
     if isinstance(x0, Mapping):
         return np.tile(m.states_array(x0), (E, 1))

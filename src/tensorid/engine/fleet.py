@@ -121,14 +121,16 @@ def check_individual(problem, individual, population, predictor, loss, segments)
     return list(individual)
 
 
-def fixed_x0_parameters(problem) -> None:
-    """An initial-state expression may name parameters only where they stay fixed."""
+def fixed_x0_parameters(problem, fleet: bool) -> None:
+    """An initial-state expression may name estimated parameters in a fleet's fit
+    (whose sweeps carry every state's sensitivity), elsewhere only fixed ones."""
     moving = sorted(getattr(problem, "x0_uses", set()) & set(problem.free_params))
-    if moving:
+    if moving and not fleet:
         raise ValueError(
-            f"an x0 expression names {moving}, which are estimated: an initial state that "
-            "moves with an estimated parameter is not supported; add them to fixed, or "
-            "write the dependence into the model's equations"
+            f"an x0 expression names {moving}, which are estimated: outside a fleet's fit "
+            "(individual or population parameters) an initial state that moves with an "
+            "estimated parameter is not supported; add them to fixed, free the state "
+            "itself (free_x0), or write the dependence into the model's equations"
         )
 
 
@@ -172,7 +174,7 @@ def check_residual_error(problem, residual_error, population) -> dict[str, str]:
 def check_fleet(problem, population, individual, predictor, loss, segments, residual_error=None):
     """(population, individual, residual_error) checked, and the x0 expressions'
     parameters fixed."""
-    fixed_x0_parameters(problem)
     pop = check_population(problem, population, predictor, loss, segments)
     ind = check_individual(problem, individual, pop, predictor, loss, segments)
+    fixed_x0_parameters(problem, bool(pop or ind))
     return pop, ind, check_residual_error(problem, residual_error, pop)

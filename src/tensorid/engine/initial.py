@@ -4,9 +4,11 @@ first sample (a dose given at t0, a unit's covariates), the way fleet and clinic
 records state where each unit starts.
 
 An expression may name the model's inputs (their value at the record's first sample)
-and parameters (their start value). A parameter it names must stay fixed: the
-sensitivities of an initial state that moves with an estimated parameter are not
-carried (the Problem refuses that combination, naming the parameter)."""
+and parameters (their start value). In a fleet's fit (individual or population
+parameters) it may name estimated parameters too: ``moving`` gives the initial states
+as a JAX function of the parameters, which the fleet's sweeps differentiate through
+(every state's sensitivity seeded, then chained). Elsewhere a parameter it names must
+stay fixed (the Problem refuses that combination, naming the parameter)."""
 
 from __future__ import annotations
 
@@ -60,6 +62,36 @@ def evaluate(model, experiments, x0: Mapping, p0: np.ndarray) -> tuple[np.ndarra
                 )
             out[e, i] = value
     return out, used
+
+
+def moving(model, x0: Mapping):
+    """The states whose expressions name parameters, as ``f(x0 (N,), u0 (U,), p (M,))
+    -> x0 (N,)`` in JAX (the others as given); None where no expression names one."""
+    import sympy as sp
+
+    from .equations import _parse
+
+    names = list(model.inputs) + list(model.params)
+    symbols = {n: sp.Symbol(n) for n in names}
+    parts = []
+    for state, spec in x0.items():
+        if not isinstance(spec, str):
+            continue
+        expr = _parse(f"x0[{state!r}]", spec, symbols)
+        if any(str(s) in model.params for s in expr.free_symbols):
+            fn = sp.lambdify([symbols[n] for n in names], expr, modules="jax")
+            parts.append((model.states.index(state), fn))
+    if not parts:
+        return None
+    U = len(model.inputs)
+
+    def initial(x0_row, u0, p):
+        args = [u0[k] for k in range(U)] + [p[k] for k in range(model.M)]
+        for i, fn in parts:
+            x0_row = x0_row.at[i].set(fn(*args) * 1.0)
+        return x0_row
+
+    return initial
 
 
 def _number(state: str, v) -> float:

@@ -210,13 +210,11 @@ def coarse_steps(obj: Objective, x, etas, sigma) -> str | None:
     d = obj.problem.discretisation
     if not isinstance(d.scheme, ExplicitRungeKutta | DiagonallyImplicitRungeKutta):
         return None  # adaptive steps control their own error; a discrete map is exact
-    fine = shared_sweeps(
-        obj.sweeps.model, (), obj.sweeps.free_params, replace(d, substeps=2 * d.substeps)
-    )
+    fine = shared_sweeps(obj.sweeps.model, (), (), replace(d, substeps=2 * d.substeps))
 
     def build():
         def simulate(psi, eta, unit):
-            x0, p = fine.expand(obj.theta(psi, eta), unit[4], unit[5])
+            x0, p = obj.start(obj.theta(psi, eta), unit)
             return fine._simulate(x0, p, unit[0], unit[1])[1]
 
         return jax.jit(jax.vmap(simulate, in_axes=(None, 0, 0)))

@@ -42,6 +42,7 @@ import jax.numpy as jnp
 import jax.scipy.linalg
 import numpy as np
 
+from ..engine.initial import moving
 from ..engine.sweeps import shared_sweeps
 from .units import Units, outputs
 
@@ -70,7 +71,14 @@ class Objective:
         self.qp = 0 if self.joint else len(problem.population)
         self.shared = [n for n in problem.free_params if n not in self.pop]
         free = [m.params.index(n) for n in problem.free_params]
-        self.sweeps = shared_sweeps(m, (), tuple(free), problem.discretisation)
+        # initial states that are expressions of estimated parameters ("Dose * F"):
+        # every state's sensitivity seeded, chained through the expression by JAX
+        exprs = getattr(problem, "x0_expressions", None) or {}
+        uses = set(getattr(problem, "x0_uses", set())) & set(problem.free_params)
+        self.moving = moving(m, exprs) if uses else None
+        states = tuple(range(m.N)) if self.moving else ()
+        self.sweeps = shared_sweeps(m, states, tuple(free), problem.discretisation)
+        self.free = jnp.array(free, dtype=int)
         self.own_index = [m.params.index(n) for n in self.pop]
         self.pop_pos = jnp.array([problem.free_params.index(n) for n in self.pop], dtype=int)
         self.sh_pos = jnp.array([problem.free_params.index(n) for n in self.shared], dtype=int)
@@ -88,6 +96,7 @@ class Objective:
         self.data = (*self.units.arrays(), jnp.asarray(p))
         self.weights = tuple(float(w) for w in problem.weights)
         self.key: tuple = (self.sweeps, tuple(self.pop), self.qp, tuple(self.shared), method)
+        self.key += (tuple((k, str(v)) for k, v in exprs.items()) if self.moving else (),)
         self.key += (self.weights,) if self.joint else (self.errors,)
         self.Y = outputs(self.sweeps)
         outs = m.outputs
@@ -146,9 +155,18 @@ class Objective:
         )
         return a2 + b2 * yhat**2
 
+    def start(self, theta, unit):
+        """(x0, p) of the unit at its free parameters θ: x0's expressions evaluated
+        where they move with θ."""
+        x0, p = unit[4], unit[5].at[self.free].set(theta)
+        return (x0 if self.moving is None else self.moving(x0, unit[1][0], p)), p
+
     def predict(self, psi, eta, unit):
         t, u, _, _, x0, p = unit
-        return self.Y(self.theta(psi, eta), x0, p, t, u)
+        theta = self.theta(psi, eta)
+        if self.moving is None:
+            return self.Y(theta, x0, p, t, u)
+        return self.Y(jnp.concatenate([self.start(theta, unit)[0], theta]), x0, p, t, u)
 
     def ell(self, eta, psi, unit):
         """ℓ_i(η): half the unit's weighted squared residuals plus half its prior (and,
