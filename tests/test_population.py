@@ -49,9 +49,10 @@ def simulated_fleet(n_units=4, seed=0, times=(0.5, 1, 2, 4, 8, 12, 24)):
 
 def fleet_problem(n_units=4, **kw):
     m, units = simulated_fleet(n_units)
+    kw.setdefault("population", {"ka": 0.4, "cl": 0.4})
     return ti.Problem(
         m, units, p0={"ka": 1.2, "cl": 2.0, "v": 25.0}, x0={"depot": "Dose", "center": 0.0},
-        substeps=20, population={"ka": 0.4, "cl": 0.4}, **kw,
+        substeps=20, **kw,
     )  # fmt: skip
 
 
@@ -195,6 +196,54 @@ def test_combined_error_and_individual_values_beside_random_effects_exact_gradie
     assert O.sum() == pytest.approx(float(plain(jnp.asarray(psi))), rel=1e-12)
     gp = np.asarray(jax.grad(plain)(jnp.asarray(psi)))
     np.testing.assert_allclose(g.sum(0), gp, rtol=1e-8, atol=1e-8 * np.abs(gp).max())
+
+
+def test_a_full_omega_has_the_plain_objectives_gradient_and_reports_the_correlation():
+    """Ω = L Lᵀ estimated whole (ka and cl correlated): the outer objective and its
+    exact gradient are those of the plainly written FOCEI objective with ηᵀΩ⁻¹η and
+    log det Ω from L; a fit reports the correlation with its standard error."""
+    obj = Objective(fleet_problem(3, omega="full"), "focei")
+    assert obj.names == ["log_ka", "log_cl", "log_omega_ka", "log_omega_cl",
+                         "omega_chol_cl_ka", "v", "log_sigma_cp"]  # fmt: skip
+    psi = np.array([np.log(1.3), np.log(2.2), np.log(0.5), np.log(0.35), 0.1, 26.0, np.log(0.4)])
+    etas, ok = obj.solve_inner(psi, np.zeros((3, 2)))
+    assert ok
+    O, g = obj.value_grad(psi, etas)
+    sw = obj.sweeps
+
+    def plain(psi_):
+        L = jnp.array([[jnp.exp(psi_[2]), 0.0], [psi_[4], jnp.exp(psi_[3])]])
+        Oinv = jnp.linalg.inv(L @ L.T)
+        total = 0.0
+        for i in range(3):
+            unit = tuple(a[i] for a in obj.data)
+
+            def yhat(e, unit=unit):
+                x0, p = sw.expand(obj.theta(psi_, e), unit[4], unit[5])
+                return sw._simulate(x0, p, unit[0], unit[1])[1]
+
+            def ell(e, unit=unit):
+                r = (unit[2] - yhat(e)) * unit[3]
+                return 0.5 * (jnp.sum(r**2) * jnp.exp(-2 * psi_[-1]) + e @ Oinv @ e)
+
+            e = jnp.asarray(etas[i])
+            e = e - jnp.linalg.solve(jax.hessian(ell)(e), jax.grad(ell)(e))
+            A = jax.jacfwd(yhat)(e)[:, 0, :] * jnp.exp(-psi_[-1])
+            M = A.T @ A + Oinv
+            n = jnp.sum(unit[3])
+            total = total + 2 * ell(e) + n * (jnp.log(2 * jnp.pi) + 2 * psi_[-1])
+            total = total + jnp.linalg.slogdet(L @ L.T)[1] + jnp.linalg.slogdet(M)[1]
+        return total
+
+    assert O.sum() == pytest.approx(float(plain(jnp.asarray(psi))), rel=1e-12)
+    gp = np.asarray(jax.grad(plain)(jnp.asarray(psi)))
+    np.testing.assert_allclose(g.sum(0), gp, rtol=1e-8, atol=1e-8 * np.abs(gp).max())
+    res = ti.fit(fleet_problem(8, omega="full"))
+    assert res.success and set(res.omega_correlation) == {"cl,ka"}
+    c = res.omega_correlation["cl,ka"]
+    assert -1 < c["value"] < 1 and c["stderr"] > 0 and "correlation of η_cl and η_ka" in str(res)
+    with pytest.raises(ValueError, match="two or more"):
+        fleet_problem(2, omega="full", population={"ka": 0.3})
 
 
 def test_an_initial_state_that_moves_with_estimated_parameters():

@@ -75,6 +75,7 @@ class ModelSpec:
     individual: list = field(default_factory=list)
     population: dict = field(default_factory=dict)
     residual_error: str | dict | None = None  # a population fit's: additive, proportional, ...
+    omega: str | None = None  # Ω's structure: "diagonal" (default) or "full"
 
     def x0_array(self, given=()) -> np.ndarray:
         """x0 of the model file as an array (N,), states it does not name at 0; a state
@@ -296,6 +297,8 @@ def _fleet_settings(ns: dict, out: ModelSpec) -> None:
         out.population = fleets.population(ns["population"], m)
     if ns.get("residual_error") is not None:
         out.residual_error = fleets.residual_error(ns["residual_error"], m)
+    if ns.get("omega") is not None:
+        out.omega = fleets.omega(ns["omega"])
     fleets.x0_expressions(out.x0, m)
     where = {"individual": "individual", "population": "population", "fixed": "fixed"}
     fleets.kinds(out.individual, out.population, out.fixed, where)
@@ -310,7 +313,7 @@ _SETTINGS = ("model", "rhs", "output", "inputs", "params", "input_delays", "disc
              "x0", "free_x0", "fixed", "bounds", "weights", "priors", "noise", "loss",
              "loss_scale", "predictor", "process_noise", "measurement_noise",
              "interpolation", "covariates", "individual", "population",
-             "residual_error")  # fmt: skip
+             "residual_error", "omega")  # fmt: skip
 # read only beside text equations: beside a tensorid.Model, ``outputs = [...]`` or
 # ``param = ...`` are the file's own variables (passed to the Model), not misspellings
 _TEXT_ONLY = ("rhs", "output", "inputs", "params", "input_delays", "discrete")

@@ -14,6 +14,8 @@ fit.json keys (a contract, added to, never renamed):
 - ``residual_error``: {output: {"model": "additive" | "proportional" | "combined",
   "additive", "additive_stderr", "proportional", "proportional_stderr"}} (a population
   fit's; σ² = additive² + (proportional · prediction)², the terms its model has);
+- ``omega_correlation``: {"a,b": {"value", "stderr"}}: the correlation of η_a and η_b
+  where Ω is full (``omega = "full"``);
 - ``units``: [{"id", "params": {name: value}, "stderr": {name: value}}], in the order
   of the records.
 """
@@ -65,6 +67,9 @@ def fleet_json(res) -> dict:
             str(o): {k: (v if k == "model" else _number(v)) for k, v in dict(e).items()}
             for o, e in dict(errors).items()
         }
+    correlation = getattr(res, "omega_correlation", None)
+    if correlation:
+        out["omega_correlation"] = {str(k): _numbers(v) for k, v in dict(correlation).items()}
     units = getattr(res, "units", None)
     if units is not None:
         out["units"] = [
@@ -146,6 +151,13 @@ def fleet_lines(data: dict) -> list[str]:
     """report.md's population table, residual standard deviations and units table,
     from fit.json's entries (none: no lines)."""
     lines = _population_lines(data)
+    correlation = data.get("omega_correlation") or {}
+    if correlation:
+        text = ", ".join(
+            f"η_{k.replace(',', ' and η_')} {_pm(v.get('value'), v.get('stderr'))}"
+            for k, v in correlation.items()
+        )
+        lines += [f"Correlations of the random effects (Ω full): {text}.", ""]
     sd, errors = data.get("residual_sd"), data.get("residual_error")
     if errors and any(e.get("model") != "additive" for e in errors.values()):
         text = "; ".join(

@@ -118,6 +118,15 @@ def residual_error(value, model: Model, key: str = "residual_error") -> str | di
     return value
 
 
+def omega(value, key: str = "omega") -> str:
+    """``omega = "full"``: the random effects correlated (Ω estimated whole)."""
+    from ..engine.fleet import OMEGAS
+
+    if value not in OMEGAS:
+        raise ValueError(f"{key} = {value!r}: give one of {list(OMEGAS)}")
+    return str(value)
+
+
 def kinds(individual: list[str], population: dict, fixed, where: dict[str, str]) -> None:
     """A parameter in both kinds, or fixed and varying over the units: one line each.
     ``where`` says where each setting came from ("--individual", "population in m.py")."""
@@ -187,6 +196,7 @@ def from_command_line(spec, args):
         "fixed": f"fixed in {path}, or --fix",
     }
     kinds(ind, pop, spec.fixed, where)
+    om = spec.omega if getattr(args, "omega", None) is None else omega(args.omega, "--omega")
     given_e = getattr(args, "residual_error", None)
     err = spec.residual_error
     if given_e is not None:
@@ -197,7 +207,7 @@ def from_command_line(spec, args):
             "from the model file's p0 and is not run from several starts; drop --starts "
             "(--workers and --scheduler spread its units instead)"
         )
-    return replace(spec, individual=list(ind), population=dict(pop), residual_error=err)
+    return replace(spec, individual=list(ind), population=dict(pop), residual_error=err, omega=om)
 
 
 def problem_keywords(spec, problem: type) -> dict:
@@ -213,6 +223,8 @@ def problem_keywords(spec, problem: type) -> dict:
         out["population"] = dict(spec.population)
     if spec.residual_error:
         out["residual_error"] = spec.residual_error
+    if spec.omega:
+        out["omega"] = spec.omega
     taken = inspect.signature(problem).parameters
     lacking = [k for k in out if k not in taken]
     if lacking:

@@ -95,6 +95,13 @@ def fleet_options(f: argparse.ArgumentParser) -> None:
         "proportional (σ = b·|prediction|) or combined (σ² = a² + b²·prediction²), for "
         "every output or OUTPUT=KIND each; replaces the model file's residual_error",
     )
+    f.add_argument(
+        "--omega",
+        choices=["diagonal", "full"],
+        default=None,
+        help="a population fit's Ω: diagonal (default, independent random effects) or "
+        "full (correlated, Ω estimated whole); replaces the model file's omega",
+    )
 
 
 def integration_options(p: argparse.ArgumentParser, inherit: bool = False) -> None:

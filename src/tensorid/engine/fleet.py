@@ -171,10 +171,30 @@ def check_residual_error(problem, residual_error, population) -> dict[str, str]:
     return {o: str(k) for o, k in given.items() if k != "additive"}
 
 
-def check_fleet(problem, population, individual, predictor, loss, segments, residual_error=None):
-    """(population, individual, residual_error) checked, and the x0 expressions'
-    parameters fixed."""
+OMEGAS = ("diagonal", "full")
+
+
+def check_omega(omega, population) -> str:
+    """Ω's structure: "diagonal" (independent random effects) or "full" (correlated)."""
+    if omega not in OMEGAS:
+        raise ValueError(
+            f"omega must be one of {OMEGAS} (Ω's structure: independent or correlated "
+            f"random effects), got {omega!r}"
+        )
+    if omega == "full" and len(population) < 2:
+        raise ValueError(
+            'omega="full" correlates the random effects: it needs two or more of them in '
+            "population (or leave omega at 'diagonal')"
+        )
+    return omega
+
+
+def check_fleet(problem, population, individual, predictor, loss, segments,
+                residual_error=None, omega="diagonal"):  # fmt: skip
+    """(population, individual, residual_error, omega) checked, and the x0
+    expressions' parameters fixed."""
     pop = check_population(problem, population, predictor, loss, segments)
     ind = check_individual(problem, individual, pop, predictor, loss, segments)
     fixed_x0_parameters(problem, bool(pop or ind))
-    return pop, ind, check_residual_error(problem, residual_error, pop)
+    errors = check_residual_error(problem, residual_error, pop)
+    return pop, ind, errors, check_omega(omega, pop)

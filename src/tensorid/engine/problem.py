@@ -136,6 +136,8 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         residual_error: a population fit's residual error, "additive" (default: σ = a),
             "proportional" (σ = b·|ŷ|) or "combined" (σ² = a² + b²ŷ²), for every output
             or as {output: kind}; a and b estimated.
+        omega: Ω's structure in a population fit: "diagonal" (default, independent
+            random effects) or "full" (correlated: Ω = L Lᵀ estimated whole).
     """
 
     def __init__(
@@ -168,6 +170,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         population: Mapping[str, float] | None = None,
         individual: Sequence[str] | None = None,
         residual_error: str | Mapping[str, str] | None = None,
+        omega: str = "diagonal",
     ):
         if not isinstance(model, Model):
             raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
@@ -199,9 +202,10 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         self.loss_scale_estimated = self.loss.robust and loss_scale is None
         self.lower, self.upper = check_bounds(self, bounds or {})
         self._set_priors(priors, noise)
-        fleet = (population, individual, predictor, loss, segments, residual_error)
-        # a fleet's kinds of parameter and its residual error (engine/fleet.py)
-        self.population, self.individual, self.residual_error = check_fleet(self, *fleet)
+        fleet = (population, individual, predictor, loss, segments, residual_error, omega)
+        # a fleet's kinds of parameter, its residual error and Ω (engine/fleet.py)
+        kinds = check_fleet(self, *fleet)
+        self.population, self.individual, self.residual_error, self.omega = kinds
         if self.K == 0:
             raise ValueError("nothing to estimate: every parameter is fixed and free_x0 is empty")
         self._sweeps = shared_sweeps(

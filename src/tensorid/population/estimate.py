@@ -35,7 +35,7 @@ def _start(obj: Objective) -> np.ndarray:
         return np.array([pr.p0[m.params.index(n)] for n in obj.shared], dtype=float)
     random = obj.pop[: obj.qp]
     mu = [np.log(pr.p0[m.params.index(n)]) for n in random]
-    logw = [np.log(pr.population[n]) for n in random]
+    logw = [np.log(pr.population[n]) for n in random] + [0.0] * (obj.n_omega - obj.qp)
     s = [pr.p0[m.params.index(n)] for n in obj.shared]
     noise = len(obj.additive) + len(obj.proportional)
     psi = np.array(mu + logw + s + [0.0] * noise, dtype=float)
@@ -51,7 +51,7 @@ def _start(obj: Objective) -> np.ndarray:
     rel_rms = np.sqrt((rel**2).sum((0, 1)) / np.maximum(seen.sum((0, 1)), 1))
     log_b = np.log(np.where(np.isfinite(rel_rms) & (rel_rms > 1e-8), rel_rms, 0.1))
     both = np.array([k == "combined" for k in obj.errors]) * np.log(0.5)
-    psi[2 * obj.qp + obj.ns :] = np.concatenate(
+    psi[obj.first_shared + obj.ns :] = np.concatenate(
         [(log_a + both)[obj.additive], (log_b + both)[obj.proportional]]
     )
     return psi
@@ -60,7 +60,7 @@ def _start(obj: Objective) -> np.ndarray:
 def _bounds(obj: Objective) -> tuple[np.ndarray, np.ndarray]:
     pr = obj.problem
     lo, hi = np.full(obj.size, -np.inf), np.full(obj.size, np.inf)
-    first = 2 * obj.qp
+    first = obj.first_shared
     for j, n in enumerate(obj.shared):
         i = pr.theta_names.index(n)
         lo[first + j], hi[first + j] = pr.lower[i], pr.upper[i]

@@ -82,6 +82,7 @@ def vpc(res, replicates: int = 200, seed: int = 0, bins: int = 8, output: int = 
     units = obj.units
     rng = np.random.default_rng(seed)
     omega = np.array([v["omega"] for v in res.population.values()])
+    L = np.asarray(obj.cholesky(res.x[obj.qp : obj.first_shared])) if obj.full else None
     qp, E = obj.qp, len(res.etas)
     seen = units.mask[..., output] > 0
     t = units.t[seen]
@@ -100,7 +101,8 @@ def vpc(res, replicates: int = 200, seed: int = 0, bins: int = 8, output: int = 
         etas = np.array(res.etas)
         if obj.q > qp:  # individual values: drawn from the fitted units'
             etas = etas[rng.integers(0, E, E)]
-        etas[:, :qp] = rng.standard_normal((E, qp)) * omega
+        z = rng.standard_normal((E, qp))
+        etas[:, :qp] = z * omega if L is None else z @ L.T  # η ~ N(0, Ω)
         pred = np.asarray(obj.predict_all(res.x, etas))[..., output]
         sd = _noise_sd(res, obj, etas, pred.shape, output)
         pred = pred[seen]

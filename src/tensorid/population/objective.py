@@ -69,6 +69,11 @@ class Objective:
         # the inner unknowns per unit: the random effects' η, then the individual values
         self.pop = list(problem.population) + list(problem.individual)
         self.qp = 0 if self.joint else len(problem.population)
+        # Ω diagonal (log ω per random effect) or full: Ω = L Lᵀ, L lower triangular
+        # with log diagonal (log ω where uncorrelated) and the entries below it
+        self.full = getattr(problem, "omega", "diagonal") == "full" and self.qp > 1
+        self.n_omega = self.qp * (self.qp + 1) // 2 if self.full else self.qp
+        self.first_shared = self.qp + self.n_omega
         self.shared = [n for n in problem.free_params if n not in self.pop]
         free = [m.params.index(n) for n in problem.free_params]
         # initial states that are expressions of estimated parameters ("Dose * F"):
@@ -95,7 +100,8 @@ class Objective:
         p = np.tile(np.asarray(problem.p0, dtype=float), (len(self.units.names), 1))
         self.data = (*self.units.arrays(), jnp.asarray(p))
         self.weights = tuple(float(w) for w in problem.weights)
-        self.key: tuple = (self.sweeps, tuple(self.pop), self.qp, tuple(self.shared), method)
+        self.key: tuple = (self.sweeps, tuple(self.pop), self.qp, self.full, tuple(self.shared))
+        self.key += (method,)
         self.key += (tuple((k, str(v)) for k, v in exprs.items()) if self.moving else (),)
         self.key += (self.weights,) if self.joint else (self.errors,)
         self.Y = outputs(self.sweeps)
@@ -106,6 +112,7 @@ class Objective:
             else (
                 [f"log_{n}" for n in self.pop[: self.qp]]
                 + [f"log_omega_{n}" for n in self.pop[: self.qp]]
+                + [f"omega_chol_{a}_{b}" for a, b in self.lower_pairs()]
                 + self.shared
                 + [f"log_sigma_{outs[g]}" for g in self.additive]
                 + [f"log_prop_{outs[g]}" for g in self.proportional]
@@ -131,8 +138,37 @@ class Objective:
         """(log typical values, log ω, shared, residual error) of ψ."""
         if self.joint:  # ψ holds the shared parameters alone
             return psi[:0], psi[:0], psi, psi[:0]
-        qp, ns = self.qp, self.ns
-        return psi[:qp], psi[qp : 2 * qp], psi[2 * qp : 2 * qp + ns], psi[2 * qp + ns :]
+        qp, f = self.qp, self.first_shared
+        return psi[:qp], psi[qp:f], psi[f : f + self.ns], psi[f + self.ns :]
+
+    def lower_pairs(self) -> list[tuple[str, str]]:
+        """The (row, column) names of L's entries below the diagonal (full Ω)."""
+        if not self.full:
+            return []
+        rows, cols = np.tril_indices(self.qp, -1)
+        return [(self.pop[i], self.pop[j]) for i, j in zip(rows, cols, strict=True)]
+
+    def cholesky(self, lpar):
+        """L with Ω = L Lᵀ from its parameters (log diagonal, then below it)."""
+        qp = self.qp
+        L = jnp.diag(jnp.exp(lpar[:qp]))
+        if not self.full:
+            return L
+        rows, cols = np.tril_indices(qp, -1)
+        return L.at[rows, cols].set(lpar[qp:])
+
+    def prior(self, eta, lpar):
+        """ηᵀ Ω⁻¹ η of the random effects."""
+        if not self.full:
+            return jnp.sum((eta * jnp.exp(-lpar)) ** 2)
+        z = jax.scipy.linalg.solve_triangular(self.cholesky(lpar), eta, lower=True)
+        return jnp.sum(z**2)
+
+    def omega_inverse(self, lpar):
+        if not self.full:
+            return jnp.diag(jnp.exp(-2 * lpar))
+        Li = jax.scipy.linalg.solve_triangular(self.cholesky(lpar), jnp.eye(self.qp), lower=True)
+        return Li.T @ Li
 
     def theta(self, psi, eta):
         """The unit's free parameters (natural units, model order)."""
@@ -177,7 +213,7 @@ class Objective:
         r = (y - f) * mask
         if self.joint:  # least squares, J_i / 2 with the Problem's weights
             return 0.5 * jnp.sum(r**2 * jnp.asarray(self.weights))
-        prior = jnp.sum((eta[: self.qp] * jnp.exp(-logw)) ** 2)
+        prior = self.prior(eta[: self.qp], logw)
         if self.plain:
             return 0.5 * (jnp.sum(r**2 * jnp.exp(-2 * noise)) + prior)
         V = jnp.where(mask > 0, self.variance(noise, f), 1.0)  # 1: no observation
@@ -198,7 +234,7 @@ class Objective:
             f = self.predict(psi, eta, unit)
             V = jnp.where(unit[3] > 0, self.variance(noise, f), 1.0)
             Aw = A * jnp.sqrt(unit[3] / V)[..., None]
-        return jnp.einsum("psj,psk->jk", Aw, Aw) + jnp.diag(jnp.exp(-2 * logw))
+        return jnp.einsum("psj,psk->jk", Aw, Aw) + self.omega_inverse(logw)
 
     def unit_objective(self, psi, eta, unit):
         """O_i: −2 log of the unit's approximate marginal likelihood (for individual
@@ -212,11 +248,12 @@ class Objective:
             O = (
                 2 * self.ell(eta, psi, unit)
                 + jnp.sum(n * (LOG_2PI + 2 * noise))
-                + 2 * jnp.sum(logw)
+                + 2 * jnp.sum(logw[: self.qp])
                 + logdet
             )
         else:
-            O = 2 * self.ell(eta, psi, unit) + jnp.sum(n * LOG_2PI) + 2 * jnp.sum(logw) + logdet
+            O = 2 * self.ell(eta, psi, unit) + jnp.sum(n * LOG_2PI) + logdet
+            O = O + 2 * jnp.sum(logw[: self.qp])  # log det Ω
         return jnp.where(sign > 0, O, jnp.inf)
 
     def unit_value_grad(self, psi, eta, unit):

@@ -8,6 +8,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from ..engine.status import Status
@@ -37,7 +39,7 @@ def _residual_error(obj, x, se) -> dict:
     """{output: {"model", "additive", "additive_stderr", "proportional", ...}}."""
     out: dict = {o: {"model": k} for o, k in zip(obj.problem.model.outputs, obj.errors,
                                                   strict=True)}  # fmt: skip
-    first = 2 * obj.qp + obj.ns
+    first = obj.first_shared + obj.ns
     columns = [("additive", g) for g in obj.additive]
     columns += [("proportional", g) for g in obj.proportional]
     for j, (what, g) in enumerate(columns):
@@ -46,6 +48,34 @@ def _residual_error(obj, x, se) -> dict:
             {what: v, f"{what}_stderr": v * float(se[first + j])}
         )
     return out
+
+
+def _omega(obj, x, cov, se) -> tuple[np.ndarray, np.ndarray, dict]:
+    """(ω (qp,), their standard errors, {"a,b": correlation with its SE}) from ψ's Ω
+    parameters, by the delta method through Ω = L Lᵀ where Ω is full."""
+    qp, lpar = obj.qp, x[obj.qp : obj.first_shared]
+    if not obj.full:
+        om = np.exp(lpar)
+        return om, om * se[qp : obj.first_shared], {}
+    pairs = obj.lower_pairs()
+    rows, cols = np.tril_indices(qp, -1)
+
+    def stats(lp):
+        L = obj.cholesky(lp)
+        Om = L @ L.T
+        w = jnp.sqrt(jnp.diag(Om))
+        return jnp.concatenate([w, Om[rows, cols] / (w[rows] * w[cols])])
+
+    value = np.asarray(stats(jnp.asarray(lpar)))
+    D = np.asarray(jax.jacfwd(stats)(jnp.asarray(lpar)))
+    block = cov[qp : obj.first_shared, qp : obj.first_shared]
+    var = np.einsum("ij,jk,ik->i", D, block, D)
+    err = np.sqrt(np.where(var >= 0, var, np.nan))
+    corr = {
+        f"{a},{b}": {"value": float(value[qp + j]), "stderr": float(err[qp + j])}
+        for j, (a, b) in enumerate(pairs)
+    }
+    return value[:qp], err[:qp], corr
 
 
 @dataclass(frozen=True)
@@ -88,6 +118,8 @@ class PopulationResult:
     # per output: its model ("additive", "proportional", "combined") and the estimates
     # "additive" (SD) and "proportional" (SD relative to the prediction), with stderrs
     residual_error: dict = field(default_factory=dict)
+    # full Ω: {"cl,v": {"value": correlation of η_cl and η_v, "stderr": ...}}
+    omega_correlation: dict = field(default_factory=dict)
 
     @property
     def success(self) -> bool:
@@ -120,24 +152,25 @@ class PopulationResult:
     def build(cls, obj, r, etas, status, seconds) -> PopulationResult:
         if obj.joint:
             return cls._joint(obj, r, etas, status, seconds)
-        qp, x = obj.qp, np.asarray(r.x, dtype=float)
+        qp, f, x = obj.qp, obj.first_shared, np.asarray(r.x, dtype=float)
         H = _measured(r, status)
         cov = 2.0 * _inverse(H)  # O = −2 log L: the information is H / 2
         se = np.sqrt(np.where(np.diag(cov) < 0, np.inf, np.diag(cov)))  # NaN: not measured
         population = {}
+        omega, omega_se, correlation = _omega(obj, x, cov, se)
         for k, n in enumerate(obj.pop[:qp]):
-            typ, om = float(np.exp(x[k])), float(np.exp(x[qp + k]))
+            typ, om = float(np.exp(x[k])), float(omega[k])
             sd = float(np.std(etas[:, k], ddof=1)) if len(etas) > 1 else float("nan")
             population[n] = {
                 "typical": typ,
                 "typical_stderr": typ * float(se[k]),
                 "omega": om,
-                "omega_stderr": om * float(se[qp + k]),
+                "omega_stderr": float(omega_se[k]),
                 "cv_percent": 100.0 * float(np.sqrt(np.expm1(om**2))),
                 "shrinkage_percent": 100.0 * (1.0 - sd / om),
             }
         shared = {
-            n: {"value": float(x[2 * qp + j]), "stderr": float(se[2 * qp + j])}
+            n: {"value": float(x[f + j]), "stderr": float(se[f + j])}
             for j, n in enumerate(obj.shared)
         }
         residual_error = _residual_error(obj, x, se)
@@ -158,6 +191,7 @@ class PopulationResult:
             x=x, names=list(obj.names), objective=float(r.fun), jac=np.asarray(r.jac),
             hess=H, cov=cov, etas=np.asarray(etas), population=population, shared=shared,
             residual_sd=residual_sd, residual_error=residual_error,
+            omega_correlation=correlation,
             units=units, nit=r.nit, nfev=r.nfev, status=status, method=obj.method,
             seconds=seconds, observations=int(obj.units.mask.sum()), problem=obj.problem,
             history=list(getattr(r, "history", [])), objective_function=obj,
@@ -224,6 +258,10 @@ class PopulationResult:
         for n, v in self.shared.items():
             lines.append(f"  {n:<12}{v['value']:>12.5g}{v['stderr']:>11.3g}   (shared)")
         lines += self._own_lines()
+        for pair, c in self.omega_correlation.items():
+            a, b = pair.split(",")
+            r, se = c["value"], c["stderr"]
+            lines.append(f"  correlation of η_{a} and η_{b}: {r:.4f} (SE {se:.3g})")
         for o, e in self.residual_error.items():
             if e["model"] == "additive":
                 lines.append(f"  residual SD of {o}: {e['additive']:.5g}")
