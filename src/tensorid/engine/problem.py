@@ -27,6 +27,7 @@ from .checks import (
     no_noise_without_filter,
 )
 from .compiled import on_device
+from .constraints import add_penalty_terms, check_constraints, penalty_jax
 from .data import Experiment
 from .discretisation import Discretisation, DiscretisationSettings
 from .fleet import check_fleet
@@ -132,6 +133,10 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         individual: parameter names each unit (experiment) has its own value of, with
             no distribution; :func:`tensorid.fit` estimates them with the shared ones
             by least squares, in time linear in the number of units.
+        constraints: inequalities between parameters such as ["Fs >= Fc", "k <= 2*m"]
+            (plain arithmetic on parameter names, or a single record's free initial
+            states), which :func:`tensorid.fit` keeps by an augmented Lagrangian around
+            its exact-derivative trust region (see :mod:`tensorid.fitting.constrained`).
     """
 
     def __init__(
@@ -163,6 +168,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         measurement_noise: Mapping[str, float] | None = None,
         population: Mapping[str, float] | None = None,
         individual: Sequence[str] | None = None,
+        constraints: Sequence[str] | str | None = None,
     ):
         if not isinstance(model, Model):
             raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
@@ -198,6 +204,8 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         self.population, self.individual = check_fleet(self, *fleet)  # (engine/fleet.py)
         if self.K == 0:
             raise ValueError("nothing to estimate: every parameter is fixed and free_x0 is empty")
+        # inequalities such as "Fs >= Fc", kept by fit() (engine/constraints.py)
+        self.constraints, self.penalty = check_constraints(self, constraints), None
         self._sweeps = shared_sweeps(
             model, tuple(model.states.index(n) for n in self.free_x0),
             tuple(model.params.index(n) for n in self.free_params), discretisation, self.loss,
@@ -280,6 +288,8 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         out = [np.concatenate(a) if c == "r" else a for a, c in zip(out, parts, strict=True)]
         if self.priors:
             self.add_prior_terms(theta, parts, more, out)
+        if self.penalty is not None:  # a constrained fit's augmented Lagrangian
+            add_penalty_terms(self, theta, parts, more, out)
         ok = np.ones(lead, dtype=bool)
         for a in out:
             ok &= (
@@ -306,7 +316,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
             )
         for i, (mean, sd) in self.priors.items():
             J = J + self.noise_variance * ((theta[i] - mean) / sd) ** 2
-        return J
+        return J if self.penalty is None else J + penalty_jax(self, theta)
 
     def residuals(self, theta) -> np.ndarray:
         """sqrt(w)·(y_obs - y_sim) for every sample, output and experiment, flattened
