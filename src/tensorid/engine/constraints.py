@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import ast
 from dataclasses import dataclass
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -47,7 +48,7 @@ class Constraints:
 
     def __init__(self, items: list[Constraint], source: str, constants: dict):
         self.items, self._source, self._constants = items, source, constants
-        self._jitted = None
+        self._jitted: Any = None
 
     def __len__(self) -> int:
         return len(self.items)
@@ -97,7 +98,7 @@ def check_constraints(problem, constraints) -> Constraints | None:
         if not isinstance(text, str):
             raise TypeError(f"{where} is not a string; {EXAMPLE}")
         for lhs, sense, rhs in _inequalities(where, text):
-            used = set()
+            used: set[str] = set()
             sides = [_checked(where, side, names, problem, used) for side in (lhs, rhs)]
             free = tuple(n for n in names if n in used and names[n] is not None)
             if not free:
@@ -135,7 +136,7 @@ def _fixed(problem) -> dict[str, float]:
     return {n: float(problem.p0[params.index(n)]) for n in problem.fixed}
 
 
-def _inequalities(where: str, text: str) -> list[tuple[ast.AST, str, ast.AST]]:
+def _inequalities(where: str, text: str) -> list[tuple[ast.expr, str, ast.expr]]:
     """(left, ">=" or "<=", right) for each comparison of ``text`` (a chain such as
     '0 <= a - b <= 1' gives two)."""
     try:
@@ -144,7 +145,8 @@ def _inequalities(where: str, text: str) -> list[tuple[ast.AST, str, ast.AST]]:
         raise ValueError(f"cannot parse {where} ({e.msg}); {EXAMPLE}") from None
     if not isinstance(tree, ast.Compare):
         raise ValueError(f"{where} is not an inequality (no >= or <=); {EXAMPLE}")
-    out, left = [], tree.left
+    out: list[tuple[ast.expr, str, ast.expr]] = []
+    left = tree.left
     for op, right in zip(tree.ops, tree.comparators, strict=True):
         if type(op) not in _SENSES:
             what = "an equality" if isinstance(op, ast.Eq | ast.NotEq) else "not an inequality"
