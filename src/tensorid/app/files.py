@@ -232,15 +232,8 @@ def _spec(ns: dict, path: Path) -> ModelSpec:
             "`rhs = {state: 'expression'}`"
         )
     out = ModelSpec(model, path=path)
-    kinds = {
-        "p0": dict,
-        "x0": dict,
-        "free_x0": list,
-        "fixed": list,
-        "bounds": dict,
-        "priors": dict,
-        "constraints": list,
-    }
+    kinds = {"p0": dict, "x0": dict, "free_x0": list, "fixed": list, "bounds": dict,
+             "priors": dict, "constraints": list}  # fmt: skip
     for key, kind in kinds.items():
         if ns.get(key) is None:
             continue

@@ -204,23 +204,20 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         self.population, self.individual = check_fleet(self, *fleet)  # (engine/fleet.py)
         if self.K == 0:
             raise ValueError("nothing to estimate: every parameter is fixed and free_x0 is empty")
-        # inequalities such as "Fs >= Fc", kept by fit() (engine/constraints.py)
-        self.constraints, self.penalty = check_constraints(self, constraints), None
+        self.constraints, self.penalty = check_constraints(self, constraints), None  # Fs >= Fc
         self._sweeps = shared_sweeps(
             model, tuple(model.states.index(n) for n in self.free_x0),
             tuple(model.params.index(n) for n in self.free_params), discretisation, self.loss,
             self.predictor,
         )  # fmt: skip
-        self._arrays = [
-            (on_device(e.t), on_device(self.inputs(e)), on_device(e.y)) for e in self.experiments
-        ]
+        self._arrays = [(on_device(e.t), on_device(self.inputs(e)), on_device(e.y))
+                        for e in self.experiments]  # fmt: skip
         self.threads = check_threads(threads)
         counts = resolve_segments(self.experiments, segments, segment_length)
         self.shooting = Shooting(self, counts) if counts else None
-        samples = [e.P for e in self.experiments]
         self.hessian = choose_hessian(
             "tensors" if self.predictor.update else hessian,
-            discretisation, model.N, self._sweeps.K, samples, threads,
+            discretisation, model.N, self._sweeps.K, [e.P for e in self.experiments], threads,
         )  # fmt: skip
 
     def _with_predictor(self, predictor, process_noise, measurement_noise) -> Model:

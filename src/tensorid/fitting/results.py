@@ -9,20 +9,17 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..engine.metrics import gof
 from ..engine.problem import Problem
 from ..engine.status import Status
+from .constraint_report import ConstraintReport
 from .priors import NoiseCheck, move_lines, prior_moves
 from .stats import Stats
 from .summary import Tabular, collapsed_noise
 from .uncertainty import Information, Uncertainty, information, uncertainty
-
-if TYPE_CHECKING:
-    from .constrained import ConstraintReport
 
 
 def _squeeze(a: np.ndarray) -> np.ndarray:
