@@ -146,3 +146,15 @@ def test_model_file_and_command_line_constraints(tmp_path, capsys):
     assert d["constraints_fit"]["converged"] is True
     assert "## Constraints" in (out / "report.md").read_text()
     assert "multiplier λ" in capsys.readouterr().out
+
+
+def test_the_docs_state_what_the_example_prints():
+    """docs/your-own-model.md's constraint table is this file's example, as printed."""
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs/your-own-model.md").read_text()
+    res = ti.fit(_problem(["a >= b", "b <= 10*a"]))
+    rows = [ln.strip() for ln in str(res.constraints).splitlines() if "│" in ln]
+    assert len(rows) == 2 and all(r in text for r in rows), "update the docs' table"
+    assert f"constraints ({res.constraints.outer} augmented-Lagrangian iterations)" in text
+    assert f"a = b = {res.theta[0]:.5g}" in text
