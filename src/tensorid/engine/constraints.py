@@ -94,9 +94,9 @@ def check_constraints(problem, constraints) -> Constraints | None:
     names = _names(problem)
     items, exprs, constants = [], [], {}
     for i, text in enumerate(texts):
-        where = f"constraints[{i}] = {text!r}"
         if not isinstance(text, str):
-            raise TypeError(f"{where} is not a string; {EXAMPLE}")
+            raise TypeError(f"constraints[{i}] = {text!r} is not a string; {EXAMPLE}")
+        where = f"constraint {text!r}"  # as written: in a model file or --constraint
         for lhs, sense, rhs in _inequalities(where, text):
             used: set[str] = set()
             sides = [_checked(where, side, names, problem, used) for side in (lhs, rhs)]
