@@ -258,8 +258,7 @@ def _constraint_lines(res) -> list[str]:
         "",
         md_table(header, rows),
         "",
-        *[f"{line[0].upper()}{line[1:]}." for line in rep.lines()],
-        "",
+        *[part for line in rep.lines() for part in (f"{line[0].upper()}{line[1:]}.", "")],
     ]
 
 
