@@ -158,3 +158,11 @@ def test_the_docs_state_what_the_example_prints():
     assert len(rows) == 2 and all(r in text for r in rows), "update the docs' table"
     assert f"constraints ({res.constraints.outer} augmented-Lagrangian iterations)" in text
     assert f"a = b = {res.theta[0]:.5g}" in text
+
+
+def test_constraints_that_cannot_hold_together_are_said_to_fail():
+    res = ti.fit(_problem(["a >= 20"], bounds={"a": (0.01, 10.0)}), "newton")
+    assert res.status is ti.Status.CONSTRAINTS_VIOLATED and not res.success
+    assert not res.constraints.converged and res.constraints.outer == 30
+    assert any("'a >= 20' is not met to tolerance" in w for w in res.warnings)
+    assert res.theta[0] == 10.0  # as close as the bounds allow

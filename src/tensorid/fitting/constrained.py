@@ -115,8 +115,14 @@ def _onto(problem, theta, size, scale, rounds: int = 3) -> np.ndarray:
 
 def _result(problem, done, theta, lam, size, converged, outer, started) -> FitResult:
     """The FitResult of ``problem`` at θ, with its constraint report."""
+    if done.status is Status.INTERRUPTED:  # Ctrl-C: end at once, with the best point
+        return replace(done, problem=problem)
+    status, message = done.status, done.message
+    if not converged and status.success:
+        status = Status.CONSTRAINTS_VIOLATED
+        message = status.message
     res = FitResult.at(
-        problem, done.method, theta, done.scale, done.status, message=done.message,
+        problem, done.method, theta, done.scale, status, message=message,
         stats=done.stats.plus(nfev=1), started=started, history=done.history,
         notes=done.notes, hybrid=done.hybrid, shooting=done.shooting,
     )  # fmt: skip
@@ -139,7 +145,8 @@ def _result(problem, done, theta, lam, size, converged, outer, started) -> FitRe
     phi, gl = theta / res.scale, res.jac - A.T @ lam
     lo, hi = problem.lower / res.scale, problem.upper / res.scale
     pg = np.clip(phi - gl * res.scale, lo, hi) - phi
-    second = _second_order(res, lam, A[active], cons.evaluate(theta)[2]) if active.any() else None
+    ok = converged and active.any()
+    second = _second_order(res, lam, A[active], cons.evaluate(theta)[2]) if ok else None
     report = ConstraintReport(items, converged, outer, _restricted(res, A[active]), second)
     return replace(res, grad_norm=float(np.linalg.norm(pg, np.inf)), constraints=report)
 
