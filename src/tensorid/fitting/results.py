@@ -62,7 +62,7 @@ class FitResult(Tabular):
         single shooting.
     constraints : with ``Problem(constraints=...)``, each constraint's value at theta,
         whether it binds, and its Lagrange multiplier (see
-        :class:`tensorid.fitting.constrained.ConstraintReport`); None without.
+        :class:`tensorid.fitting.constraint_report.ConstraintReport`); None without.
 
     A result is immutable: it is built once, where its run ends (``fitting/endings.py``);
     a later stage (a refit, a polish, the best of many starts) makes a new one with
