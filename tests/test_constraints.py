@@ -123,6 +123,10 @@ def test_fixed_only_constraints_and_other_methods_are_refused():
     # a fixed parameter is a constant, and a free initial state may be named
     prob = _problem(["a >= b", "x >= -1"], fixed=["b"], free_x0=["x"])
     assert prob.constraints.items[1].names == ("x",)
+    # a chain is two constraints, each shown as its own inequality
+    items = _problem(["0.5 <= a - b <= 3"]).constraints.items
+    assert [k.text for k in items] == ["0.5 <= a - b", "a - b <= 3"]
+    assert [k.expr for k in items] == ["a - b - 0.5", "3 - (a - b)"]
 
 
 def test_model_file_and_command_line_constraints(tmp_path, capsys):

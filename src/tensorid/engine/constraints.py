@@ -97,7 +97,8 @@ def check_constraints(problem, constraints) -> Constraints | None:
         if not isinstance(text, str):
             raise TypeError(f"constraints[{i}] = {text!r} is not a string; {EXAMPLE}")
         where = f"constraint {text!r}"  # as written: in a model file or --constraint
-        for lhs, sense, rhs in _inequalities(where, text):
+        pairs = _inequalities(where, text)
+        for lhs, sense, rhs in pairs:
             used: set[str] = set()
             sides = [_checked(where, side, names, problem, used) for side in (lhs, rhs)]
             free = tuple(n for n in names if n in used and names[n] is not None)
@@ -108,7 +109,12 @@ def check_constraints(problem, constraints) -> Constraints | None:
                 )
             a, b = sides if sense == ">=" else sides[::-1]
             exprs.append(f"({a}) - ({b})")
-            items.append(Constraint(text.strip(), f"{ast.unparse(ast.parse(exprs[-1]))}", free))
+            shown = (
+                text.strip()
+                if len(pairs) == 1
+                else f"{ast.unparse(lhs)} {sense} {ast.unparse(rhs)}"
+            )
+            items.append(Constraint(shown, ast.unparse(ast.parse(exprs[-1])), free))
         constants.update({f"_{n}": float(v) for n, v in _fixed(problem).items()})
     body = ", ".join(_to_jax(e, names) for e in exprs)
     source = f"def c(_t):\n    return _jnp.stack([{body}])\n"
