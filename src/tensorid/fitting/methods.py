@@ -88,6 +88,9 @@ def fit(
     Ctrl-C stops the fit at once, workers included, raising :class:`FitInterrupted`
     (a KeyboardInterrupt) whose ``result`` is the best point so far.
     A fleet's Problem (``population``, ``individual``) goes to :func:`fit_population`.
+    A Problem's ``constraints`` ("Fs >= Fc") are kept by an augmented Lagrangian around
+    the method (an exact-derivative trust-region one), every start included; the
+    result's ``constraints`` gives their values, activity and multipliers.
     """
     started = time.perf_counter()
     if getattr(problem, "population", None) or getattr(problem, "individual", None):
