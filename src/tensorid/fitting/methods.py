@@ -2,7 +2,10 @@
 or with the finite-difference baselines the paper compares against, from one start,
 a batch of starts in lock-step, or many starts on workers (the best refined).
 
-The checks of the user's arguments live here; the iterations in driver.py. Every
+The checks of the user's arguments live here; the iterations in driver.py. A
+Problem's ``constraints`` ("Fs >= Fc") are kept around an exact-derivative
+trust-region method by an augmented Lagrangian (constrained.py), every start
+included; the result's ``constraints`` gives their values and multipliers. Every
 method works on scaled variables (see scaling.py); whatever a method does, the
 result holds the best finite point it evaluated: a fit never returns NaN.
 """
@@ -88,9 +91,6 @@ def fit(
     Ctrl-C stops the fit at once, workers included, raising :class:`FitInterrupted`
     (a KeyboardInterrupt) whose ``result`` is the best point so far.
     A fleet's Problem (``population``, ``individual``) goes to :func:`fit_population`.
-    A Problem's ``constraints`` ("Fs >= Fc") are kept by an augmented Lagrangian around
-    the method (an exact-derivative trust-region one), every start included; the
-    result's ``constraints`` gives their values, activity and multipliers.
     """
     started = time.perf_counter()
     if getattr(problem, "population", None) or getattr(problem, "individual", None):
