@@ -34,7 +34,10 @@ def test_the_tutorial_s_fit_prints_the_numbers_it_states(capsys):
     assert f"{float(printed):.4f}" == said[3]
 
 
-@pytest.mark.parametrize("script, page", [("examples/emps/open_loop.py", "docs/emps.md")])
+@pytest.mark.parametrize(
+    "script, page",
+    [("examples/emps/open_loop.py", "docs/emps.md"), ("examples/emps/stribeck.py", "docs/emps.md")],
+)
 def test_an_example_s_header_command_is_the_docs_own(script, page):
     header = [ln[1:].strip() for ln in (ROOT / script).read_text().splitlines() if ln[:1] == "#"]
     command = " ".join(header).split("tensorid fit ", 1)[1].split(" (")[0]

@@ -6,8 +6,9 @@ equations, ``rhs = {state: "expr"}`` with optional ``output``, ``inputs``, ``par
 and it may define ``p0`` (dict), ``x0``
 (dict state -> value), ``free_x0`` (list), ``fixed`` (list), ``bounds`` (dict name ->
 (lo, hi)), ``weights`` ("auto" or dict output -> weight), ``priors`` (dict name ->
-(mean, sd)) and ``noise`` (the noise standard deviation that weighs the priors; without
-it, it is estimated and checked by the fit), ``loss``/``loss_scale`` and, for a
+(mean, sd)), ``constraints`` (a list of inequalities such as "Fs >= Fc") and
+``noise`` (the noise standard deviation that weighs the priors; without it, it is
+estimated and checked by the fit), ``loss``/``loss_scale`` and, for a
 stochastic model, ``predictor = "ekf"`` with ``process_noise`` (dict state -> σ_w)
 and ``measurement_noise`` (dict output -> σ_e), and ``interpolation`` (the inputs
 between samples, as ``--interpolation``, which overrides it). For many units
@@ -63,6 +64,7 @@ class ModelSpec:
     path: Path | None = None
     weights: dict | list | tuple | np.ndarray | str | None = None
     priors: dict = field(default_factory=dict)
+    constraints: list = field(default_factory=list)  # "Fs >= Fc", ... (engine/constraints.py)
     loss: str | None = None
     loss_scale: float | dict | None = None
     noise: float | None = None
@@ -232,14 +234,8 @@ def _spec(ns: dict, path: Path) -> ModelSpec:
             "`rhs = {state: 'expression'}`"
         )
     out = ModelSpec(model, path=path)
-    kinds = {
-        "p0": dict,
-        "x0": dict,
-        "free_x0": list,
-        "fixed": list,
-        "bounds": dict,
-        "priors": dict,
-    }
+    kinds = {"p0": dict, "x0": dict, "free_x0": list, "fixed": list, "bounds": dict,
+             "priors": dict, "constraints": list}  # fmt: skip
     for key, kind in kinds.items():
         if ns.get(key) is None:
             continue
@@ -310,8 +306,8 @@ def _fleet_settings(ns: dict, out: ModelSpec) -> None:
 _ELSEWHERE = {"scheme": "--scheme", "substeps": "--substeps", "rtol": "--rtol",
               "atol": "--atol"}  # fmt: skip
 _SETTINGS = ("model", "rhs", "output", "inputs", "params", "input_delays", "discrete", "p0",
-             "x0", "free_x0", "fixed", "bounds", "weights", "priors", "noise", "loss",
-             "loss_scale", "predictor", "process_noise", "measurement_noise",
+             "x0", "free_x0", "fixed", "bounds", "weights", "priors", "constraints", "noise",
+             "loss", "loss_scale", "predictor", "process_noise", "measurement_noise",
              "interpolation", "covariates", "individual", "population",
              "residual_error", "omega")  # fmt: skip
 # read only beside text equations: beside a tensorid.Model, ``outputs = [...]`` or

@@ -67,6 +67,11 @@ def add_fit_flags(f: argparse.ArgumentParser) -> None:
         "added to the model file's priors, replacing one of the same name",
     )  # fmt: skip
     f.add_argument(
+        "--constraint", action="append", default=[], metavar="INEQUALITY",
+        help="keep an inequality between parameters, e.g. \"Fs >= Fc\" (repeat for more); "
+        "joins the model file's constraints",
+    )  # fmt: skip
+    f.add_argument(
         "--noise", type=lambda text: _positive(text, "a noise standard deviation > 0"),
         default=None, metavar="SIGMA",
         help="the measurement noise's standard deviation that weighs the priors against "
@@ -87,7 +92,7 @@ def fit_options(args) -> dict:
 
 def statistics(spec, args) -> dict:
     """priors, noise and weights for the Problem: the command line's over the model
-    file's."""
+    file's; constraints: the model file's and --constraint's together."""
     m = spec.model
     given = given_once("--prior", getattr(args, "prior", None))
     unknown = [n for n in given if n not in m.params]
@@ -104,7 +109,9 @@ def statistics(spec, args) -> dict:
         unknown = [n for n in weights if n not in m.outputs] if weights != "auto" else []
         if unknown:
             raise ValueError(f"--weights names {unknown}, not outputs; they are {list(m.outputs)}")
+    constraints = list(spec.constraints or []) + list(getattr(args, "constraint", None) or [])
     return {
+        "constraints": constraints or None,
         "priors": priors or None,
         "noise": spec.noise if noise is None else noise,
         "weights": spec.weights if weights is None else weights,

@@ -160,6 +160,9 @@ def fit_json(
         "prior_noise_variance": res.problem.noise_variance if res.problem.priors else None,
         "prior_noise_check": res.noise_check.as_dict() if res.noise_check else None,
         "prior_moves": None if missing else res.prior_moves(),  # (a computation)
+        # each constraint: expr, c (kept >= 0), value, active, multiplier (λ >= 0, ∇J = Σ λ∇c)
+        "constraints": res.constraints.items if res.constraints else [],
+        "constraints_fit": _constraints_fit(res),
         "seconds": res.seconds,
         "compile_seconds": res.compile_seconds,
         "segments": res.problem.segments,
@@ -224,6 +227,38 @@ def _profile_lines(profiles: dict | None, data: dict) -> list[str]:
         "re-optimised), beside the Wald intervals from the standard errors.",
         "",
         md_table(["unknown", "Wald 95 %", f"profile {level:.0%}", "not crossed"], rows),
+    ]
+
+
+def _constraints_fit(res) -> dict | None:
+    """fit.json's constraints_fit: converged, outer_iterations, restricted_stderr,
+    second_order (None without constraints)."""
+    if not res.constraints:
+        return None
+    out = res.constraints.as_dict()
+    del out["constraints"]
+    return out
+
+
+def _constraint_lines(res) -> list[str]:
+    """report.md's constraints: each one's value, activity and multiplier, and what
+    the error bars mean beside them."""
+    if not res.constraints:
+        return []
+    rep = res.constraints
+    rows = [[f"`{d['expr']}`", f"{d['value']:.6g}", "yes" if d["active"] else "no",
+             f"{d['multiplier']:.6g}"] for d in rep.items]  # fmt: skip
+    header = ["constraint", "value of c (>= 0)", "active", "multiplier λ"]
+    return [
+        "## Constraints",
+        "",
+        f"Kept by an augmented Lagrangian ({plural(rep.outer, 'outer iteration')}); "
+        "λ >= 0 with ∇J = Σ λ ∇c at the solution: the rise of the optimal cost per unit "
+        "the margin c >= 0 is tightened, 0 for a constraint that does not bind.",
+        "",
+        md_table(header, rows),
+        "",
+        *[part for line in rep.lines() for part in (f"{line[0].upper()}{line[1:]}.", "")],
     ]
 
 
@@ -318,6 +353,7 @@ def fit_report(
         lines += ["## Warnings", ""] + [f"- {w}" for w in data["warnings"]] + [""]
     if data["notes"] and res.success:
         lines += ["## Notes", ""] + [f"- {n}" for n in data["notes"]] + [""]
+    lines += _constraint_lines(res)
     lines += _prior_lines(res)
     if "information" in data:
         lines += ["## Observed and expected information", "", data["information"]["text"] + ".", ""]

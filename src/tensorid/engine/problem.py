@@ -27,6 +27,7 @@ from .checks import (
     no_noise_without_filter,
 )
 from .compiled import on_device
+from .constraints import add_penalty_terms, check_constraints, penalty_jax
 from .data import Experiment
 from .discretisation import Discretisation, DiscretisationSettings
 from .fleet import check_fleet
@@ -138,6 +139,10 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
             or as {output: kind}; a and b estimated.
         omega: Ω's structure in a population fit: "diagonal" (default, independent
             random effects) or "full" (correlated: Ω = L Lᵀ estimated whole).
+        constraints: inequalities between parameters such as ["Fs >= Fc", "k <= 2*m"]
+            (plain arithmetic on parameter names, or a single record's free initial
+            states), which :func:`tensorid.fit` keeps by an augmented Lagrangian around
+            its exact-derivative trust region (see :mod:`tensorid.fitting.constrained`).
     """
 
     def __init__(
@@ -171,6 +176,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         individual: Sequence[str] | None = None,
         residual_error: str | Mapping[str, str] | None = None,
         omega: str = "diagonal",
+        constraints: Sequence[str] | str | None = None,
     ):
         if not isinstance(model, Model):
             raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
@@ -208,21 +214,20 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         self.population, self.individual, self.residual_error, self.omega = kinds
         if self.K == 0:
             raise ValueError("nothing to estimate: every parameter is fixed and free_x0 is empty")
+        self.constraints, self.penalty = check_constraints(self, constraints), None  # Fs >= Fc
         self._sweeps = shared_sweeps(
             model, tuple(model.states.index(n) for n in self.free_x0),
             tuple(model.params.index(n) for n in self.free_params), discretisation, self.loss,
             self.predictor,
         )  # fmt: skip
-        self._arrays = [
-            (on_device(e.t), on_device(self.inputs(e)), on_device(e.y)) for e in self.experiments
-        ]
+        self._arrays = [(on_device(e.t), on_device(self.inputs(e)), on_device(e.y))
+                        for e in self.experiments]  # fmt: skip
         self.threads = check_threads(threads)
         counts = resolve_segments(self.experiments, segments, segment_length)
         self.shooting = Shooting(self, counts) if counts else None
-        samples = [e.P for e in self.experiments]
         self.hessian = choose_hessian(
             "tensors" if self.predictor.update else hessian,
-            discretisation, model.N, self._sweeps.K, samples, threads,
+            discretisation, model.N, self._sweeps.K, [e.P for e in self.experiments], threads,
         )  # fmt: skip
 
     def _with_predictor(self, predictor, process_noise, measurement_noise) -> Model:
@@ -290,6 +295,8 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         out = [np.concatenate(a) if c == "r" else a for a, c in zip(out, parts, strict=True)]
         if self.priors:
             self.add_prior_terms(theta, parts, more, out)
+        if self.penalty is not None:  # a constrained fit's augmented Lagrangian
+            add_penalty_terms(self, theta, parts, more, out)
         ok = np.ones(lead, dtype=bool)
         for a in out:
             ok &= (
@@ -316,7 +323,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
             )
         for i, (mean, sd) in self.priors.items():
             J = J + self.noise_variance * ((theta[i] - mean) / sd) ** 2
-        return J
+        return J if self.penalty is None else J + penalty_jax(self, theta)
 
     def residuals(self, theta) -> np.ndarray:
         """sqrt(w)·(y_obs - y_sim) for every sample, output and experiment, flattened

@@ -66,6 +66,12 @@ class Status(enum.Enum):
         False,
         -1,
     )
+    CONSTRAINTS_VIOLATED = (
+        "stopped: the constraints are not met to their tolerance (they may contradict "
+        "each other or the bounds)",
+        False,
+        -1,
+    )
     # a fit stopped from outside: the best point found so far is kept
     INTERRUPTED = ("interrupted; the best point found so far is kept", False, -1)
     WORKERS_LOST = (

@@ -50,6 +50,8 @@ def fit_blocks(res, scores=None, residual=None, check=None) -> list:
     if scores:
         blocks.append(Table(None, *metric_rows(scores)))
         blocks += metric_notes(scores)
+    if res.constraints is not None:  # values, activity, multipliers; the bars' meaning
+        blocks += res.constraints.blocks()
     noise = noise_intensities(res, u)
     if noise:
         blocks.append(noise_text(noise, res.problem.model.discrete))

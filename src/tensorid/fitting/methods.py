@@ -2,7 +2,10 @@
 or with the finite-difference baselines the paper compares against, from one start,
 a batch of starts in lock-step, or many starts on workers (the best refined).
 
-The checks of the user's arguments live here; the iterations in driver.py. Every
+The checks of the user's arguments live here; the iterations in driver.py. A
+Problem's ``constraints`` ("Fs >= Fc") are kept around an exact-derivative
+trust-region method by an augmented Lagrangian (constrained.py), every start
+included; the result's ``constraints`` gives their values and multipliers. Every
 method works on scaled variables (see scaling.py); whatever a method does, the
 result holds the best finite point it evaluated: a fit never returns NaN.
 """
@@ -27,7 +30,7 @@ from .priors import weighed
 from .registry import LOCKSTEP, METHODS, listed, resolve
 from .results import FitInterrupted, FitResult
 from .robust import fit_robust
-from .solvers import Method
+from .solvers import Method, TrustRegion
 from .starts import fit_task, fits, many_starts
 
 __all__ = ["LOCKSTEP", "METHODS", "fit", "fit_batch", "fit_task"]
@@ -254,7 +257,25 @@ def check_method(problem, method) -> Method:
             f"{listed('supports_likelihood')}"
         )
     _check_enough_data(problem)
+    _check_constraints(problem, method)
     return method
+
+
+def _check_constraints(problem, method) -> None:
+    """Constraints are kept by the exact-derivative trust-region methods on a single-
+    shooting problem (their augmented Lagrangian is a term of J, ∇J and ∇²J)."""
+    if not problem.constraints:
+        return
+    if not method.exact_derivatives or not isinstance(method, TrustRegion):
+        raise ValueError(
+            f"constraints are kept by the exact-derivative trust-region methods "
+            f"'auto', 'newton', 'newton-cg' and 'gauss-newton', not {method.name!r}"
+        )
+    if problem.shooting is not None:
+        raise ValueError(
+            "constraints are kept in single shooting only: drop the segments "
+            "(segments=, --segments) or the constraints"
+        )
 
 
 def _check_start(problem: Problem, theta, what: str) -> np.ndarray:

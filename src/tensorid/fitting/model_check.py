@@ -286,6 +286,7 @@ def _part(problem, records, x0, keep):
     out.lower, out.upper = problem.lower[keep], problem.upper[keep]
     where = {int(old): new for new, old in enumerate(keep)}
     out.priors = {where[i]: v for i, v in problem.priors.items() if i in where}
+    out.constraints = None  # the data's parts alone (and θ's layout is not the problem's)
     return out
 
 

@@ -15,6 +15,7 @@ import numpy as np
 from ..engine.metrics import gof
 from ..engine.problem import Problem
 from ..engine.status import Status
+from .constraint_report import ConstraintReport
 from .priors import NoiseCheck, move_lines, prior_moves
 from .stats import Stats
 from .summary import Tabular, collapsed_noise
@@ -59,6 +60,9 @@ class FitResult(Tabular):
         defects aside), max_defect (largest continuity defect relative to the state
         scale), defect_tol, status, seconds, polished (and polish_nit). None for
         single shooting.
+    constraints : with ``Problem(constraints=...)``, each constraint's value at theta,
+        whether it binds, and its Lagrange multiplier (see
+        :class:`tensorid.fitting.constraint_report.ConstraintReport`); None without.
 
     A result is immutable: it is built once, where its run ends (``fitting/endings.py``);
     a later stage (a refit, a polish, the best of many starts) makes a new one with
@@ -87,6 +91,7 @@ class FitResult(Tabular):
     shooting: dict | None = None  # multiple shooting: segments, defects, its own counts
     hybrid: dict | None = None  # method "auto": evaluations of each kind, mode switches
     noise_check: NoiseCheck | None = None  # priors: their noise variance against the residuals
+    constraints: ConstraintReport | None = None  # values, activity, multipliers
     # the summary, the warnings, fit.json and report.md all read the same uncertainty;
     # keyed on what it depends on, so a result made by replace shares it (but not
     # across Problems: detached and attached start afresh)
@@ -280,6 +285,7 @@ class FitResult(Tabular):
             out += self.uncertainty().warnings
         noise = self.noise_check.message() if self.noise_check is not None else None
         out += ([noise] if noise else []) + collapsed_noise(self)
+        out += self.constraints.warnings() if self.constraints is not None else []
         return out + move_lines(self.prior_moves())
 
     def prior_moves(self) -> list[dict]:

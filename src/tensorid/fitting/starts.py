@@ -12,6 +12,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..engine.status import Status
+from .constrained import keep_constraints
 from .driver import fit_many
 from .endings import failed, not_run, stopped
 from .multistart import StartsStopped, ranked_starts, run_starts
@@ -24,7 +25,10 @@ from .shooting import fit_shooting
 
 def fits(problem, method, thetas, options: FitOptions, started) -> list[FitResult]:
     """Fits from every row of ``thetas``: by multiple shooting (one after another) when
-    the problem has segments, else by the driver (lock-step for several)."""
+    the problem has segments, else by the driver (lock-step for several); with
+    constraints, each by the augmented Lagrangian around them (constrained.py)."""
+    if problem.constraints and problem.penalty is None:
+        return [keep_constraints(problem, fits, method, th, options, started) for th in thetas]
     if problem.shooting is None:
         return fit_many(problem, method, thetas, options, started)
     out: list[FitResult] = []
@@ -110,7 +114,9 @@ def _refined(problem, method, best: FitResult, options: FitOptions, started) -> 
     best start's own multiple-shooting solution as it is (refining it would polish)."""
     if problem.shooting is not None and not options.polish:
         return replace(best.attached(problem), history=[], stats=Stats(nfev=0))
-    res = fit_many(problem, method, best.theta[None, :], options, started)[0]
+    res = (fits if problem.constraints else fit_many)(
+        problem, method, best.theta[None, :], options, started
+    )[0]
     return replace(res, shooting=best.shooting)
 
 

@@ -1,0 +1,183 @@
+"""Inequality constraints c(θ) >= 0 ("Fs >= Fc") kept by the exact-derivative
+trust-region methods: an augmented Lagrangian (the method of multipliers, as in
+LANCELOT, Conn, Gould and Toint) around the ordinary fit.
+
+Each outer iteration fits the cost plus the Powell-Hestenes-Rockafellar terms of
+engine/constraints.py (multiplier estimates λ, penalties μ) with the method the user
+chose, from the last solution, with the exact ∇ and ∇² of the penalised cost: its
+Hessian is the Lagrangian's, ∇²J − Σ λ̂ ∇²c, plus μ ∇c ∇cᵀ on the constraints that
+bind, so each solve converges as fast as an unconstrained one. Then λ ← max(0, λ − μc),
+and μ grows tenfold for a constraint whose violation did not fall by 4. The loop ends
+when every |min(c, λ/μ)| (violation and complementarity together) is within ``TOL``
+of the constraint's size. A start that violates a constraint is allowed: the first
+penalty pulls the fit over. A constraint that does not bind costs nothing: λ stays 0,
+its term is 0 where c >= 0, and the fit is the unconstrained one, in one outer iteration.
+
+At the end, a solution still outside a constraint by its tolerance (1e-10 of its size)
+is moved onto it by a minimum-norm step in the scaled unknowns, so that every
+constraint holds; the result is the ordinary FitResult of the Problem at that point
+(J, ∇J, ∇²J of the cost alone), with ``result.constraints`` saying each constraint's
+value, whether it binds, and its multiplier: λ >= 0 with ∇J = Σ λ ∇c at the solution,
+the rise of the optimal J per unit the constraint's margin c >= 0 is tightened.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from ..engine.status import Status
+from .constraint_report import ConstraintReport
+from .results import FitResult
+
+MAX_OUTER = 30
+TOL = 1e-10  # violation and complementarity, relative to each constraint's size
+ACTIVE = 1e-8  # a constraint within this of its size from 0 binds (or λ > 0)
+MU0 = 10.0  # the first penalty: μ c² = MU0·|J0| for c of the constraint's size
+GROW, SHRINK = 10.0, 0.25
+
+
+def keep_constraints(problem, fits, method, theta0, options, started) -> FitResult:
+    """The fit of ``problem`` from ``theta0`` with its constraints kept; ``fits``
+    (problem, method, thetas, options, started -> results) fits a penalised copy."""
+    cons = problem.constraints
+    c, A, _ = cons.evaluate(theta0)
+    size = _sizes(c, A, theta0)
+    J0 = problem.cost(theta0)
+    lam = np.zeros(len(cons))
+    mu = MU0 * max(abs(J0) if np.isfinite(J0) else 1.0, 1e-300) / size**2
+    theta, done, before, converged, outer = theta0, None, np.full(len(cons), np.inf), False, 0
+    while outer < MAX_OUTER:
+        outer += 1
+        res = fits(_penalised(problem, lam, mu), method, theta[None, :], options, started)[0]
+        done = res if done is None else _chained(done, res)
+        if res.status is Status.INTERRUPTED or not np.isfinite(res.cost):
+            break
+        theta, c = res.theta, cons.values(res.theta)
+        violation = np.abs(np.minimum(c, lam / mu)) / size
+        lam = np.maximum(lam - mu * c, 0.0)
+        converged = bool(violation.max() <= TOL)
+        if converged and res.success:
+            break
+        mu = np.where((violation > SHRINK * before) & (violation > TOL), GROW * mu, mu)
+        before = violation
+    assert done is not None
+    if converged:
+        theta = _onto(problem, theta, size, done.scale)
+    return _result(problem, done, theta, lam, size, converged, outer, started)
+
+
+def _sizes(c, A, theta) -> np.ndarray:
+    """Each constraint's size: its terms' (|∂c/∂θ| |θ|) and its value's, at the start."""
+    s = np.abs(A) @ np.abs(theta) + np.abs(c)
+    return np.where(s > 0, s, 1.0)
+
+
+def _penalised(problem, lam, mu):
+    """A shallow copy of ``problem`` whose cost carries the augmented-Lagrangian terms."""
+    out = copy.copy(problem)
+    out.penalty = (np.array(lam, dtype=float), np.array(mu, dtype=float))
+    return out
+
+
+def _chained(before: FitResult, after: FitResult) -> FitResult:
+    """``after`` (the next outer iteration) counting both runs."""
+    hybrid = after.hybrid
+    if before.hybrid and after.hybrid:
+        hybrid = {k: before.hybrid[k] + after.hybrid[k] for k in after.hybrid}
+    return replace(
+        after,
+        history=before.history_then(after.history),
+        stats=before.stats.then(after.stats),
+        notes=before.notes + [n for n in after.notes if n not in before.notes],
+        hybrid=hybrid,
+    )
+
+
+def _onto(problem, theta, size, scale, rounds: int = 3) -> np.ndarray:
+    """θ moved onto the constraints it violates (by their tolerance at most) by the
+    minimum-norm step in the scaled unknowns θ/scale, kept in the bounds."""
+    cons = problem.constraints
+    for _ in range(rounds):
+        c, A, _ = cons.evaluate(theta)
+        out = c < 0
+        if not out.any():
+            break
+        As = A[out] * scale
+        target = -c[out] + 4 * np.finfo(float).eps * size[out]  # clear of rounding
+        step = scale * (As.T @ np.linalg.lstsq(As @ As.T, target, rcond=None)[0])
+        theta = np.clip(theta + step, problem.lower, problem.upper)
+    return theta
+
+
+def _result(problem, done, theta, lam, size, converged, outer, started) -> FitResult:
+    """The FitResult of ``problem`` at θ, with its constraint report."""
+    if done.status is Status.INTERRUPTED:  # Ctrl-C: end at once, with the best point
+        return replace(done, problem=problem)
+    status, message = done.status, done.message
+    if not converged and status.success:
+        status = Status.CONSTRAINTS_VIOLATED
+        message = status.message
+    res = FitResult.at(
+        problem, done.method, theta, done.scale, status, message=message,
+        stats=done.stats.plus(nfev=1), started=started, history=done.history,
+        notes=done.notes, hybrid=done.hybrid, shooting=done.shooting,
+    )  # fmt: skip
+    if not res.derivatives or not np.isfinite(res.cost):
+        return res
+    cons = problem.constraints
+    c, A, _ = cons.evaluate(theta)
+    active = (lam > 0) | (np.abs(c) <= ACTIVE * size)
+    items = [
+        {
+            "expr": k.text,
+            "c": k.expr,
+            "value": float(c[i]),
+            "active": bool(active[i]),
+            "multiplier": float(lam[i]),
+        }
+        for i, k in enumerate(cons.items)
+    ]
+    # the Lagrangian's projected gradient: at an active constraint ∇J itself is not 0
+    phi, gl = theta / res.scale, res.jac - A.T @ lam
+    lo, hi = problem.lower / res.scale, problem.upper / res.scale
+    pg = np.clip(phi - gl * res.scale, lo, hi) - phi
+    ok = converged and active.any()
+    second = _second_order(res, lam, A[active], cons.evaluate(theta)[2]) if ok else None
+    report = ConstraintReport(items, converged, outer, _restricted(res, A[active]), second)
+    return replace(res, grad_norm=float(np.linalg.norm(pg, np.inf)), constraints=report)
+
+
+def _restricted(res: FitResult, A: np.ndarray) -> dict[str, float]:
+    """Each unknown's standard error with the rows of A (active constraints' ∇c) held
+    as equalities: C − C Aᵀ (A C Aᵀ)⁻¹ A C, the restricted estimator's covariance."""
+    if not len(A) or not res.success:
+        return {}
+    try:
+        C = res.uncertainty().covariance
+    except ValueError:
+        return {}
+    if not np.isfinite(C).all():
+        return {}
+    S = A @ C @ A.T
+    Ct = C - C @ A.T @ np.linalg.pinv(S) @ A @ C
+    se = np.sqrt(np.clip(np.diag(Ct), 0.0, None))
+    names = res.problem.theta_names
+    return {n: float(v) for n, v in zip(names, se, strict=True) if math.isfinite(v)}
+
+
+def _second_order(res: FitResult, lam, A, Hc) -> bool:
+    """Whether the Lagrangian's Hessian is positive definite on the null space of A
+    (the active constraints' gradients), in the scaled unknowns."""
+    D = res.scale
+    HL = (res.hess - np.einsum("i,ijk->jk", lam, Hc)) * np.outer(D, D)
+    _, sv, Vt = np.linalg.svd(A * D)
+    rank = int((sv > 1e-12 * max(sv.max(), 1e-300)).sum())
+    Z = Vt[rank:].T
+    if Z.shape[1] == 0:
+        return True
+    w = np.linalg.eigvalsh(0.5 * (Z.T @ HL @ Z + (Z.T @ HL @ Z).T))
+    return bool(w.min() > 1e-10 * max(np.abs(w).max(), 1e-300))

@@ -1,0 +1,85 @@
+"""What a constrained fit reports beside its estimates (fitting/constrained.py keeps
+the constraints): each constraint's value, whether it binds, its Lagrange multiplier,
+and what the error bars mean at a binding constraint."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from .summary import Table, Tabular, stderr_text
+
+
+@dataclass(repr=False)
+class ConstraintReport(Tabular):
+    """The constraints of a fit at its solution. ``items``: per constraint, ``expr``
+    (as written), ``c`` (the function kept >= 0), ``value`` (c at the solution),
+    ``active`` and ``multiplier`` (λ >= 0, ∇J = Σ λ ∇c: how much the optimal cost
+    would rise per unit the margin c >= 0 is tightened; 0 for a constraint that does
+    not bind). ``converged``: every constraint met within its tolerance; ``outer``:
+    augmented-Lagrangian iterations. ``restricted_stderr``: with a constraint that
+    binds, each unknown's standard error with the binding constraints held as
+    equalities (on their tangent space), beside the data's own in the estimates."""
+
+    items: list[dict]
+    converged: bool
+    outer: int
+    restricted_stderr: dict[str, float] = field(default_factory=dict)
+    second_order: bool | None = None  # ∇²L > 0 on the active constraints' tangent space
+
+    def as_dict(self) -> dict:
+        return {
+            "constraints": self.items,
+            "converged": self.converged,
+            "outer_iterations": self.outer,
+            "restricted_stderr": self.restricted_stderr or None,
+            "second_order": self.second_order,
+        }
+
+    def blocks(self) -> list:
+        rows = [
+            [
+                d["expr"],
+                f"{d['value']:.6g}",
+                "yes" if d["active"] else "no",
+                f"{d['multiplier']:.6g}",
+            ]
+            for d in self.items
+        ]
+        head = ["constraint", "value of c (>= 0)", "active", "multiplier λ"]
+        title = f"constraints ({self.outer} augmented-Lagrangian iterations)"
+        out: list = [Table(title, head, rows)]
+        return out + self.lines()
+
+    def lines(self) -> list[str]:
+        """What the estimates' error bars mean here (the warnings are the result's)."""
+        out = []
+        if self.second_order is not None:
+            out.append(
+                "the solution minimises J on the active constraints, not J itself: "
+                + (
+                    "the Lagrangian's Hessian ∇²J − Σ λ ∇²c is positive definite on their "
+                    "tangent space (a strict constrained minimum), whatever ∇²J alone does"
+                    if self.second_order
+                    else "the Lagrangian's Hessian curves downward on their tangent space "
+                    "(not a strict constrained minimum); try other starts"
+                )
+            )
+        if self.restricted_stderr:
+            held = ", ".join(f"{n} {stderr_text(v)}" for n, v in self.restricted_stderr.items())
+            out.append(
+                "error bars: the estimates' are the data's alone (the Hessian of J, as if "
+                "there were no constraint), so an interval may reach past an active "
+                "constraint into values it excludes; with the active constraints held "
+                f"as equalities (their tangent space) the standard errors are {held}"
+            )
+        return out
+
+    def warnings(self) -> list[str]:
+        if self.converged:
+            return []
+        worst = min(self.items, key=lambda d: d["value"])
+        return [
+            f"constraint {worst['expr']!r} is not met to tolerance after {self.outer} "
+            f"augmented-Lagrangian iterations (c = {worst['value']:.3g}); fit again from "
+            "result.theta, or check that the constraints can hold together"
+        ]
