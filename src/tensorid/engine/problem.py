@@ -7,14 +7,12 @@ units. Every check of the user's input happens here, before anything compiles.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Mapping, Sequence
 
 import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401
-from .adjoint import choose_hessian
 from .checks import (
     check_bounds,
     check_data,
@@ -30,12 +28,13 @@ from .compiled import on_device
 from .data import Experiment
 from .discretisation import Discretisation, DiscretisationSettings
 from .fleet import check_fleet
+from .hessians import HessianPath, choose_hessian, get_hessian
 from .integrators import Scheme
 from .layout import ThetaLayout
-from .losses import GAUSSIAN, Loss, make_loss
+from .losses import Loss, get_loss, make_loss
 from .model import Model
 from .packing import unpack_symmetric
-from .predictors import make_predictor
+from .predictors import Predictor, get_predictor, make_predictor
 from .priors import PriorTerms
 from .problem_loss import LossSettings
 from .shooting import Shooting, resolve_segments
@@ -109,12 +108,15 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
             tensors, forward in time), "adjoint" (second-order adjoints, parallel in time:
             faster for many states or unknowns; explicit schemes and discrete-time models
             only) or "auto" (default): the faster of the two by a cost model measured on
-            N, K and the record length (:func:`tensorid.engine.adjoint.choose_hessian`). Both
-            give the same Hessian to rounding. The resolved choice is ``Problem.hessian``.
+            N, K and the record length (:func:`tensorid.engine.hessians.choose_hessian`); or
+            a :class:`tensorid.engine.hessians.HessianPath`. Both give the same Hessian to
+            rounding. The resolved choice is ``Problem.hessian`` (its name) and
+            ``Problem.hessian_path``.
         predictor: how the state is carried from sample to sample: "simulation" (default:
             output error, the model simulated from its initial state) or "ekf" (a
             continuous-discrete extended Kalman filter: prediction error, J = −2 log L of
-            the innovations; see :mod:`tensorid.engine.predictors`). With "ekf" the model
+            the innovations; see :mod:`tensorid.engine.predictors`), or a
+            :class:`tensorid.engine.predictors.Predictor`. With "ekf" the model
             gains a parameter log σ per noise intensity (``log_sigma_w_<state>``,
             ``log_sigma_e_<output>``), estimated unless named in ``fixed``.
         process_noise: {state: σ_w}: the states driven by process noise dω, each with the
@@ -154,11 +156,11 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         noise: float | None = None,
         segments: int | Sequence[int] | None = None,
         segment_length: int | None = None,
-        hessian: str = "auto",
+        hessian: str | HessianPath = "auto",
         loss: str | Loss = "squared",
         loss_scale: float | Mapping[str, float] | None = None,
         threads: int | None = None,
-        predictor: str = "simulation",
+        predictor: str | Predictor = "simulation",
         process_noise: Mapping[str, float] | None = None,
         measurement_noise: Mapping[str, float] | None = None,
         population: Mapping[str, float] | None = None,
@@ -166,9 +168,11 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
     ):
         if not isinstance(model, Model):
             raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
+        predictor = get_predictor(predictor)  # by name or object: its markers answer below
         check_filter_options(
-            predictor, loss=loss, loss_scale=loss_scale, weights=weights, noise=noise,
-            segments=segments, segment_length=segment_length, hessian=hessian,
+            predictor, loss=_known(get_loss, loss), loss_scale=loss_scale, weights=weights,
+            noise=noise, segments=segments, segment_length=segment_length,
+            hessian=_known(get_hessian, hessian),
         )  # fmt: skip
         no_noise_without_filter(model, predictor, fixed, bounds)
         p0, x0, filt = resolve_start(model, p0, x0, predictor, process_noise, measurement_noise)
@@ -185,7 +189,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         ).for_model(model)
         self.weights = check_weights(self, weights)
         self.loss, scale = make_loss(
-            loss if predictor == "simulation" else GAUSSIAN,
+            self.predictor.own_loss or loss,
             loss_scale, list(model.outputs), self.weights, [e.y for e in self.experiments],
         )  # fmt: skip
         # what every sweep's per-sample loss is evaluated with, [w; c] (see losses.py)
@@ -210,10 +214,11 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         counts = resolve_segments(self.experiments, segments, segment_length)
         self.shooting = Shooting(self, counts) if counts else None
         samples = [e.P for e in self.experiments]
-        self.hessian = choose_hessian(
-            "tensors" if self.predictor.update else hessian,
-            discretisation, model.N, self._sweeps.K, samples, threads,
+        self.hessian_path = choose_hessian(
+            hessian, discretisation, model.N, self._sweeps.K, samples, threads,
+            filters=self.predictor.filters,
         )  # fmt: skip
+        self.hessian = self.hessian_path.name  # fit.json's hessian_path
 
     def _with_predictor(self, predictor, process_noise, measurement_noise) -> Model:
         """Set the predictor; a filter's model has its noise intensities appended to the
@@ -337,11 +342,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
 
     def _hessian_sweep(self, batched: bool):
         """The sweep giving (J, ∇J, ∇²J, Gauss-Newton part) and its parts letters."""
-        sw = self._sweeps
-        if self.hessian == "adjoint":
-            adjoint = sw.adjoint_batch if batched else sw.adjoint
-            return functools.partial(adjoint, threads_cap=self.threads), "JgHH"
-        return (sw.second_order_both_batch if batched else sw.second_order_both), "JgPP"
+        return self.hessian_path.sweep(self._sweeps, batched, self.threads)
 
     def cost_grad_hess_batch(self, thetas, gauss_newton: bool = False, both: bool = False):
         """cost_grad_hess (or cost_grad_gn) at every row of ``thetas`` (B, K) in one
@@ -421,3 +422,12 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
             f"substeps={self.substeps}, interpolation={self.interpolation!r}, "
             f"hessian={self.hessian!r})"
         )
+
+
+def _known(get, value):
+    """``value`` as its registry's object where its name is known (else as given: the
+    check that reads it, or the registry later, says what is wrong with it)."""
+    try:
+        return get(value)
+    except (ValueError, TypeError):
+        return value
