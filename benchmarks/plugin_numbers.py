@@ -69,8 +69,11 @@ def main(argv: list[str]) -> int:
         print(f"{len(now)} arrays written to {path}")
         return 0
     before = dict(np.load(path))
-    differ = [k for k in sorted(set(before) | set(now))
-              if k not in before or k not in now or not np.array_equal(before[k], now[k])]  # fmt: skip
+    keys = sorted(set(before) | set(now))
+    differ = [k for k in keys if k not in before or k not in now]
+    differ += [
+        k for k in keys if k in before and k in now and not np.array_equal(before[k], now[k])
+    ]
     for k in differ:
         print("DIFFERS:", k)
     print(f"{len(now)} arrays, {len(differ)} differ (np.array_equal)")

@@ -263,14 +263,18 @@ def check_filter_options(predictor, **options) -> None:
     (``supports_segments``) and is differentiated by the tensors only
     (``supports_adjoint``). ``loss`` and ``hessian`` come as their registries'
     objects where their names are known."""
+    corrects = (
+        "the filter already corrects the state at every sample"
+        if predictor.filters
+        else "multiple shooting carries the model's own state only"
+    )
     why = {
         "loss": "its loss is the likelihood of the innovations (drop loss=)",
         "loss_scale": "its loss is the likelihood of the innovations (drop loss_scale=)",
         "weights": "the measurement noise intensities weigh the outputs (drop weights=)",
         "noise": "the measurement noise is estimated with the parameters (drop noise=)",
-        "segments": "the filter already corrects the state at every sample (drop segments=)",
-        "segment_length": "the filter already corrects the state at every sample "
-        "(drop segment_length=)",
+        "segments": f"{corrects} (drop segments=)",
+        "segment_length": f"{corrects} (drop segment_length=)",
         "hessian": "its exact Hessian comes from the transition tensors only (use "
         "hessian='tensors' or 'auto')",
     }
@@ -281,7 +285,7 @@ def check_filter_options(predictor, **options) -> None:
                "hessian": not predictor.supports_adjoint}  # fmt: skip
     served = {  # the defaults, which ask nothing of the predictor
         "loss": lambda v: getattr(v, "squared", False) is True,
-        "hessian": lambda v: getattr(v, "supports_filters", False) is True,
+        "hessian": lambda v: getattr(v, "supports_predictors", False) is True,
         "segments": lambda v: isinstance(v, int) and v == 1,
     }
     for name, value in options.items():

@@ -2,7 +2,7 @@
 
 A path is a :class:`HessianPath`: its ``name`` (``Problem(hessian=...)``,
 ``--hessian``, fit.json's ``hessian_path``), its markers (``supports(discretisation)``,
-``supports_filters``) and ``sweep``, the sweep that gives (J, ∇J, ∇²J, the
+``supports_predictors``) and ``sweep``, the sweep that gives (J, ∇J, ∇²J, the
 Gauss-Newton part) and the letters of its parts (see ``Problem._assemble``).
 :class:`TransitionTensors` (the paper's, forward in time) and
 :class:`SecondOrderAdjoints` (parallel in time, explicit schemes only,
@@ -29,12 +29,13 @@ class HessianPath:
     """A way to compute (J, ∇J, ∇²J, Gauss-Newton part) in one sweep.
 
     Markers:
-        supports_filters: the path differentiates a predictor that corrects its
-            state at each sample (a filter's update).
+        supports_predictors: the path differentiates any predictor (its field,
+            predict and update), not only output error's model; where it does not,
+            a predictor without the marker ``supports_adjoint`` is refused.
     """
 
     name: ClassVar[str] = ""
-    supports_filters: ClassVar[bool] = True
+    supports_predictors: ClassVar[bool] = True
     needs: ClassVar[str] = "a scheme it can differentiate"  # (for a refusal)
 
     def supports(self, discretisation) -> bool:
@@ -88,13 +89,13 @@ def get_hessian(hessian) -> HessianPath:
 @register_hessian
 class AutoHessian(HessianPath):
     """The faster of the tensors and the adjoint by the cost model (the adjoint where
-    it is predicted MARGIN times faster and the scheme allows it); a filter's is the
-    tensors'. Resolved by :func:`choose_hessian`, never swept itself."""
+    it is predicted MARGIN times faster and the scheme and the predictor allow it; a
+    filter's is the tensors'). Resolved by :func:`choose_hessian`, never swept."""
 
     name: ClassVar[str] = "auto"
 
-    def choose(self, discretisation, N: int, K: int, samples, cap, filters: bool):
-        if filters or not supports(discretisation):
+    def choose(self, discretisation, N: int, K: int, samples, cap, adjoint: bool):
+        if not adjoint or not supports(discretisation):
             return TransitionTensors()
         t = predicted_seconds(N, K, samples, threads(cap))
         faster = MARGIN * t["adjoint"] < t["tensors"]
@@ -117,7 +118,7 @@ class SecondOrderAdjoints(HessianPath):
     (engine/adjoint.py): explicit Runge-Kutta schemes and discrete-time models."""
 
     name: ClassVar[str] = "adjoint"
-    supports_filters: ClassVar[bool] = False
+    supports_predictors: ClassVar[bool] = False
     needs: ClassVar[str] = "an explicit scheme"
 
     def supports(self, discretisation) -> bool:
@@ -141,14 +142,14 @@ HESSIANS = ("auto", "tensors", "adjoint")
 
 
 def choose_hessian(
-    hessian, discretisation, N: int, K: int, samples, cap=None, filters: bool = False
+    hessian, discretisation, N: int, K: int, samples, cap=None, adjoint: bool = True
 ) -> HessianPath:
     """The Hessian path a Problem uses: ``hessian`` (a name or a path) checked against
     the discretisation, and "auto" resolved (:class:`AutoHessian`), with at most
-    ``cap`` threads; ``filters``: the predictor corrects its state at each sample."""
+    ``cap`` threads; ``adjoint``: the predictor's marker ``supports_adjoint``."""
     path = get_hessian(hessian)
     if not path.supports(discretisation):
         raise ValueError(path.refusal(discretisation))
     if isinstance(path, AutoHessian):
-        return path.choose(discretisation, N, K, samples, cap, filters)
+        return path.choose(discretisation, N, K, samples, cap, adjoint)
     return path

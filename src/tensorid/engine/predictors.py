@@ -11,10 +11,11 @@ so a predictor is only these maps, written once):
                                     (None: the state is not corrected)
 
 :class:`OutputError` (``"simulation"``; ``Simulation`` is its deprecated name) is
-the default: z = x, the model's own F and C, no update; π = ŷ. :class:`ExtendedKalman` is a continuous-discrete extended
-Kalman filter: z = (x̂, P) with P the state covariance, π = (ŷ, S) the predicted
-output and its covariance, and the measurement update at each sample, so that the
-loss (``losses.GAUSSIAN``) is the negative log-likelihood of the innovations.
+the default: z = x, the model's own F and C, no update; π = ŷ.
+:class:`ExtendedKalman` is a continuous-discrete extended Kalman filter: z = (x̂, P)
+with P the state covariance, π = (ŷ, S) the predicted output and its covariance,
+and the measurement update at each sample, so that the loss (``losses.GAUSSIAN``)
+is the negative log-likelihood of the innovations.
 
 The transition tensors differentiate the whole chain — propagation, the update and
 the loss — exactly, so the EKF's gradient and Hessian are those of its discretised
@@ -55,24 +56,29 @@ class Predictor:
     Markers (what the checks and the commands ask instead of the name):
         has_noise_model: the model gains noise intensities among its parameters
             (``process_noise``, ``measurement_noise``), which fit.json records.
-        filters: the state is corrected at each sample (``update``): predictions k
-            samples ahead differ from the simulation.
+        filters: the state is corrected at each sample (it has an ``update``):
+            predictions k samples ahead differ from the simulation.
         supports_segments, supports_fleet, supports_adjoint: multiple shooting, a
             fleet's population or individual parameters, the second-order adjoint's
-            Hessian.
+            Hessian; each of them reads the model's own F and C, so only output
+            error sets them (a new predictor is refused there, one line, until it
+            says otherwise).
         takes_loss: the user's loss and weights apply; False where the predictor
             brings its own (``own_loss``, e.g. a filter's Gaussian likelihood).
     """
 
     name: ClassVar[str] = ""
     has_noise_model: ClassVar[bool] = False
-    filters: ClassVar[bool] = False
-    supports_segments: ClassVar[bool] = True
-    supports_fleet: ClassVar[bool] = True
-    supports_adjoint: ClassVar[bool] = True
+    supports_segments: ClassVar[bool] = False
+    supports_fleet: ClassVar[bool] = False
+    supports_adjoint: ClassVar[bool] = False
     takes_loss: ClassVar[bool] = True
     own_loss: ClassVar[Any] = None
     update: ClassVar[Any] = None
+
+    @property
+    def filters(self) -> bool:
+        return type(self).update is not None
 
     def size(self, model) -> int:
         return model.N
@@ -135,6 +141,9 @@ class OutputError(Predictor):
     carried state z (here the same)."""
 
     name: ClassVar[str] = "simulation"
+    supports_segments: ClassVar[bool] = True
+    supports_fleet: ClassVar[bool] = True
+    supports_adjoint: ClassVar[bool] = True
 
 
 SIMULATION = OutputError()
@@ -182,10 +191,6 @@ class ExtendedKalman(Predictor):
 
     name: ClassVar[str] = "ekf"
     has_noise_model: ClassVar[bool] = True
-    filters: ClassVar[bool] = True
-    supports_segments: ClassVar[bool] = False
-    supports_fleet: ClassVar[bool] = False
-    supports_adjoint: ClassVar[bool] = False
     takes_loss: ClassVar[bool] = False
     own_loss: ClassVar[Any] = GAUSSIAN
     process: tuple[tuple[int, int], ...] = ()
@@ -424,7 +429,7 @@ def predictions(problem, theta, horizon: int = 1) -> list[Prediction]:
         _, pis = (np.asarray(a) for a in sw.predictions(local, x0, p, t, u, y))
         yhat, cov = pis[:, :S], None
         meas = np.asarray(y)
-        if sw.predictor.update is not None:
+        if sw.loss.likelihood:  # π = (ŷ, vec S): the loss reads the covariance
             cov = pis[:, S:].reshape(-1, S, S)
             innov = np.asarray(sw.loss.residual(y, jnp.asarray(pis), None))
         else:

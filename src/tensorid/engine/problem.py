@@ -168,13 +168,10 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
     ):
         if not isinstance(model, Model):
             raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
-        predictor = get_predictor(predictor)  # by name or object: its markers answer below
-        check_filter_options(
-            predictor, loss=_known(get_loss, loss), loss_scale=loss_scale, weights=weights,
-            noise=noise, segments=segments, segment_length=segment_length,
-            hessian=_known(get_hessian, hessian),
+        predictor = _checked_predictor(
+            predictor, model, fixed, bounds, loss=loss, loss_scale=loss_scale, weights=weights,
+            noise=noise, segments=segments, segment_length=segment_length, hessian=hessian,
         )  # fmt: skip
-        no_noise_without_filter(model, predictor, fixed, bounds)
         p0, x0, filt = resolve_start(model, p0, x0, predictor, process_noise, measurement_noise)
         self.model = model
         self.experiments = check_data(self, data)
@@ -216,7 +213,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         samples = [e.P for e in self.experiments]
         self.hessian_path = choose_hessian(
             hessian, discretisation, model.N, self._sweeps.K, samples, threads,
-            filters=self.predictor.filters,
+            adjoint=self.predictor.supports_adjoint,
         )  # fmt: skip
         self.hessian = self.hessian_path.name  # fit.json's hessian_path
 
@@ -422,6 +419,18 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
             f"substeps={self.substeps}, interpolation={self.interpolation!r}, "
             f"hessian={self.hessian!r})"
         )
+
+
+def _checked_predictor(predictor, model, fixed, bounds, **options) -> Predictor:
+    """The predictor (by name or object) with the options checked against its markers,
+    one line each, before any work; ``loss`` and ``hessian`` as their registries'
+    objects where their names are known."""
+    predictor = get_predictor(predictor)
+    options.update(loss=_known(get_loss, options["loss"]))
+    options.update(hessian=_known(get_hessian, options["hessian"]))
+    check_filter_options(predictor, **options)
+    no_noise_without_filter(model, predictor, fixed, bounds)
+    return predictor
 
 
 def _known(get, value):
