@@ -11,6 +11,7 @@ import numpy as np
 from ..engine.discretisation import Discretisation
 from ..engine.hessians import get_hessian
 from ..engine.integrators import SCHEMES
+from ..engine.losses import get_loss
 from ..engine.predictors import NOISE_PREFIXES, SIMULATION, get_predictor
 from ..engine.problem import Problem
 from ..engine.shooting import resolve_segments
@@ -160,7 +161,7 @@ def _loss(spec: ModelSpec, args) -> dict:
     loss = getattr(args, "loss", None) or spec.loss or "squared"
     scale = getattr(args, "loss_scale", None)
     scale = spec.loss_scale if scale is None else scale
-    if loss == "squared" and scale is not None:
+    if not get_loss(loss).robust and scale is not None:  # (its marker: a scale to take)
         raise ValueError("--loss-scale (or loss_scale) is for a robust --loss; drop it or give one")
     return {"loss": loss, "loss_scale": scale}
 
