@@ -1,7 +1,7 @@
 """The names the command line offers for each kind of plug-in, spelled out here so
 that building the parser imports no JAX: the losses, predictors, Hessian paths,
 fitting methods (and a fleet's) and integration schemes. Each is its registry's
-built-in names in the registry's order (tests/test_names.py checks that they agree):
+built-in names in the registry's order (tests/test_recipes.py checks that they agree):
 
     LOSSES       tensorid.engine.losses.REGISTRY       (--loss, a model file's loss)
     PREDICTORS   tensorid.engine.predictors.REGISTRY   (--predictor)

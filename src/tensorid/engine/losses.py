@@ -55,7 +55,7 @@ STUDENT_NU = 4.0
 
 # the losses by name: the one place a loss's name is looked up (``get_loss``); a class
 # joins it with @register_loss. tensorid/names.py spells the command line's --loss
-# choices out (tests/test_names.py checks that they are these)
+# choices out (tests/test_recipes.py checks that they are these)
 REGISTRY: dict[str, type[Loss]] = {}
 
 

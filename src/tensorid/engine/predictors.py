@@ -43,7 +43,7 @@ NOISE_PREFIXES = {"process": "log_sigma_w_", "measurement": "log_sigma_e_"}
 
 # the predictors by name: the one place a predictor's name is looked up
 # (``get_predictor``); a class joins it with @register_predictor. tensorid/names.py
-# spells the command line's --predictor choices out (tests/test_names.py checks them)
+# spells the command line's --predictor choices out (tests/test_recipes.py checks them)
 REGISTRY: dict[str, type[Predictor]] = {}
 
 
