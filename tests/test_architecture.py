@@ -14,6 +14,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "tensorid"
 LAYERS = {
     "_config": 0,
     "_early": 0,
+    "names": 0,  # the command line's choices, no imports at all (tests/test_recipes.py)
     "engine": 1,
     "functions": 1,
     "datasets": 1,
@@ -138,16 +139,27 @@ def test_modules_are_at_most_450_lines():
 
 
 def test_the_command_lines_spelled_out_choices_are_the_registries():
-    """--method, --loss and --predictor list their choices by hand, so that --help
-    need not import JAX; they must stay the library's."""
+    """--method, --loss, --predictor, --hessian and --scheme take their choices from
+    tensorid/names.py, so that the parser imports no JAX; they must stay the
+    registries' (tests/test_recipes.py checks names.py against them)."""
+    from tensorid import names
     from tensorid.cli import build_parser
-    from tensorid.engine.losses import LOSSES
-    from tensorid.engine.predictors import PREDICTORS
-    from tensorid.fitting.methods import FLEET_METHODS
-    from tensorid.fitting.registry import METHODS
 
     fit = build_parser()._subparsers._group_actions[0].choices["fit"]
     choices = {a.dest: a.choices for a in fit._actions if a.choices}
-    assert list(choices["method"]) == list(METHODS) + list(FLEET_METHODS)
-    assert list(choices["loss"]) == list(LOSSES)
-    assert list(choices["predictor"]) == list(PREDICTORS)
+    assert list(choices["method"]) == list(names.METHODS) + list(names.FLEET_METHODS)
+    assert list(choices["loss"]) == list(names.LOSSES)
+    assert list(choices["predictor"]) == list(names.PREDICTORS)
+    assert list(choices["hessian"]) == list(names.HESSIANS)
+    assert list(choices["scheme"]) == list(names.SCHEMES)
+
+
+def test_architecture_md_names_every_module():
+    """docs/architecture.md lists every module (issue 39): a newcomer finds each one
+    there, by its file name."""
+    import re
+
+    text = (SRC.parents[1] / "docs" / "architecture.md").read_text()
+    words = set(re.findall(r"[\w]+", text))
+    missing = [m for m, p in MODULES.items() if p.stem not in words and p.stem != "__init__"]
+    assert not missing, f"docs/architecture.md does not name {missing}"

@@ -12,7 +12,7 @@ import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-from .. import _early
+from .. import _early, names
 from .argtypes import (
     _count,
     _level,
@@ -106,17 +106,7 @@ def register(sub) -> None:
     f.add_argument(
         "--method",
         default="auto",
-        # tensorid.METHODS, spelled out so that --help need not import JAX
-        choices=[
-            "auto",
-            "newton",
-            "newton-cg",
-            "gauss-newton",
-            "fd-bfgs",
-            "fd-lsq",
-            "focei",
-            "laplace",
-        ],  # fmt: skip
+        choices=[*names.METHODS, *names.FLEET_METHODS],  # (names.py: no JAX for --help)
         help="auto (default): Gauss-Newton while it converges fast, the exact Hessian "
         "where it turns slow or at a saddle; newton: exact Hessian; newton-cg: exact "
         "Hessian-vector products with truncated CG, for many unknowns; gauss-newton; "
@@ -126,7 +116,7 @@ def register(sub) -> None:
     f.add_argument(
         "--hessian",
         default="auto",
-        choices=["auto", "tensors", "adjoint"],
+        choices=list(names.HESSIANS),
         help="how exact Hessians are computed: tensors (the paper's transition tensors), "
         "adjoint (second-order adjoints, parallel in time: faster for many states or "
         "unknowns; explicit schemes only) or auto (default): the faster one by a cost "
@@ -135,8 +125,7 @@ def register(sub) -> None:
     f.add_argument(
         "--loss",
         default=None,
-        # tensorid.engine.losses.LOSSES, spelled out so that --help need not import JAX
-        choices=["squared", "huber", "cauchy", "student-t"],
+        choices=list(names.LOSSES),
         help="what a sample's misfit costs: squared (default: least squares) or a robust "
         "loss that lets outliers and glitches pull less: huber (linear beyond the scale), "
         "cauchy or student-t (logarithmic beyond it); overrides the model file's loss",
@@ -152,8 +141,7 @@ def register(sub) -> None:
     f.add_argument(
         "--predictor",
         default=None,
-        # tensorid.engine.predictors.PREDICTORS, spelled out so that --help need not import JAX
-        choices=["simulation", "ekf"],
+        choices=list(names.PREDICTORS),
         help="how the state is carried between samples: simulation (default: output "
         "error) or ekf (an extended Kalman filter: prediction error, with process and "
         "measurement noise estimated); overrides the model file's predictor",

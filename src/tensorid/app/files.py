@@ -42,9 +42,9 @@ import numpy as np
 
 from ..engine.checks import did_you_mean
 from ..engine.equations import model_from_equations
-from ..engine.losses import LOSSES
+from ..engine.losses import REGISTRY as LOSSES
 from ..engine.model import Model
-from ..engine.predictors import PREDICTORS
+from ..engine.predictors import REGISTRY as PREDICTORS
 from . import fleets
 from .datafiles import load_data
 
@@ -258,7 +258,7 @@ def _spec(ns: dict, path: Path) -> ModelSpec:
     loss, scale = ns.get("loss"), ns.get("loss_scale")
     if loss is not None and loss not in LOSSES:
         raise ValueError(
-            f"loss must be one of {list(LOSSES)}, got {loss!r}{did_you_mean(loss, LOSSES)}"
+            f"loss must be one of {list(LOSSES)}, got {loss!r}{did_you_mean(loss, list(LOSSES))}"
         )
     if scale is not None and not isinstance(scale, int | float | dict):
         raise TypeError(f"loss_scale must be a number or a dict {{output: scale}}, got {scale!r}")
@@ -268,7 +268,7 @@ def _spec(ns: dict, path: Path) -> ModelSpec:
     if predictor is not None and predictor not in PREDICTORS:
         raise ValueError(
             f"predictor must be one of {list(PREDICTORS)}, got {predictor!r}"
-            f"{did_you_mean(predictor, PREDICTORS)}"
+            f"{did_you_mean(predictor, list(PREDICTORS))}"
         )
     out.predictor = predictor
     out.interpolation = _interpolation(ns.get("interpolation"))

@@ -12,17 +12,29 @@ from .files import ModelSpec
 
 
 def filter_of(spec: ModelSpec, fitted: dict | None, record) -> tuple[ModelSpec, tuple | None]:
-    """For a fit.json of a filter (predictor "ekf"): the spec with the filter's model
-    (its noise intensities among the parameters) and (loss, predictor) to predict
-    with; otherwise ``spec`` and None."""
-    if fitted is None or fitted.get("predictor") != "ekf":
+    """For a fit.json whose predictor corrects its state (a filter, predictor "ekf",
+    or any registered predictor with the marker ``filters``): the spec with the
+    predictor's model (a noise model's intensities among the parameters) and (loss,
+    predictor) to predict with; otherwise ``spec`` and None (output error: the
+    prediction is the simulation). A predictor name no registry knows is one line,
+    never a silent simulation."""
+    if fitted is None or fitted.get("predictor") is None:
         return spec, None
-    from ..engine.losses import GAUSSIAN
-    from ..engine.predictors import make_predictor
+    from ..engine.predictors import get_predictor, make_predictor
 
-    q, r = _noise_terms(fitted)
-    model, filt, _ = make_predictor(spec.model, "ekf", q, r, [record.y])
-    return replace(spec, model=model), (GAUSSIAN, filt)
+    kind = get_predictor(fitted["predictor"])  # (its markers answer, not its name)
+    if not kind.filters:
+        return spec, None
+    q, r = _noise_terms(fitted) if kind.has_noise_model else (None, None)
+    model, filt, _ = make_predictor(spec.model, kind, q, r, [record.y])
+    return replace(spec, model=model), (filt.own_loss or _fitted_loss(fitted), filt)
+
+
+def _fitted_loss(fitted: dict):
+    """The loss a fit.json names (the squared loss where it names none)."""
+    from ..engine.losses import get_loss
+
+    return get_loss(fitted.get("loss") or "squared")
 
 
 # a noise level's log within these: σ² and the innovations' covariance stay finite
@@ -42,9 +54,10 @@ def _noise_terms(fitted: dict) -> tuple[dict, dict]:
     noise = fitted.get("noise_intensities")
     if not isinstance(noise, dict) or not noise.get("process"):
         raise ValueError(
-            'it says "predictor": "ekf" but holds no noise terms (no log_sigma_w_<state> '
-            "in its params, no noise_intensities): a filter cannot be run from it; give the "
-            "fit.json tensorid fit --predictor ekf wrote"
+            f'it says "predictor": "{fitted["predictor"]}" but holds no noise terms (no '
+            "log_sigma_w_<state> in its params, no noise_intensities): a filter cannot be "
+            f"run from it; give the fit.json tensorid fit --predictor {fitted['predictor']} "
+            "wrote"
         )
     q = {s: v["sigma"] for s, v in noise["process"].items()}
     r = {o: v["sigma"] for o, v in (noise.get("measurement") or {}).items()}

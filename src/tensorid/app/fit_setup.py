@@ -8,10 +8,11 @@ import re
 
 import numpy as np
 
-from ..engine.adjoint import supports as adjoint_supports
 from ..engine.discretisation import Discretisation
+from ..engine.hessians import get_hessian
 from ..engine.integrators import SCHEMES
-from ..engine.predictors import NOISE_PREFIXES
+from ..engine.losses import get_loss
+from ..engine.predictors import NOISE_PREFIXES, SIMULATION, get_predictor
 from ..engine.problem import Problem
 from ..engine.shooting import resolve_segments
 from ..engine.start import Start
@@ -49,10 +50,11 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
         )
     disc = discretisation(args, spec)
     hessian = getattr(args, "hessian", "auto")
-    if hessian == "adjoint" and not adjoint_supports(disc):
-        explicit = [n for n in SCHEMES if adjoint_supports(Discretisation.of(n))]
+    path = get_hessian(hessian)  # asked, not named: what it can differentiate
+    if not path.supports(disc):
+        able = [n for n in SCHEMES if path.supports(Discretisation.of(n))]
         raise ValueError(
-            f"--hessian adjoint needs an explicit scheme ({', '.join(explicit)}) or a "
+            f"--hessian {path.name} needs {path.needs} ({', '.join(able)}) or a "
             f"discrete-time model, not --scheme {disc.scheme.name}: drop --hessian or "
             "give --hessian tensors"
         )
@@ -124,9 +126,9 @@ def _as_flags(message: str, args) -> str:
 def predictor_origin(spec: ModelSpec, args) -> str:
     """Where a filter fit's predictor was chosen: "--predictor ekf", or the model file's
     setting (a refusal that blamed --predictor ekf sent the user to a flag not given)."""
-    if getattr(args, "predictor", None) == "ekf":
-        return "--predictor ekf"
-    return f'predictor = "ekf" in {spec.path}'
+    if getattr(args, "predictor", None):
+        return f"--predictor {args.predictor}"
+    return f'predictor = "{spec.predictor}" in {spec.path}'
 
 
 def checked_method(problem, method: str, origin: str = "--predictor ekf") -> None:
@@ -140,7 +142,7 @@ def checked_method(problem, method: str, origin: str = "--predictor ekf") -> Non
             check_method(problem, method)
     except ValueError as e:
         message = re.sub(r"^method '([\w-]+)'", r"--method \1", str(e))
-        message = message.replace("predictor='ekf'", origin)
+        message = re.sub(r"predictor='[\w-]+'", origin, message)
         message = message.replace("drop the segments", "drop --segments or --segment-length")
         names = r"use ('[\w-]+'(?:(?:, | or )'[\w-]+')*)"
         message = re.sub(names, lambda m: "use --method " + m[1].replace("'", ""), message)
@@ -159,7 +161,7 @@ def _loss(spec: ModelSpec, args) -> dict:
     loss = getattr(args, "loss", None) or spec.loss or "squared"
     scale = getattr(args, "loss_scale", None)
     scale = spec.loss_scale if scale is None else scale
-    if loss == "squared" and scale is not None:
+    if not get_loss(loss).robust and scale is not None:  # (its marker: a scale to take)
         raise ValueError("--loss-scale (or loss_scale) is for a robust --loss; drop it or give one")
     return {"loss": loss, "loss_scale": scale}
 
@@ -167,20 +169,22 @@ def _loss(spec: ModelSpec, args) -> dict:
 def _predictor(spec: ModelSpec, args) -> dict:
     """predictor, process_noise and measurement_noise: the command line's over the
     model file's."""
-    out: dict = {"predictor": getattr(args, "predictor", None) or spec.predictor or "simulation"}
+    flag = getattr(args, "predictor", None)
+    out: dict = {"predictor": flag or spec.predictor or SIMULATION.name}
+    noisy = get_predictor(out["predictor"]).has_noise_model  # (its marker, not its name)
     for key in ("process_noise", "measurement_noise"):
         given = getattr(args, key, None)
         out[key] = given_once(_FLAGS[key], given) if given else getattr(spec, key)
-        if not given and getattr(args, "predictor", None) == "simulation":
+        if not given and flag and not noisy:
             out[key] = None  # the file's filter noise goes with the file's predictor
-    if out["predictor"] != "simulation":  # before --fix's σ join it
+    if noisy:  # before --fix's σ join it
         _process_noise_named(args, out["process_noise"] or {})
     for name, value in dict(getattr(args, "fix", None) or []).items():
         for kind, prefix in NOISE_PREFIXES.items():  # --fix log_sigma_e_y=-7: σ_e = e^-7
             key = f"{kind}_noise"
             if name.startswith(prefix):
                 out[key] = {**(out[key] or {}), name[len(prefix) :]: float(np.exp(value))}
-    if out["predictor"] == "simulation":
+    if not noisy:
         _no_noise_flags(args)
     return out
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 
+from .. import names
 from .argtypes import _count, _mapping, _sample_time, _samples, _value
 
 _TS_HELP = (
@@ -107,13 +108,11 @@ def fleet_options(f: argparse.ArgumentParser) -> None:
 def integration_options(p: argparse.ArgumentParser, inherit: bool = False) -> None:
     """--scheme, --substeps, --rtol, --atol, --interpolation. With ``inherit`` their
     defaults are those of the fit.json given with --params (then rk4, 4, linear)."""
-    from ..engine.integrators import SCHEMES
-
     default = " (default: the fit.json's, else %s)" if inherit else " (default %s)"
     p.add_argument(
         "--scheme",
         default=None if inherit else "rk4",
-        choices=list(SCHEMES),
+        choices=list(names.SCHEMES),  # (names.py: no JAX for --help)
         help="integrator: explicit rk4, rk38, heun, euler; implicit sdirk3, "
         "sdirk2, implicit-euler for stiff models; adaptive dopri5, bosh3 (with "
         "--rtol/--atol)" + default % "rk4",

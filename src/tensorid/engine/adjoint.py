@@ -50,7 +50,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config
-from .checks import did_you_mean
 from .discretisation import Discretisation, input_at
 from .integrators import DiscreteMap, ExplicitRungeKutta
 from .programs import Program
@@ -64,8 +63,6 @@ def supports(discretisation: Discretisation) -> bool:
     """Whether the adjoint Hessian can differentiate this scheme in reverse mode."""
     return isinstance(discretisation.scheme, ExplicitRungeKutta | DiscreteMap)
 
-
-HESSIANS = ("auto", "tensors", "adjoint")
 
 # The cost model behind hessian="auto", fitted to the rows of benchmarks/bench_adjoint.py
 # on a 2-core machine (fourteen problems from N = 2, K = 3 to N = 64, K = 65, and
@@ -95,31 +92,6 @@ def predicted_seconds(N: int, K: int, samples, n_threads: int | None = None) -> 
     if (threads() if n_threads is None else n_threads) < 2:
         ratio /= SINGLE_THREAD
     return {"tensors": tensors, "adjoint": len(samples) * ADJOINT_CALL + tensors / ratio}
-
-
-def choose_hessian(
-    hessian: str, discretisation: Discretisation, N: int, K: int, samples, cap=None
-) -> str:
-    """The Hessian path a Problem uses: ``hessian`` checked, and "auto" resolved by
-    the cost model (the adjoint where it is predicted MARGIN times faster and the
-    scheme allows it, with at most ``cap`` threads)."""
-    if hessian not in HESSIANS:
-        raise ValueError(
-            f"hessian must be one of {HESSIANS}, got {hessian!r}{did_you_mean(hessian, HESSIANS)}"
-        )
-    if hessian == "adjoint" and not supports(discretisation):
-        raise ValueError(
-            f"hessian='adjoint' needs an explicit Runge-Kutta scheme or a discrete-time "
-            f"model, not scheme {discretisation.scheme.name!r} (reverse-mode derivatives "
-            "cannot go through its step control or stage solves): use hessian='tensors' "
-            "or 'auto'"
-        )
-    if hessian != "auto":
-        return hessian
-    if not supports(discretisation):
-        return "tensors"
-    t = predicted_seconds(N, K, samples, threads(cap))
-    return "adjoint" if MARGIN * t["adjoint"] < t["tensors"] else "tensors"
 
 
 def threads(cap: int | None = None) -> int:

@@ -257,35 +257,52 @@ def check_threads(threads) -> int | None:
     return threads
 
 
-def check_filter_options(predictor: str, **options) -> None:
-    """One line, before any work, for an option that a filter (predictor="ekf") cannot
-    serve: it estimates its own noise, and corrects the state at every sample."""
-    if predictor != "ekf":
-        return
+def check_filter_options(predictor, **options) -> None:
+    """One line, before any work, for an option that ``predictor`` (a Predictor)
+    cannot serve, as its markers say: a filter (predictor="ekf") estimates its own
+    noise with its own loss (``takes_loss``), corrects the state at every sample
+    (``supports_segments``) and is differentiated by the tensors only
+    (``supports_adjoint``). ``loss`` and ``hessian`` come as their registries'
+    objects where their names are known."""
+    corrects = (
+        "the filter already corrects the state at every sample"
+        if predictor.filters
+        else "multiple shooting carries the model's own state only"
+    )
     why = {
         "loss": "its loss is the likelihood of the innovations (drop loss=)",
         "loss_scale": "its loss is the likelihood of the innovations (drop loss_scale=)",
         "weights": "the measurement noise intensities weigh the outputs (drop weights=)",
         "noise": "the measurement noise is estimated with the parameters (drop noise=)",
-        "segments": "the filter already corrects the state at every sample (drop segments=)",
-        "segment_length": "the filter already corrects the state at every sample "
-        "(drop segment_length=)",
+        "segments": f"{corrects} (drop segments=)",
+        "segment_length": f"{corrects} (drop segment_length=)",
         "hessian": "its exact Hessian comes from the transition tensors only (use "
         "hessian='tensors' or 'auto')",
     }
-    allowed = {"loss": ("squared",), "hessian": ("auto", "tensors"), "segments": (1,)}
+    own = not predictor.takes_loss
+    refused = {"loss": own, "loss_scale": own, "weights": own, "noise": own,
+               "segments": not predictor.supports_segments,
+               "segment_length": not predictor.supports_segments,
+               "hessian": not predictor.supports_adjoint}  # fmt: skip
+    served = {  # the defaults, which ask nothing of the predictor
+        "loss": lambda v: getattr(v, "squared", False) is True,
+        "hessian": lambda v: getattr(v, "supports_predictors", False) is True,
+        "segments": lambda v: isinstance(v, int) and v == 1,
+    }
     for name, value in options.items():
-        if value is None or (isinstance(value, str | int) and value in allowed.get(name, ())):
+        if value is None or not refused[name] or served.get(name, lambda v: False)(value):
             continue
+        value = getattr(value, "name", value)
         shown = value if isinstance(value, str | int | float) else type(value).__name__
-        raise ValueError(f"predictor='ekf' cannot take {name}={shown!r}: {why[name]}")
+        raise ValueError(f"predictor={predictor.name!r} cannot take {name}={shown!r}: {why[name]}")
 
 
-def no_noise_without_filter(model, predictor: str, fixed, bounds) -> None:
+def no_noise_without_filter(model, predictor, fixed, bounds) -> None:
     """fixed or bounds naming a filter's noise intensity (log_sigma_w_STATE,
     log_sigma_e_OUTPUT) without the filter: one line saying so (it read "names unknown
-    params ['log_sigma_e_y']"). A parameter of the model of such a name is its own."""
-    if predictor == "ekf":
+    params ['log_sigma_e_y']"). A parameter of the model of such a name is its own.
+    ``predictor``: a Predictor (its marker ``has_noise_model``)."""
+    if predictor.has_noise_model:
         return
     for what, names in (("fixed", fixed or []), ("bounds", bounds or {})):
         noisy = [n for n in ([names] if isinstance(names, str) else names)

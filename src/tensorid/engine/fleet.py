@@ -62,7 +62,9 @@ def check_population(problem, population, predictor, loss, segments) -> dict[str
 
 def _fleet_settings(problem, what: str, predictor, loss, segments) -> None:
     """What a fleet's fit does not (yet) combine with, one line each."""
-    if predictor != "simulation" or segments not in (None, 1) or loss != "squared":
+    # asked of the Problem's predictor and loss (their markers), not of the names given
+    predictor, loss = problem.predictor, problem.loss
+    if not predictor.supports_fleet or segments not in (None, 1) or not loss.squared:
         raise ValueError(
             f"a fit with {what} parameters is of output error with Gaussian noise: leave "
             "predictor, segments and loss at their defaults"

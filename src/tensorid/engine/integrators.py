@@ -73,6 +73,7 @@ __all__ = [
     "_n_levels",
     "_x",
     "get_scheme",
+    "register_scheme",
 ]
 
 
@@ -201,6 +202,15 @@ DOPRI5 = AdaptiveRungeKutta(
 SCHEMES: dict[str, Scheme] = {
     s.name: s for s in (EULER, HEUN, RK4, RK38, IMPLICIT_EULER, SDIRK2, SDIRK3, BOSH3, DOPRI5)
 }
+
+
+def register_scheme(scheme: Scheme) -> Scheme:
+    """``scheme`` (an object with ``name``, ``order`` and ``interval``, e.g. an
+    ``ExplicitRungeKutta`` of a new tableau) chosen by its name wherever a scheme is
+    named (``Problem(scheme=...)``, ``simulate``); tensorid/names.py spells the
+    command line's --scheme choices out."""
+    SCHEMES[scheme.name] = scheme
+    return scheme
 
 
 RTOL_FLOOR = 100 * math.ulp(1.0)  # 2.2e-14: below it, steps chase round-off

@@ -13,7 +13,8 @@ with D_h = ∂ŷ_h/∂θ and ŷ''_h = ∂²ŷ_h/∂θ² (the transition tensors'
 adjoint's Lagrangian). The losses are separable across outputs, so ℓ_ŷŷ and γ are
 diagonals. The forward tensors, the second-order adjoint, the segments of multiple
 shooting, the residuals and the statistics all go through here, so adding a loss is
-one class in this file.
+one class (here, or in a module of one's own) registered with :func:`register_loss`;
+the rest of the package asks its markers, never its name.
 
 Each loss acts on the weighted residual e = √w (y − ŷ) of every output, scaled by
 that output's scale c (in the weighted residual's units):
@@ -38,6 +39,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import ClassVar, TypeVar
 
 import jax
 import jax.numpy as jnp
@@ -46,70 +48,74 @@ import numpy as np
 
 from .checks import did_you_mean
 
-LOSSES = ("squared", "huber", "cauchy", "student-t")
-
-# the scale c as a multiple of the noise's standard deviation σ when c is estimated:
-# Huber's 1.345 and Cauchy's 2.385 give 95 % efficiency under Gaussian noise (the
-# usual tuning constants); the t distribution's own scale is σ
-TUNING = {"huber": 1.345, "cauchy": 2.385, "student-t": 1.0}
+# the scale c as a multiple of the noise's standard deviation σ when c is estimated
+# (``Loss.tuning``): Huber's 1.345 and Cauchy's 2.385 give 95 % efficiency under
+# Gaussian noise (the usual tuning constants); the t distribution's own scale is σ
 STUDENT_NU = 4.0
+
+# the losses by name: the one place a loss's name is looked up (``get_loss``); a class
+# joins it with @register_loss. tensorid/names.py spells the command line's --loss
+# choices out (tests/test_recipes.py checks that they are these)
+REGISTRY: dict[str, type[Loss]] = {}
+
+
+class _ByName(type):
+    """``Loss("huber")`` (the spelling from before the losses were classes) gives the
+    registered class's object; ``Huber()`` is the same thing."""
+
+    def __call__(cls, *args, **kwargs):
+        if cls is Loss and (args or "name" in kwargs):
+            name = kwargs.pop("name", None) or args[0]
+            return type(get_loss(name))(*args[1:], **kwargs)
+        return super().__call__(*args, **kwargs)
 
 
 @dataclass(frozen=True)
-class Loss:
-    """A per-sample loss ℓ = Σ_s c_s² ρ(√w_s r_s / c_s) (see the module docstring).
+class Loss(metaclass=_ByName):
+    """A per-sample loss ℓ = Σ_s c_s² ρ(√w_s r_s / c_s) (see the module docstring): a
+    subclass gives ``rho`` and ``_dpsi`` (or ``terms``, ``value`` and ``residual``
+    whole, as :class:`Gaussian`), its ``name`` and its markers.
 
     Hashable, and part of the compiled sweeps' key; the numbers it is evaluated with,
     the weights w and scales c (in units of the weighted residual √w r, ignored by
     the squared loss), come at run time as one array ``lw`` = [w; c] (2, S), so that
     a new scale compiles nothing.
 
-    Arguments:
-        name: one of :data:`LOSSES`.
-        nu: Student-t's degrees of freedom.
+    Markers (what the rest of the package asks instead of the name):
+        squared: weighted least squares: the Gauss-Newton part is the exact Hessian's
+            first term, and the statistics' Gaussian formulas hold (``is_gaussian``).
+        robust: a robust loss with a scale c (``needs_scale``); ``tuning`` is c in
+            units of the noise's σ when c is estimated.
+        likelihood: J is −2 log-likelihood with the noise among the unknowns (a
+            filter's Gaussian loss): then cov(θ) = 2 H⁻¹, with no residual variance.
+        quadratic_inside: ρ'' is 2 inside the scale and 0 beyond (Huber): the
+            expected curvature is the share of residuals inside (the sandwich's
+            small-scale fallback).
     """
 
-    name: str = "squared"
-    nu: float = STUDENT_NU
+    name: ClassVar[str] = "squared"
+    squared: ClassVar[bool] = True
+    robust: ClassVar[bool] = False
+    likelihood: ClassVar[bool] = False
+    quadratic_inside: ClassVar[bool] = False
+    tuning: ClassVar[float] = 1.0
 
     @property
-    def squared(self) -> bool:
-        """Whether this is weighted least squares (the Gauss-Newton part is then the
-        exact Hessian's first term, and the statistics' Gaussian formulas hold)."""
-        return self.name == "squared"
+    def is_gaussian(self) -> bool:
+        """The marker ``squared``: the statistics' Gaussian formulas hold."""
+        return self.squared
 
     @property
-    def robust(self) -> bool:
-        """Whether this is a robust loss (Huber, Cauchy, Student-t), with a scale."""
-        return self.name in TUNING
-
-    @property
-    def likelihood(self) -> bool:
-        """Whether J is −2 log-likelihood with the noise among the unknowns (a filter's
-        Gaussian loss): then cov(θ) = 2 H⁻¹, with no residual variance to estimate."""
-        return False
+    def needs_scale(self) -> bool:
+        """The marker ``robust``: the loss has a scale c (given, or estimated)."""
+        return self.robust
 
     # -- ρ and its derivatives, on z = e / c -------------------------------------------
     def rho(self, z):
-        if self.name == "huber":
-            a = jnp.abs(z)
-            return jnp.where(a <= 1.0, z * z, 2.0 * a - 1.0)
-        if self.name == "cauchy":
-            return jnp.log1p(z * z)
-        if self.name == "student-t":
-            return self.nu * jnp.log1p(z * z / self.nu)
         return z * z
 
     def _dpsi(self, z):
         """(ρ'(z), ρ''(z), ρ'(z)/z), each in closed form (no 0/0 at z = 0)."""
-        if self.name == "huber":
-            inside = jnp.abs(z) <= 1.0
-            d1 = jnp.where(inside, 2.0 * z, 2.0 * jnp.sign(z))
-            return d1, jnp.where(inside, 2.0, 0.0), jnp.where(inside, 2.0, 2.0 / jnp.abs(z))
-        if self.name in ("cauchy", "student-t"):
-            nu = 1.0 if self.name == "cauchy" else self.nu
-            q = 1.0 + z * z / nu
-            return 2.0 * z / q, 2.0 * (1.0 - z * z / nu) / (q * q), 2.0 / q
         return 2.0 * z, 2.0 + 0.0 * z, 2.0 + 0.0 * z
 
     # -- what the sweeps call --------------------------------------------------------------
@@ -146,7 +152,103 @@ class Loss:
         return jnp.sign(e) * c * jnp.sqrt(self.rho(e / c))
 
 
-SQUARED = Loss()
+_L = TypeVar("_L", bound=type[Loss])
+
+
+def register_loss(cls: _L) -> _L:
+    """Class decorator: ``cls`` chosen by its ``name`` wherever a loss is named
+    (``Problem(loss=...)``, the model file's ``loss``)."""
+    REGISTRY[cls.name] = cls
+    return cls
+
+
+def get_loss(loss) -> Loss:
+    """The loss called ``loss`` (a Loss object is returned as it is); one line for
+    anything else."""
+    if isinstance(loss, Loss):
+        return loss
+    cls = REGISTRY.get(loss) if isinstance(loss, str) else None
+    if cls is None:
+        names = tuple(REGISTRY)
+        raise ValueError(f"loss must be one of {names}, got {loss!r}{did_you_mean(loss, names)}")
+    return cls()
+
+
+@register_loss
+@dataclass(frozen=True)
+class Squared(Loss):
+    """ρ(z) = z²: weighted least squares, J = Σ w r² (c drops out)."""
+
+
+class _Robust(Loss):
+    """A loss with a scale (the markers of every robust loss)."""
+
+    squared: ClassVar[bool] = False
+    robust: ClassVar[bool] = True
+
+
+@register_loss
+@dataclass(frozen=True)
+class Huber(_Robust):
+    """ρ = z² for |z| ≤ 1, 2|z| − 1 beyond (linear tails)."""
+
+    name: ClassVar[str] = "huber"
+    tuning: ClassVar[float] = 1.345
+    quadratic_inside: ClassVar[bool] = True
+
+    def rho(self, z):
+        a = jnp.abs(z)
+        return jnp.where(a <= 1.0, z * z, 2.0 * a - 1.0)
+
+    def _dpsi(self, z):
+        inside = jnp.abs(z) <= 1.0
+        d1 = jnp.where(inside, 2.0 * z, 2.0 * jnp.sign(z))
+        return d1, jnp.where(inside, 2.0, 0.0), jnp.where(inside, 2.0, 2.0 / jnp.abs(z))
+
+
+@register_loss
+@dataclass(frozen=True)
+class StudentT(_Robust):
+    """ρ = ν log(1 + z²/ν), ν = 4: the t distribution's −2 log density up to a
+    constant factor (log tails)."""
+
+    name: ClassVar[str] = "student-t"
+    tuning: ClassVar[float] = 1.0
+    nu: float = STUDENT_NU
+
+    def rho(self, z):
+        return self.nu * jnp.log1p(z * z / self.nu)
+
+    def _dpsi(self, z):
+        nu = self.nu
+        q = 1.0 + z * z / nu
+        return 2.0 * z / q, 2.0 * (1.0 - z * z / nu) / (q * q), 2.0 / q
+
+
+@register_loss
+@dataclass(frozen=True)
+class Cauchy(_Robust):
+    """ρ = log(1 + z²) (log tails): Student-t's ρ with ν = 1, written as before."""
+
+    name: ClassVar[str] = "cauchy"
+    tuning: ClassVar[float] = 2.385
+
+    def rho(self, z):
+        return jnp.log1p(z * z)
+
+    def _dpsi(self, z):
+        nu = 1.0
+        q = 1.0 + z * z / nu
+        return 2.0 * z / q, 2.0 * (1.0 - z * z / nu) / (q * q), 2.0 / q
+
+
+# the command line's order (tensorid/names.py); a loss registered later joins REGISTRY
+LOSSES = ("squared", "huber", "cauchy", "student-t")
+REGISTRY.update({n: REGISTRY.pop(n) for n in LOSSES})
+TUNING = {n: cls.tuning for n, cls in REGISTRY.items() if cls.robust}
+
+
+SQUARED = Squared()
 
 
 @dataclass(frozen=True)
@@ -162,11 +264,9 @@ class Gaussian(Loss):
     matrix, and its Gauss-Newton weights are the Fisher information of (ŷ, Σ):
     2 Σ⁻¹ for ŷ and Σ⁻¹ ⊗ Σ⁻¹ for vec Σ (Fisher scoring). ``lw`` is not used."""
 
-    name: str = "gaussian"
-
-    @property
-    def likelihood(self) -> bool:
-        return True
+    name: ClassVar[str] = "gaussian"
+    squared: ClassVar[bool] = False
+    likelihood: ClassVar[bool] = True
 
     @staticmethod
     def _split(y, pi):
@@ -232,14 +332,10 @@ def make_loss(
     ``scale`` None (estimated: TUNING × the outputs' robust noise level,
     :func:`robust_noise`), a number (every output) or {output: value}, in the
     outputs' own units."""
-    if isinstance(loss, Loss):
-        name = loss.name
-    elif isinstance(loss, str) and loss in LOSSES:
-        name, loss = loss, Loss(loss)
-    else:
-        raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}{did_you_mean(loss, LOSSES)}")
+    loss = get_loss(loss)
+    name = loss.name
     S = len(outputs)
-    if name == "squared" or loss.likelihood:
+    if not loss.robust:
         if scale is not None:
             raise ValueError("loss_scale is for a robust loss; the squared loss has none")
         return loss, np.ones(S)
@@ -260,7 +356,7 @@ def make_loss(
                 "scale from (their second differences vanish); give loss_scale= (in the "
                 "outputs' units)"
             )
-        c = TUNING[name] * sigma
+        c = loss.tuning * sigma
     elif isinstance(scale, Mapping):
         unknown = [k for k in scale if k not in outputs]
         if unknown:

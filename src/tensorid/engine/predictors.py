@@ -10,20 +10,25 @@ so a predictor is only these maps, written once):
     z⁺    = update(z, p, y)         at each sample, after the loss has seen z
                                     (None: the state is not corrected)
 
-:class:`Simulation` is output error, today's default: z = x, the model's own F and
-C, no update; π = ŷ. :class:`ExtendedKalman` is a continuous-discrete extended
-Kalman filter: z = (x̂, P) with P the state covariance, π = (ŷ, S) the predicted
-output and its covariance, and the measurement update at each sample, so that the
-loss (``losses.GAUSSIAN``) is the negative log-likelihood of the innovations.
+:class:`OutputError` (``"simulation"``; ``Simulation`` is its deprecated name) is
+the default: z = x, the model's own F and C, no update; π = ŷ.
+:class:`ExtendedKalman` is a continuous-discrete extended Kalman filter: z = (x̂, P)
+with P the state covariance, π = (ŷ, S) the predicted output and its covariance,
+and the measurement update at each sample, so that the loss (``losses.GAUSSIAN``)
+is the negative log-likelihood of the innovations.
 
 The transition tensors differentiate the whole chain — propagation, the update and
 the loss — exactly, so the EKF's gradient and Hessian are those of its discretised
-likelihood (to rounding), as for output error.
+likelihood (to rounding), as for output error. A predictor is one class, subclass of
+:class:`Predictor`, registered by name with :func:`register_predictor` (or passed as
+an object); the rest of the package asks its markers, never its name.
 """
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
+from typing import Any, ClassVar, TypeVar
 
 import jax
 import jax.numpy as jnp
@@ -31,21 +36,49 @@ import numpy as np
 
 from .. import _config  # noqa: F401
 from .checks import did_you_mean
+from .losses import GAUSSIAN, robust_noise
 
-PREDICTORS = ("simulation", "ekf")
 # a filter's noise parameters: these prefixes and the state's or output's name
 NOISE_PREFIXES = {"process": "log_sigma_w_", "measurement": "log_sigma_e_"}
 
+# the predictors by name: the one place a predictor's name is looked up
+# (``get_predictor``); a class joins it with @register_predictor. tensorid/names.py
+# spells the command line's --predictor choices out (tests/test_recipes.py checks them)
+REGISTRY: dict[str, type[Predictor]] = {}
+
 
 @dataclass(frozen=True)
-class Simulation:
-    """Output error: the model simulated from its initial state, never corrected.
+class Predictor:
+    """How the state is carried between samples (see the module docstring): the maps
+    ``size``, ``start``, ``states``, ``field``, ``predict`` and ``update`` (None: no
+    correction), and ``build``, which makes the one a Problem uses from its arguments.
 
-    ``size``, ``start`` and ``states`` map between the model's states x and the
-    carried state z (here the same)."""
+    Markers (what the checks and the commands ask instead of the name):
+        has_noise_model: the model gains noise intensities among its parameters
+            (``process_noise``, ``measurement_noise``), which fit.json records.
+        filters: the state is corrected at each sample (it has an ``update``):
+            predictions k samples ahead differ from the simulation.
+        supports_segments, supports_fleet, supports_adjoint: multiple shooting, a
+            fleet's population or individual parameters, the second-order adjoint's
+            Hessian; each of them reads the model's own F and C, so only output
+            error sets them (a new predictor is refused there, one line, until it
+            says otherwise).
+        takes_loss: the user's loss and weights apply; False where the predictor
+            brings its own (``own_loss``, e.g. a filter's Gaussian likelihood).
+    """
 
-    name = "simulation"
-    update = None
+    name: ClassVar[str] = ""
+    has_noise_model: ClassVar[bool] = False
+    supports_segments: ClassVar[bool] = False
+    supports_fleet: ClassVar[bool] = False
+    supports_adjoint: ClassVar[bool] = False
+    takes_loss: ClassVar[bool] = True
+    own_loss: ClassVar[Any] = None
+    update: ClassVar[Any] = None
+
+    @property
+    def filters(self) -> bool:
+        return type(self).update is not None
 
     def size(self, model) -> int:
         return model.N
@@ -62,12 +95,74 @@ class Simulation:
     def predict(self, model, z, p):
         return model.h(z, p)
 
+    def build(self, model, process_noise, measurement_noise, measured) -> tuple:
+        """(model, predictor, {noise parameter: start}) for a Problem of ``model``:
+        without a noise model, the model and this predictor as they are."""
+        for what, v in (("process_noise", process_noise), ("measurement_noise", measurement_noise)):
+            if v:
+                raise ValueError(
+                    f"{what} is for predictor='ekf' (output error has no noise model); "
+                    "add predictor='ekf'"
+                )
+        return model, self, {}
 
-SIMULATION = Simulation()
+
+_P = TypeVar("_P", bound=type[Predictor])
 
 
+def register_predictor(cls: _P) -> _P:
+    """Class decorator: ``cls`` chosen by its ``name`` wherever a predictor is named
+    (``Problem(predictor=...)``, the model file's ``predictor``, fit.json read back)."""
+    REGISTRY[cls.name] = cls
+    return cls
+
+
+def get_predictor(predictor) -> Predictor:
+    """The predictor called ``predictor`` (a Predictor object is returned as it is);
+    one line for anything else."""
+    if isinstance(predictor, Predictor):
+        return predictor
+    cls = REGISTRY.get(predictor) if isinstance(predictor, str) else None
+    if cls is None:
+        names = tuple(REGISTRY)
+        raise ValueError(
+            f"predictor must be one of {names}, got {predictor!r}{did_you_mean(predictor, names)}"
+        )
+    return cls()
+
+
+@register_predictor
 @dataclass(frozen=True)
-class ExtendedKalman(Simulation):
+class OutputError(Predictor):
+    """Output error: the model simulated from its initial state, never corrected
+    (fit.json's ``"predictor": "simulation"``).
+
+    ``size``, ``start`` and ``states`` map between the model's states x and the
+    carried state z (here the same)."""
+
+    name: ClassVar[str] = "simulation"
+    supports_segments: ClassVar[bool] = True
+    supports_fleet: ClassVar[bool] = True
+    supports_adjoint: ClassVar[bool] = True
+
+
+SIMULATION = OutputError()
+
+
+def __getattr__(name: str):
+    if name == "Simulation":  # the name before issue 39: a simulation is engine/simulate's
+        warnings.warn(
+            "tensorid.engine.predictors.Simulation is deprecated: it is OutputError",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return OutputError
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+@register_predictor
+@dataclass(frozen=True)
+class ExtendedKalman(Predictor):
     """A continuous-discrete extended Kalman filter (EKF).
 
     Carried state z = (x̂, vec P), P the covariance of the state estimate (N + N²).
@@ -94,7 +189,10 @@ class ExtendedKalman(Simulation):
         measurement: per output, the parameter index of its log σ_e.
     """
 
-    name = "ekf"
+    name: ClassVar[str] = "ekf"
+    has_noise_model: ClassVar[bool] = True
+    takes_loss: ClassVar[bool] = False
+    own_loss: ClassVar[Any] = GAUSSIAN
     process: tuple[tuple[int, int], ...] = ()
     measurement: tuple[int, ...] = ()
 
@@ -150,13 +248,67 @@ class ExtendedKalman(Simulation):
         _, _, yhat, _, _, S = self._measurement(model, z, p)
         return jnp.concatenate([yhat, S.reshape(-1)])
 
-    def update(self, model, z, p, y):
+    def update(self, model, z, p, y):  # type: ignore[override]
         x, P, yhat, C, R, S = self._measurement(model, z, p)
         PCt = P @ C.T
         K = jnp.linalg.solve(S, PCt.T).T  # P Cᵀ S⁻¹ (S symmetric)
         IKC = jnp.eye(x.shape[0], dtype=z.dtype) - K @ C
         P = IKC @ P @ IKC.T + (K * R) @ K.T
         return jnp.concatenate([x + K @ (y - yhat), P.reshape(-1)])
+
+    def build(self, model, process_noise, measurement_noise, measured) -> tuple:
+        """(the filter's model, the filter, {noise parameter: start (log σ)}): the
+        model gains one parameter per noise intensity (see :func:`noise_names`),
+        started at log of the given σ; an output without a given measurement noise
+        starts from its noise level in the data (second differences,
+        :func:`tensorid.engine.losses.robust_noise`)."""
+        from .model import Model
+
+        q = _intensities("process_noise", process_noise, model.states, "state")
+        r = _intensities("measurement_noise", measurement_noise, model.outputs, "output")
+        records = [np.asarray(m, dtype=float) for m in measured if m is not None]
+        level = robust_noise(np.concatenate(records)) if records else np.zeros(model.S)
+        for k, o in enumerate(model.outputs):
+            if o not in r:
+                if not level[k] > 0:
+                    raise ValueError(
+                        f"predictor={self.name!r}: output {o!r} shows no noise in the data to "
+                        f"start its measurement noise from; give measurement_noise={{{o!r}: σ}}"
+                    )
+                r[o] = float(level[k])
+        states = [s for s in model.states if s in q]
+        wq, wr = noise_names(model, states, list(model.outputs))
+        clash = sorted(set(wq + wr) & set(model.params))
+        if clash:
+            raise ValueError(f"the model already has parameters named {clash}; rename them")
+        M = model.M
+        # one filter model per model and set of noisy states, kept in the model's cache of
+        # compiled sweeps: its own sweeps (cached on it) are then shared by every Problem
+        noisy = model.compiled_sweeps.get(("ekf model", tuple(states)))
+        if noisy is None:
+            noisy = Model(
+                _Leading(model.rhs, M),
+                _Leading(model.h, M),
+                states=model.states,
+                params=list(model.params) + wq + wr,
+                inputs=model.inputs,
+                outputs=model.outputs,
+                name=model.name,
+                input_delays=model.input_delays,
+                discrete=model.discrete,
+            )
+            model.compiled_sweeps[("ekf model", tuple(states))] = noisy
+        filt = type(self)(
+            process=tuple((model.states.index(s), M + i) for i, s in enumerate(states)),
+            measurement=tuple(range(M + len(states), M + len(states) + model.S)),
+        )
+        starts = dict(zip(wq, [float(np.log(q[s])) for s in states], strict=True))
+        starts.update(zip(wr, [float(np.log(r[o])) for o in model.outputs], strict=True))
+        return noisy, filt, starts
+
+
+# the command line's order (tensorid/names.py); a predictor registered later joins REGISTRY
+PREDICTORS = ("simulation", "ekf")
 
 
 def _n(z) -> int:
@@ -224,67 +376,9 @@ def _intensities(what: str, given, names: tuple[str, ...], kind: str) -> dict[st
 
 def make_predictor(model, predictor, process_noise, measurement_noise, measured):
     """(model, predictor, {noise parameter: start (log σ)}) from the Problem's
-    arguments. For "ekf" the model gains one parameter per noise intensity (see
-    :func:`noise_names`), started at log of the given σ; an output without a given
-    measurement noise starts from its noise level in the data (second differences,
-    :func:`tensorid.engine.losses.robust_noise`)."""
-    from .losses import robust_noise
-    from .model import Model
-
-    if predictor not in PREDICTORS:
-        raise ValueError(
-            f"predictor must be one of {PREDICTORS}, got {predictor!r}"
-            f"{did_you_mean(predictor, PREDICTORS)}"
-        )
-    if predictor == "simulation":
-        for what, v in (("process_noise", process_noise), ("measurement_noise", measurement_noise)):
-            if v:
-                raise ValueError(
-                    f"{what} is for predictor='ekf' (output error has no noise model); "
-                    "add predictor='ekf'"
-                )
-        return model, SIMULATION, {}
-    q = _intensities("process_noise", process_noise, model.states, "state")
-    r = _intensities("measurement_noise", measurement_noise, model.outputs, "output")
-    records = [np.asarray(m, dtype=float) for m in measured if m is not None]
-    level = robust_noise(np.concatenate(records)) if records else np.zeros(model.S)
-    for k, o in enumerate(model.outputs):
-        if o not in r:
-            if not level[k] > 0:
-                raise ValueError(
-                    f"predictor='ekf': output {o!r} shows no noise in the data to start its "
-                    f"measurement noise from; give measurement_noise={{{o!r}: σ}}"
-                )
-            r[o] = float(level[k])
-    states = [s for s in model.states if s in q]
-    wq, wr = noise_names(model, states, list(model.outputs))
-    clash = sorted(set(wq + wr) & set(model.params))
-    if clash:
-        raise ValueError(f"the model already has parameters named {clash}; rename them")
-    M = model.M
-    # one filter model per model and set of noisy states, kept in the model's cache of
-    # compiled sweeps: its own sweeps (cached on it) are then shared by every Problem
-    noisy = model.compiled_sweeps.get(("ekf model", tuple(states)))
-    if noisy is None:
-        noisy = Model(
-            _Leading(model.rhs, M),
-            _Leading(model.h, M),
-            states=model.states,
-            params=list(model.params) + wq + wr,
-            inputs=model.inputs,
-            outputs=model.outputs,
-            name=model.name,
-            input_delays=model.input_delays,
-            discrete=model.discrete,
-        )
-        model.compiled_sweeps[("ekf model", tuple(states))] = noisy
-    filt = ExtendedKalman(
-        process=tuple((model.states.index(s), M + i) for i, s in enumerate(states)),
-        measurement=tuple(range(M + len(states), M + len(states) + model.S)),
-    )
-    starts = dict(zip(wq, [float(np.log(q[s])) for s in states], strict=True))
-    starts.update(zip(wr, [float(np.log(r[o])) for o in model.outputs], strict=True))
-    return noisy, filt, starts
+    arguments: ``predictor`` a name or a :class:`Predictor`, which builds itself
+    (:meth:`Predictor.build`; a filter's model gains its noise intensities)."""
+    return get_predictor(predictor).build(model, process_noise, measurement_noise, measured)
 
 
 @dataclass
@@ -335,7 +429,7 @@ def predictions(problem, theta, horizon: int = 1) -> list[Prediction]:
         _, pis = (np.asarray(a) for a in sw.predictions(local, x0, p, t, u, y))
         yhat, cov = pis[:, :S], None
         meas = np.asarray(y)
-        if sw.predictor.update is not None:
+        if sw.loss.likelihood:  # π = (ŷ, vec S): the loss reads the covariance
             cov = pis[:, S:].reshape(-1, S, S)
             innov = np.asarray(sw.loss.residual(y, jnp.asarray(pis), None))
         else:

@@ -7,14 +7,12 @@ units. Every check of the user's input happens here, before anything compiles.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Mapping, Sequence
 
 import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401
-from .adjoint import choose_hessian
 from .checks import (
     check_bounds,
     check_data,
@@ -31,12 +29,13 @@ from .constraints import add_penalty_terms, check_constraints, penalty_jax
 from .data import Experiment
 from .discretisation import Discretisation, DiscretisationSettings
 from .fleet import check_fleet
+from .hessians import HessianPath, choose_hessian, get_hessian
 from .integrators import Scheme
 from .layout import ThetaLayout
-from .losses import GAUSSIAN, Loss, make_loss
+from .losses import Loss, get_loss, make_loss
 from .model import Model
 from .packing import unpack_symmetric
-from .predictors import make_predictor
+from .predictors import Predictor, get_predictor, make_predictor
 from .priors import PriorTerms
 from .problem_loss import LossSettings
 from .shooting import Shooting, resolve_segments
@@ -110,12 +109,15 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
             tensors, forward in time), "adjoint" (second-order adjoints, parallel in time:
             faster for many states or unknowns; explicit schemes and discrete-time models
             only) or "auto" (default): the faster of the two by a cost model measured on
-            N, K and the record length (:func:`tensorid.engine.adjoint.choose_hessian`). Both
-            give the same Hessian to rounding. The resolved choice is ``Problem.hessian``.
+            N, K and the record length (:func:`tensorid.engine.hessians.choose_hessian`); or
+            a :class:`tensorid.engine.hessians.HessianPath`. Both give the same Hessian to
+            rounding. The resolved choice is ``Problem.hessian`` (its name) and
+            ``Problem.hessian_path``.
         predictor: how the state is carried from sample to sample: "simulation" (default:
             output error, the model simulated from its initial state) or "ekf" (a
             continuous-discrete extended Kalman filter: prediction error, J = −2 log L of
-            the innovations; see :mod:`tensorid.engine.predictors`). With "ekf" the model
+            the innovations; see :mod:`tensorid.engine.predictors`), or a
+            :class:`tensorid.engine.predictors.Predictor`. With "ekf" the model
             gains a parameter log σ per noise intensity (``log_sigma_w_<state>``,
             ``log_sigma_e_<output>``), estimated unless named in ``fixed``.
         process_noise: {state: σ_w}: the states driven by process noise dω, each with the
@@ -124,21 +126,14 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         measurement_noise: {output: σ_e}: the start of each output's measurement noise
             (standard deviation); an output not listed starts from its noise level in the
             data ("ekf" only).
-        population: {parameter: ω}: a fleet's random effects (one experiment per
-            unit): each unit's value is the typical value times exp(η), η ~ N(0, ω²)
-            per unit, ω started at the number given; :func:`tensorid.fit` then
-            estimates the typical values, the ω, the parameters not named (shared by
-            the fleet) and each output's residual SD by the marginal likelihood (see
-            :mod:`tensorid.population`).
-        individual: parameter names each unit (experiment) has its own value of, with
-            no distribution; :func:`tensorid.fit` estimates them with the shared ones
-            by least squares (beside ``population``: by each unit's own maximum
-            likelihood, with its η̂), in time linear in the number of units.
-        residual_error: a population fit's residual error, "additive" (default: σ = a),
-            "proportional" (σ = b·|ŷ|) or "combined" (σ² = a² + b²ŷ²), for every output
-            or as {output: kind}; a and b estimated.
-        omega: Ω's structure in a population fit: "diagonal" (default, independent
-            random effects) or "full" (correlated: Ω = L Lᵀ estimated whole).
+        population: {parameter: ω start}: a fleet's random effects (one experiment per
+            unit; the unit's value is the typical value times exp(η), η ~ N(0, ω²));
+            ``individual``: parameters each unit has its own value of (no distribution);
+            ``residual_error``: "additive" (default), "proportional" or "combined"
+            (σ² = a² + b²ŷ²), for every output or {output: kind}; ``omega``: "diagonal"
+            (default) or "full" (correlated random effects). :func:`tensorid.fit` then
+            estimates by the marginal likelihood, or least squares for individual
+            parameters alone (:mod:`tensorid.population`; docs: Fleets and populations).
         constraints: inequalities between parameters such as ["Fs >= Fc", "k <= 2*m"]
             (plain arithmetic on parameter names, or a single record's free initial
             states), which :func:`tensorid.fit` keeps by an augmented Lagrangian around
@@ -165,11 +160,11 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         noise: float | None = None,
         segments: int | Sequence[int] | None = None,
         segment_length: int | None = None,
-        hessian: str = "auto",
+        hessian: str | HessianPath = "auto",
         loss: str | Loss = "squared",
         loss_scale: float | Mapping[str, float] | None = None,
         threads: int | None = None,
-        predictor: str = "simulation",
+        predictor: str | Predictor = "simulation",
         process_noise: Mapping[str, float] | None = None,
         measurement_noise: Mapping[str, float] | None = None,
         population: Mapping[str, float] | None = None,
@@ -180,11 +175,10 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
     ):
         if not isinstance(model, Model):
             raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
-        check_filter_options(
-            predictor, loss=loss, loss_scale=loss_scale, weights=weights, noise=noise,
-            segments=segments, segment_length=segment_length, hessian=hessian,
+        predictor = _checked_predictor(
+            predictor, model, fixed, bounds, loss=loss, loss_scale=loss_scale, weights=weights,
+            noise=noise, segments=segments, segment_length=segment_length, hessian=hessian,
         )  # fmt: skip
-        no_noise_without_filter(model, predictor, fixed, bounds)
         p0, x0, filt = resolve_start(model, p0, x0, predictor, process_noise, measurement_noise)
         self.model = model
         self.experiments = check_data(self, data)
@@ -199,7 +193,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         ).for_model(model)
         self.weights = check_weights(self, weights)
         self.loss, scale = make_loss(
-            loss if predictor == "simulation" else GAUSSIAN,
+            self.predictor.own_loss or loss,
             loss_scale, list(model.outputs), self.weights, [e.y for e in self.experiments],
         )  # fmt: skip
         # what every sweep's per-sample loss is evaluated with, [w; c] (see losses.py)
@@ -209,9 +203,9 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         self.lower, self.upper = check_bounds(self, bounds or {})
         self._set_priors(priors, noise)
         fleet = (population, individual, predictor, loss, segments, residual_error, omega)
-        # a fleet's kinds of parameter, its residual error and Ω (engine/fleet.py)
-        kinds = check_fleet(self, *fleet)
-        self.population, self.individual, self.residual_error, self.omega = kinds
+        self.population, self.individual, self.residual_error, self.omega = check_fleet(
+            self, *fleet
+        )  # a fleet's kinds of parameter, its residual error and Ω (engine/fleet.py)
         if self.K == 0:
             raise ValueError("nothing to estimate: every parameter is fixed and free_x0 is empty")
         self.constraints, self.penalty = check_constraints(self, constraints), None  # Fs >= Fc
@@ -225,10 +219,11 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         self.threads = check_threads(threads)
         counts = resolve_segments(self.experiments, segments, segment_length)
         self.shooting = Shooting(self, counts) if counts else None
-        self.hessian = choose_hessian(
-            "tensors" if self.predictor.update else hessian,
-            discretisation, model.N, self._sweeps.K, [e.P for e in self.experiments], threads,
+        self.hessian_path = choose_hessian(
+            hessian, discretisation, model.N, self._sweeps.K, [e.P for e in self.experiments],
+            threads, adjoint=self.predictor.supports_adjoint,
         )  # fmt: skip
+        self.hessian = self.hessian_path.name  # fit.json's hessian_path
 
     def _with_predictor(self, predictor, process_noise, measurement_noise) -> Model:
         """Set the predictor; a filter's model has its noise intensities appended to the
@@ -354,11 +349,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
 
     def _hessian_sweep(self, batched: bool):
         """The sweep giving (J, ∇J, ∇²J, Gauss-Newton part) and its parts letters."""
-        sw = self._sweeps
-        if self.hessian == "adjoint":
-            adjoint = sw.adjoint_batch if batched else sw.adjoint
-            return functools.partial(adjoint, threads_cap=self.threads), "JgHH"
-        return (sw.second_order_both_batch if batched else sw.second_order_both), "JgPP"
+        return self.hessian_path.sweep(self._sweeps, batched, self.threads)
 
     def cost_grad_hess_batch(self, thetas, gauss_newton: bool = False, both: bool = False):
         """cost_grad_hess (or cost_grad_gn) at every row of ``thetas`` (B, K) in one
@@ -420,9 +411,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         p, x0 = self.unpack(theta)
         sw = self._sweeps
         sw = shared_sweeps(self.model, sw.free_states, sw.free_params, self.discretisation)
-        return [
-            run_simulation(sw, self.experiments[e], x0[e], p) for e in range(len(self.experiments))
-        ]
+        return [run_simulation(sw, ex, x0[e], p) for e, ex in enumerate(self.experiments)]
 
     def diagnose(self, theta) -> str | None:
         """None when every experiment simulates to finite values at θ; otherwise a
@@ -438,3 +427,24 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
             f"substeps={self.substeps}, interpolation={self.interpolation!r}, "
             f"hessian={self.hessian!r})"
         )
+
+
+def _checked_predictor(predictor, model, fixed, bounds, **options) -> Predictor:
+    """The predictor (by name or object) with the options checked against its markers,
+    one line each, before any work; ``loss`` and ``hessian`` as their registries'
+    objects where their names are known."""
+    predictor = get_predictor(predictor)
+    options.update(loss=_known(get_loss, options["loss"]))
+    options.update(hessian=_known(get_hessian, options["hessian"]))
+    check_filter_options(predictor, **options)
+    no_noise_without_filter(model, predictor, fixed, bounds)
+    return predictor
+
+
+def _known(get, value):
+    """``value`` as its registry's object where its name is known (else as given: the
+    check that reads it, or the registry later, says what is wrong with it)."""
+    try:
+        return get(value)
+    except (ValueError, TypeError):
+        return value

@@ -119,7 +119,7 @@ def resolve_start(model, p0, x0, predictor, process_noise, measurement_noise) ->
     p0.check(model)
     if x0 is None and p0.x0 is not None:
         x0 = p0.x0
-    if predictor == "ekf":
+    if predictor.has_noise_model:  # a Predictor
         process_noise = _merged(process_noise, p0.process)
         measurement_noise = _merged(measurement_noise, p0.measurement)
     return dict(p0.params), x0, (process_noise, measurement_noise)

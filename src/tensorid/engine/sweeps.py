@@ -50,7 +50,7 @@ from .model import Model
 from .output_sensitivity import output_jacobian
 from .packing import quadratic_full
 from .packing import unpack_symmetric as unpack_symmetric  # its old home, re-exported
-from .predictors import SIMULATION, Simulation
+from .predictors import SIMULATION, Predictor
 from .programs import Program
 from .second_order import layout, second_order
 
@@ -73,7 +73,7 @@ class Sweeps:
     free_params: tuple[int, ...]
     discretisation: Discretisation
     loss: Loss = SQUARED
-    predictor: Simulation = SIMULATION
+    predictor: Predictor = SIMULATION
 
     @property
     def K(self) -> int:
@@ -399,7 +399,7 @@ def shared_sweeps(
     free_params: tuple[int, ...],
     discretisation: Discretisation,
     loss: Loss = SQUARED,
-    predictor: Simulation = SIMULATION,
+    predictor: Predictor = SIMULATION,
 ) -> Sweeps:
     """The Sweeps for this structure, compiled once per process and data shape: every
     Problem (and simulation) with the same model, θ layout, discretisation and loss

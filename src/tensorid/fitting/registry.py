@@ -1,5 +1,7 @@
 """The fitting methods by name: the one place where a method's name is looked up.
-Everything else asks the method object (its markers, see solvers.py)."""
+Everything else asks the method object (its markers, see solvers.py). A method of
+one's own joins with :func:`register` (or is passed to ``fit`` as an object);
+tensorid/names.py spells the command line's --method choices out."""
 
 from __future__ import annotations
 
@@ -10,8 +12,16 @@ from .solvers import Auto, GaussNewton, Method, Newton, NewtonCG
 REGISTRY: dict[str, type[Method]] = {
     cls.name: cls for cls in (Auto, Newton, NewtonCG, GaussNewton, FdBfgs, FdLsq)
 }
+# the built-ins (tensorid.METHODS); a method registered later joins REGISTRY
 METHODS = tuple(REGISTRY)
 LOCKSTEP = tuple(name for name, cls in REGISTRY.items() if cls.supports_batch)
+
+
+def register(cls: type[Method]) -> type[Method]:
+    """``cls`` chosen by its ``name`` (``fit(problem, method=name)``); a class
+    decorator too."""
+    REGISTRY[cls.name] = cls
+    return cls
 
 
 def resolve(method: str | Method) -> Method:
@@ -20,8 +30,9 @@ def resolve(method: str | Method) -> Method:
         return method
     cls = REGISTRY.get(method) if isinstance(method, str) else None
     if cls is None:
-        hint = did_you_mean(method, list(METHODS)) if isinstance(method, str) else ""
-        raise ValueError(f"unknown method {method!r}{hint}; choose one of {list(METHODS)}")
+        names = list(REGISTRY)
+        hint = did_you_mean(method, names) if isinstance(method, str) else ""
+        raise ValueError(f"unknown method {method!r}{hint}; choose one of {names}")
     return cls()
 
 

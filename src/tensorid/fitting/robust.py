@@ -28,7 +28,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..engine.losses import TUNING, robust_sd
+from ..engine.losses import robust_sd
 from ..engine.status import Status
 
 RESCALE = 1.5  # a factor: closer than this, the scale is left as it is
@@ -47,7 +47,7 @@ def residual_noise(res) -> np.ndarray:
 def _implied(problem, res) -> dict | None:
     """The scale the residuals of ``res`` imply, where it differs from the one
     ``problem`` uses by more than RESCALE on an output that counts (else None)."""
-    implied = TUNING[problem.loss.name] * residual_noise(res)
+    implied = problem.loss.tuning * residual_noise(res)
     used = np.array(list(problem.loss_scale.values()))
     counts = problem.weights > 0  # an output of weight 0 keeps a placeholder scale
     if not (implied[counts] > 0).all():

@@ -177,7 +177,7 @@ def unresolved_scale(problem, theta) -> tuple[np.ndarray | None, str | None]:
         if o in names
     )
     head = f"the {problem.loss.name} scale is below what these residuals resolve: {which}"
-    if problem.loss.name != "huber":
+    if not problem.loss.quadratic_inside:  # (Huber: ρ'' is 2 inside the scale, 0 beyond)
         return None, (
             f"not available: {head}; a {problem.loss.name} loss with so small a scale has "
             "no error bars to give (its curvature inside the scale no longer measures "
