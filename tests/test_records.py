@@ -228,7 +228,7 @@ def test_fit_reads_units_from_one_long_file_on_the_command_line(tmp_path, capsys
         (["--records", "ID", "--individual", "ka", "--population", "ka=0.3"], "in both"),
         (["--records", "ID", "--fix", "cl=2", "--population", "cl=0.3"], "is fixed"),
         (["--records", "ID", "--residual-error", "relative"], "give one of"),
-        (["--records", "ID", "--residual-error", "cq=combined"], "did you mean 'cp'"),
+        (["--records", "ID", "--residual-error", "cq=combined"], "not one of the model's outputs"),
         (["--records", "ID", "--residual-error", "combined"], "estimated by a population fit"),
     ],
 )
