@@ -14,7 +14,7 @@ import numpy as np
 from .checks import did_you_mean
 
 
-def check_population(problem, population, predictor, loss, segments) -> dict[str, float]:
+def check_population(problem, population, segments) -> dict[str, float]:
     """{parameter: ω start} checked against the model and the other settings; {} for
     none. One line for each mistake, before anything compiles."""
     if population is None:
@@ -51,7 +51,7 @@ def check_population(problem, population, predictor, loss, segments) -> dict[str
                 "the typical value times exp(η))"
             )
         out[str(name)] = float(omega)
-    _fleet_settings(problem, "population", predictor, loss, segments)
+    _fleet_settings(problem, "population", segments)
     if not np.all(problem.weights == 1.0):
         raise ValueError(
             "a population fit estimates each output's residual SD, which is its weight: "
@@ -60,7 +60,7 @@ def check_population(problem, population, predictor, loss, segments) -> dict[str
     return out
 
 
-def _fleet_settings(problem, what: str, predictor, loss, segments) -> None:
+def _fleet_settings(problem, what: str, segments) -> None:
     """What a fleet's fit does not (yet) combine with, one line each."""
     # asked of the Problem's predictor and loss (their markers), not of the names given
     predictor, loss = problem.predictor, problem.loss
@@ -88,7 +88,7 @@ def _fleet_settings(problem, what: str, predictor, loss, segments) -> None:
         )
 
 
-def check_individual(problem, individual, population, predictor, loss, segments) -> list[str]:
+def check_individual(problem, individual, population, segments) -> list[str]:
     """The parameters each unit has its own value of, checked; [] for none."""
     if individual is None or (not isinstance(individual, str) and len(individual) == 0):
         return []
@@ -119,7 +119,7 @@ def check_individual(problem, individual, population, predictor, loss, segments)
             "own fit: drop the bounds, or make them population parameters (positive by "
             "construction)"
         )
-    _fleet_settings(problem, "individual", predictor, loss, segments)
+    _fleet_settings(problem, "individual", segments)
     return list(individual)
 
 
@@ -191,12 +191,11 @@ def check_omega(omega, population) -> str:
     return omega
 
 
-def check_fleet(problem, population, individual, predictor, loss, segments,
-                residual_error=None, omega="diagonal"):  # fmt: skip
+def check_fleet(problem, population, individual, residual_error, omega, segments):
     """(population, individual, residual_error, omega) checked, and the x0
     expressions' parameters fixed."""
-    pop = check_population(problem, population, predictor, loss, segments)
-    ind = check_individual(problem, individual, pop, predictor, loss, segments)
+    pop = check_population(problem, population, segments)
+    ind = check_individual(problem, individual, pop, segments)
     fixed_x0_parameters(problem, bool(pop or ind))
     errors = check_residual_error(problem, residual_error, pop)
     return pop, ind, errors, check_omega(omega, pop)

@@ -173,8 +173,6 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         omega: str = "diagonal",
         constraints: Sequence[str] | str | None = None,
     ):
-        if not isinstance(model, Model):
-            raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
         predictor = _checked_predictor(
             predictor, model, fixed, bounds, loss=loss, loss_scale=loss_scale, weights=weights,
             noise=noise, segments=segments, segment_length=segment_length, hessian=hessian,
@@ -202,10 +200,8 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         self.loss_scale_estimated = self.loss.robust and loss_scale is None
         self.lower, self.upper = check_bounds(self, bounds or {})
         self._set_priors(priors, noise)
-        fleet = (population, individual, predictor, loss, segments, residual_error, omega)
-        self.population, self.individual, self.residual_error, self.omega = check_fleet(
-            self, *fleet
-        )  # a fleet's kinds of parameter, its residual error and Ω (engine/fleet.py)
+        kinds = check_fleet(self, population, individual, residual_error, omega, segments)
+        self.population, self.individual, self.residual_error, self.omega = kinds  # fleet.py
         if self.K == 0:
             raise ValueError("nothing to estimate: every parameter is fixed and free_x0 is empty")
         self.constraints, self.penalty = check_constraints(self, constraints), None  # Fs >= Fc
@@ -432,7 +428,9 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
 def _checked_predictor(predictor, model, fixed, bounds, **options) -> Predictor:
     """The predictor (by name or object) with the options checked against its markers,
     one line each, before any work; ``loss`` and ``hessian`` as their registries'
-    objects where their names are known."""
+    objects where their names are known; the model first."""
+    if not isinstance(model, Model):
+        raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
     predictor = get_predictor(predictor)
     options.update(loss=_known(get_loss, options["loss"]))
     options.update(hessian=_known(get_hessian, options["hessian"]))
