@@ -3,7 +3,8 @@
     python benchmarks/run_all.py [--quick]
 
 1. bench_derivatives: (J, g, H) against one simulation, jax.hessian and
-   finite-difference Hessians on Silverbox (ratios);
+   finite-difference Hessians on Silverbox (ratios); bench_edge: the same ratios
+   measured interleaved, at K = 4, 5 and 33 (issue 43, item 4);
 2. bench_peers: whole Silverbox fits against CasADi + IPOPT and SciPy (skipped
    without the optional [bench] extra);
 3. bench_multistart: multi-start throughput, pools and vmap batches;
@@ -72,6 +73,7 @@ def main() -> None:
     q = args.quick
     runs = [
         ("bench_derivatives.py", ["--repeats", "5"] if q else []),
+        ("bench_edge.py", ["--repeats", "50"] if q else []),
         ("bench_peers.py", ["--starts", "2", "--no-scipy"] if q else ["--no-scipy"]),
         ("bench_multistart.py", ["--starts", "8"] if q else []),
         ("bench_scaling.py", ["--quick"] if q else []),

@@ -24,7 +24,7 @@ from .checks import (
     name_list,
     no_noise_without_filter,
 )
-from .compiled import on_device
+from .compiled import on_device, on_host
 from .constraints import add_penalty_terms, check_constraints, penalty_jax
 from .data import Experiment
 from .discretisation import Discretisation, DiscretisationSettings
@@ -267,11 +267,12 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         lead, K = theta.shape[:-1], self.K
         shapes = {"J": (), "g": (K,), "H": (K, K), "P": (K, K)}
         out: list = [[] if c == "r" else np.zeros(lead + shapes[c]) for c in parts]
-        w = on_device(self.loss_weights)
+        # NumPy arrays: the compiled program copies them in (compiled.on_host)
+        w = on_host(self.loss_weights)
         for e, (t, u, y) in enumerate(self._arrays):
             idx = self._slices(e)
-            local = [on_device(a[..., idx]) for a in (theta, *more)]
-            values = sweep(*local, on_device(self.x0[e]), on_device(self.p0), t, u, y, w)
+            local = [on_host(a[..., idx]) for a in (theta, *more)]
+            values = sweep(*local, on_host(self.x0[e]), on_host(self.p0), t, u, y, w)
             for acc, c, v in zip(out, parts, values if len(parts) > 1 else (values,), strict=True):
                 v = np.asarray(v)
                 if c == "J":
