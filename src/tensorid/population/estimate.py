@@ -130,6 +130,7 @@ def fit_population(
     if np.isfinite(res.objective):
         coarse = coarse_steps(obj, res.x, etas, _sd(obj, res))
     notes = [coarse] if coarse else []
+    notes += _near_singular(res)
     if obj.unfinite:
         names = obj.unfinite
         notes.append(
@@ -148,6 +149,20 @@ def fit_population(
     for n in notes:
         warnings.warn(n, UserWarning, stacklevel=2)
     return replace(res, notes=notes)
+
+
+def _near_singular(res: PopulationResult) -> list[str]:
+    """A full Ω whose random effects move almost as one: say which, and what to do."""
+    tight = {k: c["value"] for k, c in res.omega_correlation.items() if abs(c["value"]) > 0.95}
+    if not tight:
+        return []
+    pairs = ", ".join(f"η_{k.replace(',', ' and η_')} ({v:.3f})" for k, v in tight.items())
+    return [
+        f"the random effects {pairs} are correlated nearly perfectly: Ω is close to "
+        "singular and the data cannot tell those effects apart (error bars there are "
+        "unreliable or absent); give the parameters one shared effect, a covariate on "
+        "both, or fit with omega='diagonal'"
+    ]
 
 
 def _sd(obj: Objective, res: PopulationResult) -> np.ndarray:
@@ -212,9 +227,11 @@ def coarse_steps(obj: Objective, x, etas, sigma) -> str | None:
         return None  # adaptive steps control their own error; a discrete map is exact
     fine = shared_sweeps(obj.sweeps.model, (), (), replace(d, substeps=2 * d.substeps))
 
+    bare = obj.structure()  # the kept program holds no units' data
+
     def build():
         def simulate(psi, eta, unit):
-            x0, p = obj.start(obj.theta(psi, eta), unit)
+            x0, p = bare.start(bare.theta(psi, eta), unit)
             return fine._simulate(x0, p, unit[0], unit[1])[1]
 
         return jax.jit(jax.vmap(simulate, in_axes=(None, 0, 0)))

@@ -316,9 +316,19 @@ class Objective:
             programs[name] = build()
         return programs[name]
 
+    def structure(self) -> Objective:
+        """This objective without its units' data or Problem: what a kept program may
+        hold on to (the programs outlive the fit; its data need not)."""
+        bare = copy.copy(self)
+        bare.units = bare.data = bare.problem = None  # type: ignore[assignment]
+        return bare
+
     def _compiled(self, name: str):
         """The program ``_build_<name>`` makes, kept per structure."""
-        return self._program(name, getattr(self, f"_build_{name}"))
+        programs = _PROGRAMS.get(self.key, {})
+        if name in programs:
+            return programs[name]
+        return self._program(name, getattr(self.structure(), f"_build_{name}"))
 
     def predict_all(self, psi, etas):
         """ŷ (E, P, S) of every unit at (ψ, η (E, q))."""
