@@ -1,0 +1,89 @@
+"""Bit-for-bit fingerprint of the numbers a refactoring must not move: J, ∇J, ∇²J
+(``Problem.cost_grad_hess``) and short fits' estimates, iterations and statuses on
+the paper's Silverbox and two-tank problems, a chain of masses and the Lotka-Volterra
+record (multiple shooting), through every path of ``fit`` (one start, lock-step
+batch, starts on workers, priors' noise re-check, a robust loss's stages).
+
+    python benchmarks/numbers_fingerprint.py save /tmp/before.npz
+    python benchmarks/numbers_fingerprint.py compare /tmp/before.npz
+
+``compare`` recomputes everything and checks each array with np.array_equal (NaN
+equal to NaN); it exits 1 and names every difference otherwise.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+import tensorid as ti
+from tensorid.benchmarks import (
+    lotka_volterra_problem,
+    mass_chain_problem,
+    silverbox_problem,
+    two_tank_problem,
+)
+
+
+def _fit_record(out: dict, key: str, res) -> None:
+    out[f"{key}/x"] = np.asarray(res.x)
+    out[f"{key}/fun"] = np.asarray(res.fun)
+    out[f"{key}/jac"] = np.asarray(res.jac)
+    out[f"{key}/hess"] = np.asarray(res.hess)
+    out[f"{key}/nit"] = np.asarray(res.nit)
+    out[f"{key}/nfev"] = np.asarray(res.nfev)
+    out[f"{key}/status"] = np.asarray(str(res.status))
+    out[f"{key}/history_cost"] = np.asarray([h["cost"] for h in res.history])
+
+
+def record() -> dict:
+    out: dict = {}
+    problems = {
+        "silverbox": silverbox_problem(),
+        "two-tank": two_tank_problem(),
+        "chain5": mass_chain_problem(5, samples=400),
+    }
+    for name, p in problems.items():
+        J, g, H = p.cost_grad_hess(p.theta0)
+        out[f"{name}/J"], out[f"{name}/g"], out[f"{name}/H"] = np.asarray(J), g, H
+        for method in ("auto", "newton", "gauss-newton", "newton-cg"):
+            _fit_record(out, f"{name}/{method}", ti.fit(p, method, maxiter=15))
+    p = problems["two-tank"]
+    _fit_record(out, "two-tank/fd-lsq", ti.fit(p, "fd-lsq", maxiter=5))
+    starts = ti.fit(p, "auto", starts=3, spread=0.2, workers=1, maxiter=10)
+    _fit_record(out, "two-tank/starts", starts)
+    out["two-tank/starts/ranked"] = np.asarray([s["cost"] for s in starts.starts])
+    thetas = p.theta0 * np.array([[1.0], [1.1], [0.9]])
+    for i, r in enumerate(ti.fit_batch(p, "auto", thetas, maxiter=10)):
+        _fit_record(out, f"two-tank/batch{i}", r)
+    sb = problems["silverbox"]
+    priors = {n: (v, abs(v) * 0.5 + 1e-3) for n, v in zip(sb.model.params, sb.p0)}
+    pp = silverbox_problem(priors=priors)
+    _fit_record(out, "silverbox/priors", ti.fit(pp, "auto", maxiter=15))
+    rb = two_tank_problem(loss="huber")
+    _fit_record(out, "two-tank/huber", ti.fit(rb, "auto", maxiter=15))
+    lv = lotka_volterra_problem(segments=4)
+    _fit_record(out, "lv/segments", ti.fit(lv, "auto", maxiter=15))
+    return out
+
+
+def main() -> int:
+    mode, path = sys.argv[1], sys.argv[2]
+    now = record()
+    if mode == "save":
+        np.savez(path, **now)
+        print(f"saved {len(now)} arrays to {path}")
+        return 0
+    before = dict(np.load(path))
+    bad = [k for k in sorted(set(before) | set(now))
+           if k not in before or k not in now
+           or not np.array_equal(before[k], now[k], equal_nan=before[k].dtype.kind == "f")]  # fmt: skip
+    for k in bad:
+        print(f"DIFFERS: {k}")
+    print(f"{len(now) - len(bad)} of {len(now)} arrays bit-identical")
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
