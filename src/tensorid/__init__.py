@@ -29,11 +29,11 @@ from .engine.start import Start
 from .engine.status import Status
 from .fitting.design import InputDesign, design_input
 from .fitting.methods import METHODS, fit, fit_batch
-from .fitting.options import FitOptions
-from .fitting.profiles import Profile, profile
+from .solve.options import FitOptions
+from .analysis.profiles import Profile, profile
 from .fitting.results import FitInterrupted, FitResult
-from .fitting.uncertainty import Uncertainty
-from .fitting.validation import Score
+from .analysis.uncertainty import Uncertainty
+from .analysis.validation import Score
 from .functions import (
     coulomb_friction,
     dead_zone,

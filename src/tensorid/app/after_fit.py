@@ -10,10 +10,10 @@ import numpy as np
 
 from ..engine.diagnostics import describe_failure
 from ..engine.status import Status
-from ..fitting.figures import file_name, profile_figure
-from ..fitting.residuals import default_lags
-from ..fitting.summary import gof_text
-from ..fitting.validation import Score
+from ..analysis.figures import file_name, profile_figure
+from ..analysis.residuals import default_lags
+from ..analysis.summary import gof_text
+from ..analysis.validation import Score
 
 
 def _gof_lines(scores: list[Score]) -> list[str]:

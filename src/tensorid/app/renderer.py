@@ -178,7 +178,7 @@ def draw_files(out: Path, jobs: list) -> list[Path]:
     from .. import _early
 
     if not _early.started():
-        from ..fitting.figures import draw, save_png
+        from ..analysis.figures import draw, save_png
         from .output import write_atomic
 
         return [
@@ -273,7 +273,7 @@ class Renderer:
         """The figure ``stem`` in place (renamed from the renderer's file, or drawn
         here where the renderer could not); OSError naming the file if it cannot be
         written."""
-        from ..fitting.figures import draw, save_png
+        from ..analysis.figures import draw, save_png
         from .output import write_atomic
 
         kind, arguments, path, tmp = self._pending.pop(stem)

@@ -30,7 +30,7 @@ import numpy as np
 from ..engine.data import Experiment
 from ..engine.problem import Problem
 from ..engine.simulate import simulate
-from .summary import Table, Tabular
+from ..analysis.summary import Table, Tabular
 
 CRITERIA = ("D", "max-variance")
 

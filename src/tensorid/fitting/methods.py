@@ -21,14 +21,14 @@ from ..engine.compilation import compile_clock
 from ..engine.problem import Problem
 from ..engine.status import Status
 from ..population import fit_population
-from .multistart import SAMPLINGS, draw_starts
-from .options import FitOptions
+from ..solve.multistart import SAMPLINGS, draw_starts
+from ..solve.options import FitOptions
 from .priors import weighed
-from .registry import LOCKSTEP, METHODS, listed, resolve
+from ..solve.registry import LOCKSTEP, METHODS, listed, resolve
 from .results import FitInterrupted, FitResult
 from .robust import fit_robust
-from .solvers import Method
-from .starts import fit_task, fits, many_starts
+from ..solve.solvers import Method
+from ..solve.starts import fit_task, fits, many_starts
 
 __all__ = ["LOCKSTEP", "METHODS", "fit", "fit_batch", "fit_task"]
 
@@ -146,7 +146,7 @@ def _check_enough_data(problem) -> None:
     """Fewer residuals than unknowns (and no priors to make up for them): refused
     before any iteration. A fit ran to a "converged" point of many equally good
     ones (176 iterations of a filter on 3 samples) before saying it had no error bars."""
-    from .residuals import residual_count
+    from ..analysis.residuals import residual_count
 
     n, K = residual_count(problem), problem.K
     if n >= K or problem.priors:

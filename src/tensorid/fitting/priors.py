@@ -24,11 +24,11 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..engine.status import Status
-from . import quantiles
-from .residuals import residual_count, too_few
+from ..analysis import quantiles
+from ..analysis.residuals import residual_count, too_few
 from .robust import residual_noise
-from .summary import Table, Tabular, significant
-from .uncertainty import FLAT, _directions, _variances, negative_directions
+from ..analysis.summary import Table, Tabular, significant
+from ..analysis.uncertainty import FLAT, _directions, _variances, negative_directions
 
 TOLERANCE = 1.5  # the factor by which σ² and the residual variance may differ
 MAX_REFITS = 10  # from the README example's 1,770×, 4 refits reach the tolerance

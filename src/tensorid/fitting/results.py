@@ -16,9 +16,9 @@ from ..engine.metrics import gof
 from ..engine.problem import Problem
 from ..engine.status import Status
 from .priors import NoiseCheck, move_lines, prior_moves
-from .stats import Stats
-from .summary import Tabular, collapsed_noise
-from .uncertainty import Information, Uncertainty, information, uncertainty
+from ..solve.stats import Stats
+from ..analysis.summary import Tabular, collapsed_noise
+from ..analysis.uncertainty import Information, Uncertainty, information, uncertainty
 
 
 def _squeeze(a: np.ndarray) -> np.ndarray:
@@ -241,7 +241,7 @@ class FitResult(Tabular):
         meat, lags = None, None
         bread, why = None, None
         if kind == "robust" or problem.loss.robust:
-            from .sandwich import score_covariance, unresolved_scale
+            from ..analysis.sandwich import score_covariance, unresolved_scale
 
             meat, lags = score_covariance(problem, theta, "auto" if kind == "robust" else 0)
             bread, why = unresolved_scale(problem, theta)
@@ -316,7 +316,7 @@ class FitResult(Tabular):
         scored as k-step-ahead prediction instead (MATLAB's compare with a prediction
         horizon): a filter's (predictor="ekf") state after sample h − k, run k samples
         ahead by the model; for output error, the simulation at every horizon."""
-        from .validation import validate
+        from ..analysis.validation import validate
 
         return validate(self, data, init_window, horizon)
 
@@ -335,7 +335,7 @@ class FitResult(Tabular):
         """Whiteness of the residuals and their independence from the inputs, as
         MATLAB's ``resid`` (see :mod:`tensorid.fitting.residuals`), on the samples
         the likelihood uses; a verdict the series cannot carry is "cannot be trusted"."""
-        from .residuals import residual_tests
+        from ..analysis.residuals import residual_tests
 
         key = ("residual tests", max_lag, level, self.cost, self.theta.tobytes())
         if key not in self._uncertainty:
@@ -347,7 +347,7 @@ class FitResult(Tabular):
         given records) agree within their robust error bars: where they do not, no
         error bar covers the model's error (see :mod:`tensorid.fitting.model_check`).
         Fits each part from this estimate; kept, so that the summary shows it."""
-        from .model_check import model_check
+        from ..analysis.model_check import model_check
 
         key = ("model check", self.cost, self.theta.tobytes())
         if key not in self._uncertainty or self._uncertainty[key].level != level or options:
@@ -361,21 +361,21 @@ class FitResult(Tabular):
     def criteria(self) -> dict:
         """AIC, AICc and BIC (Gaussian residuals of unknown variance), with n and K:
         for comparing model structures fitted to the same data."""
-        from .residuals import information_criteria
+        from ..analysis.residuals import information_criteria
 
         return information_criteria(self)
 
     def data_sensitivity(self):
         """dθ̂/dy for every measured sample: which samples drive each estimate (see
         :class:`tensorid.fitting.influence.DataSensitivity`)."""
-        from .influence import data_sensitivity
+        from ..analysis.influence import data_sensitivity
 
         return data_sensitivity(self)
 
     def profile(self, names=None, level: float = 0.95, **options) -> dict:
         """Profile likelihood of each unknown in ``names`` (default: every free
         parameter) with its likelihood-ratio interval: see :func:`tensorid.profile`."""
-        from .profiles import profile
+        from ..analysis.profiles import profile
 
         return profile(self, names, level, **options)
 
@@ -383,14 +383,14 @@ class FitResult(Tabular):
         """A plain-text table of the estimates with standard errors and intervals, the
         residual tests' verdicts and, where the residuals are not shown white, the
         robust standard errors beside the white ones and which to trust."""
-        from .display import summary_table
+        from ..analysis.display import summary_table
 
         return summary_table(self)
 
     def blocks(self) -> list:
         """The summary's content (headline, estimates, information, criteria, residual
         verdicts, warnings) as text and tables, for ``str()`` and ``_repr_html_``."""
-        from .display import fit_blocks
+        from ..analysis.display import fit_blocks
 
         return fit_blocks(self)
 
@@ -399,7 +399,7 @@ class FitResult(Tabular):
         history. With ``path`` (a folder) the figures are written there as PNG files
         and their paths returned; without, the matplotlib figures are returned and
         nothing is written. ``validation``: scores from :meth:`validate`."""
-        from .figures import fit_figures
+        from ..analysis.figures import fit_figures
 
         return fit_figures(self, path, validation)
 

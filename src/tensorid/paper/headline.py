@@ -13,7 +13,7 @@ from ..engine.data import Experiment
 from ..engine.metrics import gof
 from ..engine.problem import Problem
 from ..engine.simulate import simulate
-from ..fitting.figures import compare_plot
+from ..analysis.figures import compare_plot
 from ..fitting.methods import fit
 from . import problems as benchmarks
 from .levels import level_options

@@ -16,9 +16,9 @@ from .driver import fit_many
 from .endings import failed, not_run, stopped
 from .multistart import StartsStopped, ranked_starts, run_starts
 from .options import FitOptions
-from .priors import weigh_priors
+from ..fitting.priors import weigh_priors
 from .registry import resolve
-from .results import FitResult, Stats
+from ..fitting.results import FitResult, Stats
 from .shooting import fit_shooting
 
 

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from ..engine.status import Status
-from .results import FitResult, Stats
+from ..fitting.results import FitResult, Stats
 
 
 @dataclass

@@ -33,7 +33,7 @@ import numpy as np
 
 from . import quantiles
 from .summary import Table, Tabular, interval, significant
-from .trust_region import minimize_trust_region
+from ..solve.trust_region import minimize_trust_region
 
 SIDES = ("lower", "upper")
 

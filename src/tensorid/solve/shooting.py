@@ -28,7 +28,7 @@ from .arrow import ArrowSolver
 from .driver import fit_many
 from .endings import Outcome, Run, failed, march, segments_result
 from .options import FitOptions
-from .results import FitResult, Stats
+from ..fitting.results import FitResult, Stats
 from .trust_region import trust_region_steps
 
 MU0 = 10.0  # first penalty, in units of the starting cost per (defect / state scale)²

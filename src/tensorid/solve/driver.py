@@ -13,7 +13,7 @@ import numpy as np
 
 from .endings import Run, failed_start, fit_result, march
 from .options import FitOptions
-from .results import FitResult
+from ..fitting.results import FitResult
 from .scaling import Tracker
 from .solvers import Method, Sweep, Values
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import quantiles
-from .curvature import jacobi_scale
+from ..solve.curvature import jacobi_scale
 from .residuals import residual_count, too_few
 from .summary import Table, Tabular, estimates_table, stderr_text
 
