@@ -58,7 +58,7 @@ def record() -> dict:
     for i, r in enumerate(ti.fit_batch(p, "auto", thetas, maxiter=10)):
         _fit_record(out, f"two-tank/batch{i}", r)
     sb = problems["silverbox"]
-    priors = {n: (v, abs(v) * 0.5 + 1e-3) for n, v in zip(sb.model.params, sb.p0)}
+    priors = {n: (v, abs(v) * 0.5 + 1e-3) for n, v in zip(sb.model.params, sb.p0, strict=True)}
     pp = silverbox_problem(priors=priors)
     _fit_record(out, "silverbox/priors", ti.fit(pp, "auto", maxiter=15))
     rb = two_tank_problem(loss="huber")
@@ -66,6 +66,13 @@ def record() -> dict:
     lv = lotka_volterra_problem(segments=4)
     _fit_record(out, "lv/segments", ti.fit(lv, "auto", maxiter=15))
     return out
+
+
+def _same(a, b) -> bool:
+    """Bit for bit (NaN equal to NaN); False where either is missing."""
+    if a is None or b is None:
+        return False
+    return bool(np.array_equal(a, b, equal_nan=a.dtype.kind == "f"))
 
 
 def main() -> int:
@@ -76,9 +83,7 @@ def main() -> int:
         print(f"saved {len(now)} arrays to {path}")
         return 0
     before = dict(np.load(path))
-    bad = [k for k in sorted(set(before) | set(now))
-           if k not in before or k not in now
-           or not np.array_equal(before[k], now[k], equal_nan=before[k].dtype.kind == "f")]  # fmt: skip
+    bad = [k for k in sorted(set(before) | set(now)) if not _same(before.get(k), now.get(k))]
     for k in bad:
         print(f"DIFFERS: {k}")
     print(f"{len(now) - len(bad)} of {len(now)} arrays bit-identical")

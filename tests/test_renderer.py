@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from tensorid import _early
+from tensorid.analysis import figures
 from tensorid.app import renderer as renderer_module
 from tensorid.app.renderer import Renderer
-from tensorid.fitting import figures
 
 T = np.linspace(0.0, 2.0, 400)
 JOBS = [

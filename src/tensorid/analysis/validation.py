@@ -18,8 +18,8 @@ from ..engine.problem import Problem
 from ..engine.simulate import Simulation, run_simulation
 from ..engine.sweeps import shared_sweeps
 from ..solve.scaling import Tracker
-from .summary import Table, Tabular, metric_notes, metric_rows
 from ..solve.trust_region import minimize_trust_region
+from .summary import Table, Tabular, metric_notes, metric_rows
 
 
 @dataclass(frozen=True, eq=False, repr=False)

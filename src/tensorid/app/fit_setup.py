@@ -8,6 +8,8 @@ import re
 
 import numpy as np
 
+from ..analysis.residuals import lag_limit
+from ..analysis.validation import check_init_window
 from ..engine.adjoint import supports as adjoint_supports
 from ..engine.discretisation import Discretisation
 from ..engine.integrators import SCHEMES
@@ -17,8 +19,6 @@ from ..engine.shooting import resolve_segments
 from ..engine.start import Start
 from ..fitting.methods import check_fleet_method, check_method
 from ..solve.registry import exact_derivatives
-from ..analysis.residuals import lag_limit
-from ..analysis.validation import check_init_window
 from . import fleets
 from .argtypes import tolerances_as_flags
 from .files import ModelSpec, load_data

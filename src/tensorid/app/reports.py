@@ -9,10 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..engine.checks import step
 from ..analysis.display import coloured_residuals_line
 from ..analysis.figures import new_figure, save_png
-from ..solve.starts import fit_counts
 from ..analysis.summary import (
     criteria_text,
     headline,
@@ -27,6 +25,8 @@ from ..analysis.summary import (
     stderr_text,
 )
 from ..analysis.validation import Score, training_scores
+from ..engine.checks import step
+from ..solve.starts import fit_counts
 from .fleet_report import fleet_json, fleet_lines
 from .output import write_text
 from .provenance import markdown as provenance_lines

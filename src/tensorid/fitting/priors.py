@@ -23,12 +23,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..engine.status import Status
 from ..analysis import quantiles
 from ..analysis.residuals import residual_count, too_few
-from .robust import residual_noise
 from ..analysis.summary import Table, Tabular, significant
 from ..analysis.uncertainty import FLAT, _directions, _variances, negative_directions
+from ..engine.status import Status
+from .robust import residual_noise
 
 TOLERANCE = 1.5  # the factor by which σ² and the residual variance may differ
 MAX_REFITS = 10  # from the README example's 1,770×, 4 refits reach the tolerance

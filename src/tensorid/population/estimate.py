@@ -19,7 +19,7 @@ from ..engine.implicit import DiagonallyImplicitRungeKutta
 from ..engine.integrators import ExplicitRungeKutta
 from ..engine.status import Status
 from ..engine.sweeps import shared_sweeps
-from ..fitting.results import FitInterrupted
+from ..solve.solution import FitInterrupted
 from ..solve.trust_region import TRResult, minimize_trust_region
 from .distributed import UnitMap, evaluate_chunk
 from .objective import Objective
