@@ -14,6 +14,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "tensorid"
 LAYERS = {
     "_config": 0,
     "_early": 0,
+    "_state": 0,
     "engine": 1,
     "functions": 1,
     "datasets": 1,
@@ -189,6 +190,19 @@ def test_the_fitting_layers_folders_hold_at_most_20_modules():
     for folder in ("solve", "analysis", "fitting"):
         n = len(list((SRC / folder).glob("*.py")))
         assert n <= 20, f"{folder}/ holds {n} modules"
+
+
+def test_global_statements_only_in_the_configuration():
+    """Run-wide state is one object (tensorid/_state.py), not module globals that
+    functions reassign: ``global`` appears in _config.py alone."""
+    found = [
+        f"{m}: global {', '.join(node.names)}"
+        for m, p in MODULES.items()
+        if m != "tensorid._config"
+        for node in ast.walk(ast.parse(p.read_text()))
+        if isinstance(node, ast.Global)
+    ]
+    assert not found, found
 
 
 def test_modules_are_at_most_450_lines():

@@ -88,7 +88,7 @@ def _residual_tests(res, args):
 
 
 def _model_check(res, args, residual):
-    """The model-error check (fitting/model_check.py), where the residuals are not
+    """The model-error check (analysis/model_check.py), where the residuals are not
     shown white (the robust error bars are then offered) and not --no-model-check."""
     if getattr(args, "no_model_check", False) or not res.has_uncertainty:
         return None

@@ -3,9 +3,9 @@ the statistics, fit.json and the summary: the user waits for the slower of the t
 not for their sum.
 
 The renderer is a plain Python process that imports NumPy and Matplotlib but not
-tensorid or JAX (it loads ``tensorid/fitting/figures.py`` by path), so it starts in
+tensorid or JAX (it loads ``tensorid/analysis/figures.py`` by path), so it starts in
 a fraction of a second, alongside the fit. It gets (kind, arguments, file) jobs as
-plain data (``tensorid.fitting.figures.figure_jobs``), draws them with the same code
+plain data (``tensorid.analysis.figures.figure_jobs``), draws them with the same code
 as the Python API, and writes each PNG to a temporary file in the output folder that
 this process made; :meth:`Renderer.collect` renames it into place (atomically, as
 every file). It ignores Ctrl-C: the command decides, and :meth:`Renderer.close`

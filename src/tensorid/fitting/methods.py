@@ -67,7 +67,7 @@ def fit(
       "fd-bfgs"       BFGS (L-BFGS-B with bounds) with a finite-difference gradient
       "fd-lsq"        scipy least_squares (trf) with a finite-difference Jacobian, as
                       MATLAB's grey-box toolbox does
-      or a method object (a ``tensorid.fitting.solvers.Method``: architecture.md)
+      or a method object (a ``tensorid.solve.solvers.Method``: architecture.md)
     theta0 : start (K,), natural units; default ``problem.theta0``.
     x_scale, maxiter, gtol, ftol, xtol, callback : see :class:`FitOptions` (or options=).
     starts : with N > 1, fit from theta0 and N - 1 further starts (inside the bounds,

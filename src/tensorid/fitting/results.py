@@ -72,10 +72,10 @@ class FitResult(Solution, Tabular):
         return cls(**{f.name: getattr(solution, f.name) for f in fields(solution)})
 
     def uncertainty(self, kind: str = "hessian") -> Uncertainty:
-        """Standard errors, 95 % intervals, correlations (see tensorid.fitting.uncertainty);
+        """Standard errors, 95 % intervals, correlations (see tensorid.analysis.uncertainty);
         ``kind`` "hessian" uses the exact Hessian, "gauss-newton" its first-order form,
         "robust" the sandwich H⁻¹ B H⁻¹ with the scores' Newey-West covariance B
-        (honest when the residuals are coloured; see tensorid.fitting.sandwich; for a
+        (honest when the residuals are coloured; see tensorid.analysis.sandwich; for a
         filter, the scores of −2 log L, for innovations that are not white). With
         a robust loss every kind is a sandwich (the 2σ² H⁻¹ form assumes the squared
         loss), with independent samples for "hessian" and "gauss-newton"."""
@@ -157,7 +157,7 @@ class FitResult(Solution, Tabular):
         ``init_window`` samples only when given (the benchmarks' protocol; without it,
         a record's own ``init_window``, as ``Experiment.from_benchmark`` sets it), and
         the model is scored on the samples after them. Returns a list of
-        :class:`tensorid.fitting.validation.Score`. With ``horizon`` k, each record is
+        :class:`tensorid.analysis.validation.Score`. With ``horizon`` k, each record is
         scored as k-step-ahead prediction instead (MATLAB's compare with a prediction
         horizon): a filter's (predictor="ekf") state after sample h − k, run k samples
         ahead by the model; for output error, the simulation at every horizon."""
@@ -168,7 +168,7 @@ class FitResult(Solution, Tabular):
     def information(self) -> Information:
         """Observed (exact Hessian) against expected (Gauss-Newton) information: the
         standard errors from each side by side, their condition numbers and the least
-        determined direction (see :class:`tensorid.fitting.uncertainty.Information`)."""
+        determined direction (see :class:`tensorid.analysis.uncertainty.Information`)."""
         key = ("information", self.cost, self.theta.tobytes(), self.hess.tobytes())
         if key not in self._uncertainty:
             H_gn = self.problem.cost_grad_gn(self.theta)[2]
@@ -178,7 +178,7 @@ class FitResult(Solution, Tabular):
 
     def residual_tests(self, max_lag: int = 25, level: float = 0.99):
         """Whiteness of the residuals and their independence from the inputs, as
-        MATLAB's ``resid`` (see :mod:`tensorid.fitting.residuals`), on the samples
+        MATLAB's ``resid`` (see :mod:`tensorid.analysis.residuals`), on the samples
         the likelihood uses; a verdict the series cannot carry is "cannot be trusted"."""
         from ..analysis.residuals import residual_tests
 
@@ -190,7 +190,7 @@ class FitResult(Solution, Tabular):
     def model_check(self, level: float = 0.99, **options):
         """Whether the estimates from separate parts of the record (its halves, or the
         given records) agree within their robust error bars: where they do not, no
-        error bar covers the model's error (see :mod:`tensorid.fitting.model_check`).
+        error bar covers the model's error (see :mod:`tensorid.analysis.model_check`).
         Fits each part from this estimate; kept, so that the summary shows it."""
         from ..analysis.model_check import model_check
 
@@ -212,7 +212,7 @@ class FitResult(Solution, Tabular):
 
     def data_sensitivity(self):
         """dθ̂/dy for every measured sample: which samples drive each estimate (see
-        :class:`tensorid.fitting.influence.DataSensitivity`)."""
+        :class:`tensorid.analysis.influence.DataSensitivity`)."""
         from ..analysis.influence import data_sensitivity
 
         return data_sensitivity(self)
