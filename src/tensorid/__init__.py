@@ -3,9 +3,11 @@ state/parameter transition tensors.
 
 The package in layers, lowest first (an import only goes downward; see
 docs/architecture.md): ``engine`` (model, data, integrators, sweeps, problem),
-``fitting`` (trust region, methods, results, uncertainty, multi-start), ``app``
-(files, command line, reports, progress) and ``paper`` (the paper study). Everything
-a user needs is re-exported here.
+``solve`` (trust region, methods, multiple shooting, multi-start: plain records out),
+``analysis`` (uncertainty, residual tests, profiles, tables and figures) beside
+``population``, ``fitting`` (``fit`` and ``FitResult``: the solvers and the
+statistics composed), ``app`` (files, command line, reports, progress) and ``paper``
+(the paper study). Everything a user needs is re-exported here.
 """
 
 # first, before NumPy and JAX: the commands that draw start their figure process there
