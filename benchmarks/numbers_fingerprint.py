@@ -65,7 +65,29 @@ def record() -> dict:
     _fit_record(out, "two-tank/huber", ti.fit(rb, "auto", maxiter=15))
     lv = lotka_volterra_problem(segments=4)
     _fit_record(out, "lv/segments", ti.fit(lv, "auto", maxiter=15))
+    _method_benchmark_rows(out)
     return out
+
+
+def _method_benchmark_rows(out: dict) -> None:
+    """bench_methods.py's rows beyond the paper's two: a chain of 16 masses (K = 33)
+    from a seeded start, and 20 Lotka-Volterra starts in lock-step (its last table);
+    the old module path of draw_starts on purpose (it must keep importing)."""
+    from tensorid.fitting.multistart import draw_starts
+
+    chain = mass_chain_problem(16, samples=400)
+    th = draw_starts(chain.theta0, chain.lower, chain.upper, 2, spread=0.2,
+                     sampling="uniform", seed=0)[1]  # fmt: skip
+    J, g, H = chain.cost_grad_hess(th)
+    out["chain16/J"], out["chain16/g"], out["chain16/H"] = np.asarray(J), g, H
+    for method in ("newton", "gauss-newton", "auto"):
+        _fit_record(out, f"chain16/{method}", ti.fit(chain, method, theta0=th, maxiter=10))
+    lv = lotka_volterra_problem()
+    thetas = draw_starts(lv.theta0, lv.lower, lv.upper, 21, spread=0.5,
+                         sampling="uniform", seed=0)[1:]  # fmt: skip
+    for method in ("newton", "gauss-newton", "auto"):
+        for i, r in enumerate(ti.fit_batch(lv, method, thetas, maxiter=10)):
+            _fit_record(out, f"lv/batch/{method}/{i}", r)
 
 
 def _same(a, b) -> bool:
