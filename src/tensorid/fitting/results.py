@@ -11,11 +11,11 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from ..analysis.prior_effects import NoiseCheck, move_lines, prior_moves
 from ..analysis.summary import Tabular, collapsed_noise
 from ..analysis.uncertainty import Information, Uncertainty, information, uncertainty
 from ..solve.solution import FitInterrupted, Solution
 from ..solve.stats import Stats
-from .priors import NoiseCheck, move_lines, prior_moves
 
 __all__ = ["FitInterrupted", "FitResult", "NoiseCheck", "Stats"]
 
@@ -48,7 +48,8 @@ class FitResult(Solution, Tabular):
     notes : what happened on the way, e.g. trial points where the simulation blew up.
     noise_check : with priors, the noise variance that weighed them against the
         residual variance at the optimum, and the refits that re-estimated it (see
-        :mod:`tensorid.fitting.priors`); ``problem`` is then the Problem as last fitted.
+        :mod:`tensorid.fitting.priors`; a :class:`tensorid.analysis.prior_effects.NoiseCheck`);
+        ``problem`` is then the Problem as last fitted.
     shooting : for a multiple-shooting problem, its stage: segments (per experiment),
         nit, outer (augmented-Lagrangian iterations), nfev, cost (of the segments,
         defects aside), max_defect (largest continuity defect relative to the state
@@ -144,7 +145,7 @@ class FitResult(Solution, Tabular):
 
     def prior_moves(self) -> list[dict]:
         """How far the priors moved the estimates, in standard errors of the data alone
-        (see :func:`tensorid.fitting.priors.prior_moves`); empty without priors."""
+        (see :func:`tensorid.analysis.prior_effects.prior_moves`); empty without priors."""
         key = ("prior moves", self.cost, self.theta.tobytes(), self.hess.tobytes())
         if key not in self._uncertainty:
             self._uncertainty[key] = prior_moves(self)

@@ -51,7 +51,7 @@ class Solution:
     derivatives: bool = True  # jac and hess hold the exact derivatives at theta
     shooting: dict | None = None  # multiple shooting: segments, defects, its own counts
     hybrid: dict | None = None  # method "auto": evaluations of each kind, mode switches
-    # priors: their noise variance against the residuals (a fitting.priors.NoiseCheck)
+    # priors: their noise variance against the residuals (an analysis.prior_effects.NoiseCheck)
     noise_check: Any = None
     # the summary, the warnings, fit.json and report.md all read the same uncertainty;
     # keyed on what it depends on, so a result made by replace shares it (but not
