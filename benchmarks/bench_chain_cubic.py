@@ -37,7 +37,7 @@ from scipy.signal import lfilter
 
 import tensorid as ti
 from tensorid.benchmarks import mass_chain_model, mass_chain_truth
-from tensorid.fitting.multistart import draw_starts
+from tensorid.solve.multistart import draw_starts
 
 METHODS = ("newton", "gauss-newton", "auto")
 

@@ -33,7 +33,7 @@ from tensorid.benchmarks import (
     silverbox_problem,
     two_tank_problem,
 )
-from tensorid.fitting.multistart import draw_starts
+from tensorid.solve.multistart import draw_starts
 
 METHODS = ("newton", "gauss-newton", "auto")
 

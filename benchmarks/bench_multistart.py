@@ -23,7 +23,7 @@ import numpy as np
 import tensorid as ti
 from tensorid.benchmarks import silverbox_problem
 from tensorid.fitting.methods import fit_task
-from tensorid.fitting.multistart import draw_starts, process_pool, run_starts
+from tensorid.solve.multistart import draw_starts, process_pool, run_starts
 
 TASK = fit_task("newton", ti.FitOptions())
 

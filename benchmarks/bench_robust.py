@@ -12,7 +12,7 @@ guess (20 % off), with its scale estimated (robust.py: from the least-squares
 residuals' median absolute deviation). Per loss and outlier rate, over the seeded
 draws: the share of fits that converged, the parameters' RMSE relative to the truth,
 and how often every estimate lies within 2 of its own standard errors of the truth
-(for the robust losses the sandwich error bars, see tensorid.fitting.sandwich).
+(for the robust losses the sandwich error bars, see tensorid.analysis.sandwich).
 
 ``--coverage N``: coloured residuals instead of outliers. The same oscillator driven by
 an unmeasured input disturbance (white noise through a first-order low-pass, time

@@ -35,8 +35,8 @@ import numpy as np
 
 import tensorid as ti
 from tensorid.benchmarks import lotka_volterra_problem, silverbox_problem
-from tensorid.fitting import shooting
-from tensorid.fitting.multistart import draw_starts
+from tensorid.solve import shooting
+from tensorid.solve.multistart import draw_starts
 
 
 def starts(problem, seeds, n=20) -> np.ndarray:
@@ -151,8 +151,8 @@ def scaling(segment_counts) -> None:
 
 
 def subproblems(segment_counts) -> None:
-    from tensorid.fitting.arrow import ArrowSolver
-    from tensorid.fitting.trust_region import solve_subproblem
+    from tensorid.solve.arrow import ArrowSolver
+    from tensorid.solve.trust_region import solve_subproblem
 
     rng = np.random.default_rng(0)
     print("\nPart 4: one trust-region subproblem, block arrow (N = 2, 4 parameters)\n")

@@ -24,9 +24,9 @@ from scipy.linalg import null_space
 
 import tensorid as ti
 from tensorid.benchmarks import lotka_volterra_problem
-from tensorid.fitting.options import FitOptions
-from tensorid.fitting.registry import resolve
-from tensorid.fitting.shooting import _Run
+from tensorid.solve.options import FitOptions
+from tensorid.solve.registry import resolve
+from tensorid.solve.shooting import _Run
 
 
 def sqp(problem, theta0, maxiter=200):

@@ -326,7 +326,7 @@ def test_bad_overrides_are_refused_before_the_fit(tmp_path, capsys, args, match)
 
 
 def test_starts_honour_spread_inside_bounds_and_go_log_uniform_over_decades():
-    from tensorid.fitting.multistart import draw_starts
+    from tensorid.solve.multistart import draw_starts
 
     theta0 = np.array([1e-5, 1.0, 5.0])
     lo, hi = np.array([1e-7, 0.0, -np.inf]), np.array([1e-3, 10.0, np.inf])
@@ -342,8 +342,8 @@ def test_starts_honour_spread_inside_bounds_and_go_log_uniform_over_decades():
 
 
 def test_starts_tied_at_the_best_cost_go_to_the_fewest_iterations_and_failures_are_told():
-    from tensorid.fitting.multistart import ranked_starts
-    from tensorid.fitting.summary import starts_outcome
+    from tensorid.analysis.summary import starts_outcome
+    from tensorid.solve.multistart import ranked_starts
 
     def run(i, cost, nit, status="ftol", success=True):
         return {"start": i, "cost": cost, "nit": nit, "status": status, "success": success}

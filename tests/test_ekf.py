@@ -326,7 +326,7 @@ def test_ekf_fit_recovers_parameters_and_noise_where_output_error_is_pulled_off(
     rms_sim = np.sqrt(np.mean((data.y - sim.y) ** 2))
     assert rms[0] < rms[1] < rms_sim
     # the figures: a prediction figure per output beside the simulation's
-    from tensorid.fitting.figures import fit_figures
+    from tensorid.analysis.figures import fit_figures
 
     stems = [stem for stem, _ in fit_figures(res, named=True)]
     assert "prediction_data_y" in stems and "train_data_y" in stems
@@ -337,8 +337,8 @@ def test_a_filter_fit_with_priors_weighs_them_as_they_are():
     """J = −2 log L: a prior adds ((θ − mean)/sd)² with weight 1, exactly. The noise
     variance check of output error does not apply: it warned that a weight of 1 was
     'given as noise=' and 456,598× too large, which would have made the fit wrong."""
+    from tensorid.analysis.validation import training_scores
     from tensorid.app.reports import fit_json, fit_report
-    from tensorid.fitting.validation import training_scores
 
     pr = ti.Problem(
         duffing(), sde_record(0, P=200), p0={"k": 1.5, "c": 0.5, "a": 0.3}, x0=[0, 0],
@@ -385,7 +385,7 @@ def test_an_estimated_initial_state_cannot_buy_a_likelihood_without_minimum():
         m2logL += (np.log(2 * np.pi * S) + e * e / S) if k > 0 else 0.0
         G = cov / S
         x, cov = a * (x + G * e) + b * u[k], a * a * (1 - G) * cov + q
-    from tensorid.fitting.residuals import information_criteria
+    from tensorid.analysis.residuals import information_criteria
 
     crit = information_criteria(res)
     assert crit["n"] == P - 1
@@ -558,7 +558,7 @@ def test_ekf_problems_of_one_model_share_their_compiled_sweeps():
 def test_a_filter_problem_at_its_rounding_floor_is_not_a_collapse():
     """A likelihood's J is negative: the trust region's rounding-floor test uses |J|."""
     from tensorid.engine.status import Status
-    from tensorid.fitting.trust_region import _collapsed
+    from tensorid.solve.trust_region import _collapsed
 
     assert _collapsed(-1.0, 1e-20, 1e-12, 1e-10) is Status.MACHINE_PRECISION
     assert _collapsed(-1.0, 1e-3, 1e-12, 1e-10) is Status.RADIUS_COLLAPSED
@@ -604,7 +604,7 @@ def test_a_noise_intensity_at_zero_is_reported_without_nan_or_warnings():
     import types
     import warnings
 
-    from tensorid.fitting.summary import noise_intensities
+    from tensorid.analysis.summary import noise_intensities
 
     names = ["log_sigma_w_v", "log_sigma_e_y"]
     res = types.SimpleNamespace(
@@ -626,7 +626,7 @@ def test_a_noise_intensity_at_zero_is_reported_without_nan_or_warnings():
 def test_noise_intensities_without_error_bars_print_no_nan():
     """Too few samples for error bars: the noise line said "[nan, nan]" (console and
     report.md); it says the interval is not available, from fit.json's nulls too."""
-    from tensorid.fitting.summary import noise_text
+    from tensorid.analysis.summary import noise_text
 
     nan = float("nan")
     noise = {
@@ -688,7 +688,7 @@ def test_noise_flags_on_a_state_without_process_noise_are_refused(tmp_path, caps
 
 def test_a_discrete_model_s_process_noise_is_labelled_per_step():
     """P⁺ = A P Aᵀ + Q: a discrete-time model's σ_w is per step, not per √time."""
-    from tensorid.fitting.summary import noise_text
+    from tensorid.analysis.summary import noise_text
 
     noise = {"process": {"x": {"sigma": 0.05, "ci95": [0.04, 0.06], "fixed": False}},
              "measurement": {}}  # fmt: skip
@@ -727,7 +727,7 @@ def test_a_measurement_noise_gone_to_zero_is_warned_of():
     output and how to start elsewhere; an ordinary or a fixed σ_e gives none."""
     import types
 
-    from tensorid.fitting.summary import collapsed_noise
+    from tensorid.analysis.summary import collapsed_noise
 
     def res(log_sigma_e, names=("log_sigma_e_y", "log_sigma_e_z"), step=None):
         y = np.column_stack([np.sin(np.arange(50.0)), np.cos(np.arange(50.0))])

@@ -17,7 +17,7 @@ from conftest import SILVERBOX_P, silverbox_data, silverbox_model
 
 import tensorid as ti
 from tensorid import cli
-from tensorid.fitting.multistart import StartsStopped, run_starts
+from tensorid.solve.multistart import StartsStopped, run_starts
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "silverbox"
@@ -77,7 +77,7 @@ def test_ctrl_c_in_lockstep_keeps_every_starts_best_point(problem, monkeypatch):
 
 
 def test_ctrl_c_during_multistart_here_keeps_the_finished_starts(problem, monkeypatch):
-    import tensorid.fitting.starts as starts
+    import tensorid.solve.starts as starts
 
     finished = []
     original = starts.fit_many
@@ -161,7 +161,7 @@ def _run_at_once(script: Path, argvs: list[list[str]], timeout: float) -> list:
 _INTERRUPTED_STARTS = """
 import operator, os, signal, sys, threading, time
 import numpy as np
-from tensorid.fitting.multistart import StartsStopped, run_starts
+from tensorid.solve.multistart import StartsStopped, run_starts
 if __name__ == "__main__":
     sent = []
     def interrupt():
@@ -198,7 +198,7 @@ def test_a_worker_dying_between_waits_keeps_the_finished_starts(monkeypatch):
     # chunks are submitted as others finish: a submit to a pool broken since the last
     # wait raised BrokenProcessPool past everything (3 of 3 runs with the parent slowed
     # down as on a loaded machine), losing every finished start
-    import tensorid.fitting.multistart as ms
+    import tensorid.solve.multistart as ms
 
     real = ms._result
 
@@ -221,7 +221,7 @@ _SLOW_SHUTDOWN = """
 import os, signal, sys, threading, time
 from concurrent.futures import ProcessPoolExecutor
 import numpy as np
-from tensorid.fitting.multistart import StartsStopped, run_starts
+from tensorid.solve.multistart import StartsStopped, run_starts
 real = ProcessPoolExecutor.shutdown
 def slow(self, wait=True, **kw):  # the parent descheduled between terminate and shutdown
     if not wait:
@@ -266,7 +266,7 @@ _USERS_POOL = """
 import os, signal, threading, time
 from concurrent.futures import ProcessPoolExecutor
 import numpy as np
-from tensorid.fitting.multistart import StartsStopped, run_starts
+from tensorid.solve.multistart import StartsStopped, run_starts
 def task(problem, chunk):
     time.sleep(0.05)
     return [0.0 for _ in chunk]
@@ -436,7 +436,7 @@ def test_ctrl_c_before_any_start_finished_leaves_the_folder_as_it_was(
     tmp_path, capsys, monkeypatch
 ):
     import tensorid.app.commands as commands
-    from tensorid.fitting.multistart import StartsStopped
+    from tensorid.solve.multistart import StartsStopped
 
     out = tmp_path / "o"
     assert cli.main(FIT + ["--out", str(out)]) == 0
@@ -445,7 +445,7 @@ def test_ctrl_c_before_any_start_finished_leaves_the_folder_as_it_was(
     def nothing_finished(*a, **k):
         raise StartsStopped(ti.Status.INTERRUPTED, [], 8, "interrupted")
 
-    monkeypatch.setattr("tensorid.fitting.starts.run_starts", nothing_finished)
+    monkeypatch.setattr("tensorid.solve.starts.run_starts", nothing_finished)
     capsys.readouterr()
     assert cli.main(FIT + ["--out", str(out), "--starts", "8"]) == 130
     assert "as it was" in capsys.readouterr().err

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tensorid.fitting.figures import compare_figure, convergence_figure, residual_figure
+from tensorid.analysis.figures import compare_figure, convergence_figure, residual_figure
 
 T = np.linspace(0.0, 10.0, 400)
 SCALES = {
@@ -90,7 +90,7 @@ def test_log_axes_are_labelled_in_plain_text():
     figure's time): "10⁻³" and, within a decade, "2×10⁻³", as Matplotlib would put them."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    from tensorid.fitting.figures import plain_power
+    from tensorid.analysis.figures import plain_power
 
     assert plain_power(r"$\mathdefault{10^{-3}}$") == "10⁻³"
     assert plain_power(r"$\mathdefault{2\times10^{-3}}$") == "2×10⁻³"
@@ -114,7 +114,7 @@ def test_log_axes_are_labelled_in_plain_text():
 def test_the_legend_sits_between_the_title_and_the_data():
     """Above the axes, under the title, inside the figure: inside the axes it covered
     an oscillating record's peaks (compare and prediction figures)."""
-    from tensorid.fitting.figures import prediction_figure
+    from tensorid.analysis.figures import prediction_figure
 
     y = np.sin(5 * T)
     long = "validation 'a-record-with-a-long-name', output y: GOF 0.9811"

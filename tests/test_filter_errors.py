@@ -12,8 +12,8 @@ import pytest
 from test_ekf import CASES, ekf_problem
 
 import tensorid as ti
-from tensorid.fitting.sandwich import scores
-from tensorid.fitting.uncertainty import flat_line
+from tensorid.analysis.sandwich import scores
+from tensorid.analysis.uncertainty import flat_line
 
 
 def test_a_filter_s_scores_are_exact_per_sample():

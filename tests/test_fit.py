@@ -57,7 +57,7 @@ def test_newton_cg_on_hessian_vector_products_reaches_the_same_optimum(sb_proble
 
 
 def test_starts_fitted_in_lock_step_match_separate_fits(sb_problem_factory):
-    from tensorid.fitting.multistart import draw_starts
+    from tensorid.solve.multistart import draw_starts
 
     prob = sb_problem_factory(_perturbed(4))
     thetas = draw_starts(prob.theta0, prob.lower, prob.upper, 4, seed=3)

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 import tensorid as ti
+from tensorid.analysis.validation import training_scores
 from tensorid.app.reports import fit_json, fit_report, json_text
-from tensorid.fitting.validation import training_scores
 
 
 @pytest.fixture(scope="module")

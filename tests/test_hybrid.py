@@ -76,7 +76,7 @@ def test_auto_buys_no_hessian_while_gauss_newton_only_waits_for_its_radius():
 
 
 def test_newton_stays_exact_and_steps_by_the_model_that_predicted_better():
-    from tensorid.fitting.registry import resolve
+    from tensorid.solve.registry import resolve
 
     state = SimpleNamespace(tr=SimpleNamespace(problem=SimpleNamespace(K=1)))
     resolve("newton").prepare(state)  # what method "newton" steps with
@@ -101,7 +101,7 @@ def test_newton_does_not_wander_on_a_chain_with_cubic_springs():
     from scipy.signal import lfilter
 
     from tensorid.benchmarks import mass_chain_model, mass_chain_truth
-    from tensorid.fitting.multistart import draw_starts
+    from tensorid.solve.multistart import draw_starts
 
     model, truth, rng = mass_chain_model(5), mass_chain_truth(5), np.random.default_rng(0)
     t = np.arange(2000) * 0.05

@@ -11,8 +11,8 @@ import pytest
 from conftest import SILVERBOX_P, silverbox_data, silverbox_model
 
 import tensorid as ti
-from tensorid.fitting import registry
-from tensorid.fitting.solvers import Method, Sweep, TrustRegion
+from tensorid.solve import registry
+from tensorid.solve.solvers import Method, Sweep, TrustRegion
 
 
 @pytest.fixture(scope="module")
@@ -84,10 +84,12 @@ def test_a_result_is_built_once_and_its_counters_are_a_read_only_mapping(problem
 
 def test_workers_return_fit_results_without_their_problem(problem):
     from tensorid.fitting.methods import fit_task
+    from tensorid.solve.solution import Solution
 
     thetas = np.stack([problem.theta0, problem.theta0 * 1.05])
     done = fit_task("newton", ti.FitOptions())(problem, thetas)
-    assert all(isinstance(r, ti.FitResult) and r.problem is None for r in done)
+    # the solver's plain records (fit() makes them FitResults: FitResult.of)
+    assert all(isinstance(r, Solution) and r.problem is None for r in done)
     back = pickle.loads(pickle.dumps(done))  # as a pool sends them back
     alone = ti.fit(problem, "newton", theta0=thetas[1])
     assert back[1].status is alone.status and back[1].nit == alone.nit

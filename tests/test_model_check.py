@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import tensorid as ti
-from tensorid.fitting.display import trust_advice
+from tensorid.analysis.display import trust_advice
 
 DUFFING = ti.Model(
     rhs=lambda x, p, u: jnp.stack(
@@ -69,7 +69,7 @@ def test_a_right_model_passes_and_a_wrong_one_fails():
 def test_the_statistic_is_the_textbook_homogeneity_test():
     """Q = dᵀ (Σ_1 + Σ_2)⁻¹ d for two parts, whatever the units (a parameter in units
     a million times smaller gives the same Q)."""
-    from tensorid.fitting.model_check import _compare
+    from tensorid.analysis.model_check import _compare
 
     rng = np.random.default_rng(0)
     A = rng.standard_normal((3, 3))

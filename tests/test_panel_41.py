@@ -384,7 +384,7 @@ def test_multi_start_counts_in_fit_json_have_one_meaning(first, capsys):
 
 
 def test_the_paper_console_does_not_read_converged_and_failed_as_a_contradiction():
-    from tensorid.fitting.summary import as_text
+    from tensorid.analysis.summary import as_text
     from tensorid.paper.command import _robustness_table
 
     row = dict(dataset="silverbox", accuracy="rk4x4", method="fd-bfgs", converged=6, starts=6,
@@ -399,7 +399,7 @@ def test_the_paper_console_does_not_read_converged_and_failed_as_a_contradiction
 def test_figure_names_do_not_repeat_the_record_s_kind():
     from dataclasses import replace
 
-    from tensorid.fitting.figures import figure_jobs
+    from tensorid.analysis.figures import figure_jobs
 
     model, data = _decay()
     train = replace(data, name="train")
@@ -412,7 +412,7 @@ def test_figure_names_do_not_repeat_the_record_s_kind():
 
 
 def test_figures_say_what_their_bands_lines_and_axes_are():
-    from tensorid.fitting.figures import compare_figure, prediction_figure, residual_figure
+    from tensorid.analysis.figures import compare_figure, prediction_figure, residual_figure
 
     lags = np.arange(6)
     panel = dict(what="y against input u", passed=False, lags=lags, values=0.5**lags,

@@ -218,8 +218,8 @@ def test_too_few_samples_to_check_a_given_noise_says_so_not_an_exact_fit():
 
 
 def test_a_prior_that_moves_an_estimate_says_so_in_summary_fit_json_and_report(tmp_path):
+    from tensorid.analysis.validation import training_scores
     from tensorid.app.reports import fit_json, fit_report
-    from tensorid.fitting.validation import training_scores
 
     e = _linear_record()
     alone = ti.fit(ti.Problem(LINEAR, e, p0={"a": 1.0, "b": 0.0}))

@@ -160,7 +160,7 @@ def test_the_profile_figure_crosses_the_threshold_where_the_interval_ends():
     # between the points would not cross the threshold
     from types import SimpleNamespace
 
-    from tensorid.fitting.figures import profile_figure
+    from tensorid.analysis.figures import profile_figure
 
     prof = SimpleNamespace(
         values=np.array([-1.0, 0.0, 1.0]), costs=np.array([8.0, 0.0, 8.0]), threshold=4.0,

@@ -248,7 +248,7 @@ def test_other_versions_programs_unused_for_a_month_are_pruned(tmp_path, monkeyp
     month = time.time() - 31 * 86400
     os.utime(old, (month, month))
     os.utime(ours, (month, month))
-    monkeypatch.setattr(programs, "_pruned", False)
+    monkeypatch.setattr(programs.state, "pruned", False)
     programs._prune(folder, "cccccccc")
     assert not old.exists() and recent.exists() and ours.exists()
 
@@ -266,11 +266,11 @@ def test_a_folder_over_its_cap_loses_its_least_recently_used_programs(tmp_path, 
         os.utime(f, (now - 3600 * k, now - 3600 * k))
         files.append(f)
     monkeypatch.setattr(programs, "MAX_BYTES", 800)
-    monkeypatch.setattr(programs, "_pruned", False)
+    monkeypatch.setattr(programs.state, "pruned", False)
     programs._prune(folder, "cccccccc")
     # over 800 bytes: the oldest go until 600 (three quarters) are left
     assert [f.exists() for f in files] == [True] * 6 + [False] * 4
-    monkeypatch.setattr(programs, "_pruned", False)
+    monkeypatch.setattr(programs.state, "pruned", False)
     programs._prune(folder, "cccccccc")  # under the cap: nothing more goes
     assert sum(f.exists() for f in files) == 6
 
@@ -298,7 +298,7 @@ def test_two_processes_pruning_at_once_remove_no_more_than_one(tmp_path, monkeyp
 
     monkeypatch.setattr(Path, "unlink", raced)
     monkeypatch.setattr(programs, "MAX_BYTES", 800)
-    monkeypatch.setattr(programs, "_pruned", False)
+    monkeypatch.setattr(programs.state, "pruned", False)
     programs._prune(folder, "cccccccc")
     assert sum(f.exists() for f in files) == 6
 
@@ -380,7 +380,7 @@ def test_jax_compiled_code_is_kept_under_its_cap_least_recently_used_first(tmp_p
 def test_the_first_program_written_prunes_the_compiled_code_too(tmp_path, monkeypatch):
     seen = []
     monkeypatch.setattr(programs, "_prune_own_compiled", lambda: seen.append(True))
-    monkeypatch.setattr(programs, "_pruned", False)
+    monkeypatch.setattr(programs.state, "pruned", False)
     programs._prune(tmp_path, "cccccccc")
     programs._prune(tmp_path, "cccccccc")  # once per process
     assert len(seen) == 1
@@ -413,7 +413,7 @@ def test_half_written_programs_of_killed_processes_are_removed(tmp_path, monkeyp
     hour = time.time() - 3700
     os.utime(stale, (hour, hour))
     monkeypatch.setattr(programs, "_prune_compiled", lambda *a: None)
-    monkeypatch.setattr(programs, "_pruned", False)
+    monkeypatch.setattr(programs.state, "pruned", False)
     programs._prune(tmp_path, "cccccccc")
     assert not stale.exists() and fresh.exists()  # a live writer's is left alone
 

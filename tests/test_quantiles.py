@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from scipy import special
 
-from tensorid.fitting import quantiles
+from tensorid.analysis import quantiles
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "silverbox"

@@ -20,9 +20,9 @@ import tensorid as ti
 from tensorid import names
 from tensorid.engine import hessians, integrators, losses, predictors
 from tensorid.engine.integrators import ExplicitRungeKutta
-from tensorid.fitting import registry
 from tensorid.fitting.methods import FLEET_METHODS
-from tensorid.fitting.solvers import Sweep, TrustRegion
+from tensorid.solve import registry
+from tensorid.solve.solvers import Sweep, TrustRegion
 
 TRUE = {"k": 2.0, "c": 0.3, "g": 1.0, "q": 0.7}
 
@@ -153,9 +153,9 @@ def test_compare_reads_a_fit_of_a_new_predictor_through_its_object(observer):
     """tensorid compare/simulate on a fit.json: the predictor comes from the
     registry by the name fit.json records, and predicts k samples ahead with it; a
     name no registry knows is one line (it fell through to plain simulation)."""
+    from tensorid.analysis.validation import score_record
     from tensorid.app.files import ModelSpec
     from tensorid.app.filter_fits import filter_of
-    from tensorid.fitting.validation import score_record
 
     prob = _problem(predictor="observer")
     spec = ModelSpec(model=prob.model, path="model.py")

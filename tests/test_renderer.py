@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from tensorid import _early
+from tensorid.analysis import figures
 from tensorid.app import renderer as renderer_module
 from tensorid.app.renderer import Renderer
-from tensorid.fitting import figures
 
 T = np.linspace(0.0, 2.0, 400)
 JOBS = [
@@ -198,12 +198,12 @@ sys.argv = {argv!r}
 import tensorid
 from tensorid import _early
 from tensorid.app import renderer
-early = _early._started
+early = _early.state.renderer
 print(os.environ.get("OPENBLAS_NUM_THREADS"))
 print(None if early is None else early[1].pid)
 if early is not None:
     r = renderer.Renderer()
-    print(r._procs[0].pid if r._procs else None, len(r._procs), _early._started)
+    print(r._procs[0].pid if r._procs else None, len(r._procs), _early.state.renderer)
     r.close()
 """
 

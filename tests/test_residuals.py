@@ -86,7 +86,7 @@ def test_the_statistics_are_those_of_the_textbook():
 
 
 def test_feedback_shows_at_negative_lags_only():
-    from tensorid.fitting.residuals import _correlation
+    from tensorid.analysis.residuals import _correlation
 
     rng = np.random.default_rng(0)
     e = rng.standard_normal(2000)
@@ -183,7 +183,7 @@ def test_the_command_line_writes_null_and_the_reason(tmp_path, capsys):
 def test_a_series_swamped_by_a_few_samples_cannot_pass():
     """One outlier of 1e3 among residuals of 0.01 holds all of Σe²: r(τ) ≈ 0 at every
     lag and Q ≈ 0 "passed" whatever the rest did. Now no verdict, and why."""
-    from tensorid.fitting.residuals import swamped
+    from tensorid.analysis.residuals import swamped
 
     rng = np.random.default_rng(0)
     white = rng.standard_normal(1000)
@@ -218,7 +218,7 @@ def test_a_filter_s_tests_leave_out_the_sample_its_likelihood_leaves_out():
     not of the tests, was 1.5e8: "passes, Q = 0.0". The tests now use samples 1..500,
     and σ_e at its floor makes the verdict "cannot be trusted", saying why."""
     from tensorid import benchmarks
-    from tensorid.fitting.residuals import _correlation
+    from tensorid.analysis.residuals import _correlation
 
     pr = benchmarks.two_tank_problem(
         predictor="ekf", process_noise={"x2": 0.01}, free_x0=["x1", "x2"]

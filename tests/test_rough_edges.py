@@ -153,7 +153,7 @@ def test_no_label_is_repeated(silverbox_fit, capsys):
 
 
 def test_several_records_of_a_kind_keep_their_names():
-    from tensorid.fitting.validation import record_label
+    from tensorid.analysis.validation import record_label
 
     assert record_label("training", "train") == "training"
     assert record_label("training", "train", alone=False) == "training 'train'"

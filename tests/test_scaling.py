@@ -8,7 +8,7 @@ import pytest
 
 import tensorid as ti
 from tensorid.benchmarks import silverbox_problem
-from tensorid.fitting.scaling import auto_scale
+from tensorid.solve.scaling import auto_scale
 
 
 def test_initial_states_are_floored_at_the_curvature_step_rounded_down():

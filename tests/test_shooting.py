@@ -215,7 +215,7 @@ def test_finite_difference_baselines_refuse_segments():
 def test_multiple_shooting_escapes_the_local_minima_of_single_shooting():
     """The issue's case: 9 periods, 5 % noise, starts within ±50 %: single shooting
     reaches the best cost from about a third of them, multiple shooting from all."""
-    from tensorid.fitting.multistart import draw_starts
+    from tensorid.solve.multistart import draw_starts
 
     data = lv_data(P=601, T=60.0, noise=0.05)
     kw = dict(p0=LV_TRUE, x0=[2.0, 1.0], free_x0=["prey", "pred"])
@@ -290,8 +290,8 @@ def test_the_block_arrow_subproblem_solver_matches_the_dense_one(shift, radius):
     """Positive definite, semidefinite-ish and indefinite Hessians; interior and
     boundary solutions; some variables held on bounds: the model value of the
     structured solver's step equals the dense solver's to 1e-6."""
-    from tensorid.fitting.arrow import ArrowSolver
-    from tensorid.fitting.trust_region import solve_subproblem
+    from tensorid.solve.arrow import ArrowSolver
+    from tensorid.solve.trust_region import solve_subproblem
 
     rng = np.random.default_rng(int(100 * (shift + 3) + radius))
     H, nb = _arrow(rng, 60, 3, 4, shift)
@@ -313,7 +313,7 @@ def test_the_block_arrow_subproblem_solver_matches_the_dense_one(shift, radius):
 @pytest.mark.slow  # compile-bound; keeps the default run under five minutes
 def test_many_segments_use_the_block_arrow_solver_and_agree_with_the_dense_one(monkeypatch):
     from tensorid.benchmarks import lotka_volterra_problem
-    from tensorid.fitting import shooting
+    from tensorid.solve import shooting
 
     prob = lotka_volterra_problem(samples=301, segments=60)
     assert prob.shooting.nz >= shooting.ARROW_FROM

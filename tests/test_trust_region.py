@@ -3,8 +3,8 @@ import pytest
 from scipy.optimize import rosen, rosen_der, rosen_hess
 
 from tensorid.engine.status import Status
-from tensorid.fitting.projected import projected_cauchy
-from tensorid.fitting.trust_region import (
+from tensorid.solve.projected import projected_cauchy
+from tensorid.solve.trust_region import (
     _candidate_step,
     minimize_trust_region,
     solve_subproblem,
@@ -213,7 +213,7 @@ def test_negative_curvature_does_not_depend_on_the_units_of_the_unknowns():
     # a saddle whose downward curvature is 1e-10 of the other: in these units the
     # eigenvalues are -1e-10 and 1, below rounding relative to the largest; rescaled,
     # the same saddle. The verdict is made in Jacobi units, where both are the same
-    from tensorid.fitting.curvature import negative_curvature
+    from tensorid.solve.curvature import negative_curvature
 
     rng = np.random.default_rng(0)
     saddle = np.array([[1.0, 1e-6], [1e-6, -1e-10]])
@@ -258,7 +258,7 @@ def test_small_steps_or_a_collapsed_radius_at_a_saddle_are_not_convergence():
     # FTOL and XTOL at a point where H curves downward (in Jacobi units: -1e-12 beside
     # 1 is -1 beside 1) go on; a radius collapsed under rejected steps there is a
     # collapse, not a rounding floor. Where H does not curve downward, as before
-    from tensorid.fitting.trust_region import _unless_saddle
+    from tensorid.solve.trust_region import _unless_saddle
 
     saddle, minimum, free = np.diag([1.0, -1e-12]), np.diag([1.0, 1e-12]), np.ones(2, bool)
     for ended in (Status.FTOL, Status.XTOL):
@@ -305,7 +305,7 @@ def test_a_saddle_of_couplings_alone_is_not_converged():
     # left and the run stopped there, "converged" (as a fit of y' = -y + a·b·u from
     # a = b = 0 did, cost 578.6, where the base version reached 0.79). Its minima are
     # at x0 = -x1 = ±1, J = 0.5
-    from tensorid.fitting.curvature import negative_curvature
+    from tensorid.solve.curvature import negative_curvature
 
     assert negative_curvature(np.array([[0.0, -385.0], [-385.0, 0.0]]))
     assert negative_curvature(np.array([[0.0, 1.0], [1.0, 1.0]]))  # det -1

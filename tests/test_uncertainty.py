@@ -5,7 +5,7 @@ import pytest
 
 import tensorid as ti
 from tensorid import benchmarks
-from tensorid.fitting.uncertainty import flat_directions
+from tensorid.analysis.uncertainty import flat_directions
 
 
 @pytest.fixture(scope="module")
@@ -120,7 +120,7 @@ def test_a_minimum_on_a_bound_is_not_called_a_saddle():
 def test_a_flat_direction_gives_no_raw_runtime_warning():
     # an unknown on a flat direction has infinite standard errors on both sides: the
     # observed/expected ratio inf/inf is left out, not warned about by numpy
-    from tensorid.fitting.uncertainty import Information
+    from tensorid.analysis.uncertainty import Information
 
     inf = np.inf
     info = Information(["a", "b"], np.array([inf, 0.2]), np.array([inf, 0.1]), inf, 10.0, {})

@@ -328,7 +328,7 @@ def test_multistart_local_and_dask_agree(workdir):
 
 
 def test_draw_starts_respect_bounds_and_are_seeded():
-    from tensorid.fitting.multistart import draw_starts
+    from tensorid.solve.multistart import draw_starts
 
     theta0 = np.array([1.0, 5.0, 0.0])
     lo = np.array([0.5, -np.inf, -1.0])

@@ -3,14 +3,19 @@ state/parameter transition tensors.
 
 The package in layers, lowest first (an import only goes downward; see
 docs/architecture.md): ``engine`` (model, data, integrators, sweeps, problem),
-``fitting`` (trust region, methods, results, uncertainty, multi-start), ``app``
-(files, command line, reports, progress) and ``paper`` (the paper study). Everything
-a user needs is re-exported here.
+``solve`` (trust region, methods, multiple shooting, multi-start: plain records out),
+``analysis`` (uncertainty, residual tests, profiles, tables and figures) beside
+``population``, ``fitting`` (``fit`` and ``FitResult``: the solvers and the
+statistics composed), ``app`` (files, command line, reports, progress) and ``paper``
+(the paper study). Everything a user needs is re-exported here.
 """
 
 # first, before NumPy and JAX: the commands that draw start their figure process there
 from . import _early  # noqa: F401
 from ._config import __version__, disable_compilation_cache, enable_compilation_cache
+from .analysis.profiles import Profile, profile
+from .analysis.uncertainty import Uncertainty
+from .analysis.validation import Score
 from .app.files import ModelSpec, load_data, load_model
 from .engine.data import Experiment
 from .engine.discretisation import Discretisation
@@ -29,11 +34,7 @@ from .engine.start import Start
 from .engine.status import Status
 from .fitting.design import InputDesign, design_input
 from .fitting.methods import METHODS, fit, fit_batch
-from .fitting.options import FitOptions
-from .fitting.profiles import Profile, profile
 from .fitting.results import FitInterrupted, FitResult
-from .fitting.uncertainty import Uncertainty
-from .fitting.validation import Score
 from .functions import (
     coulomb_friction,
     dead_zone,
@@ -46,6 +47,7 @@ from .functions import (
     stribeck_friction,
 )
 from .population import PopulationResult, fit_population
+from .solve.options import FitOptions
 
 __all__ = [
     "METHODS",

@@ -26,9 +26,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+from ._state import state
+
 # the renderer's program and what it draws with, by path: neither is imported here
 RENDERER = Path(__file__).resolve().parent / "app" / "renderer.py"
-FIGURES = Path(__file__).resolve().parent / "fitting" / "figures.py"
+FIGURES = Path(__file__).resolve().parent / "analysis" / "figures.py"
 _SERVE = (  # (the collector paused while Matplotlib is imported: see serve)
     "import gc; gc.disable(); import runpy, sys; "
     "runpy.run_path(sys.argv[1], run_name='__tensorid_renderer__')['serve'](*sys.argv[2:])"
@@ -100,9 +102,6 @@ def start_renderer(forks: int) -> subprocess.Popen | None:
         return None
 
 
-_started: tuple[int, subprocess.Popen] | None = None  # (forks, process), not yet taken
-
-
 def _out(argv: list[str]) -> str:
     """The command line's --out value ("" if none)."""
     for i, a in enumerate(argv):
@@ -115,17 +114,13 @@ def _out(argv: list[str]) -> str:
 
 def started() -> bool:
     """Whether :func:`start` started a renderer that no one has taken yet."""
-    return _started is not None
+    return state.renderer is not None
 
 
 def take_renderer() -> tuple[int, subprocess.Popen] | None:
     """The renderer :func:`start` started, (forks, process), once; then None."""
-    global _started
-    taken, _started = _started, None
+    taken, state.renderer = state.renderer, None
     return taken
-
-
-_collector_paused = False
 
 
 def settle() -> None:
@@ -138,9 +133,8 @@ def settle() -> None:
     0.01 s: the fit 1.43 -> 1.24 s with the figure process's alike (``python -m``,
     medians of 9 alternating runs, 2 cores). Only in the command's own process,
     never on a user's import of the package."""
-    global _collector_paused
-    if _collector_paused:
-        _collector_paused = False
+    if state.collector_paused:
+        state.collector_paused = False
         gc.freeze()
         gc.enable()
 
@@ -152,17 +146,16 @@ def start() -> None:
     figures also OpenBLAS at one thread, and the renderer started now (where it
     draws in forks; the command's Renderer takes it over, and without one it ends
     with this process, whose end ends its input)."""
-    global _started, _collector_paused
     if the_command(sys.argv, getattr(sys, "orig_argv", [])) and gc.isenabled():
         gc.disable()
-        _collector_paused = True
+        state.collector_paused = True
     if not figure_command(sys.argv, getattr(sys, "orig_argv", [])):
         return
     if not any(os.environ.get(k) for k in _THREADS):  # OpenBLAS reads them in this order
         os.environ["OPENBLAS_NUM_THREADS"] = "1"
     forks = default_forks()
-    if _started is None and forks > 1 and (proc := start_renderer(forks)) is not None:
-        _started = (forks, proc)
+    if state.renderer is None and forks > 1 and (proc := start_renderer(forks)) is not None:
+        state.renderer = (forks, proc)
 
 
 start()

@@ -8,12 +8,12 @@ import sys
 
 import numpy as np
 
+from ..analysis.figures import file_name, profile_figure
+from ..analysis.residuals import default_lags
+from ..analysis.summary import gof_text
+from ..analysis.validation import Score
 from ..engine.diagnostics import describe_failure
 from ..engine.status import Status
-from ..fitting.figures import file_name, profile_figure
-from ..fitting.residuals import default_lags
-from ..fitting.summary import gof_text
-from ..fitting.validation import Score
 
 
 def _gof_lines(scores: list[Score]) -> list[str]:
@@ -88,7 +88,7 @@ def _residual_tests(res, args):
 
 
 def _model_check(res, args, residual):
-    """The model-error check (fitting/model_check.py), where the residuals are not
+    """The model-error check (analysis/model_check.py), where the residuals are not
     shown white (the robust error bars are then offered) and not --no-model-check."""
     if getattr(args, "no_model_check", False) or not res.has_uncertainty:
         return None

@@ -13,14 +13,14 @@ from pathlib import Path
 from rich.console import Console, Group
 from rich.live import Live
 
+from ..analysis.display import summary_table
+from ..analysis.figures import figure_jobs, save_png
+from ..analysis.validation import Score, training_scores
 from ..engine.checks import same_step, step
 from ..engine.problem import Problem
 from ..engine.status import Status
-from ..fitting.display import summary_table
-from ..fitting.figures import figure_jobs, save_png
 from ..fitting.methods import fit
 from ..fitting.results import FitInterrupted
-from ..fitting.validation import Score, training_scores
 from ..population import PopulationResult
 from . import fleets
 from .after_fit import _after_fit, _gof_lines, _profile_figures

@@ -8,6 +8,8 @@ import re
 
 import numpy as np
 
+from ..analysis.residuals import lag_limit
+from ..analysis.validation import check_init_window
 from ..engine.discretisation import Discretisation
 from ..engine.hessians import get_hessian
 from ..engine.integrators import SCHEMES
@@ -17,9 +19,7 @@ from ..engine.problem import Problem
 from ..engine.shooting import resolve_segments
 from ..engine.start import Start
 from ..fitting.methods import check_fleet_method, check_method
-from ..fitting.registry import exact_derivatives
-from ..fitting.residuals import lag_limit
-from ..fitting.validation import check_init_window
+from ..solve.registry import exact_derivatives
 from . import fleets
 from .argtypes import tolerances_as_flags
 from .files import ModelSpec, load_data

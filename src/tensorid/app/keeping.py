@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..fitting.display import summary_table
+from ..analysis.display import summary_table
 from .output import replace_outputs, write_kept
 from .reports import fit_json, json_text
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from .._config import __version__
-from ..fitting.figures import save_png
+from ..analysis.figures import save_png
 from ..population.figures import observed_predicted_figure, units_figure, vpc_figure
 from .fleet_report import fleet_json, fleet_lines
 from .keeping import _replace_quietly

@@ -3,9 +3,9 @@ the statistics, fit.json and the summary: the user waits for the slower of the t
 not for their sum.
 
 The renderer is a plain Python process that imports NumPy and Matplotlib but not
-tensorid or JAX (it loads ``tensorid/fitting/figures.py`` by path), so it starts in
+tensorid or JAX (it loads ``tensorid/analysis/figures.py`` by path), so it starts in
 a fraction of a second, alongside the fit. It gets (kind, arguments, file) jobs as
-plain data (``tensorid.fitting.figures.figure_jobs``), draws them with the same code
+plain data (``tensorid.analysis.figures.figure_jobs``), draws them with the same code
 as the Python API, and writes each PNG to a temporary file in the output folder that
 this process made; :meth:`Renderer.collect` renames it into place (atomically, as
 every file). It ignores Ctrl-C: the command decides, and :meth:`Renderer.close`
@@ -178,7 +178,7 @@ def draw_files(out: Path, jobs: list) -> list[Path]:
     from .. import _early
 
     if not _early.started():
-        from ..fitting.figures import draw, save_png
+        from ..analysis.figures import draw, save_png
         from .output import write_atomic
 
         return [
@@ -273,7 +273,7 @@ class Renderer:
         """The figure ``stem`` in place (renamed from the renderer's file, or drawn
         here where the renderer could not); OSError naming the file if it cannot be
         written."""
-        from ..fitting.figures import draw, save_png
+        from ..analysis.figures import draw, save_png
         from .output import write_atomic
 
         kind, arguments, path, tmp = self._pending.pop(stem)

@@ -9,11 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..engine.checks import step
-from ..fitting.display import coloured_residuals_line
-from ..fitting.figures import new_figure, save_png
-from ..fitting.starts import fit_counts
-from ..fitting.summary import (
+from ..analysis.display import coloured_residuals_line
+from ..analysis.figures import new_figure, save_png
+from ..analysis.summary import (
     criteria_text,
     headline,
     interval,
@@ -26,7 +24,9 @@ from ..fitting.summary import (
     significant,
     stderr_text,
 )
-from ..fitting.validation import Score, training_scores
+from ..analysis.validation import Score, training_scores
+from ..engine.checks import step
+from ..solve.starts import fit_counts
 from .fleet_report import fleet_json, fleet_lines
 from .output import write_text
 from .provenance import markdown as provenance_lines

@@ -12,13 +12,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ..analysis.figures import file_name
+from ..analysis.summary import gof_text, metric_notes, undefined_gof
+from ..analysis.validation import Score, check_init_window, score_record
 from ..engine.checks import same_step
 from ..engine.diagnostics import describe_failure
 from ..engine.discretisation import Discretisation
 from ..engine.status import Status
-from ..fitting.figures import file_name
-from ..fitting.summary import gof_text, metric_notes, undefined_gof
-from ..fitting.validation import Score, check_init_window, score_record
 from .after_fit import SIMULATED_HORIZON
 from .argtypes import tolerances_as_flags
 from .files import ModelSpec, load_data, load_model

@@ -10,9 +10,10 @@ from contextlib import contextmanager
 
 import jax
 
+from .._state import state
+
 _EVENTS = "/jax/core/compile/"
 _local = threading.local()
-_registered = False
 _lock = threading.Lock()
 
 
@@ -26,11 +27,10 @@ def _listener(event: str, duration: float, **_) -> None:
 def compile_clock():
     """Within the block, ``clock[0]`` accumulates the seconds JAX spends compiling on
     this thread (nested clocks each see every compilation)."""
-    global _registered
     with _lock:  # registered twice, every compilation would count twice
-        if not _registered:
+        if not state.compile_listener:
             jax.monitoring.register_event_duration_secs_listener(_listener)
-            _registered = True
+            state.compile_listener = True
     clock = [0.0]
     _local.clocks = (*getattr(_local, "clocks", ()), clock)
     try:

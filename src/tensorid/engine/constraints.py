@@ -2,7 +2,7 @@
 restricted parser (numbers, pi, + − × / **, the functions text equations know, and
 the names of the parameters, or of a single record's free initial states), each
 turned into c(θ) >= 0 with its exact Jacobian and Hessian from JAX; and, while a fit
-keeps them (fitting/constrained.py), their augmented-Lagrangian terms in J, ∇J, ∇²J.
+keeps them (solve/constrained.py), their augmented-Lagrangian terms in J, ∇J, ∇²J.
 
 For c >= 0 with multiplier estimate λ >= 0 and penalty μ > 0, J gains the
 Powell-Hestenes-Rockafellar term ψ = (max(0, λ − μc)² − λ²) / (2μ), so that

@@ -43,8 +43,9 @@ from pathlib import Path
 
 import jax
 
+from .._state import state
+
 SUFFIX = ".xla"
-_machine: str | None = None
 
 
 def _processor() -> str:
@@ -83,16 +84,15 @@ def machine_digest() -> str:
     """Of what an executable depends on beyond its traced program: the processor,
     XLA_FLAGS, the backend and its devices' kind (once per process) and JAX's
     compile settings (as they hold now)."""
-    global _machine
-    if _machine is None:
+    if state.machine is None:
         try:
             device = jax.devices()[0]
             version = f"{device.client.platform_version} {device.device_kind}"
         except Exception:  # noqa: BLE001 - only part of the digest
             version = ""
-        _machine = f"{_processor()}\n{os.environ.get('XLA_FLAGS', '')}\n{version}"
+        state.machine = f"{_processor()}\n{os.environ.get('XLA_FLAGS', '')}\n{version}"
     settings = repr([_setting(name) for name in _COMPILE_SETTINGS])
-    return hashlib.sha256(f"{_machine}\n{settings}".encode()).hexdigest()[:12]
+    return hashlib.sha256(f"{state.machine}\n{settings}".encode()).hexdigest()[:12]
 
 
 def path_for(folder: Path, key: str) -> Path:
@@ -132,7 +132,6 @@ def load(path: Path):
 
 
 _hits = threading.local()  # JAX's compilation cache's hits, on this thread
-_listening = False
 _listen_lock = threading.Lock()
 
 
@@ -142,11 +141,10 @@ def _count_hit(event: str, **_) -> None:
 
 
 def _listen() -> None:
-    global _listening
     with _listen_lock:
-        if not _listening:
+        if not state.hit_listener:
             jax.monitoring.register_event_listener(_count_hit)
-            _listening = True
+            state.hit_listener = True
 
 
 def compile_and_keep(jitted, args, path: Path, write):

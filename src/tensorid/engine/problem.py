@@ -137,7 +137,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         constraints: inequalities between parameters such as ["Fs >= Fc", "k <= 2*m"]
             (plain arithmetic on parameter names, or a single record's free initial
             states), which :func:`tensorid.fit` keeps by an augmented Lagrangian around
-            its exact-derivative trust region (see :mod:`tensorid.fitting.constrained`).
+            its exact-derivative trust region (see :mod:`tensorid.solve.constrained`).
     """
 
     def __init__(

@@ -48,6 +48,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from .._state import state
 from .compilation import announced, describe
 
 _NOT_KEPT = ("custom_jvp", "custom_vjp", "custom_vmap", "callback", "debug", "<function", "0x")
@@ -57,7 +58,6 @@ _SETTINGS = (
     "jax_numpy_dtype_promotion",
     "jax_numpy_rank_promotion",
 )
-_source_digest: str | None = None
 
 
 def _sources() -> dict[Path, tuple[int, int]]:
@@ -99,10 +99,9 @@ def _package_digest() -> str | None:
     """Of every source file of tensorid and its version, computed once per process;
     None when the files are not there (an installation without sources) or changed
     since this process imported them."""
-    global _source_digest
     if _IMPORTED is None or not _IMPORTED or _sources() != _IMPORTED:
         return None
-    if _source_digest is None:
+    if state.source_digest is None:
         from .. import _config
 
         h = hashlib.sha256(_config.__version__.encode())
@@ -110,8 +109,8 @@ def _package_digest() -> str | None:
         for path in _IMPORTED:
             h.update(str(path.relative_to(root)).encode())
             h.update(path.read_bytes())
-        _source_digest = h.hexdigest()
-    return _source_digest
+        state.source_digest = h.hexdigest()
+    return state.source_digest
 
 
 def _jax_digest() -> str:
@@ -302,7 +301,6 @@ def _read(path: Path):
 STALE_DAYS = 30
 MAX_BYTES = 512 * 2**20  # the folder's cap: beyond it the least recently used go
 COMPILED_MAX_BYTES = 2**30  # the same for JAX's compiled code beside it
-_pruned = False
 
 
 def _prune(where: Path | None, current: str) -> None:
@@ -314,10 +312,9 @@ def _prune(where: Path | None, current: str) -> None:
     the half-written files of processes killed while writing (an hour old), and JAX's
     compilation cache gets the same cap (:func:`_prune_compiled`). ``where`` None: no
     program is kept in this process, only the compiled code is pruned."""
-    global _pruned
-    if _pruned:
+    if state.pruned:
         return
-    _pruned = True
+    state.pruned = True
     if where is not None:
         _prune_programs(where, current)
     _prune_own_compiled()

@@ -27,10 +27,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..analysis.summary import Table, Tabular
 from ..engine.data import Experiment
 from ..engine.problem import Problem
 from ..engine.simulate import simulate
-from .summary import Table, Tabular
 
 CRITERIA = ("D", "max-variance")
 

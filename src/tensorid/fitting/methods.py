@@ -24,14 +24,14 @@ from ..engine.compilation import compile_clock
 from ..engine.problem import Problem
 from ..engine.status import Status
 from ..population import fit_population
-from .multistart import SAMPLINGS, draw_starts
-from .options import FitOptions
-from .priors import weighed
-from .registry import LOCKSTEP, METHODS, listed, resolve
+from ..solve.multistart import SAMPLINGS, draw_starts
+from ..solve.options import FitOptions
+from ..solve.registry import LOCKSTEP, METHODS, listed, resolve
+from ..solve.solvers import Method, TrustRegion
+from ..solve.starts import fit_task, fits, many_starts
+from .priors import weigh_priors, weighed
 from .results import FitInterrupted, FitResult
 from .robust import fit_robust
-from .solvers import Method, TrustRegion
-from .starts import fit_task, fits, many_starts
 
 __all__ = ["LOCKSTEP", "METHODS", "fit", "fit_batch", "fit_task"]
 
@@ -70,7 +70,7 @@ def fit(
       "fd-bfgs"       BFGS (L-BFGS-B with bounds) with a finite-difference gradient
       "fd-lsq"        scipy least_squares (trf) with a finite-difference Jacobian, as
                       MATLAB's grey-box toolbox does
-      or a method object (a ``tensorid.fitting.solvers.Method``: architecture.md)
+      or a method object (a ``tensorid.solve.solvers.Method``: architecture.md)
     theta0 : start (K,), natural units; default ``problem.theta0``.
     x_scale, maxiter, gtol, ftol, xtol, callback : see :class:`FitOptions` (or options=).
     starts : with N > 1, fit from theta0 and N - 1 further starts (inside the bounds,
@@ -149,7 +149,7 @@ def _check_enough_data(problem) -> None:
     """Fewer residuals than unknowns (and no priors to make up for them): refused
     before any iteration. A fit ran to a "converged" point of many equally good
     ones (176 iterations of a filter on 3 samples) before saying it had no error bars."""
-    from .residuals import residual_count
+    from ..analysis.residuals import residual_count
 
     n, K = residual_count(problem), problem.K
     if n >= K or problem.priors:
@@ -163,19 +163,26 @@ def _check_enough_data(problem) -> None:
     )
 
 
+def _fits(problem, method, thetas, options, started) -> list[FitResult]:
+    """The solver's fits from every row of ``thetas`` (solve/starts.py), as FitResults."""
+    return [FitResult.of(r) for r in fits(problem, method, thetas, options, started)]
+
+
 def _starts(problem, method, thetas, options, where, started) -> FitResult:
     """One start (``where`` None) or many on workers, the best refined; a robust loss
-    in stages, from the least-squares estimate (robust.py)."""
+    in stages, from the least-squares estimate (robust.py); with priors, their noise
+    level checked against the residuals and refitted where it was estimated (priors.py)."""
     if problem.loss.robust:
         first = _starts(problem.with_loss("squared"), method, thetas, options, where, started)
         return fit_robust(
             problem,
             first,
-            lambda p, th: weighed(fits)(p, method, th[None, :], options, time.perf_counter())[0],
+            lambda p, th: weighed(_fits)(p, method, th[None, :], options, time.perf_counter())[0],
         )
     if where is None:
-        return weighed(fits)(problem, method, thetas, options, started)[0]
-    return many_starts(problem, method, thetas, options, where, started, fits)
+        return weighed(_fits)(problem, method, thetas, options, started)[0]
+    res = FitResult.of(many_starts(problem, method, thetas, options, where, started))
+    return weigh_priors(res, _fits, method, options, started)
 
 
 def fit_batch(problem: Problem, method: str | Method, thetas, **options) -> list[FitResult]:
@@ -207,7 +214,7 @@ def fit_batch(problem: Problem, method: str | Method, thetas, **options) -> list
     thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
     thetas = np.stack([_check_start(problem, th, "a start") for th in thetas])
     with compile_clock() as clock:
-        results = weighed(fits)(problem, solver, thetas, opts, started)
+        results = weighed(_fits)(problem, solver, thetas, opts, started)
     results = [replace(r, compile_seconds=clock[0]) for r in results]
     if any(r.status is Status.INTERRUPTED for r in results):
         best = min(results, key=lambda r: (not np.isfinite(r.cost), r.cost))

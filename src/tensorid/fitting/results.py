@@ -7,27 +7,23 @@ only when asked (``plot(folder)``).
 
 from __future__ import annotations
 
-import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from ..engine.metrics import gof
-from ..engine.problem import Problem
-from ..engine.status import Status
-from .constraint_report import ConstraintReport
-from .priors import NoiseCheck, move_lines, prior_moves
-from .stats import Stats
-from .summary import Tabular, collapsed_noise
-from .uncertainty import Information, Uncertainty, information, uncertainty
+from ..analysis.constraint_report import ConstraintReport
+from ..analysis.prior_effects import NoiseCheck, move_lines, prior_moves
+from ..analysis.summary import Tabular, collapsed_noise
+from ..analysis.uncertainty import Information, Uncertainty, information, uncertainty
+from ..solve.constrained import ConstraintOutcome
+from ..solve.solution import FitInterrupted, Solution
+from ..solve.stats import Stats
+
+__all__ = ["FitInterrupted", "FitResult", "NoiseCheck", "Stats"]
 
 
-def _squeeze(a: np.ndarray) -> np.ndarray:
-    return a[:, 0] if a.ndim == 2 and a.shape[1] == 1 else a
-
-
-@dataclass(frozen=True)
-class FitResult(Tabular):
+@dataclass(frozen=True, repr=False)
+class FitResult(Solution, Tabular):
     """Outcome of :func:`fit`, with scipy.optimize.OptimizeResult's names where they fit.
     ``print(res)`` shows :meth:`summary`; a notebook shows the same as HTML tables.
 
@@ -54,7 +50,8 @@ class FitResult(Tabular):
     notes : what happened on the way, e.g. trial points where the simulation blew up.
     noise_check : with priors, the noise variance that weighed them against the
         residual variance at the optimum, and the refits that re-estimated it (see
-        :mod:`tensorid.fitting.priors`); ``problem`` is then the Problem as last fitted.
+        :mod:`tensorid.fitting.priors`; a :class:`tensorid.analysis.prior_effects.NoiseCheck`);
+        ``problem`` is then the Problem as last fitted.
     shooting : for a multiple-shooting problem, its stage: segments (per experiment),
         nit, outer (augmented-Lagrangian iterations), nfev, cost (of the segments,
         defects aside), max_defect (largest continuity defect relative to the state
@@ -62,165 +59,32 @@ class FitResult(Tabular):
         single shooting.
     constraints : with ``Problem(constraints=...)``, each constraint's value at theta,
         whether it binds, and its Lagrange multiplier (see
-        :class:`tensorid.fitting.constraint_report.ConstraintReport`); None without.
+        :class:`tensorid.analysis.constraint_report.ConstraintReport`); None without.
 
-    A result is immutable: it is built once, where its run ends (``fitting/endings.py``);
-    a later stage (a refit, a polish, the best of many starts) makes a new one with
-    ``dataclasses.replace``.
+    A result is immutable: the solver's record (``tensorid.solve.solution.Solution``)
+    is built once, where its run ends (``solve/endings.py``), and made a FitResult by
+    :meth:`of` once the solver has returned; a later stage (a refit, a polish, the
+    best of many starts) makes a new one with ``dataclasses.replace``. Its fields and
+    the methods that need no statistics (``x``, ``fun``, ``nit``, ``simulate``, ``gof``,
+    ...) are the record's; the statistics' methods below delegate to
+    :mod:`tensorid.analysis`.
     """
 
-    problem: Problem  # None only on its way back from a worker (see detached)
-    method: str
-    theta: np.ndarray
-    params: dict[str, float]
-    x0: np.ndarray
-    cost: float
-    jac: np.ndarray
-    hess: np.ndarray
-    grad_norm: float
-    status: Status
-    message: str
-    seconds: float
-    scale: np.ndarray
-    history: list[dict] = field(default_factory=list)
-    starts: list[dict] = field(default_factory=list)
-    notes: list[str] = field(default_factory=list)
-    stats: Stats = field(default_factory=Stats)
-    compile_seconds: float = 0.0
-    derivatives: bool = True  # jac and hess hold the exact derivatives at theta
-    shooting: dict | None = None  # multiple shooting: segments, defects, its own counts
-    hybrid: dict | None = None  # method "auto": evaluations of each kind, mode switches
-    noise_check: NoiseCheck | None = None  # priors: their noise variance against the residuals
-    constraints: ConstraintReport | None = None  # values, activity, multipliers
-    # the summary, the warnings, fit.json and report.md all read the same uncertainty;
-    # keyed on what it depends on, so a result made by replace shares it (but not
-    # across Problems: detached and attached start afresh)
-    _uncertainty: dict = field(default_factory=dict, repr=False, compare=False)
-
     @classmethod
-    def at(
-        cls,
-        problem: Problem,
-        method: str,
-        theta: np.ndarray,
-        scale: np.ndarray,
-        status: Status,
-        *,
-        message: str | None = None,
-        stats: Stats | None = None,
-        started: float | None = None,
-        history: list | None = None,
-        evaluate: bool = True,
-        cost: float = np.inf,
-        known: tuple | None = None,
-        **more,
-    ) -> FitResult:
-        """The result at θ, with the exact gradient and Hessian there. A point whose
-        simulation is not finite gets cost inf and zero derivatives, never NaN.
-        Without ``evaluate`` nothing is computed (an interrupted fit must end at
-        once): the result holds the ``cost`` already known and no derivatives.
-        ``known`` = (θ, J, g, H) spares the evaluation when it was at this θ;
-        ``stats`` defaults to one evaluation; ``more``: the other fields (notes,
-        hybrid, shooting, starts)."""
-        K = theta.size
-        if evaluate and known is not None and np.array_equal(known[0], theta):
-            J, g, H = known[1:]
-        else:
-            J, g, H = problem.cost_grad_hess(theta) if evaluate else (cost, None, None)
-        if np.isfinite(J) and g is not None and H is not None:
-            phi = theta / scale
-            pg = np.clip(phi - g * scale, problem.lower / scale, problem.upper / scale) - phi
-            grad_norm = float(np.linalg.norm(pg, np.inf))
-        else:
-            J = J if not evaluate and np.isfinite(J) else np.inf
-            g, H, grad_norm = np.zeros(K), np.zeros((K, K)), np.inf
-        p, x0 = problem.unpack(theta)
-        return cls(
-            problem=problem,
-            method=method,
-            theta=theta,
-            params=dict(zip(problem.model.params, map(float, p), strict=True)),
-            x0=x0[0] if len(problem.experiments) == 1 else x0,
-            cost=float(J),
-            jac=g,
-            hess=H,
-            grad_norm=grad_norm,
-            status=status,
-            message=status.message if message is None else message,
-            seconds=0.0 if started is None else time.perf_counter() - started,
-            scale=scale,
-            history=history or [],
-            stats=Stats(nfev=1) if stats is None else stats,
-            derivatives=evaluate,
-            **more,
-        )
-
-    def detached(self) -> FitResult:
-        """This result without its Problem, to travel back from a worker process (a
-        Problem holds compiled code); :meth:`attached` gives it one again."""
-        return replace(self, problem=None, _uncertainty={})  # type: ignore[arg-type]
-
-    def attached(self, problem: Problem) -> FitResult:
-        return replace(self, problem=problem, _uncertainty={})
-
-    def history_then(self, more: list[dict]) -> list[dict]:
-        """This history followed by ``more`` (a run from this end point), whose
-        iterations are numbered on from its last (or from ``nit`` without one);
-        ``more``'s iteration 0, this end point again, is left out where it is here."""
-        own = self.history
-        offset = own[-1]["iteration"] if own else self.nit
-        return own + [dict(h, iteration=h["iteration"] + offset) for h in more
-                      if h["iteration"] or not own]  # fmt: skip
-
-    # the counters, read-only (public names since the first release)
-    nit = property(lambda self: self.stats.nit, doc="Iterations (``stats['nit']``).")
-    nfev = property(lambda self: self.stats.nfev, doc="Cost evaluations (``stats['nfev']``).")
-    nhev = property(lambda self: self.stats.nhev, doc="Hessian-vector products.")
-    nit_total = property(lambda self: self.stats.nit_total, doc="Every start's iterations.")
-    nfev_best = property(lambda self: self.stats.nfev_best, doc="The best start's evaluations.")
-
-    @property
-    def has_uncertainty(self) -> bool:
-        """Whether error bars can be given: a finite cost with the exact derivatives
-        there (an interrupted fit keeps its best point but not its derivatives)."""
-        return bool(np.isfinite(self.cost)) and self.derivatives
-
-    @property
-    def success(self) -> bool:
-        """Whether the fit converged (``status.success``)."""
-        return self.status.success
-
-    @property
-    def x(self) -> np.ndarray:
-        """Alias of theta (scipy.optimize.OptimizeResult's name)."""
-        return self.theta
-
-    @property
-    def fun(self) -> float:
-        """Alias of cost (scipy.optimize.OptimizeResult's name)."""
-        return self.cost
-
-    def simulate(self):
-        """Simulations of every experiment at the estimate."""
-        return self.problem.simulate(self.theta)
-
-    def gof(self) -> list:
-        """Goodness of fit per experiment (per output for several outputs): a list with
-        a float per experiment, or an (S,) array for S outputs, in the order of
-        ``problem.experiments``. (``validate()`` instead returns Scores, whose ``gof``
-        is a dict keyed by output; ``training_scores`` in
-        :mod:`tensorid.fitting.validation` gives the training records that way.)"""
-        sims = self.simulate()
-        return [
-            gof(_squeeze(e.measured), _squeeze(s.y))
-            for e, s in zip(self.problem.experiments, sims, strict=True)
-        ]
+    def of(cls, solution: Solution) -> FitResult:
+        """The FitResult of a solver's record (itself if it is one already)."""
+        if isinstance(solution, cls):
+            return solution
+        res = cls(**{f.name: getattr(solution, f.name) for f in fields(solution)})
+        if isinstance(res.constraints, ConstraintOutcome):  # its statistics, once
+            return replace(res, constraints=ConstraintReport.of(res))
+        return res
 
     def uncertainty(self, kind: str = "hessian") -> Uncertainty:
-        """Standard errors, 95 % intervals, correlations (see tensorid.fitting.uncertainty);
+        """Standard errors, 95 % intervals, correlations (see tensorid.analysis.uncertainty);
         ``kind`` "hessian" uses the exact Hessian, "gauss-newton" its first-order form,
         "robust" the sandwich H⁻¹ B H⁻¹ with the scores' Newey-West covariance B
-        (honest when the residuals are coloured; see tensorid.fitting.sandwich; for a
+        (honest when the residuals are coloured; see tensorid.analysis.sandwich; for a
         filter, the scores of −2 log L, for innovations that are not white). With
         a robust loss every kind is a sandwich (the 2σ² H⁻¹ form assumes the squared
         loss), with independent samples for "hessian" and "gauss-newton"."""
@@ -246,7 +110,7 @@ class FitResult(Tabular):
         meat, lags = None, None
         bread, why = None, None
         if kind == "robust" or problem.loss.robust:
-            from .sandwich import score_covariance, unresolved_scale
+            from ..analysis.sandwich import score_covariance, unresolved_scale
 
             meat, lags = score_covariance(problem, theta, "auto" if kind == "robust" else 0)
             bread, why = unresolved_scale(problem, theta)
@@ -290,26 +154,11 @@ class FitResult(Tabular):
 
     def prior_moves(self) -> list[dict]:
         """How far the priors moved the estimates, in standard errors of the data alone
-        (see :func:`tensorid.fitting.priors.prior_moves`); empty without priors."""
+        (see :func:`tensorid.analysis.prior_effects.prior_moves`); empty without priors."""
         key = ("prior moves", self.cost, self.theta.tobytes(), self.hess.tobytes())
         if key not in self._uncertainty:
             self._uncertainty[key] = prior_moves(self)
         return self._uncertainty[key]
-
-    @property
-    def convergence_warnings(self) -> list[str]:
-        """The warnings that need no statistics: how the fit ended, if not converged, and
-        a multiple-shooting stage that left defects before a polish that converged."""
-        out = [] if self.success else [f"the fit did not converge: {self.message}", *self.notes]
-        sh = self.shooting or {}
-        if self.success and sh.get("status") == str(Status.DEFECTS_REMAIN):
-            out.append(
-                f"the multiple-shooting stage ended with a continuity defect of "
-                f"{sh['max_defect']:.1e} (tolerance {sh['defect_tol']:.0e}), so the single-"
-                "shooting polish started from a discontinuous trajectory; it converged, but "
-                "compare with a fit of fewer segments or more iterations"
-            )
-        return out
 
     def validate(self, data, init_window: int | None = None, horizon: int | None = None) -> list:
         """Score the fitted model on new records (an Experiment or a list of them), as
@@ -318,18 +167,18 @@ class FitResult(Tabular):
         ``init_window`` samples only when given (the benchmarks' protocol; without it,
         a record's own ``init_window``, as ``Experiment.from_benchmark`` sets it), and
         the model is scored on the samples after them. Returns a list of
-        :class:`tensorid.fitting.validation.Score`. With ``horizon`` k, each record is
+        :class:`tensorid.analysis.validation.Score`. With ``horizon`` k, each record is
         scored as k-step-ahead prediction instead (MATLAB's compare with a prediction
         horizon): a filter's (predictor="ekf") state after sample h − k, run k samples
         ahead by the model; for output error, the simulation at every horizon."""
-        from .validation import validate
+        from ..analysis.validation import validate
 
         return validate(self, data, init_window, horizon)
 
     def information(self) -> Information:
         """Observed (exact Hessian) against expected (Gauss-Newton) information: the
         standard errors from each side by side, their condition numbers and the least
-        determined direction (see :class:`tensorid.fitting.uncertainty.Information`)."""
+        determined direction (see :class:`tensorid.analysis.uncertainty.Information`)."""
         key = ("information", self.cost, self.theta.tobytes(), self.hess.tobytes())
         if key not in self._uncertainty:
             H_gn = self.problem.cost_grad_gn(self.theta)[2]
@@ -339,9 +188,9 @@ class FitResult(Tabular):
 
     def residual_tests(self, max_lag: int = 25, level: float = 0.99):
         """Whiteness of the residuals and their independence from the inputs, as
-        MATLAB's ``resid`` (see :mod:`tensorid.fitting.residuals`), on the samples
+        MATLAB's ``resid`` (see :mod:`tensorid.analysis.residuals`), on the samples
         the likelihood uses; a verdict the series cannot carry is "cannot be trusted"."""
-        from .residuals import residual_tests
+        from ..analysis.residuals import residual_tests
 
         key = ("residual tests", max_lag, level, self.cost, self.theta.tobytes())
         if key not in self._uncertainty:
@@ -351,9 +200,9 @@ class FitResult(Tabular):
     def model_check(self, level: float = 0.99, **options):
         """Whether the estimates from separate parts of the record (its halves, or the
         given records) agree within their robust error bars: where they do not, no
-        error bar covers the model's error (see :mod:`tensorid.fitting.model_check`).
+        error bar covers the model's error (see :mod:`tensorid.analysis.model_check`).
         Fits each part from this estimate; kept, so that the summary shows it."""
-        from .model_check import model_check
+        from ..analysis.model_check import model_check
 
         key = ("model check", self.cost, self.theta.tobytes())
         if key not in self._uncertainty or self._uncertainty[key].level != level or options:
@@ -367,21 +216,21 @@ class FitResult(Tabular):
     def criteria(self) -> dict:
         """AIC, AICc and BIC (Gaussian residuals of unknown variance), with n and K:
         for comparing model structures fitted to the same data."""
-        from .residuals import information_criteria
+        from ..analysis.residuals import information_criteria
 
         return information_criteria(self)
 
     def data_sensitivity(self):
         """dθ̂/dy for every measured sample: which samples drive each estimate (see
-        :class:`tensorid.fitting.influence.DataSensitivity`)."""
-        from .influence import data_sensitivity
+        :class:`tensorid.analysis.influence.DataSensitivity`)."""
+        from ..analysis.influence import data_sensitivity
 
         return data_sensitivity(self)
 
     def profile(self, names=None, level: float = 0.95, **options) -> dict:
         """Profile likelihood of each unknown in ``names`` (default: every free
         parameter) with its likelihood-ratio interval: see :func:`tensorid.profile`."""
-        from .profiles import profile
+        from ..analysis.profiles import profile
 
         return profile(self, names, level, **options)
 
@@ -389,14 +238,14 @@ class FitResult(Tabular):
         """A plain-text table of the estimates with standard errors and intervals, the
         residual tests' verdicts and, where the residuals are not shown white, the
         robust standard errors beside the white ones and which to trust."""
-        from .display import summary_table
+        from ..analysis.display import summary_table
 
         return summary_table(self)
 
     def blocks(self) -> list:
         """The summary's content (headline, estimates, information, criteria, residual
         verdicts, warnings) as text and tables, for ``str()`` and ``_repr_html_``."""
-        from .display import fit_blocks
+        from ..analysis.display import fit_blocks
 
         return fit_blocks(self)
 
@@ -405,25 +254,6 @@ class FitResult(Tabular):
         history. With ``path`` (a folder) the figures are written there as PNG files
         and their paths returned; without, the matplotlib figures are returned and
         nothing is written. ``validation``: scores from :meth:`validate`."""
-        from .figures import fit_figures
+        from ..analysis.figures import fit_figures
 
         return fit_figures(self, path, validation)
-
-    def __repr__(self) -> str:
-        ps = ", ".join(f"{k}={v:.6g}" for k, v in self.params.items())
-        return (
-            f"FitResult(method={self.method!r}, status={self.status}, cost={self.cost:.6g}, "
-            f"nit={self.nit}, params={{{ps}}}, message={self.message!r})"
-        )
-
-
-class FitInterrupted(KeyboardInterrupt):
-    """Ctrl-C during :func:`tensorid.fit`. Still a KeyboardInterrupt (a script stops
-    as it always did), but ``result`` holds the best point found so far, with status
-    ``INTERRUPTED``; its ``starts`` list the starts that had finished. From
-    :func:`tensorid.fit_batch`, ``results`` holds every start's result."""
-
-    def __init__(self, result: FitResult, results: list[FitResult] | None = None):
-        super().__init__(result.message)
-        self.result = result
-        self.results = [result] if results is None else results

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..fitting.summary import Table, as_text
+from ..analysis.summary import Table, as_text
 
 
 def _paper(args) -> int:

@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 
 from .. import datasets
+from ..analysis.figures import compare_plot
 from ..engine.data import Experiment
 from ..engine.metrics import gof
 from ..engine.problem import Problem
 from ..engine.simulate import simulate
-from ..fitting.figures import compare_plot
 from ..fitting.methods import fit
 from . import problems as benchmarks
 from .levels import level_options

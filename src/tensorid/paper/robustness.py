@@ -14,7 +14,7 @@ from .. import datasets
 from ..app.reports import bar_plot
 from ..engine.simulate import simulate
 from ..fitting.methods import fit
-from ..fitting.multistart import process_pool
+from ..solve.multistart import process_pool
 from . import problems as benchmarks
 from .headline import _silverbox_validate
 from .levels import level_name, level_options

@@ -19,7 +19,7 @@ from concurrent.futures import TimeoutError as FutureTimeout
 
 import numpy as np
 
-from ..fitting.multistart import _run_payload, _stop_pool, process_pool
+from ..solve.multistart import _run_payload, _stop_pool, process_pool
 from .objective import Objective
 
 

@@ -19,8 +19,8 @@ from ..engine.implicit import DiagonallyImplicitRungeKutta
 from ..engine.integrators import ExplicitRungeKutta
 from ..engine.status import Status
 from ..engine.sweeps import shared_sweeps
-from ..fitting.results import FitInterrupted
-from ..fitting.trust_region import TRResult, minimize_trust_region
+from ..solve.solution import FitInterrupted
+from ..solve.trust_region import TRResult, minimize_trust_region
 from .distributed import UnitMap, evaluate_chunk
 from .objective import Objective
 from .result import PopulationResult

@@ -15,23 +15,24 @@ its term is 0 where c >= 0, and the fit is the unconstrained one, in one outer i
 
 At the end, a solution still outside a constraint by its tolerance (1e-10 of its size)
 is moved onto it by a minimum-norm step in the scaled unknowns, so that every
-constraint holds; the result is the ordinary FitResult of the Problem at that point
-(J, ∇J, ∇²J of the cost alone), with ``result.constraints`` saying each constraint's
-value, whether it binds, and its multiplier: λ >= 0 with ∇J = Σ λ ∇c at the solution,
-the rise of the optimal J per unit the constraint's margin c >= 0 is tightened.
+constraint holds; the result is the ordinary Solution of the Problem at that point
+(J, ∇J, ∇²J of the cost alone), with ``constraints`` (a :class:`ConstraintOutcome`)
+saying each constraint's value, whether it binds, and its multiplier: λ >= 0 with
+∇J = Σ λ ∇c at the solution, the rise of the optimal J per unit the constraint's
+margin c >= 0 is tightened. The error bars with the active constraints held are
+statistics: tensorid.analysis.constraint_report adds them where the fit's result is
+made (``FitResult.of``).
 """
 
 from __future__ import annotations
 
 import copy
-import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..engine.status import Status
-from .constraint_report import ConstraintReport
-from .results import FitResult
+from .solution import Solution
 
 MAX_OUTER = 30
 TOL = 1e-10  # violation and complementarity, relative to each constraint's size
@@ -40,7 +41,21 @@ MU0 = 10.0  # the first penalty: μ c² = MU0·|J0| for c of the constraint's si
 GROW, SHRINK = 10.0, 0.25
 
 
-def keep_constraints(problem, fits, method, theta0, options, started) -> FitResult:
+@dataclass(frozen=True)
+class ConstraintOutcome:
+    """How a constrained solve ended. ``items``: per constraint ``expr`` (as written),
+    ``c`` (the function kept >= 0), ``value`` (c at the solution), ``active`` and
+    ``multiplier`` (λ >= 0); ``converged``: every constraint met within its tolerance;
+    ``outer``: augmented-Lagrangian iterations; ``second_order``: whether ∇²L > 0 on
+    the active constraints' tangent space (None where none binds)."""
+
+    items: list[dict]
+    converged: bool
+    outer: int
+    second_order: bool | None = None
+
+
+def keep_constraints(problem, fits, method, theta0, options, started) -> Solution:
     """The fit of ``problem`` from ``theta0`` with its constraints kept; ``fits``
     (problem, method, thetas, options, started -> results) fits a penalised copy."""
     cons = problem.constraints
@@ -83,7 +98,7 @@ def _penalised(problem, lam, mu):
     return out
 
 
-def _chained(before: FitResult, after: FitResult) -> FitResult:
+def _chained(before: Solution, after: Solution) -> Solution:
     """``after`` (the next outer iteration) counting both runs."""
     hybrid = after.hybrid
     if before.hybrid and after.hybrid:
@@ -113,15 +128,15 @@ def _onto(problem, theta, size, scale, rounds: int = 3) -> np.ndarray:
     return theta
 
 
-def _result(problem, done, theta, lam, size, converged, outer, started) -> FitResult:
-    """The FitResult of ``problem`` at θ, with its constraint report."""
+def _result(problem, done, theta, lam, size, converged, outer, started) -> Solution:
+    """The Solution of ``problem`` at θ, with its constraints' outcome."""
     if done.status is Status.INTERRUPTED:  # Ctrl-C: end at once, with the best point
         return replace(done, problem=problem)
     status, message = done.status, done.message
     if not converged and status.success:
         status = Status.CONSTRAINTS_VIOLATED
         message = status.message
-    res = FitResult.at(
+    res = Solution.at(
         problem, done.method, theta, done.scale, status, message=message,
         stats=done.stats.plus(nfev=1), started=started, history=done.history,
         notes=done.notes, hybrid=done.hybrid, shooting=done.shooting,
@@ -147,29 +162,11 @@ def _result(problem, done, theta, lam, size, converged, outer, started) -> FitRe
     pg = np.clip(phi - gl * res.scale, lo, hi) - phi
     ok = converged and active.any()
     second = _second_order(res, lam, A[active], cons.evaluate(theta)[2]) if ok else None
-    report = ConstraintReport(items, converged, outer, _restricted(res, A[active]), second)
-    return replace(res, grad_norm=float(np.linalg.norm(pg, np.inf)), constraints=report)
+    outcome = ConstraintOutcome(items, converged, outer, second)
+    return replace(res, grad_norm=float(np.linalg.norm(pg, np.inf)), constraints=outcome)
 
 
-def _restricted(res: FitResult, A: np.ndarray) -> dict[str, float]:
-    """Each unknown's standard error with the rows of A (active constraints' ∇c) held
-    as equalities: C − C Aᵀ (A C Aᵀ)⁻¹ A C, the restricted estimator's covariance."""
-    if not len(A) or not res.success:
-        return {}
-    try:
-        C = res.uncertainty().covariance
-    except ValueError:
-        return {}
-    if not np.isfinite(C).all():
-        return {}
-    S = A @ C @ A.T
-    Ct = C - C @ A.T @ np.linalg.pinv(S) @ A @ C
-    se = np.sqrt(np.clip(np.diag(Ct), 0.0, None))
-    names = res.problem.theta_names
-    return {n: float(v) for n, v in zip(names, se, strict=True) if math.isfinite(v)}
-
-
-def _second_order(res: FitResult, lam, A, Hc) -> bool:
+def _second_order(res: Solution, lam, A, Hc) -> bool:
     """Whether the Lagrangian's Hessian is positive definite on the null space of A
     (the active constraints' gradients), in the scaled unknowns."""
     D = res.scale

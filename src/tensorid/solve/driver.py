@@ -13,12 +13,12 @@ import numpy as np
 
 from .endings import Run, failed_start, fit_result, march
 from .options import FitOptions
-from .results import FitResult
 from .scaling import Tracker
+from .solution import Solution
 from .solvers import Method, Sweep, Values
 
 
-def fit_many(problem, method: Method, thetas, options: FitOptions, started) -> list[FitResult]:
+def fit_many(problem, method: Method, thetas, options: FitOptions, started) -> list[Solution]:
     """Fits from every row of ``thetas``: lock-step for several starts, otherwise one
     start evaluated point by point. The set-up (cost, scale, tracker) is shared."""
     batched = len(thetas) > 1
@@ -27,7 +27,7 @@ def fit_many(problem, method: Method, thetas, options: FitOptions, started) -> l
     else:
         J, _, H = problem.cost_grad_gn(thetas[0])
         J0, H0 = np.array([J]), H[None]
-    results: list[FitResult | None] = [None] * len(thetas)
+    results: list[Solution | None] = [None] * len(thetas)
     runs: dict[int, Run] = {}
     for i, th in enumerate(thetas):
         if np.isfinite(J0[i]):

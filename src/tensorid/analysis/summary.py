@@ -145,7 +145,7 @@ def starts_outcome(starts: list[dict]) -> str:
     maxiter": how many starts reached the best cost, how many failed and why."""
     from collections import Counter
 
-    from .multistart import SAME_COST, at_best
+    from ..solve.multistart import SAME_COST, at_best
 
     best = min((s["cost"] for s in starts), default=math.inf)
     if not math.isfinite(best):

@@ -1,5 +1,5 @@
 """Fits from several starts: one after another or in lock-step here (:func:`fits`), or
-on workers (:func:`many_starts`), whose results are the same FitResults, ranked, the
+on workers (:func:`many_starts`), whose results are the same Solutions, ranked, the
 best refined here. multistart.py runs the workers and knows nothing of the methods.
 """
 
@@ -17,13 +17,13 @@ from .driver import fit_many
 from .endings import failed, not_run, stopped
 from .multistart import StartsStopped, ranked_starts, run_starts
 from .options import FitOptions
-from .priors import weigh_priors
 from .registry import resolve
-from .results import FitResult, Stats
 from .shooting import fit_shooting
+from .solution import Solution
+from .stats import Stats
 
 
-def fits(problem, method, thetas, options: FitOptions, started) -> list[FitResult]:
+def fits(problem, method, thetas, options: FitOptions, started) -> list[Solution]:
     """Fits from every row of ``thetas``: by multiple shooting (one after another) when
     the problem has segments, else by the driver (lock-step for several); with
     constraints, each by the augmented Lagrangian around them (constrained.py)."""
@@ -31,7 +31,7 @@ def fits(problem, method, thetas, options: FitOptions, started) -> list[FitResul
         return [keep_constraints(problem, fits, method, th, options, started) for th in thetas]
     if problem.shooting is None:
         return fit_many(problem, method, thetas, options, started)
-    out: list[FitResult] = []
+    out: list[Solution] = []
     for th in thetas:
         if out and out[-1].status is Status.INTERRUPTED:  # Ctrl-C ends the batch
             out.append(not_run(problem, method.name, th, started))
@@ -46,14 +46,14 @@ def fit_task(method, options: FitOptions):
     return functools.partial(_fit_chunk, method=resolve(method), options=options.without_callback())
 
 
-def _fit_chunk(problem, thetas, *, method, options: FitOptions) -> list[FitResult]:
+def _fit_chunk(problem, thetas, *, method, options: FitOptions) -> list[Solution]:
     """Worker side: fit from each row of ``thetas`` (in lock-step when several); the
     results travel back without their Problem."""
     thetas = np.asarray(thetas, dtype=float)
     return [r.detached() for r in fits(problem, method, thetas, options, time.perf_counter())]
 
 
-def start_record(start: int, theta0, res: FitResult) -> dict:
+def start_record(start: int, theta0, res: Solution) -> dict:
     """One start as ``FitResult.starts`` (and fit.json) list it."""
     return {
         "theta0": list(map(float, theta0)),
@@ -70,10 +70,11 @@ def start_record(start: int, theta0, res: FitResult) -> dict:
     }
 
 
-def many_starts(problem, method, thetas, options: FitOptions, where: tuple, started, refit):
+def many_starts(problem, method, thetas, options: FitOptions, where: tuple, started):
     """Fits from every row of ``thetas`` on workers (``where``: executor, workers,
     batch, timeout), the best refined; or, if they cannot all finish, the best of
-    those that did. ``refit``: :func:`fits`, for the priors' check."""
+    those that did (its status says which: the priors' check, a later stage in
+    fitting/, leaves such a result as it is)."""
     try:
         done = run_starts(problem, fit_task(method, options), thetas, *where)
     except StartsStopped as stop:
@@ -81,11 +82,10 @@ def many_starts(problem, method, thetas, options: FitOptions, where: tuple, star
         best = ranked[0] if ranked and np.isfinite(ranked[0]["cost"]) else None
         best = stop.runs[best["start"]] if best else None
         return stopped(problem, method.name, thetas[0], stop, ranked, best, started)
-    res = _best_of(problem, method, thetas, done, options, started)
-    return weigh_priors(res, refit, method, options, started)
+    return _best_of(problem, method, thetas, done, options, started)
 
 
-def _best_of(problem, method, thetas, done: list[FitResult], options: FitOptions, started):
+def _best_of(problem, method, thetas, done: list[Solution], options: FitOptions, started):
     """Rank the starts, refine the best here (where the caller's callback can watch
     it), and report the best start's own run (nit, nfev_best, history) beside the
     totals of all of them (nit_total, nfev)."""
@@ -109,7 +109,7 @@ def _best_of(problem, method, thetas, done: list[FitResult], options: FitOptions
     return replace(res, starts=ranked, seconds=time.perf_counter() - started)
 
 
-def _refined(problem, method, best: FitResult, options: FitOptions, started) -> FitResult:
+def _refined(problem, method, best: Solution, options: FitOptions, started) -> Solution:
     """The best start refined by single shooting; with segments and no polish, the
     best start's own multiple-shooting solution as it is (refining it would polish)."""
     if problem.shooting is not None and not options.polish:

@@ -28,7 +28,8 @@ from .arrow import ArrowSolver
 from .driver import fit_many
 from .endings import Outcome, Run, failed, march, segments_result
 from .options import FitOptions
-from .results import FitResult, Stats
+from .solution import Solution
+from .stats import Stats
 from .trust_region import trust_region_steps
 
 MU0 = 10.0  # first penalty, in units of the starting cost per (defect / state scale)²
@@ -36,7 +37,7 @@ MAX_OUTER = 12
 ARROW_FROM = 100  # unknowns from which the block-arrow solver beats the dense one
 
 
-def fit_shooting(problem, method, theta0, options: FitOptions, started) -> FitResult:
+def fit_shooting(problem, method, theta0, options: FitOptions, started) -> Solution:
     """Fit ``problem`` (which has segments) from θ0 by ``method`` (a registry method)
     by multiple shooting, then polish by single shooting unless ``options.polish`` is
     False."""

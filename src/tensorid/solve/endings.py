@@ -1,6 +1,6 @@
 """How a run ends, in one place: the loop that steps every run of a method (one start,
 a lock-step batch, the inner solves of multiple shooting) and decides how each ends,
-and the FitResult of each ending, built once.
+and the Solution of each ending, built once.
 
 A run ends when its method says so (``terminate``: converged, or given up for a
 reason its status names), or here:
@@ -23,7 +23,8 @@ from typing import Any
 import numpy as np
 
 from ..engine.status import Status
-from .results import FitResult, Stats
+from .solution import Solution
+from .stats import Stats
 
 
 @dataclass
@@ -104,15 +105,15 @@ def _step(run: Run, value) -> None:
         run.ending = _failed(run, e)
 
 
-# -- the FitResult of each ending -------------------------------------------------------
-def _result(problem, method: str, theta, status: Status, started, **fields) -> FitResult:
-    """The one place a FitResult is made: every ending below comes here."""
+# -- the Solution of each ending -------------------------------------------------------
+def _result(problem, method: str, theta, status: Status, started, **fields) -> Solution:
+    """The one place a Solution is made: every ending below comes here."""
     fields.setdefault("scale", np.ones(problem.K))
-    return FitResult.at(problem, method, theta, fields.pop("scale"), status, started=started,
+    return Solution.at(problem, method, theta, fields.pop("scale"), status, started=started,
                         **fields)  # fmt: skip
 
 
-def fit_result(run: Run, started) -> FitResult:
+def fit_result(run: Run, started) -> Solution:
     """The result of one start's run (driver.py): at its end point, or at the best
     point it saw if that is better; an interrupted run's best point at once."""
     state, out = run.state, run.ending
@@ -141,13 +142,13 @@ def fit_result(run: Run, started) -> FitResult:
 
 
 def failed(problem, method: str, theta0, started, message, status=Status.NONFINITE_START,
-           stats: Stats | None = None) -> FitResult:  # fmt: skip
+           stats: Stats | None = None) -> Solution:  # fmt: skip
     """A fit that could not start (or whose every start failed): θ0, nothing evaluated."""
     return _result(problem, method, theta0, status, started, message=message,
                    stats=stats, evaluate=False)  # fmt: skip
 
 
-def failed_start(problem, method: str, theta0, started) -> FitResult:
+def failed_start(problem, method: str, theta0, started) -> Solution:
     """The result for a start where the simulation already blows up, saying where."""
     why = problem.diagnose(theta0)
     if why is None:  # every simulation is finite: the sum of squares overflowed
@@ -162,13 +163,13 @@ def failed_start(problem, method: str, theta0, started) -> FitResult:
     return failed(problem, method, theta0, started, why + " Choose another initial guess.")
 
 
-def not_run(problem, method: str, theta0, started) -> FitResult:
+def not_run(problem, method: str, theta0, started) -> Solution:
     """A start of a batch that Ctrl-C stopped before it began: θ0 as it is."""
     return _result(problem, method, theta0, Status.INTERRUPTED, started, evaluate=False,
                    cost=problem.cost(theta0))  # fmt: skip
 
 
-def segments_result(problem, method: str, theta, status, started, **fields) -> FitResult:
+def segments_result(problem, method: str, theta, status, started, **fields) -> Solution:
     """Multiple shooting's own result (no polish, or interrupted): at θ, evaluated
     unless interrupted (then ``cost`` is given)."""
     return _result(problem, method, theta, status, started,
@@ -178,7 +179,7 @@ def segments_result(problem, method: str, theta, status, started, **fields) -> F
 def stopped(problem, method: str, theta0, stop, ranked: list[dict], best, started):
     """The result when the starts on workers could not all finish (``stop``, a
     multistart.StartsStopped: Ctrl-C or lost workers): the best of those that did
-    (``best``, a FitResult or None), not refined and not evaluated again (the user is
+    (``best``, a Solution or None), not refined and not evaluated again (the user is
     waiting, or the workers are gone); ``ranked``: the finished starts' records."""
     which = ", ".join(str(i) for i in sorted(stop.runs))
     finished = f"{len(stop.runs)} of {stop.total} starts finished" + (f": {which}" if which else "")

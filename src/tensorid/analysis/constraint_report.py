@@ -1,10 +1,13 @@
-"""What a constrained fit reports beside its estimates (fitting/constrained.py keeps
+"""What a constrained fit reports beside its estimates (solve/constrained.py keeps
 the constraints): each constraint's value, whether it binds, its Lagrange multiplier,
 and what the error bars mean at a binding constraint."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+
+import numpy as np
 
 from .summary import Table, Tabular, stderr_text
 
@@ -25,6 +28,16 @@ class ConstraintReport(Tabular):
     outer: int
     restricted_stderr: dict[str, float] = field(default_factory=dict)
     second_order: bool | None = None  # ∇²L > 0 on the active constraints' tangent space
+
+    @classmethod
+    def of(cls, res) -> ConstraintReport:
+        """The report of a fit's result whose solve kept constraints (``res.constraints``
+        a solve.constrained.ConstraintOutcome), with the restricted error bars."""
+        out = res.constraints
+        active = np.array([d["active"] for d in out.items], dtype=bool)
+        A = res.problem.constraints.evaluate(res.theta)[1][active] if active.any() else None
+        held = restricted_stderr(res, A) if out.converged and A is not None else {}
+        return cls(out.items, out.converged, out.outer, held, out.second_order)
 
     def as_dict(self) -> dict:
         return {
@@ -83,3 +96,21 @@ class ConstraintReport(Tabular):
             f"augmented-Lagrangian iterations (c = {worst['value']:.3g}); fit again from "
             "result.theta, or check that the constraints can hold together"
         ]
+
+
+def restricted_stderr(res, A: np.ndarray) -> dict[str, float]:
+    """Each unknown's standard error with the rows of A (active constraints' ∇c) held
+    as equalities: C − C Aᵀ (A C Aᵀ)⁻¹ A C, the restricted estimator's covariance."""
+    if not len(A) or not res.success:
+        return {}
+    try:
+        C = res.uncertainty().covariance
+    except ValueError:
+        return {}
+    if not np.isfinite(C).all():
+        return {}
+    S = A @ C @ A.T
+    Ct = C - C @ A.T @ np.linalg.pinv(S) @ A @ C
+    se = np.sqrt(np.clip(np.diag(Ct), 0.0, None))
+    names = res.problem.theta_names
+    return {n: float(v) for n, v in zip(names, se, strict=True) if math.isfinite(v)}

@@ -24,8 +24,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..solve.curvature import jacobi_scale
 from . import quantiles
-from .curvature import jacobi_scale
 from .residuals import residual_count, too_few
 from .summary import Table, Tabular, estimates_table, stderr_text
 

@@ -53,11 +53,11 @@ import numpy as np
 
 from ..engine.compiled import on_device
 from ..engine.status import Status
+from ..solve.scaling import Tracker
+from ..solve.trust_region import minimize_trust_region
 from . import quantiles
 from .sandwich import score_covariance
-from .scaling import Tracker
 from .summary import Table, Tabular, collapsed_outputs, significant, stderr_text
-from .trust_region import minimize_trust_region
 from .uncertainty import uncertainty
 
 MIN_PART = 20  # samples a part needs (and more than twice its unknowns)

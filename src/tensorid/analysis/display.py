@@ -2,7 +2,7 @@
 show it: the headline, the estimates with their error bars, the metric table, the
 residual tests' verdicts and, where the residuals are not shown to be white, the
 robust (sandwich) error bars beside the white ones and what to trust: the
-model-error check's verdict where it was made (:mod:`tensorid.fitting.model_check`).
+model-error check's verdict where it was made (:mod:`tensorid.analysis.model_check`).
 The same text in Python and on the command line: a notebook user sees what the CLI
 would have warned about."""
 
@@ -28,7 +28,7 @@ from .summary import (
 
 def summary_table(res, scores=None, residual=None, check=None) -> str:
     """The estimates of a FitResult as a plain-text table, the residual verdicts, then
-    the warnings and, with ``scores`` (see tensorid.fitting.validation), the metric
+    the warnings and, with ``scores`` (see tensorid.analysis.validation), the metric
     table. ``residual``: the residual tests already made (else made here with the
     default lags); ``check``: the model-error check already made (else the one the
     result holds, if any)."""
@@ -86,7 +86,7 @@ def residual_lines(res, residual, check=None, robust=None) -> list[str]:
 def coloured_residuals_line(res, residual=None, check=None, robust=None) -> str:
     """One line for residuals (a filter's innovations) that fail whiteness or cannot be
     tested for it: the standard errors robust to that (Newey-West,
-    tensorid.fitting.sandwich) beside the white ones, and which to trust: the robust
+    tensorid.analysis.sandwich) beside the white ones, and which to trust: the robust
     ones only where the model-error check (``check``) passed."""
     filt = res.problem.loss.likelihood
     what = "the filter's innovations" if filt else "the residuals"

@@ -17,9 +17,9 @@ from ..engine.predictors import check_horizon
 from ..engine.problem import Problem
 from ..engine.simulate import Simulation, run_simulation
 from ..engine.sweeps import shared_sweeps
-from .scaling import Tracker
+from ..solve.scaling import Tracker
+from ..solve.trust_region import minimize_trust_region
 from .summary import Table, Tabular, metric_notes, metric_rows
-from .trust_region import minimize_trust_region
 
 
 @dataclass(frozen=True, eq=False, repr=False)

@@ -31,7 +31,7 @@ the test "cannot be trusted" (``passed`` None) and ``untrusted`` says why:
   residuals that share is about 10 % (one sample of twenty holding half is a
   1-in-100 event); a constant or non-finite series is untrusted the same way.
 * a filter whose measurement noise σ_e went to its floor (below 10⁻⁶ of the output's
-  spread, see :func:`tensorid.fitting.summary.collapsed_outputs`): the filter then
+  spread, see :func:`tensorid.analysis.summary.collapsed_outputs`): the filter then
   follows the output exactly, its innovations' covariance comes from the process
   noise alone, and the likelihood sits in a corner, not at a noise model the test
   could check; fix σ_e at the sensor's noise and fit again.
@@ -200,7 +200,7 @@ class ResidualTests(Tabular):
 
     def figure_job(self) -> tuple[str, str, dict] | None:
         """The figure as plain data, (file stem, kind, arguments) for
-        ``tensorid.fitting.figures.draw``; None where no test was made."""
+        ``tensorid.analysis.figures.draw``; None where no test was made."""
         if self.not_available:
             return None
         panels = [

@@ -31,9 +31,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..solve.trust_region import minimize_trust_region
 from . import quantiles
 from .summary import Table, Tabular, interval, significant
-from .trust_region import minimize_trust_region
 
 SIDES = ("lower", "upper")
 

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from .._state import state
 from ..engine.status import Status
 
 SAMPLINGS = ("lhs", "uniform")
@@ -113,9 +114,6 @@ def process_pool(workers: int) -> ProcessPoolExecutor:
     )
 
 
-_LOCAL_WORKER = False  # set in the processes of process_pool
-
-
 def _worker_init(cache: str | None) -> None:
     # Ctrl-C in a terminal reaches the whole process group: the parent alone
     # decides (it stops the workers and keeps what finished)
@@ -125,8 +123,7 @@ def _worker_init(cache: str | None) -> None:
     # one XLA thread per worker, set in the worker (not in the parent's environment):
     # read when JAX first computes, which comes after this
     add_xla_flags("--xla_cpu_multi_thread_eigen=false")
-    global _LOCAL_WORKER
-    _LOCAL_WORKER = True
+    state.local_worker = True  # this process is one of process_pool's
     # a parent killed outright (kill -9, out of memory) cannot stop its pool: a worker
     # would wait for work forever, so it ends with its parent
     from multiprocessing import parent_process
@@ -162,7 +159,7 @@ def _run_payload(payload: tuple) -> list:
         _WORKER_PROBLEMS.clear()
         problem = cloudpickle.loads(blob)
         # (run_starts runs any task: its "problem" may be anything, None included)
-        if _LOCAL_WORKER and getattr(problem, "threads", 1) is None:
+        if state.local_worker and getattr(problem, "threads", 1) is None:
             # a local pool's worker has one core: the adjoint Hessian's threads would
             # only contend (its own copy of the problem, told so explicitly; a Dask
             # worker keeps its cores, and a user's threads= is kept)

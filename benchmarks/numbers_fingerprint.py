@@ -1,0 +1,116 @@
+"""Bit-for-bit fingerprint of the numbers a refactoring must not move: J, ∇J, ∇²J
+(``Problem.cost_grad_hess``) and short fits' estimates, iterations and statuses on
+the paper's Silverbox and two-tank problems, a chain of masses and the Lotka-Volterra
+record (multiple shooting), through every path of ``fit`` (one start, lock-step
+batch, starts on workers, priors' noise re-check, a robust loss's stages).
+
+    python benchmarks/numbers_fingerprint.py save /tmp/before.npz
+    python benchmarks/numbers_fingerprint.py compare /tmp/before.npz
+
+``compare`` recomputes everything and checks each array with np.array_equal (NaN
+equal to NaN); it exits 1 and names every difference otherwise.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+import tensorid as ti
+from tensorid.benchmarks import (
+    lotka_volterra_problem,
+    mass_chain_problem,
+    silverbox_problem,
+    two_tank_problem,
+)
+
+
+def _fit_record(out: dict, key: str, res) -> None:
+    out[f"{key}/x"] = np.asarray(res.x)
+    out[f"{key}/fun"] = np.asarray(res.fun)
+    out[f"{key}/jac"] = np.asarray(res.jac)
+    out[f"{key}/hess"] = np.asarray(res.hess)
+    out[f"{key}/nit"] = np.asarray(res.nit)
+    out[f"{key}/nfev"] = np.asarray(res.nfev)
+    out[f"{key}/status"] = np.asarray(str(res.status))
+    out[f"{key}/history_cost"] = np.asarray([h["cost"] for h in res.history])
+
+
+def record() -> dict:
+    out: dict = {}
+    problems = {
+        "silverbox": silverbox_problem(),
+        "two-tank": two_tank_problem(),
+        "chain5": mass_chain_problem(5, samples=400),
+    }
+    for name, p in problems.items():
+        J, g, H = p.cost_grad_hess(p.theta0)
+        out[f"{name}/J"], out[f"{name}/g"], out[f"{name}/H"] = np.asarray(J), g, H
+        for method in ("auto", "newton", "gauss-newton", "newton-cg"):
+            _fit_record(out, f"{name}/{method}", ti.fit(p, method, maxiter=15))
+    p = problems["two-tank"]
+    _fit_record(out, "two-tank/fd-lsq", ti.fit(p, "fd-lsq", maxiter=5))
+    starts = ti.fit(p, "auto", starts=3, spread=0.2, workers=1, maxiter=10)
+    _fit_record(out, "two-tank/starts", starts)
+    out["two-tank/starts/ranked"] = np.asarray([s["cost"] for s in starts.starts])
+    thetas = p.theta0 * np.array([[1.0], [1.1], [0.9]])
+    for i, r in enumerate(ti.fit_batch(p, "auto", thetas, maxiter=10)):
+        _fit_record(out, f"two-tank/batch{i}", r)
+    sb = problems["silverbox"]
+    priors = {n: (v, abs(v) * 0.5 + 1e-3) for n, v in zip(sb.model.params, sb.p0, strict=True)}
+    pp = silverbox_problem(priors=priors)
+    _fit_record(out, "silverbox/priors", ti.fit(pp, "auto", maxiter=15))
+    rb = two_tank_problem(loss="huber")
+    _fit_record(out, "two-tank/huber", ti.fit(rb, "auto", maxiter=15))
+    lv = lotka_volterra_problem(segments=4)
+    _fit_record(out, "lv/segments", ti.fit(lv, "auto", maxiter=15))
+    _method_benchmark_rows(out)
+    return out
+
+
+def _method_benchmark_rows(out: dict) -> None:
+    """bench_methods.py's rows beyond the paper's two: a chain of 16 masses (K = 33)
+    from a seeded start, and 20 Lotka-Volterra starts in lock-step (its last table);
+    the old module path of draw_starts on purpose (it must keep importing)."""
+    from tensorid.fitting.multistart import draw_starts
+
+    chain = mass_chain_problem(16, samples=400)
+    th = draw_starts(chain.theta0, chain.lower, chain.upper, 2, spread=0.2,
+                     sampling="uniform", seed=0)[1]  # fmt: skip
+    J, g, H = chain.cost_grad_hess(th)
+    out["chain16/J"], out["chain16/g"], out["chain16/H"] = np.asarray(J), g, H
+    for method in ("newton", "gauss-newton", "auto"):
+        _fit_record(out, f"chain16/{method}", ti.fit(chain, method, theta0=th, maxiter=10))
+    lv = lotka_volterra_problem()
+    thetas = draw_starts(lv.theta0, lv.lower, lv.upper, 21, spread=0.5,
+                         sampling="uniform", seed=0)[1:]  # fmt: skip
+    for method in ("newton", "gauss-newton", "auto"):
+        for i, r in enumerate(ti.fit_batch(lv, method, thetas, maxiter=10)):
+            _fit_record(out, f"lv/batch/{method}/{i}", r)
+
+
+def _same(a, b) -> bool:
+    """Bit for bit (NaN equal to NaN); False where either is missing."""
+    if a is None or b is None:
+        return False
+    return bool(np.array_equal(a, b, equal_nan=a.dtype.kind == "f"))
+
+
+def main() -> int:
+    mode, path = sys.argv[1], sys.argv[2]
+    now = record()
+    if mode == "save":
+        np.savez(path, **now)
+        print(f"saved {len(now)} arrays to {path}")
+        return 0
+    before = dict(np.load(path))
+    bad = [k for k in sorted(set(before) | set(now)) if not _same(before.get(k), now.get(k))]
+    for k in bad:
+        print(f"DIFFERS: {k}")
+    print(f"{len(now) - len(bad)} of {len(now)} arrays bit-identical")
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
