@@ -24,6 +24,7 @@ from ..solve.trust_region import TRResult, minimize_trust_region
 from .distributed import UnitMap, evaluate_chunk
 from .objective import Objective
 from .result import PopulationResult
+from .units import blocked
 
 
 def _start(obj: Objective) -> np.ndarray:
@@ -237,7 +238,7 @@ def coarse_steps(obj: Objective, x, etas, sigma) -> str | None:
         return jax.jit(jax.vmap(simulate, in_axes=(None, 0, 0)))
 
     program = obj._program(("finer", d.substeps), build)
-    finer = np.asarray(program(jnp.asarray(x), jnp.asarray(etas), obj.data))
+    finer = np.asarray(blocked(program, (jnp.asarray(x), jnp.asarray(etas), obj.data), (1, 2)))
     coarse = np.asarray(obj.predict_all(x, etas))
     worst = float(np.max(np.abs(finer - coarse) * obj.units.mask / np.maximum(sigma, 1e-300)))
     if not worst > 0.1:

@@ -44,7 +44,7 @@ import numpy as np
 
 from ..engine.initial import moving
 from ..engine.sweeps import shared_sweeps
-from .units import Units, outputs
+from .units import Units, blocked, outputs
 
 METHODS = ("focei", "laplace")
 _PROGRAMS: dict = {}  # compiled programs per structure (Objective.key)
@@ -323,6 +323,11 @@ class Objective:
         bare.units = bare.data = bare.problem = None  # type: ignore[assignment]
         return bare
 
+    def _blocked(self, name: str, *args, units: tuple[int, ...]):
+        """The program ``name`` over every unit, in blocks of at most BLOCK units;
+        ``units``: the positions of the arguments with a leading unit axis."""
+        return blocked(self._compiled(name), args, units)
+
     def _compiled(self, name: str):
         """The program ``_build_<name>`` makes, kept per structure."""
         programs = _PROGRAMS.get(self.key, {})
@@ -332,7 +337,8 @@ class Objective:
 
     def predict_all(self, psi, etas):
         """ŷ (E, P, S) of every unit at (ψ, η (E, q))."""
-        return self._compiled("predict_all")(jnp.asarray(psi), jnp.asarray(etas), self.data)
+        return self._blocked("predict_all", jnp.asarray(psi), jnp.asarray(etas), self.data,
+                             units=(1, 2))  # fmt: skip
 
     def _build_predict_all(self):
         return jax.jit(jax.vmap(self.predict, in_axes=(None, 0, 0)))
@@ -359,7 +365,8 @@ class Objective:
 
     def inner_blocks(self, psi, etas) -> tuple[np.ndarray, np.ndarray]:
         """(∇²_ηη ℓ_i (E, q, q), ∇²_ηψ ℓ_i (E, q, ψ)) at η̂."""
-        H, L = self._compiled("inner_blocks")(jnp.asarray(etas), jnp.asarray(psi), self.data)
+        H, L = self._blocked("inner_blocks", jnp.asarray(etas), jnp.asarray(psi), self.data,
+                             units=(0, 2))  # fmt: skip
         return np.asarray(H), np.asarray(L)
 
     def start_etas(self) -> np.ndarray:
@@ -377,8 +384,9 @@ class Objective:
 
     def residual_sd(self, psi, etas) -> np.ndarray:
         """σ_hg (E, P, S) of every unit's residual error at (ψ, η)."""
-        program = self._compiled("residual_sd")
-        return np.asarray(program(jnp.asarray(psi), jnp.asarray(etas), self.data))
+        out = self._blocked("residual_sd", jnp.asarray(psi), jnp.asarray(etas), self.data,
+                            units=(1, 2))  # fmt: skip
+        return np.asarray(out)
 
     def _build_inner_hessians(self):
         return jax.jit(jax.vmap(jax.hessian(self.ell), in_axes=(0, None, 0)))
@@ -390,7 +398,7 @@ class Objective:
         lam = jnp.zeros(eta.shape[0])
         done = failed = np.zeros(eta.shape[0], dtype=bool)
         for _ in range(maxiter):
-            eta, lam, f, step = self._compiled("steps")(eta, lam, psi, self.data)
+            eta, lam, f, step = self._blocked("steps", eta, lam, psi, self.data, units=(0, 1, 3))
             failed = ~np.isfinite(np.asarray(f))  # its simulation: not finite
             done = ~failed & (np.asarray(step) < tol)  # its Newton step negligible
             if (done | failed).all():
@@ -402,17 +410,20 @@ class Objective:
 
     def value_grad(self, psi, etas) -> tuple[np.ndarray, np.ndarray]:
         """(O_i (E,), dO_i/dψ (E, ψ)) per unit at η̂."""
-        O, g = self._compiled("value_grad")(jnp.asarray(psi), jnp.asarray(etas), self.data)
+        O, g = self._blocked("value_grad", jnp.asarray(psi), jnp.asarray(etas), self.data,
+                             units=(1, 2))  # fmt: skip
         return np.asarray(O), np.asarray(g)
 
     def hessian(self, psi, etas) -> np.ndarray:
         """Σ_i d²O_i/dψ² at η̂."""
         return np.asarray(
-            self._compiled("hessian")(jnp.asarray(psi), jnp.asarray(etas), self.data)
+            self._blocked("hessian", jnp.asarray(psi), jnp.asarray(etas), self.data, units=(1, 2))
         ).sum(0)
 
     def inner_hessians(self, psi, etas) -> np.ndarray:
         """∇²ℓ_i(η̂_i) (E, q, q): the inverse is each unit's η covariance."""
         return np.asarray(
-            self._compiled("inner_hessians")(jnp.asarray(etas), jnp.asarray(psi), self.data)
+            self._blocked(
+                "inner_hessians", jnp.asarray(etas), jnp.asarray(psi), self.data, units=(0, 2)
+            )  # fmt: skip
         )

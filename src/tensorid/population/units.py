@@ -22,6 +22,12 @@ import numpy as np
 
 from ..engine.second_order import output_tensors
 
+# units per compiled call: a larger fleet runs in blocks of this size (the last padded
+# with copies of its last unit), so one program serves every fleet size, and no call
+# hands XLA's CPU runtime a batch of thousands (jaxlib 0.10.2 deadlocked there: the
+# outer Hessian of 1,600 one-compartment units in one call never returned)
+BLOCK = 256
+
 
 @dataclass(frozen=True)
 class Units:
@@ -81,3 +87,22 @@ def outputs(sw):
         return value(*primals), first(*primals) @ tangents[0]
 
     return value
+
+
+def blocked(program, args: tuple, units: tuple[int, ...]):
+    """``program(*args)`` over the leading (unit) axis of the arguments at ``units``,
+    in blocks of BLOCK (one call where the fleet is no larger); the outputs joined
+    along that axis."""
+    E = len(jax.tree_util.tree_leaves(args[units[0]])[0])
+    if E <= BLOCK:
+        return program(*args)
+    parts = []
+    for start in range(0, E, BLOCK):
+        index = np.minimum(np.arange(start, start + BLOCK), E - 1)  # last: padded
+        part = [
+            jax.tree_util.tree_map(lambda a, i=index: a[i], a) if k in units else a
+            for k, a in enumerate(args)
+        ]
+        n = min(BLOCK, E - start)
+        parts.append(jax.tree_util.tree_map(lambda a, n=n: a[:n], program(*part)))
+    return jax.tree_util.tree_map(lambda *a: jnp.concatenate(a), *parts)
