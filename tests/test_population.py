@@ -309,6 +309,13 @@ def test_an_initial_state_that_moves_with_estimated_parameters():
     assert abs(c0["value"] - 2.0) < 3 * c0["stderr"] and c0["stderr"] < 0.2
 
 
+def test_a_proportional_error_at_a_zero_prediction_is_one_line():
+    """Every unit starts with nothing in the center (ŷ = 0 at t = 0): a proportional
+    error alone has no variance there, and the fit says so before it iterates."""
+    with pytest.raises(ValueError, match="prediction at t = 0 is 0.*use 'combined'"):
+        ti.fit(fleet_problem(2, residual_error="proportional"))
+
+
 def test_the_inner_hessian_is_the_exact_one():
     """The unit's ∇²ℓ from the tensors (the tower in units.py) equals jax.hessian of ℓ
     with ŷ differentiated by JAX through the simulation."""

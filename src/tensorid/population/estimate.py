@@ -42,6 +42,7 @@ def _start(obj: Objective) -> np.ndarray:
     psi = np.array(mu + logw + s + [0.0] * noise, dtype=float)
     u = obj.units
     yhat = np.asarray(obj.predict_all(psi, obj.start_etas()))
+    _zero_predictions(obj, yhat)
     n = np.maximum(u.mask.sum((0, 1)), 1)
     sig = np.sqrt((((u.y - yhat) * u.mask) ** 2).sum((0, 1)) / n)
     scale = np.sqrt((u.y**2 * u.mask).sum((0, 1)) / n)
@@ -56,6 +57,21 @@ def _start(obj: Objective) -> np.ndarray:
         [(log_a + both)[obj.additive], (log_b + both)[obj.proportional]]
     )
     return psi
+
+
+def _zero_predictions(obj: Objective, yhat: np.ndarray) -> None:
+    """A proportional error alone has no variance where the prediction is 0 (a
+    concentration before the dose arrives): one line naming the first such sample."""
+    u, outs = obj.units, obj.problem.model.outputs
+    for g in (g for g, kind in enumerate(obj.errors) if kind == "proportional"):
+        zero = (u.mask[..., g] > 0) & (yhat[..., g] == 0)
+        if zero.any():
+            i, h = np.argwhere(zero)[0]
+            raise ValueError(
+                f"residual_error 'proportional' for {outs[g]}: unit {u.names[i]}'s "
+                f"prediction at t = {u.t[i, h]:g} is 0, where a proportional error has no "
+                f"variance; use 'combined' (σ² = a² + b²ŷ²) for {outs[g]}"
+            )
 
 
 def _bounds(obj: Objective) -> tuple[np.ndarray, np.ndarray]:
