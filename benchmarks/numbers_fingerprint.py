@@ -2,7 +2,9 @@
 (``Problem.cost_grad_hess``) and short fits' estimates, iterations and statuses on
 the paper's Silverbox and two-tank problems, a chain of masses and the Lotka-Volterra
 record (multiple shooting), through every path of ``fit`` (one start, lock-step
-batch, starts on workers, priors' noise re-check, a robust loss's stages).
+batch, starts on workers, priors' noise re-check, a robust loss's stages), and every
+plug-in (squared, Huber, Cauchy, Student-t losses; output error and the EKF; both
+Hessian paths; the Gauss-Newton part and the residuals beside J, ∇J, ∇²J).
 
     python benchmarks/numbers_fingerprint.py save /tmp/before.npz
     python benchmarks/numbers_fingerprint.py compare /tmp/before.npz
@@ -18,6 +20,7 @@ import sys
 import numpy as np
 
 import tensorid as ti
+from tensorid import datasets
 from tensorid.benchmarks import (
     lotka_volterra_problem,
     mass_chain_problem,
@@ -66,7 +69,40 @@ def record() -> dict:
     lv = lotka_volterra_problem(segments=4)
     _fit_record(out, "lv/segments", ti.fit(lv, "auto", maxiter=15))
     _method_benchmark_rows(out)
+    _plugin_rows(out)
     return out
+
+
+PLUGINS = [  # (name, problem, keywords): the plug-ins' paths (issue 39)
+    ("silverbox-squared-tensors", "silverbox", {"hessian": "tensors"}),
+    ("silverbox-squared-adjoint", "silverbox", {"hessian": "adjoint"}),
+    ("silverbox-huber", "silverbox", {"loss": "huber", "hessian": "tensors"}),
+    ("silverbox-huber-adjoint", "silverbox", {"loss": "huber", "hessian": "adjoint"}),
+    ("silverbox-cauchy", "silverbox", {"loss": "cauchy", "hessian": "tensors"}),
+    ("silverbox-student-t", "silverbox", {"loss": "student-t", "hessian": "tensors"}),
+    ("two-tank-squared", "two-tank", {}),
+    ("two-tank-huber", "two-tank", {"loss": "huber"}),
+    ("two-tank-ekf", "two-tank", {"predictor": "ekf", "process_noise": {"x2": 0.01}}),
+    ("silverbox-ekf", "silverbox", {"predictor": "ekf", "process_noise": {"ydot": 1e-3}}),
+]
+
+
+def _plugin_rows(out: dict) -> None:
+    """Each plug-in's J, ∇J, ∇²J, Gauss-Newton part and residuals on 300 Silverbox or
+    200 two-tank samples, and six iterations of three methods."""
+    for name, which, kw in PLUGINS:
+        if which == "silverbox":
+            full = datasets.silverbox_train()
+            data = ti.Experiment(full.t[:300], full.u[:300], full.y[:300])
+            pr = silverbox_problem(data=data, **kw)
+        else:
+            pr = two_tank_problem(samples=200, **kw)
+        J, g, H = pr.cost_grad_hess(pr.theta0)
+        out[f"{name}/J"], out[f"{name}/g"], out[f"{name}/H"] = np.asarray(J), g, H
+        out[f"{name}/G"] = pr.cost_grad_gn(pr.theta0)[2]
+        out[f"{name}/r"] = pr.residuals(pr.theta0)
+        for method in ("auto", "gauss-newton", "newton"):
+            _fit_record(out, f"{name}/{method}", ti.fit(pr, method=method, maxiter=6))
 
 
 def _method_benchmark_rows(out: dict) -> None:
