@@ -35,6 +35,20 @@ def did_you_mean(value, choices: Sequence[str]) -> str:
     return f" (did you mean {close!r}?)" if close else ""
 
 
+def from_registry(value, registry: dict, base: type, what: str):
+    """``value`` itself where it is a ``base`` object, else the class ``registry``
+    holds under that name, made; one line naming the choices for anything else (the
+    one lookup of the loss, predictor and Hessian-path registries)."""
+    if isinstance(value, base):
+        return value
+    cls = registry.get(value) if isinstance(value, str) else None
+    if cls is None:
+        names = tuple(registry)
+        close = did_you_mean(value, names)
+        raise ValueError(f"{what} must be one of {names}, got {value!r}{close}")
+    return cls()
+
+
 def name_list(what: str, names, known: Sequence[str], kind: str) -> list[str]:
     if names is None:
         return []

@@ -18,7 +18,7 @@ import functools
 from typing import ClassVar, TypeVar
 
 from .adjoint import MARGIN, predicted_seconds, supports, threads
-from .checks import did_you_mean
+from .checks import from_registry
 
 # the paths by name: the one place a path's name is looked up (``get_hessian``);
 # tensorid/names.py spells the command line's --hessian choices out
@@ -75,15 +75,7 @@ def register_hessian(cls: _H) -> _H:
 def get_hessian(hessian) -> HessianPath:
     """The path called ``hessian`` (a HessianPath is returned as it is); one line
     for anything else."""
-    if isinstance(hessian, HessianPath):
-        return hessian
-    cls = REGISTRY.get(hessian) if isinstance(hessian, str) else None
-    if cls is None:
-        names = tuple(REGISTRY)
-        raise ValueError(
-            f"hessian must be one of {names}, got {hessian!r}{did_you_mean(hessian, names)}"
-        )
-    return cls()
+    return from_registry(hessian, REGISTRY, HessianPath, "hessian")
 
 
 @register_hessian

@@ -46,7 +46,7 @@ import jax.numpy as jnp
 import jax.scipy.linalg
 import numpy as np
 
-from .checks import did_you_mean
+from .checks import from_registry
 
 # the scale c as a multiple of the noise's standard deviation σ when c is estimated
 # (``Loss.tuning``): Huber's 1.345 and Cauchy's 2.385 give 95 % efficiency under
@@ -165,13 +165,7 @@ def register_loss(cls: _L) -> _L:
 def get_loss(loss) -> Loss:
     """The loss called ``loss`` (a Loss object is returned as it is); one line for
     anything else."""
-    if isinstance(loss, Loss):
-        return loss
-    cls = REGISTRY.get(loss) if isinstance(loss, str) else None
-    if cls is None:
-        names = tuple(REGISTRY)
-        raise ValueError(f"loss must be one of {names}, got {loss!r}{did_you_mean(loss, names)}")
-    return cls()
+    return from_registry(loss, REGISTRY, Loss, "loss")
 
 
 @register_loss

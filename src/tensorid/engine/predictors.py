@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401
-from .checks import did_you_mean
+from .checks import from_registry
 from .losses import GAUSSIAN, robust_noise
 
 # a filter's noise parameters: these prefixes and the state's or output's name
@@ -120,15 +120,7 @@ def register_predictor(cls: _P) -> _P:
 def get_predictor(predictor) -> Predictor:
     """The predictor called ``predictor`` (a Predictor object is returned as it is);
     one line for anything else."""
-    if isinstance(predictor, Predictor):
-        return predictor
-    cls = REGISTRY.get(predictor) if isinstance(predictor, str) else None
-    if cls is None:
-        names = tuple(REGISTRY)
-        raise ValueError(
-            f"predictor must be one of {names}, got {predictor!r}{did_you_mean(predictor, names)}"
-        )
-    return cls()
+    return from_registry(predictor, REGISTRY, Predictor, "predictor")
 
 
 @register_predictor

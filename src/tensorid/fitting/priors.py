@@ -151,20 +151,12 @@ def _with_noise(problem, variance: float):
 
 
 def _chained(before, after):
-    """``after`` (a refit from ``before``'s optimum) counting both runs: iterations,
-    evaluations, history (the refit's iterations numbered on) and the starts."""
-    hybrid = after.hybrid
-    if before.hybrid and after.hybrid:
-        hybrid = {k: before.hybrid[k] + after.hybrid[k] for k in after.hybrid}
-    return replace(
-        after,
-        history=before.history_then(after.history),
-        stats=before.stats.then(after.stats),
-        starts=before.starts,
-        shooting=after.shooting or before.shooting,
-        hybrid=hybrid,
+    """``after`` (a refit from ``before``'s optimum) counting both runs (see
+    Solution.followed_by), with ``before``'s starts."""
+    return before.followed_by(
+        after, starts=before.starts, shooting=after.shooting or before.shooting,
         notes=before.notes + after.notes,
-    )
+    )  # fmt: skip
 
 
 def _per_output(res) -> dict[str, dict[str, float]]:

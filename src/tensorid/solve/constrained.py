@@ -68,7 +68,7 @@ def keep_constraints(problem, fits, method, theta0, options, started) -> Solutio
     while outer < MAX_OUTER:
         outer += 1
         res = fits(_penalised(problem, lam, mu), method, theta[None, :], options, started)[0]
-        done = res if done is None else _chained(done, res)
+        done = res if done is None else done.followed_by(res, notes=_notes(done, res))
         if res.status is Status.INTERRUPTED or not np.isfinite(res.cost):
             break
         theta, c = res.theta, cons.values(res.theta)
@@ -98,18 +98,9 @@ def _penalised(problem, lam, mu):
     return out
 
 
-def _chained(before: Solution, after: Solution) -> Solution:
-    """``after`` (the next outer iteration) counting both runs."""
-    hybrid = after.hybrid
-    if before.hybrid and after.hybrid:
-        hybrid = {k: before.hybrid[k] + after.hybrid[k] for k in after.hybrid}
-    return replace(
-        after,
-        history=before.history_then(after.history),
-        stats=before.stats.then(after.stats),
-        notes=before.notes + [n for n in after.notes if n not in before.notes],
-        hybrid=hybrid,
-    )
+def _notes(before: Solution, after: Solution) -> list[str]:
+    """The outer iterations' notes, each once."""
+    return before.notes + [n for n in after.notes if n not in before.notes]
 
 
 def _onto(problem, theta, size, scale, rounds: int = 3) -> np.ndarray:

@@ -136,6 +136,18 @@ class Solution:
         return own + [dict(h, iteration=h["iteration"] + offset) for h in more
                       if h["iteration"] or not own]  # fmt: skip
 
+    def followed_by(self, after: Self, **more) -> Self:
+        """``after`` (a run from this one's end point: a refit, the next outer
+        iteration) counting both runs: history, counters and ``auto``'s evaluations of
+        each kind; ``more``: other fields as the caller joins them."""
+        hybrid = after.hybrid
+        if self.hybrid and after.hybrid:
+            hybrid = {k: self.hybrid[k] + after.hybrid[k] for k in after.hybrid}
+        return replace(
+            after, history=self.history_then(after.history),
+            stats=self.stats.then(after.stats), hybrid=hybrid, **more,
+        )  # fmt: skip
+
     # the counters, read-only (public names since the first release)
     nit = property(lambda self: self.stats.nit, doc="Iterations (``stats['nit']``).")
     nfev = property(lambda self: self.stats.nfev, doc="Cost evaluations (``stats['nfev']``).")
