@@ -263,21 +263,34 @@ def test_an_interrupted_pool_lets_the_command_exit_on_a_loaded_machine(tmp_path,
 
 
 _USERS_POOL = """
-import os, signal, threading, time
+import os, signal, sys, threading, time, traceback
 from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 from tensorid.solve.multistart import StartsStopped, run_starts
+DONE = sys.argv[1]  # a folder where each finished chunk leaves a file
 def task(problem, chunk):
     time.sleep(0.05)
+    open(os.path.join(DONE, f"{os.getpid()}-{time.perf_counter_ns()}"), "w").close()
     return [0.0 for _ in chunk]
+def interrupt_after_progress():
+    # Ctrl-C once chunks have finished, however slow the machine: a fixed delay of
+    # 4 s raced the pool's start on a loaded CI machine
+    while len(os.listdir(DONE)) < 40:
+        time.sleep(0.01)
+    time.sleep(0.5)  # (for their results to reach the parent)
+    os.kill(os.getpid(), signal.SIGINT)
 if __name__ == "__main__":
     pool = ProcessPoolExecutor(2)  # the user's own, passed as executor=
-    threading.Timer(4.0, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+    threading.Thread(target=interrupt_after_progress, daemon=True).start()
     try:
         run_starts(None, task, np.zeros((2000, 1)), executor=pool)
+        print("FINISHED", 0, 0, flush=True)
     except StartsStopped as e:
         live = [w for w in pool._pending_work_items.values() if not w.future.cancelled()]
         print(e.status.name, len(e.runs), len(live), flush=True)
+    except BaseException as e:  # said on stdout too, so that the test shows it
+        traceback.print_exc()
+        print("RAISED", type(e).__name__, 0, flush=True)
     pool.shutdown(wait=False, cancel_futures=True)
 """
 
@@ -288,10 +301,13 @@ def test_ctrl_c_cancels_what_it_queued_on_a_users_pool(tmp_path):
     # chunks queued on it are cancelled (a review found 1,023 left running)
     script = tmp_path / "users_pool.py"
     script.write_text(_PYTHON_SIGINT + "\n" + _USERS_POOL)
-    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60)
-    status, finished, live = done.stdout.split()
-    assert status == "INTERRUPTED" and int(finished) > 0, done.stderr[-2000:]
-    assert int(live) <= 8  # the chunks already running (2 workers, 1 + 2 queued each)
+    (tmp_path / "done").mkdir()
+    run = [sys.executable, str(script), str(tmp_path / "done")]
+    done = subprocess.run(run, capture_output=True, text=True, timeout=120)
+    said = f"rc {done.returncode}, stdout {done.stdout!r}, stderr {done.stderr[-2000:]}"
+    status, finished, live = (done.stdout.split() + ["-"] * 3)[:3]
+    assert status == "INTERRUPTED" and int(finished) > 0, said
+    assert int(live) <= 8, said  # the chunks already running (2 workers, 1 + 2 queued each)
 
 
 _STUCK_LOCK = """
