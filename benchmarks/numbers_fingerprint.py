@@ -70,7 +70,32 @@ def record() -> dict:
     _fit_record(out, "lv/segments", ti.fit(lv, "auto", maxiter=15))
     _method_benchmark_rows(out)
     _plugin_rows(out)
+    _inner_solve_rows(out)
     return out
+
+
+def _inner_solve_rows(out: dict) -> None:
+    """The solves that are not fits of a Problem (issue 39's one loop): a profile's
+    corrections, validation's initial states, the model-error check's refits, and a
+    fleet's outer problem with its units' inner Newton (theophylline, FOCEI)."""
+    full = datasets.silverbox_train()
+    sb = silverbox_problem(data=ti.Experiment(full.t[:400], full.u[:400], full.y[:400]))
+    res = ti.fit(sb, maxiter=30)
+    for name, p in res.profile(sb.model.params[:2]).items():
+        out[f"profile/{name}/interval"] = np.asarray(p.interval)
+        out[f"profile/{name}/costs"], out[f"profile/{name}/values"] = p.costs, p.values
+    val = datasets.silverbox_validation()
+    [score] = res.validate(ti.Experiment(val.t[:300], val.u[:300], val.y[:300]), 50)
+    out["validate/x0"], out["validate/rmse"] = score.x0, np.asarray(score.rmse["y"])
+    check = res.model_check()
+    out["model_check/estimates"] = check.estimates
+    out["model_check/stderr"], out["model_check/Q"] = check.stderr, np.asarray(check.statistic)
+    fleet = _theophylline()
+    pop = ti.fit(fleet, maxiter=30)
+    out["population/x"], out["population/etas"] = np.asarray(pop.x), np.asarray(pop.etas)
+    out["population/objective"], out["population/hess"] = np.asarray(pop.objective), pop.hess
+    out["population/nit"] = np.asarray(pop.nit)
+    out["population/status"] = np.asarray(str(pop.status))
 
 
 PLUGINS = [  # (name, problem, keywords): the plug-ins' paths (issue 39)
@@ -124,6 +149,31 @@ def _method_benchmark_rows(out: dict) -> None:
     for method in ("newton", "gauss-newton", "auto"):
         for i, r in enumerate(ti.fit_batch(lv, method, thetas, maxiter=10)):
             _fit_record(out, f"lv/batch/{method}/{i}", r)
+
+
+def _theophylline() -> ti.Problem:
+    """The bundled theophylline record as tests/test_population.py builds it."""
+    import csv
+
+    import jax.numpy as jnp
+
+    def rhs(x, p, u):
+        return jnp.stack([-p[0] * x[0], p[0] * x[0] - p[1] / p[2] * x[1]])
+
+    model = ti.Model(rhs=rhs, output=lambda x, p: x[1:] / p[2], states=["depot", "center"],
+                     params=["ka", "cl", "v"], inputs=["Dose"], outputs=["cp"])  # fmt: skip
+    rows = list(csv.DictReader(datasets.theophylline_csv().open()))
+    exps = []
+    for i in dict.fromkeys(r["ID"] for r in rows):
+        rr = [r for r in rows if r["ID"] == i]
+        t = np.array([float(r["Time"]) for r in rr])
+        u = np.array([[float(r["Dose"]) * float(r["Wt"])] for r in rr])
+        exps.append(ti.Experiment(t, u, [float(r["conc"]) for r in rr], name=i))
+    return ti.Problem(
+        model, exps, p0={"ka": 1.57, "cl": 2.72, "v": 31.5},
+        x0={"depot": "Dose", "center": 0.0}, substeps=40,
+        population={"ka": 0.6**0.5, "cl": 0.3**0.5, "v": 0.1**0.5},
+    )  # fmt: skip
 
 
 def _same(a, b) -> bool:

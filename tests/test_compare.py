@@ -150,6 +150,9 @@ def test_compare_equals_validate_on_a_bundled_record(tmp_path, capsys):
     assert y["fit_percent"] == pytest.approx(100 * y["gof"], rel=1e-12)
     assert y["r2"] == pytest.approx(1 - y["nrmse"] ** 2, rel=1e-12)
     np.testing.assert_allclose(list(c["x0"].values()), fit["validation_x0"]["validate"], 1e-9)
+    # the initial states' fit ended through the one loop, converged, and both files say so
+    assert c["x0_fit_status"] == fit["validation_x0_status"]["validate"]
+    assert ti.Status[c["x0_fit_status"].upper()].success
     assert c["params"] == fit["params"]
     assert (cmp_out / "compare_y.png").stat().st_size > 1000
     # the command line's overrides and the provenance are recorded

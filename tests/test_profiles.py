@@ -75,9 +75,70 @@ def test_profiles_of_a_model_with_several_unknowns_agree_with_refits():
     assert res.success
     fast, slow = res.profile(), res.profile(method="refit")
     for name in fast:
+        # every re-optimisation ended through the one loop, converged, and is counted
+        ended = {ti.Status[s.upper()] for s in fast[name].corrections}
+        assert ended and all(s.success for s in ended) and not fast[name].notes
         np.testing.assert_allclose(fast[name].interval, slow[name].interval, rtol=1e-6)
         lo, hi = fast[name].interval
         assert lo < res.params[name] < hi
+
+
+def test_corrections_that_stop_short_are_counted_and_said(monkeypatch):
+    # issue 39: the profile's re-optimisations end through the one loop, and where
+    # they stop before converging the profile says so (it lies above the true one)
+    import tensorid.analysis.profiles as profiles
+
+    real = profiles.minimize_trust_region
+    monkeypatch.setattr(
+        profiles, "minimize_trust_region", lambda *a, **kw: real(*a, **{**kw, "maxiter": 1})
+    )
+    res = ti.fit(_decay_problem(0))
+    p = res.profile("tau")["tau"]
+    assert p.corrections.get("maxiter", 0) > 0
+    assert len(p.notes) == 1 and "stopped before converging (maxiter" in p.notes[0]
+    assert "the interval may be too narrow" in str(p)
+
+
+def test_ctrl_c_in_a_correction_stops_the_profiles(monkeypatch):
+    # the loop ends the correction's run cleanly (INTERRUPTED at its best point); the
+    # profiles then stop as the user asked, instead of tracing on
+
+    res = ti.fit(_decay_problem(0))
+    calls = []
+
+    def interrupting(problem_cost_grad_hess):
+        def f(theta):
+            calls.append(theta)
+            if len(calls) > 3:
+                raise KeyboardInterrupt
+            return problem_cost_grad_hess(theta)
+
+        return f
+
+    monkeypatch.setattr(res.problem, "cost_grad_hess", interrupting(res.problem.cost_grad_hess))
+    with pytest.raises(KeyboardInterrupt):
+        res.profile("tau")
+    assert len(calls) == 4  # nothing evaluated after Ctrl-C
+
+
+def test_an_initial_state_fit_that_stops_short_is_said(monkeypatch):
+    # validation's initial-state fit, another inner solve, ends through the one loop
+    # too and its status is kept: converged here; stopped by its iteration limit, a
+    # note says so
+    import tensorid.analysis.validation as validation
+
+    res = ti.fit(_decay_problem(0))
+    record = _decay_problem(1).experiments[0]
+    [score] = res.validate(record)
+    assert score.x0_status.success and score.x0_fit == score.x0_status.name.lower()
+    assert "initial states stopped" not in str(score)
+    real = validation.minimize_trust_region
+    monkeypatch.setattr(
+        validation, "minimize_trust_region", lambda *a, **kw: real(*a, **{**kw, "maxiter": 1})
+    )
+    [short] = res.validate(record)
+    assert short.x0_fit == "maxiter"
+    assert "the fit of its initial states stopped before converging" in str(short)
 
 
 def test_a_bound_makes_the_interval_one_sided():
@@ -145,6 +206,8 @@ def test_the_command_line_writes_profile_intervals(tmp_path, capsys):
     assert cli.main(args + ["--no-progress", "--profile", "b", "u0"]) == 0
     data = json.loads((out / "fit.json").read_text())
     assert set(data["ci95_profile"]) == {"b", "u0"} and data["profile_level"] == 0.95
+    assert set(data["profile_corrections"]) == {"b", "u0"}
+    assert all(n > 0 for c in data["profile_corrections"].values() for n in c.values())
     for name, (lo, hi) in data["ci95_profile"].items():
         wald = data["ci95"][name]
         assert lo < data["estimates"][name] < hi

@@ -17,7 +17,7 @@ from conftest import (
 )
 
 import tensorid as ti
-from tensorid.solve.trust_region import minimize_trust_region
+from tensorid.solve.minimize import minimize_trust_region
 
 
 def _blowup_model():

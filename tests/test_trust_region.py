@@ -3,10 +3,10 @@ import pytest
 from scipy.optimize import rosen, rosen_der, rosen_hess
 
 from tensorid.engine.status import Status
+from tensorid.solve.minimize import minimize_trust_region
 from tensorid.solve.projected import projected_cauchy
 from tensorid.solve.trust_region import (
     _candidate_step,
-    minimize_trust_region,
     solve_subproblem,
     steihaug_cg,
 )
@@ -319,3 +319,56 @@ def test_a_saddle_of_couplings_alone_is_not_converged():
     inf = np.full(2, np.inf)
     r = minimize_trust_region(fun, np.zeros(2), -inf, inf)
     assert r.status.success and r.fun == pytest.approx(0.5, rel=1e-9), (r.x, r.status)
+
+
+def test_an_inner_solve_ends_through_the_one_loop():
+    # issue 39: minimize_trust_region (profiles, validation's initial states, the
+    # model-error check, the population's outer problem) runs in endings.iterate:
+    # Ctrl-C and a failing eigen-solver end the run at its best point, with a status
+    from tensorid.solve.minimize import interrupted
+
+    lo, hi = np.full(2, -np.inf), np.full(2, np.inf)
+    seen = []
+
+    def stopping(x, error):
+        seen.append(x.copy())
+        if len(seen) == 6:
+            raise error
+        return _rosen(x)
+
+    for error, status in ((KeyboardInterrupt, Status.INTERRUPTED),
+                          (np.linalg.LinAlgError("eigh"), Status.SOLVER_FAILED)):  # fmt: skip
+        seen.clear()
+        r = minimize_trust_region(lambda x, e=error: stopping(x, e), np.array([-1.2, 1.0]), lo, hi)
+        assert r.status is status and len(seen) == 6  # nothing evaluated after it
+        best = min(seen[:5], key=lambda x: _rosen(x)[0])
+        np.testing.assert_array_equal(r.x, best)
+        assert r.fun == _rosen(best)[0] and r.nfev == 5
+        if status is Status.SOLVER_FAILED:
+            assert "LinAlgError: eigh" in r.message
+    seen.clear()
+    with pytest.raises(KeyboardInterrupt):  # for callers whose own work must stop too
+        interrupted(
+            minimize_trust_region(lambda x: stopping(x, KeyboardInterrupt), np.ones(2) * 3, lo, hi)
+        )
+    # and a run that ends by itself is unchanged by the loop
+    r = minimize_trust_region(_rosen, np.array([-1.2, 1.0]), lo, hi)
+    assert r.success and np.allclose(r.x, 1.0)
+
+
+def test_no_optimisation_loop_outside_the_one_loop():
+    # issue 39 item 3, grep-able: a trust-region generator is advanced only in a
+    # method's step, which endings.iterate calls
+    import ast
+    from pathlib import Path
+
+    src = Path(__file__).resolve().parents[1] / "src" / "tensorid"
+    for path in src.rglob("*.py"):
+        tree = ast.parse(path.read_text())
+        for fn in ast.walk(tree):
+            if not isinstance(fn, ast.FunctionDef | ast.AsyncFunctionDef):
+                continue
+            for node in ast.walk(fn):
+                call = isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+                if call and node.func.attr == "send" and fn.name != "step":
+                    raise AssertionError(f"{path.name}: {fn.name} advances a solve itself")

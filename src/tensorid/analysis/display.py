@@ -23,6 +23,7 @@ from .summary import (
     metric_rows,
     noise_intensities,
     noise_text,
+    x0_notes,
 )
 
 
@@ -49,7 +50,7 @@ def fit_blocks(res, scores=None, residual=None, check=None) -> list:
     blocks: list = [headline(res), estimates_table(names, res.theta, u, title, robust)]
     if scores:
         blocks.append(Table(None, *metric_rows(scores)))
-        blocks += metric_notes(scores)
+        blocks += metric_notes(scores) + x0_notes(scores)
     if res.constraints is not None:  # values, activity, multipliers; the bars' meaning
         blocks += res.constraints.blocks()
     noise = noise_intensities(res, u)

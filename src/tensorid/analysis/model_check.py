@@ -53,8 +53,8 @@ import numpy as np
 
 from ..engine.compiled import on_device
 from ..engine.status import Status
+from ..solve.minimize import interrupted, minimize_trust_region
 from ..solve.scaling import Tracker
-from ..solve.trust_region import minimize_trust_region
 from . import quantiles
 from .sandwich import score_covariance
 from .summary import Table, Tabular, collapsed_outputs, significant, stderr_text
@@ -299,7 +299,9 @@ def _fit_part(part, theta0, maxiter: int):
     tr = Tracker.start(part, theta0, J0, H_gn, "auto")
     lo, hi = tr.box()
     fun = tr.derivs(part.cost_grad_hess)
-    r = minimize_trust_region(fun, tr.phi(theta0), lo, hi, fatol=tr.fatol, maxiter=maxiter)
+    r = interrupted(
+        minimize_trust_region(fun, tr.phi(theta0), lo, hi, fatol=tr.fatol, maxiter=maxiter)
+    )
     theta = tr.theta(r.x if tr.best_phi is None else tr.best_phi)
     J, g, H = part.cost_grad_hess(theta)
     # a trust region that collapsed where nothing decreases further ended in a flat

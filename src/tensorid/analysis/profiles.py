@@ -26,12 +26,14 @@ interval ends to the same precision; they differ in how they get near them.
 from __future__ import annotations
 
 import time
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..solve.trust_region import minimize_trust_region
+from ..engine.status import Status
+from ..solve.minimize import interrupted, minimize_trust_region
 from . import quantiles
 from .summary import Table, Tabular, interval, significant
 
@@ -52,6 +54,9 @@ class Profile(Tabular):
         practically not identifiable on that side) or "failed" (the model could not be
         simulated further; the interval end is at least the last point reached).
     threshold : the rise of J that bounds the interval; seconds : time taken.
+    corrections : how the re-optimisations of θ_{-i} ended, {status name: count}
+        ("gtol", "ftol", ... where they converged; "maxiter", "solver_failed", ...
+        where not: there PL(c) is over-estimated, and a note says so).
     """
 
     name: str
@@ -67,6 +72,7 @@ class Profile(Tabular):
     seconds: float = 0.0
     evaluations: int = 0
     notes: list[str] = field(default_factory=list)
+    corrections: dict[str, int] = field(default_factory=dict)
 
     @property
     def identifiable(self) -> bool:
@@ -114,6 +120,7 @@ class _Held:
         self.fatol = fatol
         self.evaluations = 0
         self.last: tuple | None = None  # (θ, g, H) of the last evaluation
+        self.endings: Counter[Status] = Counter()  # how the corrections ended
 
     def full(self, c: float, phi_rest: np.ndarray) -> np.ndarray:
         theta = np.empty(self.problem.K)
@@ -145,10 +152,11 @@ class _Held:
             )
 
         lo, hi = self.problem.lower[self.rest] / s, self.problem.upper[self.rest] / s
-        tol = dict(gtol=1e-12, ftol=1e-15, xtol=1e-14) if tight else dict(gtol=1e-6, ftol=1e-9)
-        r = minimize_trust_region(
-            fun, theta[self.rest] / s, lo, hi, fatol=self.fatol, maxiter=100, radius=1.0, **tol
-        )
+        # (loose: the trust region's default xtol, 1e-12)
+        gtol, ftol, xtol = (1e-12, 1e-15, 1e-14) if tight else (1e-6, 1e-9, 1e-12)
+        r = minimize_trust_region(fun, theta[self.rest] / s, lo, hi, fatol=self.fatol, maxiter=100,
+                                  radius=1.0, gtol=gtol, ftol=ftol, xtol=xtol)  # fmt: skip
+        self.endings[interrupted(r).status] += 1  # (Ctrl-C stops the profiles too)
         out = self.full(c, r.x)
         return out, self.problem.cost(out)
 
@@ -362,4 +370,20 @@ def _one(res, i, dJ, level, se, method, max_steps) -> Profile:
         ends=ends,
         seconds=time.perf_counter() - started,
         evaluations=held.evaluations,
+        notes=_unconverged(held.endings),
+        corrections={s.name.lower(): n for s, n in held.endings.items()},
     )
+
+
+def _unconverged(endings: Counter) -> list[str]:
+    """A note where corrections stopped short: their PL(c) is over-estimated (θ_{-i}
+    not at its minimum), which can move a crossing inward."""
+    short = {s: n for s, n in endings.items() if not s.success}
+    if not short:
+        return []
+    how = ", ".join(f"{s.name.lower()} {n}" for s, n in short.items())
+    return [
+        f"note: {sum(short.values())} of {sum(endings.values())} re-optimisations of the "
+        f"other unknowns stopped before converging ({how}): where they did the profile "
+        "lies above the true one and the interval may be too narrow there"
+    ]

@@ -118,6 +118,16 @@ def metric_notes(scores) -> list[str]:
     ]
 
 
+def x0_notes(scores) -> list[str]:
+    """One line per record whose initial states' fit stopped before converging."""
+    short = [s for s in scores if s.x0_status is not None and not s.x0_status.success]
+    return [
+        f"note: {s.label}: the fit of its initial states stopped before converging "
+        f"({s.x0_status.describe()}): its scores may be worse than the model's"
+        for s in short
+    ]
+
+
 def finite(value: float, spec: str) -> str:
     """``value`` formatted, or "not finite" (a record whose simulation blew up was
     shown as GOF -inf, RMSE nan)."""

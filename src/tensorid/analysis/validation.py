@@ -16,10 +16,11 @@ from ..engine.metrics import gof, nrmse, r2, rmse
 from ..engine.predictors import check_horizon
 from ..engine.problem import Problem
 from ..engine.simulate import Simulation, run_simulation
+from ..engine.status import Status
 from ..engine.sweeps import shared_sweeps
+from ..solve.minimize import interrupted, minimize_trust_region
 from ..solve.scaling import Tracker
-from ..solve.trust_region import minimize_trust_region
-from .summary import Table, Tabular, metric_notes, metric_rows
+from .summary import Table, Tabular, metric_notes, metric_rows, x0_notes
 
 
 @dataclass(frozen=True, eq=False, repr=False)
@@ -39,6 +40,9 @@ class Score(Tabular):
     alone: bool = True  # the only record of its kind
     horizon: int | None = None  # k: scored as k-step-ahead prediction, not simulation
     filtered: bool = False  # the model of a filter fit (predictor="ekf")
+    # how the fit of the initial states ended (None: none fitted); where it stopped
+    # short, a note says the scores may be pessimistic
+    x0_status: Status | None = None
 
     @property
     def label(self) -> str:
@@ -49,6 +53,12 @@ class Score(Tabular):
         if self.horizon is None:
             return f"{label}, simulation" if self.filtered else label
         return f"{label}, {self.horizon}-step prediction"
+
+    @property
+    def x0_fit(self) -> str | None:
+        """How the fit of the initial states ended ("gtol", "maxiter", ...; None
+        where none was fitted), as fit.json and compare.json say it."""
+        return self.x0_status.name.lower() if self.x0_status else None
 
     def _pairs(self):
         y, s = self.experiment.measured[self.start :], self.simulation.y[self.start :]
@@ -98,7 +108,7 @@ class Score(Tabular):
 
     def blocks(self) -> list:
         """The metric table of the summary and report.md, for this record."""
-        return [Table(None, *metric_rows([self])), *metric_notes([self])]
+        return [Table(None, *metric_rows([self])), *metric_notes([self]), *x0_notes([self])]
 
     def __repr__(self) -> str:
         fits = ", ".join(f"{o}: {v:.4f}" for o, v in self.gof.items())
@@ -140,8 +150,11 @@ def training_scores(res) -> list[Score]:
     ]
 
 
-def estimate_x0(model, params, x0, free: list[str], record: Experiment, discretisation):
-    """The initial state (N,) for ``record``: the states named in ``free`` estimated by
+def estimate_x0(
+    model, params, x0, free: list[str], record: Experiment, discretisation
+) -> tuple[np.ndarray, Status]:
+    """The initial state (N,) for ``record``, and how its fit ended: the states named
+    in ``free`` estimated by
     trust-region Gauss-Newton with the parameters held (MATLAB's compare), the others
     as in ``x0``; ``x0`` itself where the simulation from it is not finite. (Gauss-Newton:
     a few initial states are fitted in a few steps, and a second-order sweep would
@@ -155,21 +168,22 @@ def estimate_x0(model, params, x0, free: list[str], record: Experiment, discreti
         fixed=list(model.params),
         discretisation=discretisation,
     )
-    return problem.unpack(_free_x0(problem))[1][0]
+    theta, status = _free_x0(problem)
+    return problem.unpack(theta)[1][0], status
 
 
-def _free_x0(problem: Problem) -> np.ndarray:
+def _free_x0(problem: Problem) -> tuple[np.ndarray, Status]:
     theta0 = problem.theta0
     J0, _, H0 = problem.cost_grad_gn(theta0)
     if not np.isfinite(J0):
-        return theta0
+        return theta0, Status.NONFINITE_START
     tr = Tracker.start(problem, theta0, J0, H0, "auto")
     lo, hi = tr.box()
     r = minimize_trust_region(
         tr.derivs(problem.cost_grad_gn), tr.phi(theta0), lo, hi, fatol=tr.fatol
     )
     # the tracker saw every evaluation, the end point included: its best is never worse
-    return tr.theta(r.x if tr.best_phi is None else tr.best_phi)
+    return tr.theta(r.x if tr.best_phi is None else tr.best_phi), interrupted(r).status
 
 
 def check_init_window(init_window: int | None, record: Experiment) -> None:
@@ -211,9 +225,10 @@ def score_record(
     check_init_window(init_window, record)
     x0 = np.asarray(x0, dtype=float)
     disc = discretisation.for_model(model)
+    x0_status = None
     if free_x0 and record.y is not None:
         window = record if init_window is None else record.window(0, int(init_window))
-        x0 = estimate_x0(model, params, x0, list(free_x0), window, disc)
+        x0, x0_status = estimate_x0(model, params, x0, list(free_x0), window, disc)
     sim = run_simulation(shared_sweeps(model, (), (), disc), record, x0, model.params_array(params))
     if horizon is not None and (predictor is None or predictor[1].update is None):
         check_horizon(horizon, record.P)  # a bad one is refused all the same
@@ -222,9 +237,8 @@ def score_record(
         sim = _predicted(sim, model, params, x0, record, disc, horizon, predictor)
     start = 0 if init_window is None else int(init_window)
     filtered = predictor is not None and predictor[1].update is not None
-    return Score(
-        kind, record, sim, x0, start, init_window, alone=alone, horizon=horizon, filtered=filtered
-    )
+    return Score(kind, record, sim, x0, start, init_window, alone=alone, horizon=horizon,
+                 filtered=filtered, x0_status=x0_status)  # fmt: skip
 
 
 def _predicted(sim, model, params, x0, record, disc, horizon, predictor) -> Simulation:

@@ -108,6 +108,8 @@ def _profiles(res, args) -> dict | None:
     profiles = res.profile(args.profile or None, level=args.profile_level)
     for p in profiles.values():
         print(p.describe())
+        for note in p.notes:
+            print(f"  {note}")
     return profiles
 
 

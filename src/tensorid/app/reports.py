@@ -23,6 +23,7 @@ from ..analysis.summary import (
     plural,
     significant,
     stderr_text,
+    x0_notes,
 )
 from ..analysis.validation import Score, training_scores
 from ..engine.checks import step
@@ -95,12 +96,24 @@ def _metrics(scores: list[Score], metric: str) -> dict:
     return {s.experiment.name or str(i): getattr(s, metric) for i, s in enumerate(scores)}
 
 
+def _validation_x0(validation) -> dict:
+    """Each validation record's initial state, and how its fit ended (null: none
+    fitted)."""
+    names = [s.experiment.name or str(i) for i, s in enumerate(validation)]
+    return {
+        "validation_x0": {n: s.x0.tolist() for n, s in zip(names, validation, strict=True)},
+        "validation_x0_status": {n: s.x0_fit for n, s in zip(names, validation, strict=True)},
+    }
+
+
 def _profile_json(profiles: dict | None) -> dict:
     if not profiles:
         return {}
     return {
         "ci95_profile": {n: list(p.interval) for n, p in profiles.items()},
         "profile_ends": {n: dict(p.ends) for n, p in profiles.items()},
+        # how each profile's re-optimisations ended: {status: count}
+        "profile_corrections": {n: dict(p.corrections) for n, p in profiles.items()},
         "profile_level": next(iter(profiles.values())).level,
     }
 
@@ -177,9 +190,7 @@ def fit_json(
         "sample_time": step(res.problem.experiments[0]),  # a discrete-time model's step
         "init_window": validation[0].init_window if validation else None,
         "horizon": validation[0].horizon if validation else None,
-        "validation_x0": {
-            s.experiment.name or str(i): s.x0.tolist() for i, s in enumerate(validation)
-        },
+        **_validation_x0(validation),
     }
     for metric in ("gof", "rmse", "nrmse"):
         d[metric] = {"train": _metrics(train, metric), "validation": _metrics(validation, metric)}
@@ -227,6 +238,7 @@ def _profile_lines(profiles: dict | None, data: dict) -> list[str]:
         "re-optimised), beside the Wald intervals from the standard errors.",
         "",
         md_table(["unknown", "Wald 95 %", f"profile {level:.0%}", "not crossed"], rows),
+        *(f"\n{p.name}: {note}" for p in profiles.values() for note in p.notes),
     ]
 
 
@@ -359,7 +371,7 @@ def fit_report(
         lines += ["## Observed and expected information", "", data["information"]["text"] + ".", ""]
     header, metric_table = metric_rows(scores)
     lines += ["## Goodness of fit", "", md_table(header, metric_table)]
-    lines += [f"\n{n[len('note: ') :]}" for n in metric_notes(scores)]
+    lines += [f"\n{n[len('note: ') :]}" for n in metric_notes(scores) + x0_notes(scores)]
     if res.starts:
         lines += [
             "",

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..analysis.figures import file_name
-from ..analysis.summary import gof_text, metric_notes, undefined_gof
+from ..analysis.summary import gof_text, metric_notes, undefined_gof, x0_notes
 from ..analysis.validation import Score, check_init_window, score_record
 from ..engine.checks import same_step
 from ..engine.diagnostics import describe_failure
@@ -288,10 +288,8 @@ def _score(args, require_outputs: bool):
     horizon = getattr(args, "horizon", None)
     if horizon is not None and predictor is None:
         print(SIMULATED_HORIZON.format(horizon=horizon), file=sys.stderr)
-    score = score_record(
-        spec.model, params, x0, free, e, disc, args.init_window,
-        horizon=horizon, predictor=predictor,
-    )  # fmt: skip
+    score = score_record(spec.model, params, x0, free, e, disc, args.init_window,
+                         horizon=horizon, predictor=predictor)  # fmt: skip
     return spec, params, score, source, disc.for_model(spec.model), defaults
 
 
@@ -314,7 +312,7 @@ def run_simulate(args) -> int:
     if e.y is not None:
         for o in score.gof:
             print(f"GOF {o}: {gof_text(score, o)}" + _after(score))
-        for note in metric_notes([score]):
+        for note in metric_notes([score]) + x0_notes([score]):
             print(note)
     if defaults:
         print(defaults)
@@ -394,6 +392,7 @@ def run_compare(args) -> int:
         "scored_samples": score.experiment.P - score.start,
         "x0": dict(zip(m.states, score.x0.tolist(), strict=True)),
         "x0_source": source,
+        "x0_fit_status": score.x0_fit,  # how the initial states' fit ended
         "params": {n: float(params[n]) for n in m.params},
         "integration": disc.as_dict(),
         "status": str(sim.status) if scores_finite(score) else NOT_SCORED,
@@ -446,5 +445,5 @@ def _print_scores(score: Score) -> None:
             f"{o}: RMSE {v['rmse']:.6g}, NRMSE {shown['nrmse']}, R² {shown['r2']}, "
             f"fit {fit}, GOF {shown['gof']} ({scored})"
         )
-    for note in metric_notes([score]):
+    for note in metric_notes([score]) + x0_notes([score]):
         print(note)

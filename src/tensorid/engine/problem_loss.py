@@ -1,5 +1,7 @@
 """The part of a :class:`tensorid.Problem` that knows its loss: the robust scale per
-output, a copy with another loss (``with_loss``), and the rounding floor of the cost.
+output, a copy with another loss (``with_loss``), and the rounding floor of the cost;
+and the one other copy a Problem is made into after construction, with another
+thread limit (``with_threads``): a Problem is never changed once made.
 It reads ``loss``, ``loss_weights``, ``weights``, ``model``, ``experiments``,
 ``discretisation``, ``predictor``, ``shooting`` and the sweeps of the Problem."""
 
@@ -11,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from .checks import check_threads
 from .losses import Loss, make_loss
 from .shooting import Shooting
 from .sweeps import shared_sweeps
@@ -30,6 +33,7 @@ class LossSettings:
     shooting: Any
     _sweeps: Any
     _arrays: list
+    threads: int | None
 
     @property
     def loss_scale(self) -> dict[str, float] | None:
@@ -40,21 +44,30 @@ class LossSettings:
         c = self.loss_weights[1] / np.sqrt(w)
         return dict(zip(self.model.outputs, c.tolist(), strict=True))
 
-    def with_loss(self, loss: str | Loss, scale: Mapping[str, float] | None = None):
+    def with_loss(self, loss: str | Loss, scale: Mapping[str, float] | None = None,
+                  estimated: bool | None = None):  # fmt: skip
         """This problem with another loss, or another scale {output: value} (outputs'
         units) for a robust one: a copy that shares the data and settings (and the
-        compiled sweeps, where the loss is the same)."""
+        compiled sweeps, where the loss is the same). ``estimated``: whether that scale
+        was estimated from residuals (default: where none is given)."""
         new = copy.copy(self)
         measured = [e.y for e in self.experiments]
         new.loss, c = make_loss(loss, scale, list(self.model.outputs), self.weights, measured)
         new.loss_weights = np.stack([self.weights, c])
-        new.loss_scale_estimated = new.loss.robust and scale is None
+        new.loss_scale_estimated = new.loss.robust and (scale is None or bool(estimated))
         sw = self._sweeps
         new._sweeps = shared_sweeps(
             self.model, sw.free_states, sw.free_params, self.discretisation, new.loss,
             self.predictor,
         )  # fmt: skip
         new.shooting = Shooting(new, self.shooting.counts) if self.shooting else None
+        return new
+
+    def with_threads(self, threads: int | None):
+        """This problem with another thread limit for the adjoint's stretches (a copy:
+        a local pool's worker, one core each, gets 1)."""
+        new = copy.copy(self)
+        new.threads = check_threads(threads)
         return new
 
     @property

@@ -79,7 +79,7 @@ def fit_robust(problem, first, refit):
             f"{first.cost:.6g}, {first.nit} iterations, {first.status})"
         )
         scale = _implied(robust, first) if estimated else None
-        robust = robust.with_loss(problem.loss, scale) if scale else robust
+        robust = robust.with_loss(problem.loss, scale, estimated=True) if scale else robust
         source = "the least-squares fit's residuals" if scale else "the outputs"
     res = refit(robust, first.theta)
     for _ in range(ROUNDS if estimated else 0):
@@ -87,7 +87,7 @@ def fit_robust(problem, first, refit):
         if scale is None:
             break
         spent.append(res)
-        res = refit(res.problem.with_loss(problem.loss, scale), res.theta)
+        res = refit(res.problem.with_loss(problem.loss, scale, estimated=True), res.theta)
         source = f"the residuals of the {problem.loss.name} fit"
     if estimated:
         scale = ", ".join(f"{k} {v:.3g}" for k, v in res.problem.loss_scale.items())
@@ -96,7 +96,6 @@ def fit_robust(problem, first, refit):
         notes.append(f"its scale, {scale}, came from {source}{again}; give loss_scale= to fix it")
     if first.starts:
         notes.append(f"its starts were ranked by the least-squares stage ({len(first.starts)})")
-    res.problem.loss_scale_estimated = estimated
     return replace(
         res,
         notes=first.notes + notes + res.notes,

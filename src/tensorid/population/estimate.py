@@ -19,8 +19,9 @@ from ..engine.implicit import DiagonallyImplicitRungeKutta
 from ..engine.integrators import ExplicitRungeKutta
 from ..engine.status import Status
 from ..engine.sweeps import shared_sweeps
+from ..solve.minimize import interrupted, minimize_trust_region
 from ..solve.solution import FitInterrupted
-from ..solve.trust_region import TRResult, minimize_trust_region
+from ..solve.trust_region import TRResult
 from .distributed import UnitMap, evaluate_chunk
 from .objective import Objective
 from .result import PopulationResult
@@ -230,7 +231,8 @@ def _outer(obj: Objective, units: UnitMap | None, state: dict, **options):
         status = Status.GTOL if np.isfinite(J) else Status.NONFINITE_START
         return TRResult(psi0, J, g, H, nit=0, nfev=1, status=status), state["etas"]
     # a likelihood has no rounding floor (fatol): −2 log L may be negative
-    r = minimize_trust_region(fun, psi0, lo, hi, radius=1.0, fatol=-np.inf, **options)
+    # (Ctrl-C: the loop ends the run, then fit_population keeps the best point)
+    r = interrupted(minimize_trust_region(fun, psi0, lo, hi, radius=1.0, fatol=-np.inf, **options))
     return r, state["etas"]
 
 

@@ -44,6 +44,7 @@ import numpy as np
 
 from ..engine.initial import moving
 from ..engine.sweeps import shared_sweeps
+from .inner import solve_units
 from .units import Units, blocked, outputs
 
 METHODS = ("focei", "laplace")
@@ -392,21 +393,13 @@ class Objective:
         return jax.jit(jax.vmap(jax.hessian(self.ell), in_axes=(0, None, 0)))
 
     def solve_inner(self, psi, etas, maxiter: int = 100, tol: float = 1e-11):
-        """Each unit's η̂ from ``etas``: (η̂ (E, q), whether every unit converged)."""
-        psi = jnp.asarray(psi)
-        eta = jnp.asarray(etas)
-        lam = jnp.zeros(eta.shape[0])
-        done = failed = np.zeros(eta.shape[0], dtype=bool)
-        for _ in range(maxiter):
-            eta, lam, f, step = self._blocked("steps", eta, lam, psi, self.data, units=(0, 1, 3))
-            failed = ~np.isfinite(np.asarray(f))  # its simulation: not finite
-            done = ~failed & (np.asarray(step) < tol)  # its Newton step negligible
-            if (done | failed).all():
-                break
+        """Each unit's η̂ from ``etas``: (η̂ (E, q), whether every unit converged);
+        by damped Newton steps through the one loop (inner.py)."""
+        eta, done, failed = solve_units(self, psi, etas, maxiter, tol)
         names = self.units.names
         self.unconverged = [n for n, d, x in zip(names, done, failed, strict=True) if not (d or x)]
         self.unfinite = [n for n, x in zip(names, failed, strict=True) if x]
-        return np.asarray(eta), bool(done.all())
+        return eta, bool(done.all())
 
     def value_grad(self, psi, etas) -> tuple[np.ndarray, np.ndarray]:
         """(O_i (E,), dO_i/dψ (E, ψ)) per unit at η̂."""

@@ -1,5 +1,5 @@
 """The driver behind fit() and fit_batch(): the shared set-up (starting cost, scale,
-tracker), then one loop (endings.march) for every method, which steps one start
+tracker), then one loop (endings.iterate) for every method, which steps one start
 with its points evaluated one at a time, or several starts in lock-step with their
 points evaluated in one vectorised call; and the result at the end, which is the
 best finite point seen.
@@ -11,7 +11,7 @@ from functools import partial
 
 import numpy as np
 
-from .endings import Run, failed_start, fit_result, march
+from .endings import Run, failed_start, fit_result, iterate
 from .options import FitOptions
 from .scaling import Tracker
 from .solution import Solution
@@ -36,7 +36,7 @@ def fit_many(problem, method: Method, thetas, options: FitOptions, started) -> l
         else:
             results[i] = failed_start(problem, method.name, th, started)
     evaluate = partial(_together, problem, len(thetas)) if batched else partial(_one, problem)
-    march(list(runs.values()), evaluate, partial(fit_result, started=started))
+    iterate(list(runs.values()), evaluate, partial(fit_result, started=started))
     for i, run in runs.items():  # each made as its run ended: its seconds are its own
         results[i] = run.result  # (in lock-step, from the batch's start to its end)
     return [r for r in results if r is not None]

@@ -51,7 +51,7 @@ class Run:
     done: bool = False
 
 
-def march(runs: list[Run], evaluate: Callable, finish: Callable | None = None) -> None:
+def iterate(runs: list[Run], evaluate: Callable, finish: Callable | None = None) -> None:
     """Step every run until each has ended: the points pending are evaluated
     together (``evaluate(runs) -> values``, one per run), and each run is handed its
     value; ``finish(run)``, where given, makes each run's ``result`` as it ends (a

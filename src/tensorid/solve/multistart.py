@@ -163,7 +163,7 @@ def _run_payload(payload: tuple) -> list:
             # a local pool's worker has one core: the adjoint Hessian's threads would
             # only contend (its own copy of the problem, told so explicitly; a Dask
             # worker keeps its cores, and a user's threads= is kept)
-            problem.threads = 1
+            problem = problem.with_threads(1)
         _WORKER_PROBLEMS[key] = problem
     return task(_WORKER_PROBLEMS[key], thetas)
 

@@ -26,7 +26,7 @@ import numpy as np
 from ..engine.status import Status
 from .arrow import ArrowSolver
 from .driver import fit_many
-from .endings import Outcome, Run, failed, march, segments_result
+from .endings import Outcome, Run, failed, iterate, segments_result
 from .options import FitOptions
 from .solution import Solution
 from .stats import Stats
@@ -55,7 +55,7 @@ def fit_shooting(problem, method, theta0, options: FitOptions, started) -> Solut
         return failed(problem, method.name, theta0, started, why + " Choose another initial guess.")
     run = _Run(problem, method, z0, first.J, options)
     ran = Run(run, run)
-    march([ran], lambda runs: [run.evaluate()])  # the one loop: endings.py
+    iterate([ran], lambda runs: [run.evaluate()])  # the one loop: endings.py
     assert ran.ending is not None
     z, status = ran.ending.x, ran.ending.status
     theta = sh.to_theta(z)
@@ -99,7 +99,7 @@ def fit_shooting(problem, method, theta0, options: FitOptions, started) -> Solut
 
 class _Run:
     """One augmented-Lagrangian solve in scaled units; keeps the counts and history.
-    It is both the method and the state of a run of endings.march: ``point`` is the
+    It is both the method and the state of a run of endings.iterate: ``point`` is the
     next φ to evaluate by ``fun`` (the Lagrangian of the inner solve under way)."""
 
     raises: tuple = ()
@@ -126,7 +126,7 @@ class _Run:
         self.steps = self.solve()
         self.point = next(self.steps)
 
-    # -- as a method of endings.march
+    # -- as a method of endings.iterate
     def evaluate(self):
         """(L_A, ∇L_A, ∇²L_A) at the pending point."""
         assert self.fun is not None

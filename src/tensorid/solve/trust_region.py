@@ -325,25 +325,6 @@ def _ended(accepted, held_back, actual, pred, J, d, xscale, radius, ftol, xtol):
     return None
 
 
-def minimize_trust_region(
-    fun: Callable[[np.ndarray], tuple[float, np.ndarray, np.ndarray]],
-    x0: np.ndarray,
-    lo: np.ndarray,
-    hi: np.ndarray,
-    **options,
-) -> TRResult:
-    """Minimise J with ``fun(x) -> (J, g, H)`` (J = inf marks a failed evaluation) within
-    lo <= x <= hi, starting from a feasible x0. H is the Hessian, or a function
-    v -> Hv at x for truncated-CG steps. ``options`` are those of trust_region_steps."""
-    steps = trust_region_steps(x0, lo, hi, **options)
-    x = next(steps)
-    try:
-        while True:
-            x = steps.send(fun(x))
-    except StopIteration as done:
-        return done.value
-
-
 def trust_region_steps(
     x0: np.ndarray,
     lo: np.ndarray,
