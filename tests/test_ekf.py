@@ -500,6 +500,7 @@ def test_ekf_from_the_command_line(tmp_path, capsys):
     assert "--data-sensitivity is for output error" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # four command-line filter fits (20-27 s cold)
 def test_the_command_line_s_predictor_overrides_the_model_file_s(tmp_path, capsys):
     """--predictor simulation on a model file set up for the filter fits by output
     error (the file's noise goes with its predictor: it was refused, 'add

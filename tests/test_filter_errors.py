@@ -36,6 +36,7 @@ def test_a_filter_s_scores_are_exact_per_sample():
     np.testing.assert_allclose(grad(11) - grad(10), s[9], rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.slow  # a whole filter fit (10-13 s cold); the scores' exactness stays fast
 def test_a_filter_whose_innovations_are_not_white_gets_robust_error_bars():
     """The two-tank record by a filter with σ_e fixed at 3 mV: the innovations fail
     whiteness (Q = 637); stderr_robust was null for every filter fit."""

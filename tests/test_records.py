@@ -289,6 +289,7 @@ def test_without_the_fleet_estimator_population_is_refused_in_one_line(tmp_path,
     assert rc == 2 and "lacks" in err and len(err.splitlines()) == 1, err
 
 
+@pytest.mark.slow  # a text-equation model's population programs: 40 s cold
 @pytest.mark.skipif(not FLEET, reason="the fleet estimator (issue 42) is not in this tree")
 def test_theophylline_example_fits_from_the_command_line(tmp_path, capsys):
     """The example with every kind at once: ka each subject's own, cl and v log-normal,

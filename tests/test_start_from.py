@@ -58,6 +58,7 @@ def test_a_fit_of_another_model_is_refused_in_one_line():
     assert "lacks ['k', 'c', 'a']" in msg
 
 
+@pytest.mark.slow  # two command-line fits (10 s cold); the library's start-from stays fast
 def test_the_command_line_starts_from_a_fit_json(tmp_path, capsys):
     (tmp_path / "model.py").write_text(EKF_MODEL_FILE)
     d = sde_record(0, P=200)
