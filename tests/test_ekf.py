@@ -457,6 +457,7 @@ process_noise = {"v": 0.1}
 """
 
 
+@pytest.mark.slow  # a command-line filter fit with its figures and report (10 s cold)
 def test_ekf_from_the_command_line(tmp_path, capsys):
     import json
 

@@ -211,6 +211,7 @@ def test_combined_error_and_individual_values_beside_random_effects_exact_gradie
     np.testing.assert_allclose(g.sum(0), gp, rtol=1e-8, atol=1e-8 * np.abs(gp).max())
 
 
+@pytest.mark.slow  # its plain reference compiles for 20-30 s; the diagonal Ω's stays fast
 def test_a_full_omega_has_the_plain_objectives_gradient_and_reports_the_correlation():
     """Ω = L Lᵀ estimated whole (ka and cl correlated): the outer objective and its
     exact gradient are those of the plainly written FOCEI objective with ηᵀΩ⁻¹η and
@@ -282,6 +283,7 @@ def _moving_x0_problem(n_units: int) -> ti.Problem:
                       population={"v": 0.3})  # fmt: skip
 
 
+@pytest.mark.slow  # its plain reference compiles for 20-30 s
 def test_an_initial_state_that_moves_with_estimated_parameters():
     """The gradient through an x0 expression of estimated parameters (every state's
     sensitivity seeded, chained by JAX) is that of the plainly written objective."""
