@@ -76,8 +76,9 @@ def record() -> dict:
 
 def _inner_solve_rows(out: dict) -> None:
     """The solves that are not fits of a Problem (issue 39's one loop): a profile's
-    corrections, validation's initial states, the model-error check's refits, and a
-    fleet's outer problem with its units' inner Newton (theophylline, FOCEI)."""
+    corrections, validation's initial states, the model-error check's refits, an
+    input design's L-BFGS-B runs, and a fleet's outer problem with its units' inner
+    Newton (theophylline, FOCEI)."""
     full = datasets.silverbox_train()
     sb = silverbox_problem(data=ti.Experiment(full.t[:400], full.u[:400], full.y[:400]))
     res = ti.fit(sb, maxiter=30)
@@ -90,6 +91,15 @@ def _inner_solve_rows(out: dict) -> None:
     check = res.model_check()
     out["model_check/estimates"] = check.estimates
     out["model_check/stderr"], out["model_check/Q"] = check.stderr, np.asarray(check.statistic)
+    from tensorid.fitting.design import step_levels
+
+    first = ti.Model(rhs=lambda x, p, u: -p[0] * x + p[1] * u[0], states=["x"],
+                     params=["a", "b"], inputs=["u"], output=lambda x, p: x,
+                     outputs=["y"])  # fmt: skip
+    T = np.arange(100) * 0.1
+    d = ti.design_input(first, {"a": 2.0, "b": 3.0}, T, step_levels(100, 5), np.full(5, 0.5),
+                        bounds=[(0.0, 1.0)] * 5, noise=0.05, starts=3)  # fmt: skip
+    out["design/a"], out["design/after"] = d.a, np.asarray(list(d.stderr_after.values()))
     fleet = _theophylline()
     pop = ti.fit(fleet, maxiter=30)
     out["population/x"], out["population/etas"] = np.asarray(pop.x), np.asarray(pop.etas)

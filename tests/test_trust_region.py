@@ -357,8 +357,9 @@ def test_an_inner_solve_ends_through_the_one_loop():
 
 
 def test_no_optimisation_loop_outside_the_one_loop():
-    # issue 39 item 3, grep-able: a trust-region generator is advanced only in a
-    # method's step, which endings.iterate calls
+    # issue 39 item 3, grep-able: a trust-region generator is advanced, and SciPy's
+    # minimisers are called, only in a method's step (which endings.iterate calls; the
+    # finite-difference baselines' step calls their ``minimize``)
     import ast
     from pathlib import Path
 
@@ -372,3 +373,7 @@ def test_no_optimisation_loop_outside_the_one_loop():
                 call = isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
                 if call and node.func.attr == "send" and fn.name != "step":
                     raise AssertionError(f"{path.name}: {fn.name} advances a solve itself")
+                scipy = call and node.func.attr in ("minimize", "least_squares")
+                allowed = ("step", "minimize")  # baselines.py: Baseline.step -> minimize
+                if scipy and fn.name not in allowed and "optimize" in ast.unparse(node.func):
+                    raise AssertionError(f"{path.name}: {fn.name} runs SciPy's minimiser itself")

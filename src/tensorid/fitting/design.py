@@ -31,6 +31,8 @@ from ..analysis.summary import Table, Tabular
 from ..engine.data import Experiment
 from ..engine.problem import Problem
 from ..engine.simulate import simulate
+from ..engine.status import Status
+from ..solve.endings import Outcome, Run, iterate
 
 CRITERIA = ("D", "max-variance")
 
@@ -284,22 +286,55 @@ def _stderr(problem: Problem) -> dict[str, float]:
 
 
 def _optimise(objective, a0, lo, hi, starts: int, seed: int) -> np.ndarray:
-    """The best of L-BFGS-B runs from a0 and random points in the box."""
+    """The best of L-BFGS-B runs from a0 and random points in the box, each a run of
+    the one loop (solve/endings.iterate): Ctrl-C stops them all at once."""
     rng = np.random.default_rng(seed)
     points = [a0]
     if lo is not None and hi is not None and np.isfinite(lo).all() and np.isfinite(hi).all():
         points += [lo + rng.uniform(size=a0.size) * (hi - lo) for _ in range(starts - 1)]
     box = list(zip(lo, hi, strict=True)) if lo is not None else None
+    runs = [_Search(objective, p, box) for p in points if np.isfinite(objective(p))]
+    ran = [Run(r, r) for r in runs]
+    iterate(ran, lambda asking: [])  # (each evaluates for itself, as SciPy's baselines)
+    if any(r.ending is not None and r.ending.status is Status.INTERRUPTED for r in ran):
+        raise KeyboardInterrupt
     best, best_value = a0, objective(a0)
-    for p in points:
-        if not np.isfinite(objective(p)):
-            continue
+    for r in runs:
+        if r.value < best_value:
+            best, best_value = r.x, r.value
+    return best
+
+
+class _Search:
+    """One L-BFGS-B run on the design criterion: the method and the state of a run of
+    the one loop, which evaluates for itself (``point`` None) in one step."""
+
+    name = "L-BFGS-B"
+    raises: tuple = ()
+    point = None
+
+    def __init__(self, objective, a0: np.ndarray, box):
+        self.objective, self.x, self.box = objective, np.asarray(a0, dtype=float), box
+        self.value = np.inf
+        self.outcome: Outcome | None = None
+
+    def step(self, state, value) -> None:
         from scipy import optimize  # here, not at the top: keeps `import tensorid` cheap
 
-        r = optimize.minimize(objective, p, method="L-BFGS-B", bounds=box)
-        if r.fun < best_value:
-            best, best_value = np.asarray(r.x), float(r.fun)
-    return best
+        r = optimize.minimize(self.objective, self.x, method="L-BFGS-B", bounds=self.box)
+        self.x, self.value = np.asarray(r.x), float(r.fun)
+        status = Status.BASELINE_CONVERGED if r.success else Status.MAXITER
+        self.outcome = Outcome(self.x, int(r.nit), status, "" if r.success else str(r.message))
+
+    def terminate(self, state) -> bool:
+        return self.outcome is not None
+
+    def result(self, state) -> Outcome:
+        assert self.outcome is not None
+        return self.outcome
+
+    def best(self, state) -> tuple:
+        return self.x, 0
 
 
 def step_levels(samples: int, levels: int) -> Callable[[np.ndarray], np.ndarray]:
