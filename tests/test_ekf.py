@@ -298,6 +298,7 @@ def sde_record(seed, P=400, dt=0.05, sw=0.3, se=0.02, fine=20):
     return ti.Experiment(np.arange(P) * dt, u, np.array(ys)[:, None])
 
 
+@pytest.mark.slow  # a statistical study of whole filter fits (10 s cold)
 def test_ekf_fit_recovers_parameters_and_noise_where_output_error_is_pulled_off():
     data = sde_record(0)
     m = duffing()

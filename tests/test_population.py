@@ -115,7 +115,7 @@ def _plain_objective(obj: Objective, etas, newton_steps: int = 2, laplace: bool 
     return _over_units(unit_O, obj, etas)
 
 
-def _fleet_point(n_units=3, method="focei"):
+def _fleet_point(n_units=4, method="focei"):  # (4: the programs of the 4-unit fits)
     obj = Objective(fleet_problem(n_units), method)
     psi = np.array([np.log(1.3), np.log(2.2), np.log(0.5), np.log(0.35), 26.0, np.log(0.4)])
     etas, ok = obj.solve_inner(psi, np.zeros((n_units, 2)))

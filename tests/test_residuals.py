@@ -212,6 +212,7 @@ def test_a_series_swamped_by_a_few_samples_cannot_pass():
     tests.figure()  # draws a verdict of None
 
 
+@pytest.mark.slow  # a whole filter fit to its σ_e floor (10 s cold)
 def test_a_filter_s_tests_leave_out_the_sample_its_likelihood_leaves_out():
     """The two-tank record by a filter with process noise on the lower tank: σ_e went
     to 3.5e-10 and the first standardised innovation, left out of the likelihood but
