@@ -157,12 +157,17 @@ def test_huber_and_cauchy_are_not_pulled_by_outliers_where_least_squares_is():
     start = {k: v * 1.05 for k, v in SILVERBOX_P.items()}
     est, err, se = {}, {}, {}
     for loss in ("squared", "huber", "cauchy"):
-        res = ti.fit(ti.Problem(m, e, p0=start, loss=loss))
+        problem = ti.Problem(m, e, p0=start, loss=loss)
+        before = {k: id(v) for k, v in vars(problem).items()}
+        res = ti.fit(problem)
         assert res.success, (loss, res.message)
+        # a fit leaves its Problem as it was: the robust stages fit copies (issue 39)
+        assert {k: id(v) for k, v in vars(problem).items()} == before
         se[loss] = res.uncertainty().stderr
         err[loss] = np.abs(res.theta - np.array(list(SILVERBOX_P.values())))
         est[loss] = err[loss] / se[loss]
         if loss != "squared":
+            assert res.problem is not problem and res.problem.loss_scale_estimated
             assert "least-squares estimate" in " ".join(res.notes)
             # the scale came from the residuals of the least-squares fit, near 1e-4 noise
             tuning = {"huber": 1.345, "cauchy": 2.385}[loss]

@@ -32,7 +32,7 @@ from ..engine.data import Experiment
 from ..engine.problem import Problem
 from ..engine.simulate import simulate
 from ..engine.status import Status
-from ..solve.endings import Outcome, Run, iterate
+from ..solve.endings import Outcome, OwnRun, Run, iterate
 
 CRITERIA = ("D", "max-variance")
 
@@ -305,18 +305,17 @@ def _optimise(objective, a0, lo, hi, starts: int, seed: int) -> np.ndarray:
     return best
 
 
-class _Search:
+class _Search(OwnRun):
     """One L-BFGS-B run on the design criterion: the method and the state of a run of
     the one loop, which evaluates for itself (``point`` None) in one step."""
 
     name = "L-BFGS-B"
-    raises: tuple = ()
     point = None
 
     def __init__(self, objective, a0: np.ndarray, box):
         self.objective, self.x, self.box = objective, np.asarray(a0, dtype=float), box
         self.value = np.inf
-        self.outcome: Outcome | None = None
+        self.outcome = None
 
     def step(self, state, value) -> None:
         from scipy import optimize  # here, not at the top: keeps `import tensorid` cheap
@@ -325,13 +324,6 @@ class _Search:
         self.x, self.value = np.asarray(r.x), float(r.fun)
         status = Status.BASELINE_CONVERGED if r.success else Status.MAXITER
         self.outcome = Outcome(self.x, int(r.nit), status, "" if r.success else str(r.message))
-
-    def terminate(self, state) -> bool:
-        return self.outcome is not None
-
-    def result(self, state) -> Outcome:
-        assert self.outcome is not None
-        return self.outcome
 
     def best(self, state) -> tuple:
         return self.x, 0

@@ -51,6 +51,22 @@ class Run:
     done: bool = False
 
 
+class OwnRun:
+    """The base of a run that is its own method and state (``Run(r, r)``): a solve
+    that is not a fit's method (shooting's augmented Lagrangian, minimize.py's, the
+    design's searches). It has ended once it has set ``outcome``."""
+
+    raises: tuple = ()
+    outcome: Outcome | None = None
+
+    def terminate(self, state) -> bool:
+        return self.outcome is not None
+
+    def result(self, state) -> Outcome:
+        assert self.outcome is not None
+        return self.outcome
+
+
 def iterate(runs: list[Run], evaluate: Callable, finish: Callable | None = None) -> None:
     """Step every run until each has ended: the points pending are evaluated
     together (``evaluate(runs) -> values``, one per run), and each run is handed its

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from ..engine.status import Status
-from .endings import Outcome, Run, iterate
+from .endings import Outcome, OwnRun, Run, iterate
 from .trust_region import TRResult, trust_region_steps
 
 
@@ -67,7 +67,7 @@ def interrupted(r: TRResult) -> TRResult:
     return r
 
 
-class _Plain:
+class _Plain(OwnRun):
     """One trust-region run on ``fun``: both the method and the state of a run of
     the one loop (``point``: the next x to evaluate). It keeps the best point
     evaluated, for an ending the trust region did not choose."""
@@ -90,7 +90,7 @@ class _Plain:
         self.point: np.ndarray | None = next(self.steps)
         self.best_x: np.ndarray | None = self.point
         self.best_values: tuple | None = None
-        self.outcome: Outcome | None = None
+        self.outcome = None
         self.done: TRResult | None = None
 
     # -- as a method of endings.iterate
@@ -110,13 +110,6 @@ class _Plain:
             self.done = end.value
             self.point = None
             self.outcome = Outcome(end.value.x, end.value.nit, end.value.status, end.value.detail)
-
-    def terminate(self, state) -> bool:
-        return self.outcome is not None
-
-    def result(self, state) -> Outcome:
-        assert self.outcome is not None
-        return self.outcome
 
     def best(self, state) -> tuple:
         return self.best_x, self.nit

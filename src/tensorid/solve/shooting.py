@@ -26,7 +26,7 @@ import numpy as np
 from ..engine.status import Status
 from .arrow import ArrowSolver
 from .driver import fit_many
-from .endings import Outcome, Run, failed, iterate, segments_result
+from .endings import Outcome, OwnRun, Run, failed, iterate, segments_result
 from .options import FitOptions
 from .solution import Solution
 from .stats import Stats
@@ -97,12 +97,10 @@ def fit_shooting(problem, method, theta0, options: FitOptions, started) -> Solut
     return replace(res, history=history, stats=stats, shooting=info, notes=res.notes + notes)
 
 
-class _Run:
+class _Run(OwnRun):
     """One augmented-Lagrangian solve in scaled units; keeps the counts and history.
     It is both the method and the state of a run of endings.iterate: ``point`` is the
     next φ to evaluate by ``fun`` (the Lagrangian of the inner solve under way)."""
-
-    raises: tuple = ()
 
     def __init__(self, problem, method, z0, J0, options: FitOptions):
         sh = self.sh = problem.shooting
@@ -122,7 +120,7 @@ class _Run:
         # the state unknowns come first in z: the banded block of the arrow
         self.subproblem = ArrowSolver(sh.nz_states) if sh.nz >= ARROW_FROM else None
         self.fun: Callable | None = None  # the Lagrangian of the inner solve under way
-        self.outcome: Outcome | None = None
+        self.outcome = None
         self.steps = self.solve()
         self.point = next(self.steps)
 
@@ -137,13 +135,6 @@ class _Run:
             self.point = self.steps.send(value)
         except StopIteration as done:
             self.point, self.outcome = None, done.value
-
-    def terminate(self, state) -> bool:
-        return self.outcome is not None
-
-    def result(self, state) -> Outcome:
-        assert self.outcome is not None
-        return self.outcome
 
     def best(self, state) -> tuple:
         return self.best_z, self.nit
