@@ -140,4 +140,3 @@ def test_bad_benchmark_column_choices_are_one_clear_line():
         ti.Experiment.from_benchmark(rec, inputs=5)
     with pytest.raises(ValueError, match="give Ts= the sampling period"):
         ti.Experiment.from_benchmark(rec, Ts=-1.0)
-
