@@ -274,9 +274,12 @@ def task(problem, chunk):
     return [0.0 for _ in chunk]
 def interrupt_after_progress():
     # Ctrl-C once chunks have finished, however slow the machine: a fixed delay of
-    # 4 s raced the pool's start on a loaded CI machine
-    while len(os.listdir(DONE)) < 40:
+    # 4 s raced the pool's start on a loaded CI machine (and after 60 s whatever
+    # happened, so that a pool that never starts is said, not waited for)
+    deadline = time.monotonic() + 60.0
+    while len(os.listdir(DONE)) < 40 and time.monotonic() < deadline:
         time.sleep(0.01)
+    print("PROGRESS", len(os.listdir(DONE)), file=sys.stderr, flush=True)
     time.sleep(0.5)  # (for their results to reach the parent)
     os.kill(os.getpid(), signal.SIGINT)
 if __name__ == "__main__":
@@ -303,7 +306,10 @@ def test_ctrl_c_cancels_what_it_queued_on_a_users_pool(tmp_path):
     script.write_text(_PYTHON_SIGINT + "\n" + _USERS_POOL)
     (tmp_path / "done").mkdir()
     run = [sys.executable, str(script), str(tmp_path / "done")]
-    done = subprocess.run(run, capture_output=True, text=True, timeout=120)
+    try:
+        done = subprocess.run(run, capture_output=True, text=True, timeout=120)
+    except subprocess.TimeoutExpired as e:
+        raise AssertionError(f"hung: stdout {e.stdout!r}, stderr {e.stderr!r}") from None
     said = f"rc {done.returncode}, stdout {done.stdout!r}, stderr {done.stderr[-2000:]}"
     status, finished, live = (done.stdout.split() + ["-"] * 3)[:3]
     assert status == "INTERRUPTED" and int(finished) > 0, said

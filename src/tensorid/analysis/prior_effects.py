@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..engine.status import Status
+from ..solve.endings import Outcome, OwnRun, Run, iterate
 from .summary import Table, Tabular, significant
 from .uncertainty import FLAT, _directions, _variances, negative_directions
 
@@ -196,17 +198,59 @@ def data_only(res) -> tuple[np.ndarray, np.ndarray]:
     def sigma2(J):  # J = −2 log L has no residual variance: the covariance is 2 H⁻¹
         return 1.0 if problem.loss.likelihood else J / dof
 
-    for _ in range(STEPS):
-        inv, var = _pseudo_inverse(H, names)
-        step = -inv @ g
-        if not (np.abs(step) > 1e-3 * np.sqrt(2 * sigma2(J) * var)).any():
-            break
-        trial = np.clip(theta + step, problem.lower, problem.upper)
-        J1, g1, H1 = _data_part(problem, trial, *problem.cost_grad_gn(trial))
-        if not J1 < J:
-            break
-        theta, J, g, H = trial, J1, g1, H1
-    return theta, np.sqrt(2 * sigma2(J) * _pseudo_inverse(H, names)[1])
+    run = _TowardsData(problem, names, sigma2, (theta, J, g, H))
+    ran = Run(run, run)
+    iterate([ran], lambda runs: [run.evaluate()])  # the one loop (solve/endings.py)
+    assert ran.ending is not None
+    if ran.ending.status is Status.INTERRUPTED:
+        raise KeyboardInterrupt
+    return run.theta, np.sqrt(2 * sigma2(run.J) * _pseudo_inverse(run.H, names)[1])
+
+
+class _TowardsData(OwnRun):
+    """data_only's Gauss-Newton steps, a run of the one loop: each step the
+    pseudo-inverse's, kept only if it lowers the data's cost; at most STEPS, none
+    once every step is below a thousandth of its standard error."""
+
+    name = "Gauss-Newton towards the data alone"
+
+    def __init__(self, problem, names, sigma2, start):
+        self.problem, self.names, self.sigma2 = problem, names, sigma2
+        self.theta, self.J, self.g, self.H = start
+        self.k = 0
+        self.point = self._next()
+
+    def _next(self):
+        """The next trial point, or None (and the outcome) where the steps end."""
+        if self.k >= STEPS:
+            return self._end(Status.MAXITER)
+        inv, var = _pseudo_inverse(self.H, self.names)
+        step = -inv @ self.g
+        if not (np.abs(step) > 1e-3 * np.sqrt(2 * self.sigma2(self.J) * var)).any():
+            return self._end(Status.XTOL)
+        return np.clip(self.theta + step, self.problem.lower, self.problem.upper)
+
+    def _end(self, status: Status) -> None:
+        self.outcome = Outcome(self.theta, self.k, status)
+        return None
+
+    def evaluate(self):
+        return _data_part(self.problem, self.point, *self.problem.cost_grad_gn(self.point))
+
+    def step(self, state, value) -> None:
+        if value is None:  # it ended before a trial point
+            return
+        J1, g1, H1 = value
+        self.k += 1
+        if not J1 < self.J:
+            self.point = None
+            self._end(Status.NO_FURTHER_DECREASE)
+            return
+        self.theta, self.J, self.g, self.H = self.point, J1, g1, H1
+        self.point = self._next()
+
+    def best(self, state) -> tuple:
+        return self.theta, self.k
 
 
 def _data_part(problem, theta, J, g, H):

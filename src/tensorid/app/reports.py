@@ -238,7 +238,11 @@ def _profile_lines(profiles: dict | None, data: dict) -> list[str]:
         "re-optimised), beside the Wald intervals from the standard errors.",
         "",
         md_table(["unknown", "Wald 95 %", f"profile {level:.0%}", "not crossed"], rows),
-        *(f"\n{p.name}: {note}" for p in profiles.values() for note in p.notes),
+        *(
+            f"\n{p.name}: {note.removeprefix('note: ')}"
+            for p in profiles.values()
+            for note in p.notes
+        ),
     ]
 
 

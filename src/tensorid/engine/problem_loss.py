@@ -3,7 +3,8 @@ output, a copy with another loss (``with_loss``), and the rounding floor of the 
 and the one other copy a Problem is made into after construction, with another
 thread limit (``with_threads``): a Problem is never changed once made.
 It reads ``loss``, ``loss_weights``, ``weights``, ``model``, ``experiments``,
-``discretisation``, ``predictor``, ``shooting`` and the sweeps of the Problem."""
+``discretisation``, ``predictor``, ``shooting``, ``threads`` and the sweeps of the
+Problem."""
 
 from __future__ import annotations
 
@@ -54,7 +55,8 @@ class LossSettings:
         measured = [e.y for e in self.experiments]
         new.loss, c = make_loss(loss, scale, list(self.model.outputs), self.weights, measured)
         new.loss_weights = np.stack([self.weights, c])
-        new.loss_scale_estimated = new.loss.robust and (scale is None or bool(estimated))
+        by_residuals = (scale is None) if estimated is None else bool(estimated)
+        new.loss_scale_estimated = new.loss.robust and by_residuals
         sw = self._sweeps
         new._sweeps = shared_sweeps(
             self.model, sw.free_states, sw.free_params, self.discretisation, new.loss,

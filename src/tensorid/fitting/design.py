@@ -322,7 +322,7 @@ class _Search(OwnRun):
 
         r = optimize.minimize(self.objective, self.x, method="L-BFGS-B", bounds=self.box)
         self.x, self.value = np.asarray(r.x), float(r.fun)
-        status = Status.BASELINE_CONVERGED if r.success else Status.MAXITER
+        status = Status.BASELINE_CONVERGED if r.success else Status.BASELINE_STOPPED
         self.outcome = Outcome(self.x, int(r.nit), status, "" if r.success else str(r.message))
 
     def best(self, state) -> tuple:

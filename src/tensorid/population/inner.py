@@ -51,6 +51,8 @@ class _Newton:
         return obj._blocked("steps", self.eta, self.lam, self.psi, obj.data, units=(0, 1, 3))
 
     def step(self, state, value) -> None:
+        if value is None:  # maxiter 0: no step asked for
+            return
         self.eta, self.lam, f, size = value
         self.nit += 1
         self.failed = ~np.isfinite(np.asarray(f))  # its simulation: not finite
@@ -61,7 +63,10 @@ class _Newton:
         return bool((self.done | self.failed).all()) or self.nit >= self.maxiter
 
     def result(self, state) -> Outcome:
-        status = Status.GTOL if self.done.all() else Status.MAXITER
+        if self.done.all():
+            status = Status.GTOL
+        else:  # some units' simulations not finite, or the iteration limit
+            status = Status.NONFINITE_STATE if (self.done | self.failed).all() else Status.MAXITER
         return Outcome(np.asarray(self.eta), self.nit, status)
 
     def best(self, state) -> tuple:

@@ -53,7 +53,7 @@ def minimize_trust_region(
     ran = Run(run, run)
     iterate([ran], lambda runs: [run.evaluate()])
     assert ran.ending is not None
-    if run.done is not None:
+    if run.done is not None and ran.ending.status is not Status.INTERRUPTED:
         return run.done
     return run.stopped(ran.ending)
 
@@ -116,11 +116,11 @@ class _Plain(OwnRun):
 
     def stopped(self, ending: Outcome) -> TRResult:
         """The TRResult of an ending the loop chose, at the best point evaluated."""
-        if self.best_values is None:
-            J, g, H = np.inf, None, None
+        x = np.asarray(self.best_x, dtype=float)
+        if self.best_values is None:  # nothing finite evaluated: a failed run
+            J, g, H = np.inf, np.zeros_like(x), None
         else:
             J, g, H = self.best_values
         hess = None if callable(H) else H
-        x = np.asarray(self.best_x, dtype=float)
-        return TRResult(x, float(J), g, hess, self.nit, self.nfev, ending.status,  # type: ignore[arg-type]
-                        self.history, 0, ending.detail)  # fmt: skip
+        return TRResult(x, float(J), g, hess, self.nit, self.nfev, ending.status, self.history,
+                        0, ending.detail)  # fmt: skip
