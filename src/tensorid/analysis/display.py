@@ -19,11 +19,10 @@ from .summary import (
     criteria_text,
     estimates_table,
     headline,
-    metric_notes,
     metric_rows,
     noise_intensities,
     noise_text,
-    x0_notes,
+    score_notes,
 )
 
 
@@ -50,7 +49,7 @@ def fit_blocks(res, scores=None, residual=None, check=None) -> list:
     blocks: list = [headline(res), estimates_table(names, res.theta, u, title, robust)]
     if scores:
         blocks.append(Table(None, *metric_rows(scores)))
-        blocks += metric_notes(scores) + x0_notes(scores)
+        blocks += score_notes(scores)
     if res.constraints is not None:  # values, activity, multipliers; the bars' meaning
         blocks += res.constraints.blocks()
     noise = noise_intensities(res, u)

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..engine.status import Status
-from ..solve.endings import Outcome, OwnRun, Run, iterate
+from ..solve.endings import Outcome, OwnRun, run_alone
 from .summary import Table, Tabular, significant
 from .uncertainty import FLAT, _directions, _variances, negative_directions
 
@@ -199,10 +199,7 @@ def data_only(res) -> tuple[np.ndarray, np.ndarray]:
         return 1.0 if problem.loss.likelihood else J / dof
 
     run = _TowardsData(problem, names, sigma2, (theta, J, g, H))
-    ran = Run(run, run)
-    iterate([ran], lambda runs: [run.evaluate()])  # the one loop (solve/endings.py)
-    assert ran.ending is not None
-    if ran.ending.status is Status.INTERRUPTED:
+    if run_alone(run).status is Status.INTERRUPTED:  # the one loop (solve/endings.py)
         raise KeyboardInterrupt
     return run.theta, np.sqrt(2 * sigma2(run.J) * _pseudo_inverse(run.H, names)[1])
 

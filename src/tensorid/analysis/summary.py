@@ -118,10 +118,12 @@ def metric_notes(scores) -> list[str]:
     ]
 
 
-def x0_notes(scores) -> list[str]:
-    """One line per record whose initial states' fit stopped before converging."""
+def score_notes(scores) -> list[str]:
+    """The scores' notes wherever they are shown: metric_notes's, and one line per
+    record whose initial states' fit stopped before converging (fit.json's gof_notes
+    keep metric_notes's alone)."""
     short = [s for s in scores if s.x0_status is not None and not s.x0_status.success]
-    return [
+    return metric_notes(scores) + [
         f"note: {s.label}: the fit of its initial states stopped before converging "
         f"({s.x0_status.describe()}): its scores may be worse than the model's"
         for s in short

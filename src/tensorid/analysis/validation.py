@@ -20,7 +20,7 @@ from ..engine.status import Status
 from ..engine.sweeps import shared_sweeps
 from ..solve.minimize import interrupted, minimize_trust_region
 from ..solve.scaling import Tracker
-from .summary import Table, Tabular, metric_notes, metric_rows, x0_notes
+from .summary import Table, Tabular, metric_rows, score_notes
 
 
 @dataclass(frozen=True, eq=False, repr=False)
@@ -108,7 +108,7 @@ class Score(Tabular):
 
     def blocks(self) -> list:
         """The metric table of the summary and report.md, for this record."""
-        return [Table(None, *metric_rows([self])), *metric_notes([self]), *x0_notes([self])]
+        return [Table(None, *metric_rows([self])), *score_notes([self])]
 
     def __repr__(self) -> str:
         fits = ", ".join(f"{o}: {v:.4f}" for o, v in self.gof.items())

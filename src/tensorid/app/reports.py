@@ -21,9 +21,9 @@ from ..analysis.summary import (
     noise_intensities,
     noise_text,
     plural,
+    score_notes,
     significant,
     stderr_text,
-    x0_notes,
 )
 from ..analysis.validation import Score, training_scores
 from ..engine.checks import step
@@ -375,7 +375,7 @@ def fit_report(
         lines += ["## Observed and expected information", "", data["information"]["text"] + ".", ""]
     header, metric_table = metric_rows(scores)
     lines += ["## Goodness of fit", "", md_table(header, metric_table)]
-    lines += [f"\n{n[len('note: ') :]}" for n in metric_notes(scores) + x0_notes(scores)]
+    lines += [f"\n{n[len('note: ') :]}" for n in score_notes(scores)]
     if res.starts:
         lines += [
             "",

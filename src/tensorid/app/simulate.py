@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..analysis.figures import file_name
-from ..analysis.summary import gof_text, metric_notes, undefined_gof, x0_notes
+from ..analysis.summary import gof_text, metric_notes, score_notes, undefined_gof
 from ..analysis.validation import Score, check_init_window, score_record
 from ..engine.checks import same_step
 from ..engine.diagnostics import describe_failure
@@ -312,7 +312,7 @@ def run_simulate(args) -> int:
     if e.y is not None:
         for o in score.gof:
             print(f"GOF {o}: {gof_text(score, o)}" + _after(score))
-        for note in metric_notes([score]) + x0_notes([score]):
+        for note in score_notes([score]):
             print(note)
     if defaults:
         print(defaults)
@@ -445,5 +445,5 @@ def _print_scores(score: Score) -> None:
             f"{o}: RMSE {v['rmse']:.6g}, NRMSE {shown['nrmse']}, R² {shown['r2']}, "
             f"fit {fit}, GOF {shown['gof']} ({scored})"
         )
-    for note in metric_notes([score]) + x0_notes([score]):
+    for note in score_notes([score]):
         print(note)

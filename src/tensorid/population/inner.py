@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..engine.status import Status
-from ..solve.endings import Outcome, Run, iterate
+from ..solve.endings import Outcome, OwnRun, run_alone
 
 
 def solve_units(
@@ -23,20 +23,16 @@ def solve_units(
         (η̂ (E, q), converged (E,), not finite (E,)).
     """
     run = _Newton(obj, psi, etas, maxiter, tol)
-    ran = Run(run, run)
-    iterate([ran], lambda runs: [run.evaluate()])
-    assert ran.ending is not None
-    if ran.ending.status is Status.INTERRUPTED:
+    if run_alone(run).status is Status.INTERRUPTED:
         raise KeyboardInterrupt
     return np.asarray(run.eta), run.done, run.failed
 
 
-class _Newton:
+class _Newton(OwnRun):
     """Both the method and the state of the run (``point``: the units' η while there
-    is a step to take)."""
+    is a step to take); it ends by its own test, not by an outcome set."""
 
     name = "the units' inner Newton"
-    raises: tuple = ()
 
     def __init__(self, obj, psi, etas, maxiter: int, tol: float):
         self.obj, self.psi, self.maxiter, self.tol = obj, jnp.asarray(psi), maxiter, tol

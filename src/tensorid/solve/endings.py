@@ -67,6 +67,15 @@ class OwnRun:
         return self.outcome
 
 
+def run_alone(run: OwnRun) -> Outcome:
+    """``run`` (its own method and state, its values from its own ``evaluate()``)
+    through the loop, alone; how it ended."""
+    ran = Run(run, run)
+    iterate([ran], lambda runs: [run.evaluate()])  # type: ignore[attr-defined]
+    assert ran.ending is not None
+    return ran.ending
+
+
 def iterate(runs: list[Run], evaluate: Callable, finish: Callable | None = None) -> None:
     """Step every run until each has ended: the points pending are evaluated
     together (``evaluate(runs) -> values``, one per run), and each run is handed its

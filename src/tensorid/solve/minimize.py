@@ -7,8 +7,7 @@ the population's outer problem — end as a fit's runs do:
 - Ctrl-C: INTERRUPTED at once, at the best point evaluated (the caller decides
   whether its own work stops too: see :func:`interrupted`);
 - ``fun`` or the subproblem raising ``LinAlgError`` (an eigen-solver at the edge of
-  overflow) or what the caller names in ``raises``: SOLVER_FAILED at the best point,
-  the error in the detail.
+  overflow): SOLVER_FAILED at the best point, the error in the detail.
 
 The result is a :class:`~tensorid.solve.trust_region.TRResult` whatever the ending.
 """
@@ -21,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..engine.status import Status
-from .endings import Outcome, OwnRun, Run, iterate
+from .endings import Outcome, OwnRun, run_alone
 from .trust_region import TRResult, trust_region_steps
 
 
@@ -30,8 +29,6 @@ def minimize_trust_region(
     x0: np.ndarray,
     lo: np.ndarray,
     hi: np.ndarray,
-    *,
-    raises: tuple = (),
     **options: Any,
 ) -> TRResult:
     """Minimise J with ``fun(x) -> (J, g, H)`` (J = inf marks a failed evaluation)
@@ -41,21 +38,17 @@ def minimize_trust_region(
         fun: J, its gradient, and its Hessian or a function v -> Hv at x (then the
             steps are truncated CG).
         x0, lo, hi: the start and the bounds.
-        raises: exceptions of ``fun`` that end the run as SOLVER_FAILED rather than
-            propagate (``LinAlgError`` always does).
         options: those of :func:`~tensorid.solve.trust_region.trust_region_steps`.
 
     Returns:
         The TRResult: the trust region's own where it ended by itself; otherwise
         (INTERRUPTED, SOLVER_FAILED) at the best point evaluated, with its values.
     """
-    run = _Plain(fun, x0, lo, hi, raises, options)
-    ran = Run(run, run)
-    iterate([ran], lambda runs: [run.evaluate()])
-    assert ran.ending is not None
-    if run.done is not None and ran.ending.status is not Status.INTERRUPTED:
+    run = _Plain(fun, x0, lo, hi, options)
+    ending = run_alone(run)
+    if run.done is not None and ending.status is not Status.INTERRUPTED:
         return run.done
-    return run.stopped(ran.ending)
+    return run.stopped(ending)
 
 
 def interrupted(r: TRResult) -> TRResult:
@@ -74,8 +67,8 @@ class _Plain(OwnRun):
 
     name = "trust-region"
 
-    def __init__(self, fun, x0, lo, hi, raises: tuple, options: dict):
-        self.fun, self.raises = fun, tuple(raises)
+    def __init__(self, fun, x0, lo, hi, options: dict):
+        self.fun = fun
         user = options.pop("callback", None)
         self.nit = self.nfev = 0
         self.history: list[dict] = []

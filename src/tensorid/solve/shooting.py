@@ -26,7 +26,7 @@ import numpy as np
 from ..engine.status import Status
 from .arrow import ArrowSolver
 from .driver import fit_many
-from .endings import Outcome, OwnRun, Run, failed, iterate, segments_result
+from .endings import Outcome, OwnRun, failed, run_alone, segments_result
 from .options import FitOptions
 from .solution import Solution
 from .stats import Stats
@@ -54,10 +54,8 @@ def fit_shooting(problem, method, theta0, options: FitOptions, started) -> Solut
         )
         return failed(problem, method.name, theta0, started, why + " Choose another initial guess.")
     run = _Run(problem, method, z0, first.J, options)
-    ran = Run(run, run)
-    iterate([ran], lambda runs: [run.evaluate()])  # the one loop: endings.py
-    assert ran.ending is not None
-    z, status = ran.ending.x, ran.ending.status
+    ending = run_alone(run)  # the one loop: endings.py
+    z, status = ending.x, ending.status
     theta = sh.to_theta(z)
     if status is Status.INTERRUPTED and problem.cost(theta0) < problem.cost(theta):
         theta = np.asarray(theta0, dtype=float)  # stopped before the segments beat the start
@@ -84,7 +82,7 @@ def fit_shooting(problem, method, theta0, options: FitOptions, started) -> Solut
         stopped = status is Status.INTERRUPTED
         return segments_result(
             problem, method.name, theta, status, started,
-            message=status.describe(ran.ending.detail), stats=Stats(nit=run.nit, nfev=run.nfev),
+            message=status.describe(ending.detail), stats=Stats(nit=run.nit, nfev=run.nfev),
             history=run.history, cost=problem.cost(theta) if stopped else np.inf,
             shooting=info, notes=notes,
         )  # fmt: skip
