@@ -49,13 +49,15 @@ def _probe(order: str, flags: str | None) -> dict:
 def test_a_sweep_over_a_record_compiles_as_one_function():
     got = _probe("tensorid-first", None)
     assert f"{_OPTION}={SMALL_LOOP_BYTES}" in got["flags"]
+    assert "--xla_cpu_use_fusion_emitters=false" in got["flags"]  # compiles sooner
     assert got["one_function"]
 
 
 def test_the_users_own_xla_options_win():
     # the user's threshold (XLA's default) is kept: the same loop runs op by op
-    got = _probe("tensorid-first", f"--xla_backend_extra_options={_OPTION}=1024")
-    assert got["flags"] == f"--xla_backend_extra_options={_OPTION}=1024"
+    mine = f"--xla_backend_extra_options={_OPTION}=1024 --xla_cpu_use_fusion_emitters=true"
+    got = _probe("tensorid-first", mine)
+    assert got["flags"] == mine
     assert not got["one_function"]
 
 

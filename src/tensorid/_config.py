@@ -18,6 +18,13 @@ benchmarks/bench_derivatives.py). Loops with matrix products are never compiled 
 (XLA keeps those for its threaded library), so large models are not slowed. An
 XLA_FLAGS of the user's own with --xla_backend_extra_options, or naming a file of
 flags, is left as it is.
+
+XLA's newer CPU fusion emitters are turned off (``--xla_cpu_use_fusion_emitters=
+false``, unless the user's XLA_FLAGS name it): with them a first fit spends 10-25 %
+longer compiling (two-tank's filter (J, ∇J, ∇²J) 2.6-2.9 s against 2.1-2.2 s, the
+chain of 16 masses' adjoint 2.0-2.1 against 1.8-1.9 s) and the compiled programs run
+no faster (within ±5 % on Silverbox, two-tank, its filter and the chain), with the
+same numbers bit for bit (benchmarks/numbers_fingerprint.py).
 """
 
 import os
@@ -56,7 +63,8 @@ def add_xla_flags(*flags: str) -> bool:
 
 
 add_xla_flags(
-    f"--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold={SMALL_LOOP_BYTES}"
+    f"--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold={SMALL_LOOP_BYTES}",
+    "--xla_cpu_use_fusion_emitters=false",
 )
 jax.config.update("jax_enable_x64", True)
 
