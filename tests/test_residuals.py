@@ -234,7 +234,9 @@ def test_a_filter_s_tests_leave_out_the_sample_its_likelihood_leaves_out():
     np.testing.assert_allclose(tests.whiteness[0].values, r, rtol=1e-12)
     white_y = tests.whiteness[0]
     assert white_y.statistic > white_y.threshold  # no longer 0.0
-    assert white_y.passed is None and "σ_e(y) = 3.5e-10 sits at its floor" in white_y.untrusted
+    # σ_e's value at its floor is rounding's (3.5e-10, or 3.3e-26 under other XLA flags)
+    assert white_y.passed is None
+    assert re.search(r"σ_e\(y\) = \S+ sits at its floor", white_y.untrusted)
     assert "--fix log_sigma_e_y=log σ" in white_y.untrusted
     lines = tests.lines()
     assert lines[1].endswith(": as whiteness of y's innovations")  # the reason once
