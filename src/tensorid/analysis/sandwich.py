@@ -28,9 +28,6 @@ correction.
 
 from __future__ import annotations
 
-import functools
-
-import jax
 import numpy as np
 
 from ..engine.compiled import on_device
@@ -39,26 +36,12 @@ from .residuals import skipped_samples
 
 
 def scores(problem, theta) -> list[np.ndarray]:
-    """(P, K) per experiment: each sample's share s_h = D_hᵀ ℓ_ŷ,h of ∇J (the priors
-    aside), exact for the discretised model. For a filter (a likelihood), the shares
-    of −2 log L from the first-order sweep through the filter, on the samples the
-    likelihood uses."""
+    """(P, K) per experiment: each sample's share s_h of ∇J (the priors aside), exact
+    for the discretised model, from the fit's own first-order sweep (the terms of its
+    ∇J, so they sum to it to rounding): for output error s_h = D_hᵀ ℓ_ŷ,h; for a filter
+    (a likelihood) the shares of −2 log L through its updates, on the samples the
+    likelihood uses (the one it leaves out, skipped_samples, is left out here too)."""
     theta = problem.check_theta(theta)
-    if problem.loss.likelihood:
-        return _filter_scores(problem, theta)
-    loss, w = problem.loss, on_device(problem.loss_weights)
-    out = []
-    sens, sims = problem.output_sensitivities(theta), problem.simulate(theta)
-    for D, e, sim in zip(sens, problem.experiments, sims, strict=True):
-        l1 = np.asarray(_output_gradients(loss, on_device(e.y), on_device(sim.y), w))  # (P, S)
-        out.append(np.einsum("hsk,hs->hk", D, l1))
-    return out
-
-
-def _filter_scores(problem, theta) -> list[np.ndarray]:
-    """s_h = ∂ℓ_h/∂θ, ℓ_h = log det S_h + ε_hᵀ S_h⁻¹ ε_h, per record (P − skipped, K):
-    the filter's sensitivities carried through its updates (Sweeps.scores), so that
-    they sum to its gradient exactly."""
     sw, w = problem.sweeps, on_device(problem.loss_weights)
     first = skipped_samples(problem)
     out = []
@@ -70,12 +53,6 @@ def _filter_scores(problem, theta) -> list[np.ndarray]:
         full[:, idx] = s
         out.append(full[first:])
     return out
-
-
-@functools.partial(jax.jit, static_argnums=0)
-def _output_gradients(loss, y, yhat, w):
-    """ℓ_ŷ at every sample (P, S): one small program per loss, not one per operation."""
-    return jax.vmap(lambda a, b: loss.terms(a, b, w)[1])(y, yhat)
 
 
 def bandwidth(parts: list[np.ndarray]) -> int:

@@ -57,7 +57,7 @@ _WHAT = {
     "_second_order": "the second-order sweep (J, ∇J, ∇²J)",
     "_second_order_both": "the second-order sweep (J, ∇J, ∇²J, Gauss-Newton)",
     "_gradient": "the gradient sweep (J, ∇J)",
-    "_scores": "the per-sample scores",
+    "_first_order_scores": "the first-order sweep (J, ∇J, Gauss-Newton, scores)",
     "_hessp": "the Hessian-vector product",
     "_segment": "the segments' second-order sweep",
     "_segment_gn": "the segments' first-order sweep",
