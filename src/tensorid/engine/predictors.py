@@ -26,6 +26,7 @@ an object); the rest of the package asks its markers, never its name.
 
 from __future__ import annotations
 
+import functools
 import warnings
 from dataclasses import dataclass
 from typing import Any, ClassVar, TypeVar
@@ -36,6 +37,7 @@ import numpy as np
 
 from .. import _config  # noqa: F401
 from .checks import from_registry
+from .compiled import on_device
 from .losses import GAUSSIAN, robust_noise
 
 # a filter's noise parameters: these prefixes and the state's or output's name
@@ -280,7 +282,7 @@ class ExtendedKalman(Predictor):
         if noisy is None:
             noisy = Model(
                 _Leading(model.rhs, M),
-                _Leading(model.h, M),
+                _Leading(model.h, M, like=model.output),
                 states=model.states,
                 params=list(model.params) + wq + wr,
                 inputs=model.inputs,
@@ -313,8 +315,11 @@ class _Leading:
     """A model function of (x, p[:M], ...) called with the longer p of a filter's
     model (its noise intensities appended): picklable, for worker processes."""
 
-    def __init__(self, fn, M: int):
+    def __init__(self, fn, M: int, like=None):
         self.fn, self.M = fn, M
+        marker = fn if like is None else like  # the user's function that ``fn`` wraps
+        if hasattr(marker, "equations"):  # text equations: no index to check (model.py)
+            self.equations = marker.equations
 
     def __call__(self, x, p, *rest):
         return self.fn(x, p[: self.M], *rest)
@@ -416,17 +421,24 @@ def predictions(problem, theta, horizon: int = 1) -> list[Prediction]:
     sw, out = problem.sweeps, []
     S = problem.model.S
     for e, (t, u, y) in enumerate(problem.arrays):
-        x0, p = jnp.asarray(problem.x0[e]), jnp.asarray(problem.p0)
-        local = jnp.asarray(theta[problem._slices(e)])
+        x0, p = on_device(problem.x0[e]), on_device(problem.p0)
+        local = on_device(theta[problem._slices(e)])
         _, pis = (np.asarray(a) for a in sw.predictions(local, x0, p, t, u, y))
         yhat, cov = pis[:, :S], None
         meas = np.asarray(y)
         if sw.loss.likelihood:  # π = (ŷ, vec S): the loss reads the covariance
             cov = pis[:, S:].reshape(-1, S, S)
-            innov = np.asarray(sw.loss.residual(y, jnp.asarray(pis), None))
+            innov = np.asarray(_residual(sw.loss, y, on_device(pis)))
         else:
             innov = meas - yhat
         if horizon > 1:
             yhat = np.asarray(sw.k_step(local, x0, p, t, u, y, k=int(horizon)))
         out.append(Prediction(np.asarray(t), meas, yhat, cov, innov, int(horizon)))
     return out
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _residual(loss, y, pi):
+    """The loss's standardised residuals as one small program, not one per operation
+    (a filter's Cholesky factors and solves: seven programs to compile)."""
+    return loss.residual(y, pi, None)
