@@ -50,10 +50,18 @@ def test_a_filter_whose_innovations_are_not_white_gets_robust_error_bars():
     res = ti.fit(pr)
     tests = res.residual_tests()
     assert tests.whiteness[0].passed is False
-    robust = res.uncertainty("robust")
+    robust, white = res.uncertainty("robust"), res.uncertainty()
     assert robust.kind == "robust" and robust.lags is not None
-    assert np.isfinite(robust.stderr).all() and (robust.stderr > 0).all()
-    assert not np.allclose(robust.stderr, res.uncertainty().stderr, rtol=0.05)
+    # p1, p2, p4 move together along a nearly flat direction, whose relative curvature
+    # sits at the "not identifiable" cut (1e-8) and falls either side of it with
+    # rounding: the two kinds of bar must agree on which unknowns are unbounded, and
+    # the determined ones get finite robust bars that are not the white ones
+    determined = np.isfinite(white.stderr)
+    assert (np.isfinite(robust.stderr) == determined).all()
+    names = [n for n, d in zip(pr.theta_names, determined, strict=True) if d]
+    assert {"p3", "log_sigma_w_x2"} <= set(names)
+    assert (robust.stderr[determined] > 0).all()
+    assert not np.allclose(robust.stderr[determined], white.stderr[determined], rtol=0.05)
     d = fit_json(res, [], residual=tests)
     assert d["stderr_robust"] == dict(zip(pr.theta_names, robust.stderr.tolist(), strict=True))
     text = res.summary()

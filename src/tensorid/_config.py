@@ -23,8 +23,10 @@ XLA's newer CPU fusion emitters are turned off (``--xla_cpu_use_fusion_emitters=
 false``, unless the user's XLA_FLAGS name it): with them a first fit spends 10-25 %
 longer compiling (two-tank's filter (J, ∇J, ∇²J) 2.6-2.9 s against 2.1-2.2 s, the
 chain of 16 masses' adjoint 2.0-2.1 against 1.8-1.9 s) and the compiled programs run
-no faster (within ±5 % on Silverbox, two-tank, its filter and the chain), with the
-same numbers bit for bit (benchmarks/numbers_fingerprint.py).
+no faster (within ±5 % on Silverbox, two-tank, its filter and the chain). The
+numbers are the same to rounding (J, ∇J, ∇²J within 1.5e-16 relative, most bit for
+bit: benchmarks/numbers_fingerprint.py), so a fit that ends at a threshold may fall
+the other side of it (docs/robust.md, the two-tank filter).
 """
 
 import os

@@ -7,11 +7,11 @@ truth). Whiteness cannot tell the two apart: both colour the residuals.
 
 The check. The record is cut into parts: the given records when there are several,
 else the record's two halves (of one length: an odd record's middle sample is left
-out). The model is fitted to each part alone, from the full
-fit's estimate. Where the model is right, every part estimates the same θ and the
-parts' estimates differ by noise only, θ̂_i ≈ N(θ, Σ_i) with Σ_i each part's robust
-covariance (Newey-West: coloured noise included), nearly independent between parts
-(the scores' correlation dies out within the bandwidth, far shorter than a part).
+out). The model is fitted to each part alone, from the full fit's estimate. Where
+the model is right, every part estimates the same θ and the parts' estimates differ
+by noise only, θ̂_i ≈ N(θ, Σ_i) with Σ_i each part's robust covariance (Newey-West:
+coloured noise included), nearly independent between parts (the scores' correlation
+dies out within the bandwidth, far shorter than a part).
 The homogeneity statistic
 
     Q = Σ_i (θ̂_i − θ̄)ᵀ Σ_i⁻¹ (θ̂_i − θ̄),      θ̄ = (Σ_i Σ_i⁻¹)⁻¹ Σ_i Σ_i⁻¹ θ̂_i
