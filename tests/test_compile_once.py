@@ -94,3 +94,26 @@ def test_the_suite_compiles_into_the_folder_conftest_names():
 
     folder = jax.config.values.get("jax_compilation_cache_dir")
     assert folder == os.environ["TENSORID_CACHE_DIR"]
+
+
+def test_a_fits_first_order_step_and_the_scores_share_one_program(monkeypatch):
+    """The first-order sweep keeps each sample's share of ∇J: a fit's Gauss-Newton
+    step and the error bars' scores run one program, whose scores sum to ∇J; a record
+    long enough that keeping them would cost every step gets the program without
+    them, with the same numbers."""
+    import numpy as np
+
+    from tensorid.analysis.sandwich import scores
+    from tensorid.engine import sweeps as sweeps_module
+
+    pr = _problem(silverbox_model(), silverbox_data(P=128, seed=9), free_x0=["y"])
+    theta = pr.theta0 * 1.01
+    J, g, H = pr.cost_grad_gn(theta)
+    (s,) = scores(pr, theta)
+    np.testing.assert_allclose(s.sum(axis=0), g, rtol=1e-12, atol=1e-12 * np.abs(g).max())
+    sw = pr._sweeps
+    assert len(sw.first_order._runs) == 1 and "first_order_only" not in vars(sw)
+    monkeypatch.setattr(sweeps_module, "SCORES_KEPT_UP_TO", 0)
+    for a, b in zip(pr.cost_grad_gn(theta), (J, g, H), strict=True):
+        assert np.array_equal(a, b)
+    assert len(sw.first_order_only._runs) == 1

@@ -9,6 +9,7 @@ import os
 import subprocess
 import sys
 
+from tensorid import _config
 from tensorid._config import SMALL_LOOP_BYTES, add_xla_flags
 
 _OPTION = "xla_cpu_small_while_loop_byte_threshold"
@@ -49,7 +50,9 @@ def _probe(order: str, flags: str | None) -> dict:
 def test_a_sweep_over_a_record_compiles_as_one_function():
     got = _probe("tensorid-first", None)
     assert f"{_OPTION}={SMALL_LOOP_BYTES}" in got["flags"]
-    assert "--xla_cpu_use_fusion_emitters=false" in got["flags"]  # compiles sooner
+    emitters = "--xla_cpu_use_fusion_emitters=false" in got["flags"]  # compiles sooner
+    low, high = _config.EMITTERS_FLAG_VERSIONS
+    assert emitters == (low <= _config._jaxlib_version() < high)
     assert got["one_function"]
 
 
@@ -85,3 +88,14 @@ def test_a_flag_file_is_left_alone(monkeypatch, tmp_path):
     assert os.environ["XLA_FLAGS"] == str(flagfile)
     got = _probe("tensorid-first", str(flagfile))  # and a process with it computes
     assert got["flags"] == str(flagfile) and not got["one_function"]
+
+
+def test_the_emitters_flag_only_where_jaxlib_knows_it(monkeypatch):
+    """XLA aborts the process on a flag it does not know (jaxlib 0.4.30-0.5.1 do not
+    know --xla_cpu_use_fusion_emitters), so it is only added on the versions that do."""
+    for version, added in [((0, 4, 30), False), ((0, 5, 1), False), ((0, 5, 3), True),
+                           ((0, 10, 2), True), ((0, 11, 0), False), ((), False)]:  # fmt: skip
+        monkeypatch.setattr(_config, "_jaxlib_version", lambda v=version: v)
+        flags = _config._xla_flags()
+        assert ("--xla_cpu_use_fusion_emitters=false" in flags) is added, version
+        assert any(str(SMALL_LOOP_BYTES) in f for f in flags)

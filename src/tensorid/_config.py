@@ -20,7 +20,8 @@ XLA_FLAGS of the user's own with --xla_backend_extra_options, or naming a file o
 flags, is left as it is.
 
 XLA's newer CPU fusion emitters are turned off (``--xla_cpu_use_fusion_emitters=
-false``, unless the user's XLA_FLAGS name it): with them a first fit spends 10-25 %
+false``, unless the user's XLA_FLAGS name it; on the jaxlib versions that know the
+flag, EMITTERS_FLAG_VERSIONS): with them a first fit spends 10-25 %
 longer compiling (two-tank's filter (J, ∇J, ∇²J) 2.6-2.9 s against 2.1-2.2 s, the
 chain of 16 masses' adjoint 2.0-2.1 against 1.8-1.9 s) and the compiled programs run
 no faster (within ±5 % on Silverbox, two-tank, its filter and the chain). The
@@ -30,6 +31,7 @@ the other side of it (docs/robust.md, the two-tank filter).
 """
 
 import os
+import re
 import sys
 
 import jax
@@ -64,10 +66,33 @@ def add_xla_flags(*flags: str) -> bool:
     return not backends_are_initialized()
 
 
-add_xla_flags(
-    f"--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold={SMALL_LOOP_BYTES}",
-    "--xla_cpu_use_fusion_emitters=false",
-)
+# jaxlib versions whose XLA knows --xla_cpu_use_fusion_emitters: XLA aborts the
+# process (uncatchable) on a flag it does not know, and jaxlib 0.4.30-0.5.1 do not
+# know this one; it is set only on the versions it was measured or found on
+EMITTERS_FLAG_VERSIONS = ((0, 5, 3), (0, 11))
+
+
+def _jaxlib_version() -> tuple[int, ...]:
+    """jaxlib's version as numbers (0.10.2 → (0, 10, 2)); () where it cannot be read."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        text = version("jaxlib")
+    except PackageNotFoundError:
+        return ()
+    return tuple(int(m) for m in re.findall(r"\d+", text.split("+")[0])[:3])
+
+
+def _xla_flags() -> list[str]:
+    loops = f"xla_cpu_small_while_loop_byte_threshold={SMALL_LOOP_BYTES}"
+    flags = [f"--xla_backend_extra_options={loops}"]
+    low, high = EMITTERS_FLAG_VERSIONS
+    if low <= _jaxlib_version() < high:
+        flags.append("--xla_cpu_use_fusion_emitters=false")
+    return flags
+
+
+add_xla_flags(*_xla_flags())
 jax.config.update("jax_enable_x64", True)
 
 

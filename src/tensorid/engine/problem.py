@@ -333,8 +333,8 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
     def cost_grad_gn(self, theta) -> tuple[float, np.ndarray, np.ndarray]:
         """(J, ∇J, Gauss-Newton Hessian 2 Σ (∂ỹ/∂θ)ᵀ W ∂ỹ/∂θ): first-order
         sensitivities only."""
-        sweep = self._sweeps.first_order  # its fourth result, the scores, is not wanted here
-        return tuple(self._assemble(lambda *a: sweep(*a)[:3], self.check_theta(theta), parts="JgH"))
+        J, g, H = self._assemble(self._sweeps.first_order_gn, self.check_theta(theta), parts="JgH")
+        return J, g, H
 
     def cost_grad_hess_gn(self, theta) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
         """(J, ∇J, ∇²J, Gauss-Newton Hessian) from one second-order sweep (by

@@ -54,6 +54,10 @@ from .predictors import SIMULATION, Predictor
 from .programs import Program
 from .second_order import layout, second_order
 
+# numbers of per-sample scores (P·K) a fit's first-order step keeps beside (J, ∇J,
+# Gauss-Newton) rather than compiling a program without them (first_order_gn)
+SCORES_KEPT_UP_TO = 1 << 18
+
 
 @dataclass(frozen=True, eq=False)
 class Sweeps:
@@ -316,6 +320,15 @@ class Sweeps:
         (±5 %: Silverbox, two-tank, its filter) and one program fewer is compiled."""
         return self._first_order(theta, x0, p, t, u, y, w, scores=True)
 
+    def first_order_gn(self, theta, x0, p, t, u, y, w):
+        """(J, ∇J, Gauss-Newton Hessian) for a fit's step: from the program that keeps
+        the scores too (one program fewer to compile), unless the record is so long
+        that its (P, K) scores would cost every step memory and time (P = 131,072, K =
+        7: 18 MB more and 5 % slower a call); then from the program without them."""
+        if t.shape[-1] * self.K > SCORES_KEPT_UP_TO:
+            return self.first_order_only(theta, x0, p, t, u, y, w)
+        return self.first_order(theta, x0, p, t, u, y, w)[:3]
+
     def scores(self, theta, x0, p, t, u, y, w):
         """(P, K): each sample's share of ∇J, through the predictor (a filter's update
         included); a sample the march leaves out of J (skip_first) is still a row."""
@@ -342,6 +355,7 @@ class Sweeps:
     residuals = Compiled("_residuals")
     output_jacobian = Compiled("_output_jacobian")
     first_order = Compiled("_first_order_scores")  # (J, ∇J, Gauss-Newton, scores)
+    first_order_only = Compiled("_first_order")  # (J, ∇J, Gauss-Newton): long records
     second_order = Compiled("_second_order")
     gradient = Compiled("_gradient")
     hessp = Compiled("_hessp")
