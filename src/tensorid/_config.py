@@ -74,11 +74,9 @@ EMITTERS_FLAG_VERSIONS = ((0, 5, 3), (0, 11))
 
 def _jaxlib_version() -> tuple[int, ...]:
     """jaxlib's version as numbers (0.10.2 → (0, 10, 2)); () where it cannot be read."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        text = version("jaxlib")
-    except PackageNotFoundError:
+    try:  # jaxlib's own, loaded with jax: no package metadata to read at import
+        from jaxlib.version import __version__ as text
+    except ImportError:
         return ()
     return tuple(int(m) for m in re.findall(r"\d+", text.split("+")[0])[:3])
 

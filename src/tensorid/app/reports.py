@@ -195,7 +195,7 @@ def fit_json(
     for metric in ("gof", "rmse", "nrmse"):
         d[metric] = {"train": _metrics(train, metric), "validation": _metrics(validation, metric)}
     # why a gof is null where no simulation blew up: an output constant in its record
-    d["gof_notes"] = [n[len("note: ") :] for n in metric_notes(train + list(validation))]
+    d["gof_notes"] = [n.removeprefix("note: ") for n in metric_notes(train + list(validation))]
     if u:
         d.update(_error_bars(res, u, names, residual))
     d.update(_profile_json(profiles) | fleet_json(res))  # fleet_json: issue 42's keys
@@ -375,7 +375,7 @@ def fit_report(
         lines += ["## Observed and expected information", "", data["information"]["text"] + ".", ""]
     header, metric_table = metric_rows(scores)
     lines += ["## Goodness of fit", "", md_table(header, metric_table)]
-    lines += [f"\n{n[len('note: ') :]}" for n in score_notes(scores)]
+    lines += [f"\n{n.removeprefix('note: ')}" for n in score_notes(scores)]
     if res.starts:
         lines += [
             "",

@@ -397,7 +397,7 @@ def run_compare(args) -> int:
         "integration": disc.as_dict(),
         "status": str(sim.status) if scores_finite(score) else NOT_SCORED,
         # why a gof is null although the simulation is finite (a constant output)
-        "gof_notes": [n[len("note: ") :] for n in metric_notes([score])],
+        "gof_notes": [n.removeprefix("note: ") for n in metric_notes([score])],
         "provenance": provenance(
             args.model,
             data_entries([args.data], [effective_columns(m, args.columns)]),

@@ -293,12 +293,14 @@ def _optimise(objective, a0, lo, hi, starts: int, seed: int) -> np.ndarray:
     if lo is not None and hi is not None and np.isfinite(lo).all() and np.isfinite(hi).all():
         points += [lo + rng.uniform(size=a0.size) * (hi - lo) for _ in range(starts - 1)]
     box = list(zip(lo, hi, strict=True)) if lo is not None else None
-    runs = [_Search(objective, p, box) for p in points if np.isfinite(objective(p))]
+    values = [objective(p) for p in points]  # each start's value, once
+    finite = [p for p, v in zip(points, values, strict=True) if np.isfinite(v)]
+    runs = [_Search(objective, p, box) for p in finite]
     ran = [Run(r, r) for r in runs]
     iterate(ran, lambda asking: [])  # (each evaluates for itself, as SciPy's baselines)
     if any(r.ending is not None and r.ending.status is Status.INTERRUPTED for r in ran):
         raise KeyboardInterrupt
-    best, best_value = a0, objective(a0)
+    best, best_value = a0, values[0]
     for r in runs:
         if r.value < best_value:
             best, best_value = r.x, r.value
@@ -315,7 +317,6 @@ class _Search(OwnRun):
     def __init__(self, objective, a0: np.ndarray, box):
         self.objective, self.x, self.box = objective, np.asarray(a0, dtype=float), box
         self.value = np.inf
-        self.outcome = None
 
     def step(self, state, value) -> None:
         from scipy import optimize  # here, not at the top: keeps `import tensorid` cheap

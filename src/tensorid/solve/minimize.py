@@ -83,7 +83,6 @@ class _Plain(OwnRun):
         self.point: np.ndarray | None = next(self.steps)
         self.best_x: np.ndarray | None = self.point
         self.best_values: tuple | None = None
-        self.outcome = None
         self.done: TRResult | None = None
 
     # -- as a method of endings.iterate

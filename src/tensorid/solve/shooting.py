@@ -118,7 +118,6 @@ class _Run(OwnRun):
         # the state unknowns come first in z: the banded block of the arrow
         self.subproblem = ArrowSolver(sh.nz_states) if sh.nz >= ARROW_FROM else None
         self.fun: Callable | None = None  # the Lagrangian of the inner solve under way
-        self.outcome = None
         self.steps = self.solve()
         self.point = next(self.steps)
 
