@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
+
+from .events import Events, merge
 
 
 def _real(name: str, a, where: str = "") -> np.ndarray:
@@ -131,6 +133,24 @@ def _benchmark_fields(record, inputs, outputs, Ts, name) -> tuple:
     return u, y, ts, window, label
 
 
+def _observed(observed, y, P: int) -> np.ndarray | None:
+    """The (P, S) observation mask, checked; where y is given, its NaN entries are
+    unobserved too (a missing value in a record with gaps)."""
+    if observed is None:
+        return None if y is None or np.isfinite(y).all() else None
+    if y is None:
+        raise ValueError("observed is given but y is not: it marks which samples of y count")
+    seen = np.asarray(observed)
+    if seen.ndim == 1:
+        seen = np.broadcast_to(seen[:, None], (seen.shape[0], y.shape[1]))
+    if seen.shape != y.shape:
+        raise ValueError(f"observed has shape {seen.shape}; y has {y.shape}: give one per y")
+    seen = seen.astype(bool) & np.isfinite(y)
+    if not seen.any():
+        raise ValueError("observed marks no sample as measured: a record needs one at least")
+    return seen
+
+
 def _check_finite(name: str, arr: np.ndarray) -> None:
     bad = ~np.isfinite(arr)
     if bad.any():
@@ -155,6 +175,13 @@ class Experiment:
             ``state_initialization_window_length``, see :meth:`from_benchmark`): the first
             samples, spent estimating the initial state, that a score leaves out.
             ``FitResult.validate`` uses it where no ``init_window`` is given. None: none.
+        events: doses, infusions, resets or impulses at scheduled times
+            (:class:`tensorid.Events`). Their times join the sample grid (rows that
+            carry only an event are not observed; the inputs there are interpolated),
+            and an event after the last sample is left out (``late_events`` counts it).
+        observed: (P, S) booleans, False where a sample of an output was not measured
+            (its y is ignored and may be NaN): a row with no observation, or outputs
+            measured at different times. None: every sample observed.
     """
 
     t: np.ndarray
@@ -162,12 +189,15 @@ class Experiment:
     y: np.ndarray | None = None
     name: str = ""
     init_window: int | None = None
+    events: Events | None = None
+    observed: np.ndarray | None = None
+    late_events: int = field(default=0, init=False, repr=False)
 
     def __post_init__(self) -> None:
         t = np.asarray(self.t, dtype=float)
         if t.ndim != 1:
             raise ValueError(f"t must be one-dimensional (P,), got shape {t.shape}")
-        if t.size < 2:
+        if t.size < (2 if self.events is None else 1):
             raise ValueError(f"an experiment needs at least 2 samples, got {t.size}")
         _check_finite("t", t)
         dt = np.diff(t)
@@ -183,8 +213,27 @@ class Experiment:
         u = np.zeros((P, 0)) if self.u is None else _as_2d("u", self.u, P)
         _check_finite("u", u)
         y = None if self.y is None else _as_2d("y", self.y, P)
+        seen = _observed(self.observed, y, P)
         if y is not None:
+            y = np.where(seen, y, 0.0) if seen is not None else y
             _check_finite("y", y)
+        if self.events is not None:
+            if not isinstance(self.events, Events):
+                raise TypeError(
+                    f"events must be a tensorid.Events, got {type(self.events).__name__}; "
+                    "build them with ti.Events.doses(...), .resets(...) or .impulses(...)"
+                )
+            t, u, y, seen, events, late = merge(t, u, y, seen, self.events)
+            object.__setattr__(self, "events", events)
+            object.__setattr__(self, "late_events", late)
+            if t.size < 2:
+                raise ValueError(
+                    "an experiment needs at least 2 samples; with its events it has "
+                    f"{t.size} (give the first dose's time, or a sample before the last)"
+                )
+        if seen is not None and seen.all():
+            seen = None
+        object.__setattr__(self, "observed", seen)
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "u", u)
         object.__setattr__(self, "y", y)
@@ -214,6 +263,19 @@ class Experiment:
             raise ValueError(f"benchmark record {label!r}: {e}") from None
 
     @property
+    def mask(self) -> np.ndarray | None:
+        """(P, S) 1.0 where a sample of an output was measured, 0.0 where not; None
+        where every one was (a record without gaps)."""
+        return None if self.observed is None else self.observed.astype(float)
+
+    @property
+    def observations(self) -> int:
+        """How many numbers were measured (samples × outputs, less the gaps)."""
+        if self.y is None:
+            return 0
+        return int(self.y.size if self.observed is None else self.observed.sum())
+
+    @property
     def measured(self) -> np.ndarray:
         """y, for code that needs measurements; a clear error when there are none."""
         if self.y is None:
@@ -234,11 +296,21 @@ class Experiment:
                 f"but a window needs at least 2; the record has {self.P} samples, so "
                 f"choose 0 <= start < stop <= {self.P}"
             )
+        events = self.events
+        if events is not None:  # the window's own: from its first sample on
+            t0 = self.t[start:stop][0]
+            keep = np.flatnonzero(events.time >= t0)
+            events = Events(
+                events.time[keep], tuple(events.state[i] for i in keep), events.amount[keep],
+                events.rate[keep], tuple(events.kind[i] for i in keep),
+            )  # fmt: skip
         return Experiment(
             self.t[start:stop],
             self.u[start:stop],
             None if self.y is None else self.y[start:stop],
             name=self.name if name is None else name,
+            events=events,
+            observed=None if self.observed is None else self.observed[start:stop],
         )
 
     def __repr__(self) -> str:

@@ -181,6 +181,8 @@ def march(
     state_field: Callable | None = None,
     update: Callable | None = None,
     skip_first: bool = False,
+    jump: Callable | None = None,
+    held: int = 0,
 ):
     """Integrate ``y' = field(y, u)`` over the sample grid ``t`` and fold every sample
     into an accumulator.
@@ -193,6 +195,11 @@ def march(
         update: ``update(y, obs_h) -> y``, applied at each sample after ``observe``:
             a filter's measurement update (None: the state is not corrected).
         skip_first: the accumulator leaves out t_0's sample (its ``out_h`` is kept).
+        jump: ``jump(y, u_h) -> y``, applied at each sample after ``observe`` and
+            ``update``: a record's events (doses, resets; ``events.py``), read from
+            the sample's inputs.
+        held: the last ``held`` input columns are not interpolated: each interval
+            reads them at its start (the events' channels: an infusion's rate).
 
     Returns:
         (final accumulator, stacked ``out_h`` (P leading), failure) where failure is
@@ -213,16 +220,23 @@ def march(
         )
     if update is not None:
         y0 = update(y0, first)
+    if jump is not None:
+        y0 = jump(y0, u[0])
+
+    def inputs_at(ua, ub, s):
+        if not held:
+            return input_at(ua, ub, s, interpolation)
+        return jnp.concatenate([input_at(ua[:-held], ub[:-held], s, interpolation), ua[-held:]])
 
     def interval(carry, data):
         y, h_trial, acc, fail, at = carry
         k, dt, ua, ub, obs_h = data
 
         def vf(yy, s):
-            return field(yy, input_at(ua, ub, s, interpolation))
+            return field(yy, inputs_at(ua, ub, s))
 
         def fs(x, s):
-            return state_field(x, input_at(ua, ub, s, interpolation))
+            return state_field(x, inputs_at(ua, ub, s))
 
         y, h_trial, code = scheme.interval(vf, fs, y, dt, h_trial, substeps)
         blown = ~jnp.all(jnp.isfinite(_x(y)))
@@ -232,6 +246,8 @@ def march(
         acc, out = observe(acc, y, obs_h)
         if update is not None:
             y = update(y, obs_h)
+        if jump is not None:
+            y = jump(y, ub)
         return (y, h_trial, acc, fail, at), out
 
     P = t.shape[0]

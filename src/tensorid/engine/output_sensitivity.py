@@ -27,17 +27,18 @@ def output_jacobian(self, theta, x0, p, t, u):
         return jax.vmap(lambda sx, sp: jax.jvp(fn, (x, p), (sx, sp))[1])(dx.T, Pt)
 
     def own(x, uu):
-        return m.f(x, p, uu)
+        return self._rhs(uu)(x, p)
+
+    def push(fn, state):  # (fn, fn_z Z) of z ↦ fn(z, p)
+        return fn(state[0], p), columns(fn, *state).T
 
     def field(state, uu):
-        def fn(z, p_):
-            return m.f(z, p_, uu)
-
-        return fn(state[0], p), columns(fn, *state).T
+        return push(self._rhs(uu), state)
 
     def observe(acc, state, _):
         return acc, columns(m.h, *state).T
 
     state0 = (x0, jnp.asarray(dx0))
-    _, D, _ = self._march(field, observe, state0, 0.0, t, u, jnp.zeros(t.shape), p, own=own)
+    zeros = jnp.zeros(t.shape)
+    _, D, _ = self._march(field, observe, state0, 0.0, t, u, zeros, p, own=own, push=push)
     return D

@@ -28,6 +28,7 @@ from .compiled import on_device, on_host
 from .constraints import add_penalty_terms, check_constraints, penalty_jax
 from .data import Experiment
 from .discretisation import Discretisation, DiscretisationSettings
+from .events import check_events, dosing_of
 from .fleet import check_fleet
 from .hessians import HessianPath, choose_hessian, get_hessian
 from .integrators import Scheme
@@ -138,6 +139,10 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
             (plain arithmetic on parameter names, or a single record's free initial
             states), which :func:`tensorid.fit` keeps by an augmented Lagrangian around
             its exact-derivative trust region (see :mod:`tensorid.solve.constrained`).
+        doses: {state: expression}: what a dose (an event of the records, see
+            :class:`tensorid.Events`) puts into that state, of ``amt`` (its amount, or an
+            infusion's rate), the parameters and the inputs: ``{"depot": "F * amt"}``
+            (bioavailability F, estimated or fixed). Default: the amount itself.
     """
 
     def __init__(
@@ -172,6 +177,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         residual_error: str | Mapping[str, str] | None = None,
         omega: str = "diagonal",
         constraints: Sequence[str] | str | None = None,
+        doses: Mapping[str, str] | None = None,
     ):
         predictor = _checked_predictor(
             predictor, model, fixed, bounds, loss=loss, loss_scale=loss_scale, weights=weights,
@@ -205,19 +211,21 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         if self.K == 0:
             raise ValueError("nothing to estimate: every parameter is fixed and free_x0 is empty")
         self.constraints, self.penalty = check_constraints(self, constraints), None  # Fs >= Fc
+        self.dosing = dosing_of(model, self.experiments, doses)  # events.py
+        gaps = check_events(self, hessian, segments, segment_length)
         self._sweeps = shared_sweeps(
             model, tuple(model.states.index(n) for n in self.free_x0),
             tuple(model.params.index(n) for n in self.free_params), discretisation, self.loss,
-            self.predictor,
+            self.predictor, self.dosing,
         )  # fmt: skip
-        self._arrays = [(on_device(e.t), on_device(self.inputs(e)), on_device(e.y))
+        self._arrays = [(on_device(e.t), on_device(self.inputs(e)), measured(e))
                         for e in self.experiments]  # fmt: skip
         self.threads = check_threads(threads)
         counts = resolve_segments(self.experiments, segments, segment_length)
         self.shooting = Shooting(self, counts) if counts else None
         self.hessian_path = choose_hessian(
             hessian, discretisation, model.N, self._sweeps.K, [e.P for e in self.experiments],
-            threads, adjoint=self.predictor.supports_adjoint,
+            threads, adjoint=self.predictor.supports_adjoint and not gaps,
         )  # fmt: skip
         self.hessian = self.hessian_path.name  # fit.json's hessian_path
 
@@ -234,7 +242,10 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
     def inputs(self, e: Experiment) -> np.ndarray:
         """The inputs the model sees on experiment e: delayed where the model says so
         (a smooth interpolation's: each interval's coefficients, Discretisation.inputs)."""
-        return self.discretisation.inputs(self.model, e.t, e.u)
+        u = self.discretisation.inputs(self.model, e.t, e.u)
+        if self.dosing is None:
+            return u
+        return np.concatenate([u, self.dosing.channels(e)], axis=1)  # the events' channels
 
     @property
     def sweeps(self) -> Sweeps:
@@ -407,7 +418,9 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         returns a list of Simulation."""
         p, x0 = self.unpack(theta)
         sw = self._sweeps
-        sw = shared_sweeps(self.model, sw.free_states, sw.free_params, self.discretisation)
+        sw = shared_sweeps(
+            self.model, sw.free_states, sw.free_params, self.discretisation, dosing=self.dosing
+        )
         return [run_simulation(sw, ex, x0[e], p) for e, ex in enumerate(self.experiments)]
 
     def diagnose(self, theta) -> str | None:
@@ -424,6 +437,13 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
             f"substeps={self.substeps}, interpolation={self.interpolation!r}, "
             f"hessian={self.hessian!r})"
         )
+
+
+def measured(e: Experiment):
+    """y as the sweeps take it: the array, or {"y", "mask"} for a record with gaps."""
+    if e.observed is None:
+        return on_device(e.y)
+    return {"y": on_device(e.y), "mask": on_device(e.mask)}
 
 
 def _checked_predictor(predictor, model, fixed, bounds, **options) -> Predictor:

@@ -80,5 +80,6 @@ class LossSettings:
         if self.loss.likelihood:
             return -np.inf
         return 1e-26 * sum(
-            float(np.sum(self.weights * np.asarray(y) ** 2)) for _, _, y in self._arrays
+            float(np.sum(self.weights * np.asarray(y["y"] if isinstance(y, dict) else y) ** 2))
+            for _, _, y in self._arrays
         )

@@ -22,6 +22,16 @@ from .integrators import DiscreteMap, ExplicitRungeKutta
 from .packing import pair_indices, quadratic_packed
 
 
+def _weighted(obs_h, w):
+    """(y_h, w_h): a segment sweep passes per-sample loss weights with the data,
+    obs = (y, W), which zero the sample a segment shares with the next; a record with
+    gaps passes {"y": y, "mask": (P, S)}, which zeroes the weights of what was not
+    measured; otherwise w (2, S) holds for every sample."""
+    if isinstance(obs_h, dict):
+        return obs_h["y"], w * jnp.stack([obs_h["mask"], jnp.ones_like(obs_h["mask"])])
+    return obs_h if isinstance(obs_h, tuple) else (obs_h, w)
+
+
 @dataclass(frozen=True)
 class Layout:
     """How (x (N,), dxᵀ (K, N)[, d2xᵀ (L, N)]) are carried: one flat vector, or the
@@ -134,7 +144,7 @@ def second_order(sw, theta, x0, p, t, u, y, w, v=None, end=False, both=False):
     def observe(acc, state, obs_h):
         J, g, H = acc[:3]
         x, dxT, d2T = lay.split(state)
-        y_h, w_h = obs_h if isinstance(obs_h, tuple) else (obs_h, w)
+        y_h, w_h = _weighted(obs_h, w)
         Ca, e2 = pairs(sw._pi, x, *directions(dxT, d2T))
         D = Ca[:K]  # (K, outputs) = (C_z Z)ᵀ
         ell, l1, l2, gamma = sw.loss.terms(y_h, sw._pi(x, p), w_h)
@@ -152,7 +162,7 @@ def second_order(sw, theta, x0, p, t, u, y, w, v=None, end=False, both=False):
     acc0 = (jnp.zeros(()), jnp.zeros(K), jnp.zeros(ncols))
     acc0 = acc0 + (jnp.zeros(ncols),) if both else acc0
     update = sw._update(push)
-    acc, _, _ = sw._march(field, observe, state0, acc0, t, u, y, p, end, update)
+    acc, _, _ = sw._march(field, observe, state0, acc0, t, u, y, p, end, update, push=push)
     return (*acc[0], lay.tuple(acc[1])) if end else acc
 
 
@@ -169,7 +179,7 @@ def output_tensors(sw, theta, x0, p, t, u):
     m = sw.model
 
     def field(state, uu):
-        return push(lambda z, p_: m.f(z, p_, uu), state)
+        return push(sw._rhs(uu), state)
 
     def observe(acc, state, _):
         x, dxT, d2T = lay.split(state)
@@ -178,5 +188,5 @@ def output_tensors(sw, theta, x0, p, t, u):
         return acc, (m.h(x, p), Ca[:K].T, jnp.moveaxis(d2, -1, 0))
 
     state0 = lay.pack(x0, jnp.asarray(dx0.T), jnp.zeros((ncols, lay.N)))
-    _, outs, _ = sw._march(field, observe, state0, 0.0, t, u, jnp.zeros(t.shape), p)
+    _, outs, _ = sw._march(field, observe, state0, 0.0, t, u, jnp.zeros(t.shape), p, push=push)
     return outs

@@ -11,6 +11,7 @@ from .. import _config  # noqa: F401
 from .compiled import on_device
 from .data import Experiment
 from .discretisation import Discretisation
+from .events import covering, dosing_of
 from .integrators import Scheme
 from .model import Model
 from .status import Status
@@ -47,8 +48,18 @@ class Simulation:
 
 
 def run_simulation(sweeps: Sweeps, data: Experiment, x0, p) -> Simulation:
-    """Simulate with compiled ``sweeps`` and read the integrator's failure code."""
+    """Simulate with compiled ``sweeps`` and read the integrator's failure code (a
+    record's events through the sweeps' ``dosing``, widened to the states they act on)."""
     u = sweeps.discretisation.inputs(sweeps.model, data.t, data.u)
+    dosing = covering(sweeps.dosing, sweeps.model, data)
+    if dosing is not None:
+        if dosing != sweeps.dosing:
+            sw = sweeps
+            sweeps = shared_sweeps(
+                sw.model, sw.free_states, sw.free_params, sw.discretisation, sw.loss,
+                sw.predictor, dosing,
+            )  # fmt: skip
+        u = np.concatenate([u, dosing.channels(data)], axis=1)
     xs, ys, code, at = sweeps.simulate(on_device(x0), on_device(p), on_device(data.t), on_device(u))
     xs, ys = np.asarray(xs), np.asarray(ys)
     status = Status.from_code(int(code))
@@ -73,9 +84,11 @@ def simulate(
     rtol: float | None = None,
     atol: float | None = None,
     discretisation: Discretisation | None = None,
+    doses: dict | None = None,
 ) -> Simulation:
     """Simulate ``model`` with ``params`` (dict or array (M,)) from ``x0`` (dict or
-    array (N,)) on the inputs and sample times of ``data``.
+    array (N,)) on the inputs and sample times of ``data``, and through its events
+    (``doses``: what a dose puts into a state, as ``Problem(doses=...)``).
 
     Pass the fit's ``discretisation`` (``problem.discretisation``), or its scheme,
     substeps and interpolation, to reproduce its reported cost exactly.
@@ -94,7 +107,8 @@ def simulate(
     ).for_model(model)
     p = model.params_array(params, "params")
     x = model.states_array(x0, "x0")
-    sim = run_simulation(shared_sweeps(model, (), (), discretisation), data, x, p)
+    dosing = dosing_of(model, [data], doses)
+    sim = run_simulation(shared_sweeps(model, (), (), discretisation, dosing=dosing), data, x, p)
     if sim.status is not Status.OK:
         h = sim.failed_at or 0
         warnings.warn(

@@ -45,6 +45,7 @@ from .. import _config  # noqa: F401
 from .adjoint import SecondOrderAdjoint
 from .compiled import Compiled
 from .discretisation import Discretisation, march
+from .events import Dosing
 from .losses import SQUARED, Loss
 from .model import Model
 from .output_sensitivity import output_jacobian
@@ -52,7 +53,7 @@ from .packing import quadratic_full
 from .packing import unpack_symmetric as unpack_symmetric  # its old home, re-exported
 from .predictors import SIMULATION, Predictor
 from .programs import Program
-from .second_order import layout, second_order
+from .second_order import _weighted, layout, second_order
 
 # numbers of per-sample scores (P·K) a fit's first-order step keeps beside (J, ∇J,
 # Gauss-Newton) rather than compiling a program without them (first_order_gn)
@@ -78,6 +79,7 @@ class Sweeps:
     discretisation: Discretisation
     loss: Loss = SQUARED
     predictor: Predictor = SIMULATION
+    dosing: Dosing | None = None  # the records' events (events.py): None, none
 
     @property
     def K(self) -> int:
@@ -110,7 +112,37 @@ class Sweeps:
 
     def _f(self, p, uu):
         """z ↦ the predictor's field (the model's F for output error)."""
+        if self.dosing is not None:
+            rhs = self._rhs(uu)
+            return lambda z, p_=p: rhs(z, p_)
         return lambda z, p_=p: self.predictor.field(self.model, z, p_, uu)
+
+    def _rhs(self, uu):
+        """(x, p) ↦ the model's own F, with the infusions running on the interval where
+        the records have events (``uu``: the model's inputs, then the events' channels)."""
+        m = self.model
+        if self.dosing is None:
+            return lambda x, p_: m.f(x, p_, uu)
+        rate = self._dosing_maps[1]
+        U, idx = m.U, np.array(self.dosing.targets, dtype=int)
+        return lambda x, p_: m.f(x, p_, uu[:U]).at[idx].add(rate(p_, uu))
+
+    @cached_property
+    def _dosing_maps(self):
+        """(jump(x, p, u_row), rate(p, u_row)) of the events (events.Dosing.functions)."""
+        assert self.dosing is not None
+        return self.dosing.functions()
+
+    def _jump(self, p, push=None):
+        """``march``'s jump hook: None without events; else the events at a sample,
+        with ``push(fn, state)`` carrying an augmented state's sensitivities through
+        the map z ↦ fn(z, p) (None: a plain state)."""
+        if self.dosing is None:
+            return None
+        jmap = self._dosing_maps[0]
+        if push is None:
+            return lambda state, uh: jmap(state, p, uh)
+        return lambda state, uh: push(lambda z, p_: jmap(z, p_, uh), state)
 
     def _pi(self, z, p):
         """The prediction the loss compares with a sample (ŷ for output error)."""
@@ -134,11 +166,14 @@ class Sweeps:
 
         return update
 
-    def _march(self, field, observe, y0, acc0, t, u, obs, p, end=False, update=None, own=None):
+    def _march(
+        self, field, observe, y0, acc0, t, u, obs, p, end=False, update=None, own=None, push=None
+    ):
         """``march`` with the predictor's field (``own``: the field of the unaugmented
         state, when it is not the predictor's); with ``end``, the accumulator comes
         back as (accumulator, the augmented state at the last sample); ``update(state,
-        obs_h, p)`` corrects the state at each sample (a filter)."""
+        obs_h, p)`` corrects the state at each sample (a filter); ``push(fn, state)``
+        carries an augmented state through the events' jumps (None: a plain state)."""
 
         def state_field(x, uu):
             return self._f(p, uu)(x) if own is None else own(x, uu)
@@ -166,6 +201,8 @@ class Sweeps:
             # match the first sample exactly, whose term log det R + 0 then has no
             # minimum in σ_e (→ −∞): it is left out (its gain is zero: it had no other use)
             skip_first=update is not None and bool(self.free_states),
+            jump=self._jump(p, push),
+            held=0 if self.dosing is None else self.dosing.width,
         )
 
     # -- plain simulation --------------------------------------------------------------
@@ -174,7 +211,7 @@ class Sweeps:
         m = self.model
 
         def field(x, uu):
-            return m.f(x, p, uu)
+            return self._rhs(uu)(x, p)
 
         def observe(acc, x, _):
             return acc, (x, m.h(x, p))
@@ -190,8 +227,9 @@ class Sweeps:
         def field(z, uu):
             return self._f(p, uu)(z)
 
-        def observe(J, z, y_h):
-            return J + self.loss.value(y_h, self._pi(z, p), w), None
+        def observe(J, z, obs_h):
+            y_h, w_h = _weighted(obs_h, w)
+            return J + self.loss.value(y_h, self._pi(z, p), w_h), None
 
         J, _, _ = self._march(field, observe, z0, jnp.zeros(()), t, u, y, p, update=self._update())
         return J
@@ -239,6 +277,8 @@ class Sweeps:
 
     def _residuals(self, theta, x0, p, t, u, y, w):
         _, pis = self._predictions(theta, x0, p, t, u, y)
+        if isinstance(y, dict):  # a record with gaps: what was not measured weighs 0
+            y, w = y["y"], (w[0] * y["mask"], w[1])
         return self.loss.residual(y, pis, w).reshape(-1)
 
     # -- first order: (J, ∇J) and the Gauss-Newton Hessian -----------------------------
@@ -278,7 +318,9 @@ class Sweeps:
         w_all = w
         state0 = lay.pack(x0, jnp.asarray(dx0.T))
         update = self._update(push)
-        acc, shares, _ = self._march(field, observe, state0, acc0, t, u, y, p, end, update)
+        acc, shares, _ = self._march(
+            field, observe, state0, acc0, t, u, y, p, end, update, push=push
+        )
         if scores:
             return (*acc, shares)
         return (*acc[0], lay.tuple(acc[1])) if end else acc
@@ -348,7 +390,8 @@ class Sweeps:
             hash(self.discretisation)
         except TypeError:  # an unhashable user scheme: not shared
             return self._own_simulate
-        return shared_sweeps(self.model, (), (), self.discretisation)._own_simulate
+        plain = shared_sweeps(self.model, (), (), self.discretisation, dosing=self.dosing)
+        return plain._own_simulate
 
     cost = Compiled("_cost")
     predictions = Compiled("_predictions")
@@ -402,13 +445,6 @@ class Sweeps:
         self.__dict__.update(state)
 
 
-def _weighted(obs_h, w):
-    """(y_h, w_h): a segment sweep passes per-sample loss weights with the data,
-    obs = (y, W), which zero the sample a segment shares with the next; otherwise w
-    (2, S) holds for every sample."""
-    return obs_h if isinstance(obs_h, tuple) else (obs_h, w)
-
-
 def _entry(name: str):
     return Sweeps.__dict__.get(name)
 
@@ -420,12 +456,13 @@ def shared_sweeps(
     discretisation: Discretisation,
     loss: Loss = SQUARED,
     predictor: Predictor = SIMULATION,
+    dosing: Dosing | None = None,
 ) -> Sweeps:
     """The Sweeps for this structure, compiled once per process and data shape: every
     Problem (and simulation) with the same model, θ layout, discretisation and loss
     shares them, and jit recompiles only for new data shapes. The cache lives on the
     model, so it goes when the model goes (and is not pickled with it)."""
-    key = (tuple(free_states), tuple(free_params), discretisation, loss, predictor)
+    key = (tuple(free_states), tuple(free_params), discretisation, loss, predictor, dosing)
     try:
         return model.compiled_sweeps.setdefault(key, Sweeps(model, *key))
     except TypeError:  # an unhashable user scheme: not shared

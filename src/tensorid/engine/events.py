@@ -1,0 +1,446 @@
+"""Events in a record: doses (a bolus, a zero-order infusion, repeated every II for
+ADDL more), resets (x := value, or every state to 0) and impulses (x += amount), at
+scheduled times, as clinical tables (NONMEM's EVID/AMT/CMT/RATE/II/ADDL) and
+engineering logs (a tank refilled, a cell put to rest) state them.
+
+A record with events is marched on one grid: its observation times, every event
+time and every infusion's end (``Experiment`` merges them; rows that only carry an
+event are not observed). At a grid time t_h the state jumps after the sample is
+observed (a sample at a dose's time is its trough)::
+
+    x⁺_d = (1 − r_hd) x⁻_d + r_hd v_hd + A_d(b_hd, p, u_h)       (the jump)
+    dx_d/dt = F_d(x, p, u) + A_d(q_hd, p, u_h)   on [t_h, t_h+1)   (infusions)
+
+for each target state d: b the bolus amounts at t_h, q the infusion rates running on
+the interval, r = 1 where the state is reset to v. A_d is the dose's amount as the
+model states it (``doses = {"depot": "F * amt"}``: bioavailability, dose × weight;
+default the amount itself), zero where no dose is given. The march carries the jump
+and the rates as inputs held over each interval (``Dosing.channels``), so every sweep
+pushes the transition matrices and tensors through the jump map by the same nested
+forward-mode derivatives as through F: the gradient and the Hessian stay exact
+across any number of events, including amounts that depend on parameters.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import jax.numpy as jnp
+import numpy as np
+
+KINDS = ("bolus", "infusion", "reset", "reset-all", "impulse")
+
+
+class EventNote(UserWarning):
+    """Something about a record's events worth a line (a dose after its last row)."""
+
+
+@dataclass(frozen=True, eq=False)
+class Events:
+    """A record's events, each at a time, for a state (index or name).
+
+    Arguments:
+        time: (n,) event times, in the record's time unit.
+        state: (n,) the target state of each event, by 0-based index or by name (a
+            "reset-all" event ignores it).
+        amount: (n,) a bolus's or an infusion's amount, or a reset's value.
+        rate: (n,) an infusion's rate (amount per time unit); 0 for a bolus.
+        kind: (n,) "bolus", "infusion", "reset" (x := amount), "reset-all" (every
+            state := 0, NONMEM's EVID 3) or "impulse" (x += amount, of either sign).
+
+    Build them with :meth:`doses`, :meth:`resets` and :meth:`impulses`; ``+``
+    joins two sets. Repeated doses (II, ADDL) are expanded when built.
+    """
+
+    time: np.ndarray
+    state: tuple
+    amount: np.ndarray
+    rate: np.ndarray
+    kind: tuple
+
+    def __post_init__(self) -> None:
+        n = len(self.state)
+        set_ = object.__setattr__
+        for name in ("time", "amount", "rate"):
+            a = np.asarray(getattr(self, name), dtype=float).reshape(-1)
+            if a.size != n:
+                raise ValueError(f"events: {name} has {a.size} entries for {n} events")
+            if not np.isfinite(a).all():
+                i = int(np.argmax(~np.isfinite(a)))
+                raise ValueError(f"events: {name} of event {i} is not finite ({a[i]})")
+            set_(self, name, a)
+        bad = [k for k in self.kind if k not in KINDS]
+        if bad:
+            raise ValueError(f"events: kind {bad[0]!r} is not one of {KINDS}")
+        neg = np.flatnonzero((self.rate < 0) | ((self.amount < 0) & self._dose_mask()))
+        if neg.size:
+            i = int(neg[0])
+            what = "rate" if self.rate[i] < 0 else "amount"
+            raise ValueError(
+                f"events: event {i} at t = {self.time[i]:g} has a negative {what} "
+                f"({min(self.rate[i], self.amount[i]):g}); a dose's amount and rate are >= 0 "
+                "(an impulse may take any sign: Events.impulses)"
+            )
+        inf = np.array([k == "infusion" for k in self.kind], dtype=bool)
+        if (inf & ~(self.rate > 0)).any():
+            i = int(np.argmax(inf & ~(self.rate > 0)))
+            raise ValueError(f"events: the infusion at t = {self.time[i]:g} needs a rate > 0")
+        set_(self, "state", tuple(self.state))
+        set_(self, "kind", tuple(self.kind))
+
+    def _dose_mask(self) -> np.ndarray:
+        return np.array([k in ("bolus", "infusion") for k in self.kind], dtype=bool)
+
+    # -- construction ----------------------------------------------------------------
+    @classmethod
+    def doses(cls, time, state, amount, rate=0.0, ii=0.0, addl=0, *, impulse=False) -> Events:
+        """Doses: a bolus where ``rate`` is 0, else a zero-order infusion of ``amount``
+        at ``rate`` (it lasts amount / rate). ``addl`` more doses follow each, every
+        ``ii`` time units (NONMEM's ADDL and II: both or neither)."""
+        time, amount = np.atleast_1d(np.asarray(time, float)), np.atleast_1d(amount)
+        n = time.size
+        state = _each(state, n, "state")
+        amount = np.broadcast_to(np.asarray(amount, float), (n,))
+        rate = np.broadcast_to(np.asarray(rate, float), (n,))
+        ii = np.broadcast_to(np.asarray(ii, float), (n,))
+        addl = np.broadcast_to(np.asarray(addl, float), (n,))
+        t, s, a, r = [], [], [], []
+        for i in range(n):
+            repeats = _repeats(ii[i], addl[i], time[i])
+            for k in range(repeats + 1):
+                t.append(time[i] + k * ii[i])
+                s.append(state[i])
+                a.append(amount[i])
+                r.append(rate[i])
+        kinds = tuple("infusion" if q > 0 else "impulse" if impulse else "bolus" for q in r)
+        return cls(np.array(t), tuple(s), np.array(a), np.array(r), kinds)
+
+    @classmethod
+    def impulses(cls, time, state, amount) -> Events:
+        """x += amount at each time (an amount of either sign)."""
+        return cls.doses(time, state, amount, impulse=True)
+
+    @classmethod
+    def resets(cls, time, state, value=0.0) -> Events:
+        """x := value at each time; ``state=None`` resets every state to 0."""
+        time = np.atleast_1d(np.asarray(time, float))
+        n = time.size
+        if state is None:
+            return cls(time, (0,) * n, np.zeros(n), np.zeros(n), ("reset-all",) * n)
+        value = np.broadcast_to(np.asarray(value, float), (n,))
+        return cls(time, _each(state, n, "state"), value, np.zeros(n), ("reset",) * n)
+
+    def __add__(self, other: Events) -> Events:
+        return Events(
+            np.concatenate([self.time, other.time]),
+            self.state + other.state,
+            np.concatenate([self.amount, other.amount]),
+            np.concatenate([self.rate, other.rate]),
+            self.kind + other.kind,
+        )
+
+    def __len__(self) -> int:
+        return len(self.state)
+
+    # -- on a record's grid ------------------------------------------------------------
+    def ends(self) -> np.ndarray:
+        """Each infusion's end time (amount / rate after its start)."""
+        inf = np.array([k == "infusion" for k in self.kind], dtype=bool)
+        return self.time[inf] + self.amount[inf] / self.rate[inf]
+
+    def grid_times(self) -> np.ndarray:
+        """Every time the march must step to: the events and the infusions' ends."""
+        return np.concatenate([self.time, self.ends()])
+
+    def within(self, last: float) -> tuple[Events, int]:
+        """(the events up to ``last``, how many lie after it): an event after a record's
+        last row changes nothing it holds."""
+        keep = self.time <= last
+        if keep.all():
+            return self, 0
+        idx = np.flatnonzero(keep)
+        return (
+            Events(
+                self.time[idx],
+                tuple(self.state[i] for i in idx),
+                self.amount[idx],
+                self.rate[idx],
+                tuple(self.kind[i] for i in idx),
+            ),
+            int((~keep).sum()),
+        )
+
+    def targets(self, states: Sequence[str]) -> tuple[int, ...]:
+        """The state indices these events act on (every state for a reset-all)."""
+        if "reset-all" in self.kind:
+            return tuple(range(len(states)))
+        return tuple(sorted({state_index(s, states) for s in self.state}))
+
+    def __repr__(self) -> str:
+        counts = {k: self.kind.count(k) for k in KINDS if k in self.kind}
+        return f"Events({', '.join(f'{v} {k}' for k, v in counts.items()) or 'none'})"
+
+
+def _each(value, n: int, what: str) -> tuple:
+    """``value`` once per event: a name or index for all, or one per event."""
+    if isinstance(value, str | int | np.integer):
+        return (value,) * n
+    out = tuple(v.item() if isinstance(v, np.generic) else v for v in value)
+    if len(out) != n:
+        raise ValueError(f"events: {what} has {len(out)} entries for {n} events")
+    return out
+
+
+def _repeats(ii: float, addl: float, t: float) -> int:
+    """ADDL as a count, checked against II (both or neither)."""
+    if not (float(addl).is_integer() and addl >= 0):
+        raise ValueError(f"events: ADDL of the dose at t = {t:g} must be a whole number >= 0")
+    if addl > 0 and not ii > 0:
+        raise ValueError(
+            f"events: the dose at t = {t:g} has ADDL = {addl:g} but no II (the interval "
+            "between its repeats): give II > 0, or ADDL = 0"
+        )
+    if ii > 0 and addl == 0:
+        raise ValueError(
+            f"events: the dose at t = {t:g} has II = {ii:g} but no ADDL (how many more "
+            "doses): give ADDL >= 1, or II = 0"
+        )
+    return int(addl)
+
+
+def state_index(s, states: Sequence[str]) -> int:
+    """A state by 0-based index or by name; one line for one the model lacks."""
+    if isinstance(s, str):
+        if s in states:
+            return list(states).index(s)
+        raise ValueError(f"events: there is no state {s!r}; the model's states are {list(states)}")
+    if isinstance(s, bool) or not float(s).is_integer() or not 0 <= int(s) < len(states):
+        raise ValueError(
+            f"events: state {s!r} does not exist; the model has {len(states)} states "
+            f"{list(states)} (0-based indices 0 to {len(states) - 1}, or names)"
+        )
+    return int(s)
+
+
+def merge(t, u, y, observed, events: Events):
+    """The record on one grid of its rows and its events' times: (t, u, y, observed,
+    events within the record, events after its last row). New times are not observed;
+    the inputs there are interpolated linearly between the rows (held outside)."""
+    events, late = events.within(float(t[-1]))
+    extra = events.grid_times()
+    extra = extra[extra <= t[-1]]
+    grid = np.unique(np.concatenate([t, extra]))
+    if grid.size == t.size:
+        return t, u, y, observed, events, late
+    rows = np.searchsorted(grid, t)
+    U = u.shape[1]
+    u2 = np.stack([np.interp(grid, t, u[:, k]) for k in range(U)], axis=1) if U else None
+    if u2 is None:
+        u2 = np.zeros((grid.size, 0))
+    else:
+        u2[rows] = u  # the rows' own values, exactly
+    y2 = None
+    if y is not None:
+        y2 = np.zeros((grid.size, y.shape[1]))
+        y2[rows] = y
+    seen = np.zeros((grid.size, y.shape[1] if y is not None else 0), dtype=bool)
+    if y is not None:
+        seen[rows] = np.ones_like(y, dtype=bool) if observed is None else observed
+    return grid, u2, y2, seen, events, late
+
+
+@dataclass(frozen=True)
+class Dosing:
+    """What a record's events do to the model, the same for every record of a fit:
+    the target states (D of them) and each target's amount expression.
+
+    The march reads the events as ``channels`` (P, 4D) appended to the inputs and
+    held over each interval: per target, the bolus amount at t_h, the infusion rate
+    on [t_h, t_h+1), a reset flag and a reset value.
+
+    Arguments:
+        targets: the indices of the states that events act on.
+        amounts: (target index, expression text) pairs: a dose's amount as the model
+            states it, of ``amt`` (the row's amount, or an infusion's rate), the
+            model's parameters and inputs; a target without one takes ``amt``.
+        inputs: how many of the march's input columns are the model's own (the
+            channels follow).
+    """
+
+    targets: tuple[int, ...]
+    amounts: tuple[tuple[int, str], ...] = ()
+    inputs: int = 0
+    params: tuple[str, ...] = ()
+    input_names: tuple[str, ...] = ()
+    states: tuple[str, ...] = ()
+
+    @property
+    def width(self) -> int:
+        return 4 * len(self.targets)
+
+    def channels(self, e) -> np.ndarray:
+        """(P, 4D) of a record with events on its grid: the bolus amounts, the
+        infusion rates running on each interval, the reset flags and values."""
+        D, t = len(self.targets), e.t
+        out = np.zeros((t.size, 4, D))
+        ev = e.events
+        if ev is None:
+            return out.reshape(t.size, -1)
+        pos = {s: i for i, s in enumerate(self.targets)}
+        names = self.states
+        for k in range(len(ev)):
+            h = int(np.searchsorted(t, ev.time[k]))
+            kind = ev.kind[k]
+            if kind == "reset-all":
+                out[h, 2, :], out[h, 3, :] = 1.0, 0.0
+                continue
+            d = pos[state_index(ev.state[k], names)]
+            if kind in ("bolus", "impulse"):
+                out[h, 0, d] += ev.amount[k]
+            elif kind == "reset":
+                out[h, 2, d], out[h, 3, d] = 1.0, ev.amount[k]
+            else:  # infusion: its rate on every interval from its start to its end
+                end = ev.time[k] + ev.amount[k] / ev.rate[k]
+                running = (t >= ev.time[k]) & (t < end - 1e-12 * max(abs(end), 1.0))
+                out[running, 1, d] += ev.rate[k]
+        return out.reshape(t.size, -1)
+
+    def _amount_functions(self):
+        """Per target, ``A(amt, p, u)`` in JAX."""
+        import sympy as sp  # here: sympy costs 0.2-0.5 s to import
+
+        from .equations import _parse
+
+        names = ["amt", *self.input_names, *self.params]
+        symbols = {n: sp.Symbol(n) for n in names}
+        given = dict(self.amounts)
+        fns = []
+        for d in self.targets:
+            if d not in given:
+                fns.append(None)
+                continue
+            expr = _parse(f"doses[{self.states[d]!r}]", given[d], symbols)
+            stray = sorted(str(v) for v in expr.free_symbols if str(v) not in names)
+            if stray:
+                raise ValueError(
+                    f"doses[{self.states[d]!r}] = {given[d]!r} names {stray}, which are "
+                    f"neither 'amt' nor inputs {list(self.input_names)} nor parameters "
+                    f"{list(self.params)} of the model"
+                )
+            fns.append(sp.lambdify([symbols[n] for n in names], expr, modules="jax"))
+        return fns
+
+    def functions(self):
+        """(jump(x, p, u_row), rate(p, u_row)) of the carried state and one row of the
+        march's inputs (the model's own, then the channels)."""
+        fns = self._amount_functions()
+        D, U, idx = len(self.targets), self.inputs, np.array(self.targets, dtype=int)
+
+        def amount(q, p, uu):
+            parts = []
+            for d, fn in enumerate(fns):
+                if fn is None:
+                    parts.append(q[d])
+                    continue
+                args = [q[d], *(uu[k] for k in range(U)), *(p[k] for k in range(len(self.params)))]
+                parts.append(jnp.where(q[d] != 0, fn(*args) * 1.0, 0.0))
+            return jnp.stack(parts)
+
+        def split(uu):
+            ch = uu[U : U + 4 * D].reshape(4, D)
+            return ch[0], ch[1], ch[2], ch[3]
+
+        def jump(x, p, uu):
+            b, _, r, v = split(uu)
+            xs = x[idx]
+            return x.at[idx].set((1.0 - r) * xs + r * v + amount(b, p, uu))
+
+        def rate(p, uu):
+            return amount(split(uu)[1], p, uu)
+
+        return jump, rate
+
+
+def dosing_of(model, experiments, doses: Mapping[str, str] | None = None) -> Dosing | None:
+    """The Dosing of a fit's records (None where no record has events and no amount
+    expression is given); one line for an expression naming what the model lacks."""
+    with_events = [e for e in experiments if getattr(e, "events", None) is not None]
+    doses = dict(doses or {})
+    if not with_events and not doses:
+        return None
+    states = tuple(model.states)
+    for s in doses:
+        if s not in states:
+            raise ValueError(
+                f"doses names {s!r}, which is not a state; the model's states are {list(states)}"
+            )
+    targets: set[int] = {states.index(s) for s in doses}
+    for e in with_events:
+        targets |= set(e.events.targets(states))
+    order = tuple(sorted(targets))
+    amounts = []
+    for s, text in doses.items():
+        if not isinstance(text, str):
+            raise TypeError(f"doses[{s!r}] must be an expression such as 'F * amt', got {text!r}")
+        amounts.append((states.index(s), text))
+    out = Dosing(
+        order, tuple(amounts), len(model.inputs), tuple(model.params), tuple(model.inputs), states
+    )
+    out._amount_functions()  # parsed now: one line for a bad expression, before any work
+    return out
+
+
+def covering(dosing: Dosing | None, model, record) -> Dosing | None:
+    """``dosing``, widened to the states ``record``'s events act on (a new record
+    scored by a fit's model); None where neither has events."""
+    if getattr(record, "events", None) is None:
+        return dosing
+    if dosing is None:
+        return dosing_of(model, [record])
+    extra = set(record.events.targets(model.states)) - set(dosing.targets)
+    if not extra:
+        return dosing
+    return dataclasses.replace(dosing, targets=tuple(sorted(set(dosing.targets) | extra)))
+
+
+def warn_late(where: str, late: dict[str, int]) -> None:
+    """One note for the events after their records' last rows (dropped)."""
+    if late:
+        shown = ", ".join(f"{k} ({v})" for k, v in list(late.items())[:5])
+        more = f" and {len(late) - 5} more" if len(late) > 5 else ""
+        warnings.warn(
+            f"{where}: events after a record's last row change nothing it holds and are left "
+            f"out: {shown}{more}",
+            EventNote,
+            stacklevel=3,
+        )
+
+
+def check_events(problem, hessian, segments, segment_length) -> bool:
+    """One line for what records with events or gaps cannot go with (a filter, a
+    smooth input interpolation, multiple shooting, the adjoint Hessian); returns
+    whether any record has them (then the Hessian is the transition tensors')."""
+    exps = problem.experiments
+    events = problem.dosing is not None
+    gaps = events or any(e.observed is not None for e in exps)
+    if not gaps:
+        return False
+    what = "records with events" if events else "records with unobserved samples"
+    if problem.predictor.filters:
+        raise ValueError(
+            f"{what} are fitted by output error: drop predictor={problem.predictor.name!r}"
+        )
+    if events and problem.discretisation.interpolation not in ("linear", "zoh"):
+        raise ValueError(
+            f"{what} take interpolation 'linear' or 'zoh', not "
+            f"{problem.discretisation.interpolation!r}"
+        )
+    if (segments not in (None, 1)) or segment_length is not None:
+        raise ValueError(f"{what} are fitted by single shooting: drop segments")
+    name = hessian if isinstance(hessian, str) else getattr(hessian, "name", "")
+    if name == "adjoint":
+        raise ValueError(f"{what} take hessian='tensors' (or 'auto'), not 'adjoint'")
+    return True

@@ -1,0 +1,194 @@
+"""Events in the records (engine/events.py): doses, infusions, resets and impulses on
+the march's grid, with the gradient and the Hessian exact through every jump —
+checked against jax.hessian of a plainly written multiple-dose cost."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import tensorid as ti
+from tensorid.engine.events import Events
+
+PARAMS = ["ka", "ke", "v", "F"]
+
+
+def _model():
+    def rhs(x, p, u):
+        ka, ke = p[0], p[1]
+        return jnp.stack([-ka * x[0], ka * x[0] - ke * x[1] - 0.05 * x[1] ** 2 / (1 + x[1])])
+
+    return ti.Model(
+        rhs=rhs,
+        output=lambda x, p: x[1:] / p[2],
+        states=["depot", "center"],
+        params=PARAMS,
+        outputs=["cp"],
+    )
+
+
+T_OBS = np.array([0.5, 1.0, 2.0, 4.0, 7.5, 12.0, 12.5, 14.0, 20.0, 26.0, 30.0])
+EVENTS = (
+    Events.doses(0.0, "depot", 100.0)
+    + Events.doses(12.0, "depot", 80.0, ii=6.0, addl=1)  # 12 and 18
+    + Events.doses(24.0, "center", 60.0, rate=30.0)  # an infusion over 24-26
+)
+THETA = np.array([1.1, 0.15, 9.0, 0.8])
+
+
+def _plain_cost(theta, t, y, seen, jumps, rates, substeps):
+    """RK4 written out (one scan over the grid): the jumps after each grid time's
+    observation, the infusion rates held on each interval; F multiplies the depot's
+    doses."""
+    ka, ke, v, F = theta
+
+    def f(x, r):
+        return jnp.stack(
+            [-ka * x[0] + r[0], ka * x[0] - ke * x[1] - 0.05 * x[1] ** 2 / (1 + x[1]) + r[1]]
+        )
+
+    def rk4(x, dt, r):
+        k1 = f(x, r)
+        k2 = f(x + dt / 2 * k1, r)
+        k3 = f(x + dt / 2 * k2, r)
+        k4 = f(x + dt * k3, r)
+        return x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+    def sample(carry, data):
+        x, J = carry
+        y_h, seen_h, jump_h, rate_h, dt = data
+        J = J + seen_h * (y_h - x[1] / v) ** 2
+        x = x + jnp.array([F, 1.0]) * jump_h
+        x = jax.lax.fori_loop(0, substeps, lambda _, xx: rk4(xx, dt / substeps, rate_h), x)
+        return (x, J), None
+
+    dts = jnp.append(jnp.diff(t), 0.0)
+    (_, J), _ = jax.lax.scan(sample, (jnp.zeros(2), 0.0), (y, seen, jumps, rates, dts))
+    return J
+
+
+def _record(y=None):
+    y = np.ones((T_OBS.size, 1)) if y is None else y
+    return ti.Experiment(T_OBS, None, y, events=EVENTS)
+
+
+def _problem(e, **kw):
+    return ti.Problem(
+        _model(), e, p0=dict(zip(PARAMS, THETA, strict=True)), x0=[0.0, 0.0],
+        doses={"depot": "F * amt"}, **kw,
+    )  # fmt: skip
+
+
+def test_the_grid_holds_every_event_and_rows_without_observation_do_not_count():
+    e = _record()
+    # 0 (a dose), 18 (a repeat), 24 (an infusion starts; it ends at 26, a sample)
+    for extra in (0.0, 18.0, 24.0):
+        h = int(np.flatnonzero(e.t == extra)[0])
+        assert not e.observed[h, 0]
+    assert e.observations == T_OBS.size
+    assert e.P == T_OBS.size + 3
+
+
+def test_cost_gradient_and_hessian_through_bolus_infusion_repeats_and_F_are_exact():
+    sim = ti.simulate(
+        _model(), dict(zip(PARAMS, THETA, strict=True)), [0, 0], _record(),
+        doses={"depot": "F * amt"},
+    )  # fmt: skip
+    rng = np.random.default_rng(1)
+    y = sim.y[_record().observed[:, 0]] * (1 + 0.05 * rng.standard_normal((T_OBS.size, 1)))
+    e = _record(y)
+    pr = _problem(e, substeps=3)
+    theta = THETA * np.array([1.2, 0.9, 1.1, 0.95])
+    J, g, H = pr.cost_grad_hess(theta)
+    ch = pr.dosing.channels(e).reshape(e.P, 4, -1)
+    jumps = np.zeros((e.P, 2))
+    jumps[:, list(pr.dosing.targets)] = ch[:, 0]
+    rates = np.zeros((e.P, 2))
+    rates[:, list(pr.dosing.targets)] = ch[:, 1]
+    args = (e.t, e.y[:, 0], e.observed[:, 0].astype(float), jumps, rates, 3)
+    ref = jax.jit(lambda th: _plain_cost(th, *args))
+    th = jnp.asarray(theta)
+    assert J == pytest.approx(float(ref(th)), rel=1e-12)
+    np.testing.assert_allclose(g, jax.grad(ref)(th), rtol=1e-9, atol=1e-12 * np.abs(g).max())
+    Href = np.asarray(jax.hessian(ref)(th))
+    np.testing.assert_allclose(H, Href, rtol=1e-8, atol=1e-10 * np.abs(Href).max())
+    # and against finite differences of the cost itself (F moves the doses' amounts)
+    steps = np.diag(1e-6 * theta)
+    fd = [(pr.cost(theta + s) - pr.cost(theta - s)) / (2 * s[i]) for i, s in enumerate(steps)]
+    np.testing.assert_allclose(g, fd, rtol=1e-5)
+
+
+def test_a_reset_and_an_impulse_jump_the_state_and_its_derivatives():
+    m = ti.Model(
+        rhs=lambda x, p, u: jnp.stack([p[0] - p[1] * x[0]]),
+        states=["level"], params=["q", "k"],
+    )  # fmt: skip
+    t = np.linspace(0, 10, 21)
+    ev = Events.resets(4.0, "level", 0.5) + Events.impulses(7.0, 0, -0.3)
+    e0 = ti.Experiment(t, None, np.zeros((21, 1)), events=ev)
+    sim = ti.simulate(m, {"q": 1.0, "k": 0.5}, [0.0], e0)
+    h4, h7 = 8, 14
+    assert sim.y[h4 + 1, 0] < sim.y[h4, 0]  # the reset after the sample at t = 4
+    e = ti.Experiment(t, None, sim.y + 0.01 * np.sin(t)[:, None], events=ev)
+    pr = ti.Problem(m, e, p0={"q": 0.8, "k": 0.6}, x0=[0.0], free_x0=["level"])
+    theta = np.array([0.1, 0.8, 0.6])
+    _, g, H = pr.cost_grad_hess(theta)
+    Href = jax.hessian(pr.jax_cost)(jnp.asarray(theta))
+    np.testing.assert_allclose(H, Href, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(g, jax.grad(pr.jax_cost)(jnp.asarray(theta)), rtol=1e-9)
+    # after the reset the initial state no longer matters: its sensitivity is cut
+    res = ti.fit(pr)
+    assert res.success
+    np.testing.assert_allclose(res.params["q"], 1.0, rtol=0.05)
+    del h7
+
+
+def test_a_fit_on_doses_recovers_the_truth():
+    truth = dict(zip(PARAMS, THETA, strict=True))
+    sim = ti.simulate(_model(), truth, [0, 0], _record(), doses={"depot": "F * amt"}, substeps=8)
+    y = sim.y[_record().observed[:, 0]]
+    e = _record(y * (1 + 0.01 * np.random.default_rng(3).standard_normal(y.shape)))
+    pr = ti.Problem(
+        _model(), e, p0={"ka": 1.5, "ke": 0.2, "v": 7.0, "F": 0.8}, x0=[0, 0],
+        fixed=["F"], doses={"depot": "F * amt"}, substeps=8,
+    )  # fmt: skip
+    res = ti.fit(pr)
+    assert res.success
+    se = dict(zip(res.problem.theta_names, res.uncertainty().stderr, strict=True))
+    for k in ("ka", "ke", "v"):
+        assert abs(res.params[k] - truth[k]) < 3 * se[k], (k, res.params[k], se[k])
+
+
+@pytest.mark.parametrize(
+    "build, words",
+    [
+        (lambda: Events.doses(0.0, "depot", -5.0), "negative amount"),
+        (lambda: Events.doses(0.0, "depot", 5.0, rate=-1.0), "negative rate"),
+        (lambda: Events.doses(0.0, "depot", 5.0, ii=12.0), "no ADDL"),
+        (lambda: Events.doses(0.0, "depot", 5.0, addl=2), "no II"),
+    ],
+)
+def test_bad_events_get_one_line(build, words):
+    with pytest.raises(ValueError, match=words):
+        build()
+
+
+def test_an_event_for_a_state_the_model_lacks_is_refused_before_any_work():
+    e = ti.Experiment(T_OBS, None, np.ones((T_OBS.size, 1)), events=Events.doses(0, "gut", 1.0))
+    with pytest.raises(ValueError, match="no state 'gut'"):
+        _problem(e)
+    e = ti.Experiment(T_OBS, None, np.ones((T_OBS.size, 1)), events=Events.doses(0, 5, 1.0))
+    with pytest.raises(ValueError, match="state 5 does not exist"):
+        _problem(e)
+    with pytest.raises(ValueError, match="names \\['G'\\]"):
+        ti.Problem(_model(), _record(), p0=dict(zip(PARAMS, THETA, strict=True)),
+                   doses={"depot": "G * amt"})  # fmt: skip
+
+
+def test_a_filter_or_segments_with_events_is_refused():
+    with pytest.raises(ValueError, match="single shooting"):
+        _problem(_record(), segments=2)
+    with pytest.raises(ValueError, match="not 'adjoint'"):
+        _problem(_record(), hessian="adjoint")
