@@ -18,6 +18,7 @@ import numpy as np
 
 from ..engine.data import Experiment
 from ..engine.model import Model
+from . import event_table
 from .readers import _TS, _Columns, _read, _real, input_is_output
 from .records import (
     as_text,
@@ -98,7 +99,7 @@ def _mapped(p, cols: _Columns, columns: dict | None, model: Model, strict=True) 
         return cols
     known = ["t", *model.inputs, *model.outputs]
     values = dict(cols.values)
-    constants = dict(cols.constants)
+    constants, text = dict(cols.constants), dict(cols.text)
     for name, source in columns.items():
         if name not in known:
             raise ValueError(
@@ -125,8 +126,10 @@ def _mapped(p, cols: _Columns, columns: dict | None, model: Model, strict=True) 
                 f"it has {sorted(cols.values)}"
             )
         values[name] = cols.values[source]
+        if source in cols.text:  # a text column's cells go with it ("." in an event table)
+            text[name] = cols.text[source]
     input_is_output(p, columns, model, constants)
-    return _Columns(values, cols.what, cols.lines, cols.note, constants, cols.text)
+    return _Columns(values, cols.what, cols.lines, cols.note, constants, text)
 
 
 def _joined(paths: list[Path], parts: list[_Columns]) -> _Columns:
@@ -246,7 +249,7 @@ def _needed(cols: _Columns, model: Model, require_outputs: bool) -> list[str]:
 
 
 def _one_or_joined(
-    spec, columns, model, ts, samples, require_outputs, records=None, covariates=None
+    spec, columns, model, ts, samples, require_outputs, records=None, covariates=None, events=None
 ) -> list[Experiment]:
     """The Experiment of one file, or of "a.mat+b.mat" joined side by side; with
     ``records`` (an id column), one per unit."""
@@ -260,7 +263,9 @@ def _one_or_joined(
     label = paths[0] if len(paths) == 1 else "+".join(str(q) for q in paths)
     if records is not None:
         has_id_column(label, cols, records)
-    cols = _mapped(label, cols, columns, model)
+    cols = event_table.mapped(label, _mapped(label, cols, columns, model), events)
+    if event_table.is_event_table(cols):
+        return _event_records(label, cols, model, require_outputs, records, covariates)
     if records is None:
         check_covariates(label, None, cols, covariates)
         return [_experiment(label, cols, model, ts, samples, require_outputs)]
@@ -275,6 +280,42 @@ def _one_or_joined(
     return out
 
 
+def _event_records(label, cols, model, require_outputs, records, covariates) -> list[Experiment]:
+    """The records of an event table (app/event_table.py): one per unit, each with its
+    doses and its rows without an observation; the units without any observation left
+    out with a note, the events after a unit's last row with one note for all."""
+    import warnings
+
+    from ..engine.events import warn_late
+
+    if "t" not in cols.values:
+        raise ValueError(
+            f"{label}: an event table needs its time column: map it with --columns t=TIME "
+            f"(columns={{'t': 'TIME'}}); found {sorted(cols.values)}"
+        )
+    units = [(_stem(label), cols)] if records is None else split_units(label, cols, records)
+    for name, part in units:  # every unit checked before any is made
+        check_covariates(label, None if records is None else name, part, covariates)
+    out, empty, late = [], [], {}
+    for name, part in units:
+        where = str(label) if records is None else as_text(label, name)
+        e = event_table.unit_record(where, name, part, model, require_outputs)
+        if e is None:
+            empty.append(name)
+            continue
+        if e.late_events:
+            late[name] = e.late_events
+        out.append(e)
+    if empty:
+        warnings.warn(
+            f"{label}: unit(s) {empty} have no observation and are left out", DataNote, stacklevel=3
+        )
+    warn_late(str(label), late)
+    if not out:
+        raise ValueError(f"{label}: no unit has an observation of {list(model.outputs)}")
+    return out
+
+
 def load_data(
     paths,
     model: Model,
@@ -284,6 +325,7 @@ def load_data(
     columns: dict | list[dict | None] | None = None,
     records: str | None = None,
     covariates: list[str] | None = None,
+    events: dict | None = None,
 ) -> list[Experiment]:
     """One Experiment per file, with the model's input and output columns; time from
     a column ``t`` (time stamps within 0.1 % of a sample time of a uniform grid are
@@ -306,7 +348,13 @@ def load_data(
     Experiment named by its id as text ("1"), in the order the ids first appear;
     with several files, named ``file:id``. A unit with no observation is left out
     with a :class:`DataNote`; one of a single sample is refused. ``covariates`` names
-    inputs that must be constant within each unit (each file, without ``records``)."""
+    inputs that must be constant within each unit (each file, without ``records``).
+
+    A file with an AMT or an EVID column is an event table in NONMEM's layout (doses,
+    infusions, repeated doses, rows without an observation: ``app/event_table.py``);
+    ``events`` maps NONMEM's column names to the file's, e.g. ``{"AMT": "DOSE"}``. Each
+    record then carries its doses (``Experiment.events``), and a unit of one
+    observation is kept."""
     if isinstance(paths, str | Path):
         paths = [paths]
     if ts is not None and not 0 < ts < np.inf:
@@ -323,7 +371,9 @@ def load_data(
             paths, maps = ["+".join(str(p) for p in paths)], [columns]
     exps, each_map, each_path = [], [], []
     for p, c in zip(paths, maps, strict=True):
-        some = _one_or_joined(p, c, model, ts, samples, require_outputs, records, covariates)
+        some = _one_or_joined(
+            p, c, model, ts, samples, require_outputs, records, covariates, events
+        )
         if records is not None and len(paths) > 1:  # units of several files: file:id
             some = [replace(e, name=f"{_stem(p)}:{e.name}") for e in some]
         exps += some

@@ -78,6 +78,7 @@ class ModelSpec:
     population: dict = field(default_factory=dict)
     residual_error: str | dict | None = None  # a population fit's: additive, proportional, ...
     omega: str | None = None  # Ω's structure: "diagonal" (default) or "full"
+    doses: dict = field(default_factory=dict)  # what a dose puts in a state: {"depot": "F * amt"}
 
     def x0_array(self, given=()) -> np.ndarray:
         """x0 of the model file as an array (N,), states it does not name at 0; a state
@@ -295,6 +296,8 @@ def _fleet_settings(ns: dict, out: ModelSpec) -> None:
         out.residual_error = fleets.residual_error(ns["residual_error"], m)
     if ns.get("omega") is not None:
         out.omega = fleets.omega(ns["omega"])
+    if ns.get("doses") is not None:
+        out.doses = _doses(ns["doses"], m)
     fleets.x0_expressions(out.x0, m)
     where = {"individual": "individual", "population": "population", "fixed": "fixed"}
     fleets.kinds(out.individual, out.population, out.fixed, where)
@@ -309,10 +312,24 @@ _SETTINGS = ("model", "rhs", "output", "inputs", "params", "input_delays", "disc
              "x0", "free_x0", "fixed", "bounds", "weights", "priors", "constraints", "noise",
              "loss", "loss_scale", "predictor", "process_noise", "measurement_noise",
              "interpolation", "covariates", "individual", "population",
-             "residual_error", "omega")  # fmt: skip
+             "residual_error", "omega", "doses")  # fmt: skip
 # read only beside text equations: beside a tensorid.Model, ``outputs = [...]`` or
 # ``param = ...`` are the file's own variables (passed to the Model), not misspellings
 _TEXT_ONLY = ("rhs", "output", "inputs", "params", "input_delays", "discrete")
+
+
+def _doses(value, model) -> dict:
+    """``doses = {"depot": "F * amt"}``: what a record's dose puts into a state (an
+    expression of amt, the parameters and the inputs), checked before any work."""
+    from ..engine.events import dosing_of
+
+    if not isinstance(value, dict):
+        raise TypeError(
+            f"doses must be a dict {{state: expression}} such as {{'depot': 'F * amt'}}, got "
+            f"{type(value).__name__}"
+        )
+    dosing_of(model, [], value)  # one line for a state or a name the model lacks
+    return dict(value)
 
 
 def _interpolation(value) -> str | None:

@@ -225,6 +225,8 @@ def problem_keywords(spec, problem: type) -> dict:
         out["residual_error"] = spec.residual_error
     if spec.omega:
         out["omega"] = spec.omega
+    if spec.doses:
+        out["doses"] = dict(spec.doses)
     taken = inspect.signature(problem).parameters
     lacking = [k for k in out if k not in taken]
     if lacking:

@@ -244,7 +244,9 @@ def coarse_steps(obj: Objective, x, etas, sigma) -> str | None:
     d = obj.problem.discretisation
     if not isinstance(d.scheme, ExplicitRungeKutta | DiagonallyImplicitRungeKutta):
         return None  # adaptive steps control their own error; a discrete map is exact
-    fine = shared_sweeps(obj.sweeps.model, (), (), replace(d, substeps=2 * d.substeps))
+    fine = shared_sweeps(
+        obj.sweeps.model, (), (), replace(d, substeps=2 * d.substeps), dosing=obj.sweeps.dosing
+    )
 
     bare = obj.structure()  # the kept program holds no units' data
 

@@ -38,7 +38,8 @@ def units_figure(res, output: int = 0):
             continue
         k = int(units.samples[i])
         t = units.t[i, :k]
-        ax.plot(t, units.y[i, :k, output], "o", ms=3, color="k", label="observed")
+        seen = units.mask[i, :k, output] > 0  # rows of a dose alone are not observations
+        ax.plot(t[seen], units.y[i, :k, output][seen], "o", ms=3, color="k", label="observed")
         ax.plot(t, own[i, :k, output], "-", color="C0", label="individual")
         ax.plot(t, typical[i, :k, output], "--", color="C1", label="population")
         ax.set_title(f"unit {units.names[i]}", fontsize=8)

@@ -83,7 +83,9 @@ class Objective:
         uses = set(getattr(problem, "x0_uses", set())) & set(problem.free_params)
         self.moving = moving(m, exprs) if uses else None
         states = tuple(range(m.N)) if self.moving else ()
-        self.sweeps = shared_sweeps(m, states, tuple(free), problem.discretisation)
+        self.sweeps = shared_sweeps(
+            m, states, tuple(free), problem.discretisation, dosing=getattr(problem, "dosing", None)
+        )
         self.free = jnp.array(free, dtype=int)
         self.own_index = [m.params.index(n) for n in self.pop]
         self.pop_pos = jnp.array([problem.free_params.index(n) for n in self.pop], dtype=int)

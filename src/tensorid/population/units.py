@@ -49,11 +49,14 @@ class Units:
         S, U = problem.model.S, len(problem.model.inputs)
         t, u = np.zeros((len(exps), P)), np.zeros((len(exps), P, U))
         y, mask = np.zeros((len(exps), P, S)), np.zeros((len(exps), P, S))
+        dosing = getattr(problem, "dosing", None)
+        if dosing is not None:  # the events' channels follow the inputs (events.py)
+            u = np.zeros((len(exps), P, U + dosing.width))
         for i, e in enumerate(exps):
             n, ue = e.P, problem.inputs(e)
             t[i, :n], t[i, n:] = e.t, e.t[-1]
-            u[i, :n], u[i, n:] = ue, ue[-1]
-            y[i, :n], mask[i, :n] = e.y, 1.0
+            u[i, :n], u[i, n:, :U] = ue, ue[-1, :U]  # padding: no event happens again
+            y[i, :n], mask[i, :n] = e.y, 1.0 if e.mask is None else e.mask
         names = [e.name or str(i) for i, e in enumerate(exps)]
         samples = np.array([e.P for e in exps])
         return cls(t, u, y, mask, np.asarray(problem.x0, float), names, samples)
