@@ -20,6 +20,7 @@ from .app.files import ModelSpec, load_data, load_model
 from .engine.data import Experiment
 from .engine.discretisation import Discretisation
 from .engine.equations import model_from_equations
+from .engine.events import Events
 from .engine.integrators import (
     SCHEMES,
     AdaptiveRungeKutta,
@@ -55,6 +56,7 @@ __all__ = [
     "AdaptiveRungeKutta",
     "DiagonallyImplicitRungeKutta",
     "Discretisation",
+    "Events",
     "Experiment",
     "ExplicitRungeKutta",
     "FitInterrupted",

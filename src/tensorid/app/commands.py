@@ -167,6 +167,7 @@ def _fit_command(args, renderer: Renderer) -> int:
         columns=train_maps,
         records=getattr(args, "records", None),  # fleets (issue 42)
         covariates=spec.covariates,
+        events=getattr(args, "events", None),  # an event table's column names
     )
     val_maps = _maps(
         args.validate_columns or _one(args.columns), args.validate, "--validate-columns"

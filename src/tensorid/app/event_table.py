@@ -163,6 +163,9 @@ def unit_record(where: str, name: str, cols: _Columns, model, require_outputs: b
             Y[slot[i]] = np.where(seen[i], y[i], Y[slot[i]])
             S[slot[i]] |= seen[i]
         y, seen = (Y, S) if S.any() else (None, None)
+    if require_outputs and seen is not None:  # what follows the last observation fits nothing
+        keep = grid <= grid[np.flatnonzero(seen.any(axis=1))[-1]]
+        grid, u, y, seen = grid[keep], u[keep], y[keep], seen[keep]
     try:
         e = Experiment(grid, u, y, name=name, events=events, observed=seen)
     except ValueError as err:

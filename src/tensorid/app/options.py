@@ -16,6 +16,13 @@ _TS_HELP = (
 )
 
 
+EVENTS_HELP = (
+    "an event table's columns under NONMEM's names, where the file's differ: "
+    "AMT=DOSE,CMT=COMPT (EVID, AMT, CMT, RATE, II, ADDL, SS, MDV, DVID; a file with an AMT "
+    "or EVID column is read as doses and observations, each unit's clock from its first row)"
+)
+
+
 def record_options(p: argparse.ArgumentParser) -> None:
     """How simulate and compare read their one record and integrate the model."""
     p.add_argument(
@@ -46,6 +53,13 @@ def record_options(p: argparse.ArgumentParser) -> None:
         "--unit", default=None, metavar="ID", help="with --records: the unit of DATA to use"
     )
     p.add_argument(
+        "--events",
+        type=_mapping,
+        default=None,
+        metavar="NAME=COLUMN,...",
+        help=EVENTS_HELP,
+    )
+    p.add_argument(
         "--init-window",
         type=_count,
         default=None,
@@ -68,6 +82,9 @@ def fleet_options(f: argparse.ArgumentParser) -> None:
         "stamps (in increasing order), named by its id; a unit with no observation is "
         "left out with a note. Columns constant within a unit (weight, dose) are read by "
         "inputs of their name",
+    )
+    f.add_argument(
+        "--events", type=_mapping, default=None, metavar="NAME=COLUMN,...", help=EVENTS_HELP
     )
     f.add_argument(
         "--individual",

@@ -234,7 +234,8 @@ def _record(args, spec: ModelSpec, require_outputs: bool):
     """The one record of DATA, with the init window checked before any work."""
     e = one_unit(args, partial(  # one_unit: --records ID --unit 3 (issue 42)
         load_data, [args.data], spec.model, ts=args.ts, samples=getattr(args, "samples", None),
-        require_outputs=require_outputs, columns=args.columns))  # fmt: skip
+        require_outputs=require_outputs, columns=args.columns,
+        events=getattr(args, "events", None)))  # fmt: skip
     if args.init_window is not None:
         if e.y is None:
             raise ValueError(

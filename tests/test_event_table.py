@@ -1,0 +1,139 @@
+"""Event tables in NONMEM's layout (app/event_table.py): doses, infusions and repeats
+read from the rows, rows without an observation kept, each unit's clock from its first
+row; every mistake one line naming the file, the unit and the line."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import warnings
+
+import numpy as np
+import pytest
+
+import tensorid as ti
+from tensorid.engine.events import EventNote
+
+MODEL = """
+rhs = {"depot": "-ka * depot", "central": "ka * depot - cl / v * central"}
+output = {"cp": "central / v"}
+params = ["ka", "cl", "v", "F"]
+doses = {"depot": "F * amt"}
+p0 = {"ka": 1.0, "cl": 3.0, "v": 30.0, "F": 0.7}
+fixed = ["F"]
+"""
+
+HEADER = "ID,TIME,AMT,DV,EVID,MDV,CMT,II,ADDL,RATE,WT\n"
+
+
+def _table(tmp_path, rows: str, name="pk.csv"):
+    (tmp_path / "model.py").write_text(MODEL)
+    p = tmp_path / name
+    p.write_text(HEADER + rows)
+    return p
+
+
+ROWS = """1,0,100,.,1,1,1,12,2,0,70
+1,1,.,2.1,0,0,2,0,0,0,70
+1,4,.,2.4,0,0,2,0,0,0,70
+1,12,.,1.0,0,0,2,0,0,0,70
+1,13,.,2.9,0,0,2,0,0,0,70
+1,30,.,1.5,0,0,2,0,0,0,70
+2,0,50,.,1,1,2,0,0,25,60
+2,6,.,1.2,0,0,2,0,0,0,60
+"""
+
+
+def test_doses_repeats_and_infusions_are_read_with_rows_that_observe_nothing(tmp_path):
+    p = _table(tmp_path, ROWS)
+    spec = ti.load_model(tmp_path / "model.py")
+    one, two = ti.load_data(p, spec.model, records="ID", columns={"t": "TIME", "cp": "DV"})
+    # unit 1: the dose at 0 with its repeats at 12 and 24 (a new grid time), its samples
+    assert list(one.t) == [0, 1, 4, 12, 13, 24, 30]
+    assert one.observations == 5 and not one.observed[0, 0] and not one.observed[5, 0]
+    assert one.events.kind == ("bolus",) * 3
+    np.testing.assert_array_equal(one.events.time, [0, 12, 24])
+    assert one.events.state == (0, 0, 0)  # CMT 1: the first state, the depot
+    # unit 2: one observation, kept; an infusion of 50 at 25 per hour into CMT 2 (0-2 h)
+    assert two.observations == 1 and list(two.t) == [0, 2, 6]
+    assert two.events.kind == ("infusion",) and two.events.state == (1,)
+    # the sample at 12 is observed before the dose at 12 (a trough)
+    pr = ti.Problem(spec.model, [one, two], p0=spec.p0, fixed=["F"], doses=spec.doses)
+    sims = pr.simulate(pr.theta0)
+    h = list(one.t).index(12)
+    assert sims[0].x[h, 0] < 1e-3 * 70  # the depot nearly empty before the dose at 12
+
+
+@pytest.mark.parametrize(
+    "row, words",
+    [
+        ("1,2,.,1,7,0,2,0,0,0,70", "EVID 7 on line 3 is not understood"),
+        ("1,2,10,.,1,1,5,0,0,0,70", "CMT 5 on line 3 names no state"),
+        ("1,2,10,.,1,1,1,12,0,0,70", "has II = 12 but no ADDL"),
+        ("1,2,10,.,1,1,1,0,3,0,70", "has ADDL = 3 but no II"),
+        ("1,2,-10,.,1,1,1,0,0,0,70", "has AMT -10"),
+        ("1,2,10,.,1,1,1,0,0,-2,70", "RATE -2 on line 3"),
+        ("1,2,.,x,0,0,2,0,0,0,70", "holds 'x' on line 3"),
+        ("1,0.5,.,1,0,0,2,0,0,0,70", "goes backwards on line 3"),
+    ],
+)
+def test_a_bad_event_row_is_one_line_naming_the_file_the_unit_and_the_line(tmp_path, row, words):
+    p = _table(tmp_path, f"1,1,.,2,0,0,2,0,0,0,70\n{row}\n1,3,.,1,0,0,2,0,0,0,70\n")
+    spec = ti.load_model(tmp_path / "model.py")
+    with pytest.raises(ValueError, match=words) as e:
+        ti.load_data(p, spec.model, records="ID", columns={"t": "TIME", "cp": "DV"})
+    assert "unit '1'" in str(e.value) and "\n" not in str(e.value)
+
+
+def test_steady_state_is_refused_and_a_dose_after_the_last_row_said_once(tmp_path):
+    spec = ti.load_model(tmp_path / "model.py") if (tmp_path / "model.py").exists() else None
+    p = _table(tmp_path, "1,0,10,.,1,1,1,0,0,0,70\n1,2,.,1,0,0,2,0,0,0,70\n")
+    spec = ti.load_model(tmp_path / "model.py")
+    text = p.read_text().replace("ID,TIME", "SS,ID,TIME").splitlines()
+    p.write_text("\n".join([text[0]] + ["1," + r for r in text[1:]]) + "\n")
+    with pytest.raises(ValueError, match="steady-state dosing is not supported yet"):
+        ti.load_data(p, spec.model, records="ID", columns={"t": "TIME", "cp": "DV"})
+    late = "".join(
+        f"{u},0,10,.,1,1,1,0,0,0,70\n{u},2,.,1,0,0,2,0,0,0,70\n{u},9,10,.,1,1,1,0,0,0,70\n"
+        for u in (1, 2)
+    )
+    p = _table(tmp_path, late)
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        exps = ti.load_data(p, spec.model, records="ID", columns={"t": "TIME", "cp": "DV"})
+    notes = [w for w in seen if issubclass(w.category, EventNote)]
+    assert len(notes) == 1 and "1 (1), 2 (1)" in str(notes[0].message)
+    assert [len(e.events) for e in exps] == [1, 1]
+
+
+def test_other_names_are_mapped_with_events_and_the_cli_fits_a_table(tmp_path):
+    rng = np.random.default_rng(0)
+    spec_model = ti.load_model(
+        (tmp_path / "model.py").write_text(MODEL) and tmp_path / "model.py"
+    ).model
+    times = np.array([0.5, 1, 2, 4, 8, 12, 13, 16, 24, 30])
+    lines = []
+    for unit in range(1, 4):
+        ev = ti.Events.doses(0.0, 0, 100.0, ii=12.0, addl=1)
+        e = ti.Experiment(times, None, np.ones((times.size, 1)), events=ev)
+        truth = {"ka": 1.0 * (1 + 0.1 * unit), "cl": 3.0, "v": 30.0, "F": 0.7}
+        sim = ti.simulate(spec_model, truth, [0, 0], e, doses={"depot": "F * amt"})
+        lines.append(f"{unit},0,100,.,1,12,1")
+        for t, c in zip(e.t[e.observed[:, 0]], sim.y[e.observed[:, 0], 0], strict=True):
+            lines.append(f"{unit},{t:g},0,{c * (1 + 0.02 * rng.standard_normal()):.5f},0,0,0")
+    (tmp_path / "pk.csv").write_text(
+        "SUBJ,HOURS,DOSE,CONC,EVID,INTERVAL,MORE\n" + "\n".join(lines) + "\n"
+    )
+    out = tmp_path / "fit"
+    r = subprocess.run(
+        [sys.executable, "-m", "tensorid", "fit", str(tmp_path / "model.py"),
+         str(tmp_path / "pk.csv"), "--records", "SUBJ", "--columns", "t=HOURS,cp=CONC",
+         "--events", "AMT=DOSE,II=INTERVAL,ADDL=MORE", "--substeps", "8", "--out", str(out)],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr[-2000:]
+    fit = json.loads((out / "fit.json").read_text())
+    assert fit["success"]
+    assert fit["params"]["cl"] == pytest.approx(3.0, rel=0.05)
+    assert fit["params"]["v"] == pytest.approx(30.0, rel=0.05)
