@@ -107,3 +107,13 @@ def test_the_prediction_error_example_recovers_what_its_page_says(capsys):
         assert f"{n} = {res.params[n]:.3g} ± {se[n]:.3g}" in text, n
     sw, sev = np.exp(res.params["log_sigma_w_v"]), np.exp(res.params["log_sigma_e_y"])
     assert f"σ_w = {sw:.3g} per √s" in text and f"σ_e = {sev:.3g}" in text
+
+
+def test_the_tank_refills_example_prints_what_docs_events_shows(capsys):
+    """docs/events.md's engineering record with resets, run as written."""
+    import runpy
+
+    shown = re.search(r"```text\n(FTOL.*?)\n```", (ROOT / "docs/events.md").read_text(), re.S)
+    assert shown, "docs/events.md's output block of examples/tank_refills.py moved"
+    runpy.run_path(str(ROOT / "examples/tank_refills.py"), run_name="__main__")
+    assert capsys.readouterr().out.strip() == shown[1].strip()

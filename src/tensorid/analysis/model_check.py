@@ -53,7 +53,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..engine.compiled import on_device
-from ..engine.problem import measured
 from ..engine.status import Status
 from ..solve.minimize import interrupted, minimize_trust_region
 from ..solve.scaling import Tracker
@@ -288,7 +287,7 @@ def _part(problem, records, x0, keep):
     out = copy.copy(problem)
     out.experiments = list(records)
     out.x0 = np.atleast_2d(np.asarray(x0, dtype=float)).copy()
-    out._arrays = [(on_device(e.t), on_device(out.inputs(e)), measured(e)) for e in records]
+    out._arrays = [out.arrays_of(e) for e in records]
     out.shooting = None
     out.lower, out.upper = problem.lower[keep], problem.upper[keep]
     where = {int(old): new for new, old in enumerate(keep)}

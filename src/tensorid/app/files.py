@@ -321,7 +321,7 @@ _TEXT_ONLY = ("rhs", "output", "inputs", "params", "input_delays", "discrete")
 def _doses(value, model) -> dict:
     """``doses = {"depot": "F * amt"}``: what a record's dose puts into a state (an
     expression of amt, the parameters and the inputs), checked before any work."""
-    from ..engine.events import dosing_of
+    from ..engine.dosing import dosing_of
 
     if not isinstance(value, dict):
         raise TypeError(

@@ -168,6 +168,20 @@ def input_at(u0: jax.Array, u1: jax.Array, s, interpolation: str) -> jax.Array:
     return u0 + s * (u1 - u0)
 
 
+def _inputs_at(ua, ub, s, interpolation: str, held: int):
+    """``input_at``, the last ``held`` columns read at the interval's start."""
+    if not held:
+        return input_at(ua, ub, s, interpolation)
+    return jnp.concatenate([input_at(ua[:-held], ub[:-held], s, interpolation), ua[-held:]])
+
+
+def _settle(y, obs_h, u_h, update, jump):
+    """The state after a sample: a filter's update, then the record's events."""
+    if update is not None:
+        y = update(y, obs_h)
+    return y if jump is None else jump(y, u_h)
+
+
 def march(
     field: Callable,
     observe: Callable,
@@ -195,11 +209,8 @@ def march(
         update: ``update(y, obs_h) -> y``, applied at each sample after ``observe``:
             a filter's measurement update (None: the state is not corrected).
         skip_first: the accumulator leaves out t_0's sample (its ``out_h`` is kept).
-        jump: ``jump(y, u_h) -> y``, applied at each sample after ``observe`` and
-            ``update``: a record's events (doses, resets; ``events.py``), read from
-            the sample's inputs.
-        held: the last ``held`` input columns are not interpolated: each interval
-            reads them at its start (the events' channels: an infusion's rate).
+        jump: ``jump(y, u_h) -> y``, after ``update``: a record's events (dosing.py).
+        held: the last ``held`` input columns are read at each interval's start.
 
     Returns:
         (final accumulator, stacked ``out_h`` (P leading), failure) where failure is
@@ -218,25 +229,17 @@ def march(
             acc,
             acc0,
         )
-    if update is not None:
-        y0 = update(y0, first)
-    if jump is not None:
-        y0 = jump(y0, u[0])
-
-    def inputs_at(ua, ub, s):
-        if not held:
-            return input_at(ua, ub, s, interpolation)
-        return jnp.concatenate([input_at(ua[:-held], ub[:-held], s, interpolation), ua[-held:]])
+    y0 = _settle(y0, first, u[0], update, jump)
 
     def interval(carry, data):
         y, h_trial, acc, fail, at = carry
         k, dt, ua, ub, obs_h = data
 
         def vf(yy, s):
-            return field(yy, inputs_at(ua, ub, s))
+            return field(yy, _inputs_at(ua, ub, s, interpolation, held))
 
         def fs(x, s):
-            return state_field(x, inputs_at(ua, ub, s))
+            return state_field(x, _inputs_at(ua, ub, s, interpolation, held))
 
         y, h_trial, code = scheme.interval(vf, fs, y, dt, h_trial, substeps)
         blown = ~jnp.all(jnp.isfinite(_x(y)))
@@ -244,10 +247,7 @@ def march(
         new = (fail == 0) & (code != 0)
         fail, at = jnp.where(new, code, fail), jnp.where(new, k, at)
         acc, out = observe(acc, y, obs_h)
-        if update is not None:
-            y = update(y, obs_h)
-        if jump is not None:
-            y = jump(y, ub)
+        y = _settle(y, obs_h, ub, update, jump)
         return (y, h_trial, acc, fail, at), out
 
     P = t.shape[0]

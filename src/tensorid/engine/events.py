@@ -23,12 +23,10 @@ across any number of events, including amounts that depend on parameters.
 
 from __future__ import annotations
 
-import dataclasses
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
-import jax.numpy as jnp
 import numpy as np
 
 KINDS = ("bolus", "infusion", "reset", "reset-all", "impulse")
@@ -252,160 +250,6 @@ def merge(t, u, y, observed, events: Events):
     return grid, u2, y2, seen, events, late
 
 
-@dataclass(frozen=True)
-class Dosing:
-    """What a record's events do to the model, the same for every record of a fit:
-    the target states (D of them) and each target's amount expression.
-
-    The march reads the events as ``channels`` (P, 4D) appended to the inputs and
-    held over each interval: per target, the bolus amount at t_h, the infusion rate
-    on [t_h, t_h+1), a reset flag and a reset value.
-
-    Arguments:
-        targets: the indices of the states that events act on.
-        amounts: (target index, expression text) pairs: a dose's amount as the model
-            states it, of ``amt`` (the row's amount, or an infusion's rate), the
-            model's parameters and inputs; a target without one takes ``amt``.
-        inputs: how many of the march's input columns are the model's own (the
-            channels follow).
-    """
-
-    targets: tuple[int, ...]
-    amounts: tuple[tuple[int, str], ...] = ()
-    inputs: int = 0
-    params: tuple[str, ...] = ()
-    input_names: tuple[str, ...] = ()
-    states: tuple[str, ...] = ()
-
-    @property
-    def width(self) -> int:
-        return 4 * len(self.targets)
-
-    def channels(self, e) -> np.ndarray:
-        """(P, 4D) of a record with events on its grid: the bolus amounts, the
-        infusion rates running on each interval, the reset flags and values."""
-        D, t = len(self.targets), e.t
-        out = np.zeros((t.size, 4, D))
-        ev = e.events
-        if ev is None:
-            return out.reshape(t.size, -1)
-        pos = {s: i for i, s in enumerate(self.targets)}
-        names = self.states
-        for k in range(len(ev)):
-            h = int(np.searchsorted(t, ev.time[k]))
-            kind = ev.kind[k]
-            if kind == "reset-all":
-                out[h, 2, :], out[h, 3, :] = 1.0, 0.0
-                continue
-            d = pos[state_index(ev.state[k], names)]
-            if kind in ("bolus", "impulse"):
-                out[h, 0, d] += ev.amount[k]
-            elif kind == "reset":
-                out[h, 2, d], out[h, 3, d] = 1.0, ev.amount[k]
-            else:  # infusion: its rate on every interval from its start to its end
-                end = ev.time[k] + ev.amount[k] / ev.rate[k]
-                running = (t >= ev.time[k]) & (t < end - 1e-12 * max(abs(end), 1.0))
-                out[running, 1, d] += ev.rate[k]
-        return out.reshape(t.size, -1)
-
-    def _amount_functions(self):
-        """Per target, ``A(amt, p, u)`` in JAX."""
-        import sympy as sp  # here: sympy costs 0.2-0.5 s to import
-
-        from .equations import _parse
-
-        names = ["amt", *self.input_names, *self.params]
-        symbols = {n: sp.Symbol(n) for n in names}
-        given = dict(self.amounts)
-        fns = []
-        for d in self.targets:
-            if d not in given:
-                fns.append(None)
-                continue
-            expr = _parse(f"doses[{self.states[d]!r}]", given[d], symbols)
-            stray = sorted(str(v) for v in expr.free_symbols if str(v) not in names)
-            if stray:
-                raise ValueError(
-                    f"doses[{self.states[d]!r}] = {given[d]!r} names {stray}, which are "
-                    f"neither 'amt' nor inputs {list(self.input_names)} nor parameters "
-                    f"{list(self.params)} of the model"
-                )
-            fns.append(sp.lambdify([symbols[n] for n in names], expr, modules="jax"))
-        return fns
-
-    def functions(self):
-        """(jump(x, p, u_row), rate(p, u_row)) of the carried state and one row of the
-        march's inputs (the model's own, then the channels)."""
-        fns = self._amount_functions()
-        D, U, idx = len(self.targets), self.inputs, np.array(self.targets, dtype=int)
-
-        def amount(q, p, uu):
-            parts = []
-            for d, fn in enumerate(fns):
-                if fn is None:
-                    parts.append(q[d])
-                    continue
-                args = [q[d], *(uu[k] for k in range(U)), *(p[k] for k in range(len(self.params)))]
-                parts.append(jnp.where(q[d] != 0, fn(*args) * 1.0, 0.0))
-            return jnp.stack(parts)
-
-        def split(uu):
-            ch = uu[U : U + 4 * D].reshape(4, D)
-            return ch[0], ch[1], ch[2], ch[3]
-
-        def jump(x, p, uu):
-            b, _, r, v = split(uu)
-            xs = x[idx]
-            return x.at[idx].set((1.0 - r) * xs + r * v + amount(b, p, uu))
-
-        def rate(p, uu):
-            return amount(split(uu)[1], p, uu)
-
-        return jump, rate
-
-
-def dosing_of(model, experiments, doses: Mapping[str, str] | None = None) -> Dosing | None:
-    """The Dosing of a fit's records (None where no record has events and no amount
-    expression is given); one line for an expression naming what the model lacks."""
-    with_events = [e for e in experiments if getattr(e, "events", None) is not None]
-    doses = dict(doses or {})
-    if not with_events and not doses:
-        return None
-    states = tuple(model.states)
-    for s in doses:
-        if s not in states:
-            raise ValueError(
-                f"doses names {s!r}, which is not a state; the model's states are {list(states)}"
-            )
-    targets: set[int] = {states.index(s) for s in doses}
-    for e in with_events:
-        targets |= set(e.events.targets(states))
-    order = tuple(sorted(targets))
-    amounts = []
-    for s, text in doses.items():
-        if not isinstance(text, str):
-            raise TypeError(f"doses[{s!r}] must be an expression such as 'F * amt', got {text!r}")
-        amounts.append((states.index(s), text))
-    out = Dosing(
-        order, tuple(amounts), len(model.inputs), tuple(model.params), tuple(model.inputs), states
-    )
-    out._amount_functions()  # parsed now: one line for a bad expression, before any work
-    return out
-
-
-def covering(dosing: Dosing | None, model, record) -> Dosing | None:
-    """``dosing``, widened to the states ``record``'s events act on (a new record
-    scored by a fit's model); None where neither has events."""
-    if getattr(record, "events", None) is None:
-        return dosing
-    if dosing is None:
-        return dosing_of(model, [record])
-    extra = set(record.events.targets(model.states)) - set(dosing.targets)
-    if not extra:
-        return dosing
-    return dataclasses.replace(dosing, targets=tuple(sorted(set(dosing.targets) | extra)))
-
-
 def warn_late(where: str, late: dict[str, int]) -> None:
     """One note for the events after their records' last rows (dropped)."""
     if late:
@@ -417,30 +261,3 @@ def warn_late(where: str, late: dict[str, int]) -> None:
             EventNote,
             stacklevel=3,
         )
-
-
-def check_events(problem, hessian, segments, segment_length) -> bool:
-    """One line for what records with events or gaps cannot go with (a filter, a
-    smooth input interpolation, multiple shooting, the adjoint Hessian); returns
-    whether any record has them (then the Hessian is the transition tensors')."""
-    exps = problem.experiments
-    events = problem.dosing is not None
-    gaps = events or any(e.observed is not None for e in exps)
-    if not gaps:
-        return False
-    what = "records with events" if events else "records with unobserved samples"
-    if problem.predictor.filters:
-        raise ValueError(
-            f"{what} are fitted by output error: drop predictor={problem.predictor.name!r}"
-        )
-    if events and problem.discretisation.interpolation not in ("linear", "zoh"):
-        raise ValueError(
-            f"{what} take interpolation 'linear' or 'zoh', not "
-            f"{problem.discretisation.interpolation!r}"
-        )
-    if (segments not in (None, 1)) or segment_length is not None:
-        raise ValueError(f"{what} are fitted by single shooting: drop segments")
-    name = hessian if isinstance(hessian, str) else getattr(hessian, "name", "")
-    if name == "adjoint":
-        raise ValueError(f"{what} take hessian='tensors' (or 'auto'), not 'adjoint'")
-    return True

@@ -16,29 +16,27 @@ from .. import _config  # noqa: F401
 from .checks import (
     check_bounds,
     check_data,
-    check_filter_options,
     check_p0,
     check_threads,
     check_weights,
     check_x0,
     name_list,
-    no_noise_without_filter,
 )
 from .compiled import on_device, on_host
 from .constraints import add_penalty_terms, check_constraints, penalty_jax
 from .data import Experiment
 from .discretisation import Discretisation, DiscretisationSettings
-from .events import check_events, dosing_of
+from .dosing import check_events, measured
 from .fleet import check_fleet
-from .hessians import HessianPath, choose_hessian, get_hessian
+from .hessians import HessianPath, choose_hessian
 from .integrators import Scheme
 from .layout import ThetaLayout
-from .losses import Loss, get_loss, make_loss
+from .losses import Loss, make_loss
 from .model import Model
 from .packing import unpack_symmetric
-from .predictors import Predictor, get_predictor, make_predictor
+from .predictors import Predictor, make_predictor
 from .priors import PriorTerms
-from .problem_loss import LossSettings
+from .problem_loss import LossSettings, checked_predictor
 from .shooting import Shooting, resolve_segments
 from .simulate import Simulation, run_simulation
 from .start import Start, resolve_start
@@ -179,7 +177,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         constraints: Sequence[str] | str | None = None,
         doses: Mapping[str, str] | None = None,
     ):
-        predictor = _checked_predictor(
+        predictor = checked_predictor(
             predictor, model, fixed, bounds, loss=loss, loss_scale=loss_scale, weights=weights,
             noise=noise, segments=segments, segment_length=segment_length, hessian=hessian,
         )  # fmt: skip
@@ -200,8 +198,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
             self.predictor.own_loss or loss,
             loss_scale, list(model.outputs), self.weights, [e.y for e in self.experiments],
         )  # fmt: skip
-        # what every sweep's per-sample loss is evaluated with, [w; c] (see losses.py)
-        self.loss_weights = np.stack([self.weights, scale])
+        self.loss_weights = np.stack([self.weights, scale])  # every sweep's [w; c] (losses.py)
         # an estimated scale is checked against the residuals after a fit (fitting/robust.py)
         self.loss_scale_estimated = self.loss.robust and loss_scale is None
         self.lower, self.upper = check_bounds(self, bounds or {})
@@ -211,17 +208,15 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         if self.K == 0:
             raise ValueError("nothing to estimate: every parameter is fixed and free_x0 is empty")
         self.constraints, self.penalty = check_constraints(self, constraints), None  # Fs >= Fc
-        self.dosing = dosing_of(model, self.experiments, doses)  # events.py
-        gaps = check_events(self, hessian, segments, segment_length)
+        gaps = check_events(self, doses, hessian, segments, segment_length)  # self.dosing too
         self._sweeps = shared_sweeps(
             model, tuple(model.states.index(n) for n in self.free_x0),
             tuple(model.params.index(n) for n in self.free_params), discretisation, self.loss,
             self.predictor, self.dosing,
         )  # fmt: skip
-        self._arrays = [(on_device(e.t), on_device(self.inputs(e)), measured(e))
-                        for e in self.experiments]  # fmt: skip
         self.threads = check_threads(threads)
-        counts = resolve_segments(self.experiments, segments, segment_length)
+        self._arrays = [self.arrays_of(e) for e in self.experiments]
+        counts = resolve_segments(self.experiments, segments, segment_length)  # shooting.py
         self.shooting = Shooting(self, counts) if counts else None
         self.hessian_path = choose_hessian(
             hessian, discretisation, model.N, self._sweeps.K, [e.P for e in self.experiments],
@@ -246,6 +241,11 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         if self.dosing is None:
             return u
         return np.concatenate([u, self.dosing.channels(e)], axis=1)  # the events' channels
+
+    def arrays_of(self, e: Experiment) -> tuple:
+        """(t, u as the model sees it, y) of record e as the sweeps take them (y with its
+        mask where the record has gaps: dosing.measured)."""
+        return on_device(e.t), on_device(self.inputs(e)), measured(e)
 
     @property
     def sweeps(self) -> Sweeps:
@@ -437,33 +437,3 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
             f"substeps={self.substeps}, interpolation={self.interpolation!r}, "
             f"hessian={self.hessian!r})"
         )
-
-
-def measured(e: Experiment):
-    """y as the sweeps take it: the array, or {"y", "mask"} for a record with gaps."""
-    if e.observed is None:
-        return on_device(e.y)
-    return {"y": on_device(e.y), "mask": on_device(e.mask)}
-
-
-def _checked_predictor(predictor, model, fixed, bounds, **options) -> Predictor:
-    """The predictor (by name or object) with the options checked against its markers,
-    one line each, before any work; ``loss`` and ``hessian`` as their registries'
-    objects where their names are known; the model first."""
-    if not isinstance(model, Model):
-        raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
-    predictor = get_predictor(predictor)
-    options.update(loss=_known(get_loss, options["loss"]))
-    options.update(hessian=_known(get_hessian, options["hessian"]))
-    check_filter_options(predictor, **options)
-    no_noise_without_filter(model, predictor, fixed, bounds)
-    return predictor
-
-
-def _known(get, value):
-    """``value`` as its registry's object where its name is known (else as given: the
-    check that reads it, or the registry later, says what is wrong with it)."""
-    try:
-        return get(value)
-    except (ValueError, TypeError):
-        return value

@@ -14,8 +14,11 @@ from typing import Any
 
 import numpy as np
 
-from .checks import check_threads
-from .losses import Loss, make_loss
+from .checks import check_filter_options, check_threads, no_noise_without_filter
+from .hessians import get_hessian
+from .losses import Loss, get_loss, make_loss
+from .model import Model
+from .predictors import Predictor, get_predictor
 from .shooting import Shooting
 from .sweeps import shared_sweeps
 
@@ -83,3 +86,26 @@ class LossSettings:
             float(np.sum(self.weights * np.asarray(y["y"] if isinstance(y, dict) else y) ** 2))
             for _, _, y in self._arrays
         )
+
+
+def checked_predictor(predictor, model, fixed, bounds, **options) -> Predictor:
+    """The predictor (by name or object) with the options checked against its markers,
+    one line each, before any work; ``loss`` and ``hessian`` as their registries'
+    objects where their names are known; the model first."""
+    if not isinstance(model, Model):
+        raise TypeError(f"model must be a tensorid.Model, got {type(model).__name__}")
+    predictor = get_predictor(predictor)
+    options.update(loss=_known(get_loss, options["loss"]))
+    options.update(hessian=_known(get_hessian, options["hessian"]))
+    check_filter_options(predictor, **options)
+    no_noise_without_filter(model, predictor, fixed, bounds)
+    return predictor
+
+
+def _known(get, value):
+    """``value`` as its registry's object where its name is known (else as given: the
+    check that reads it, or the registry later, says what is wrong with it)."""
+    try:
+        return get(value)
+    except (ValueError, TypeError):
+        return value

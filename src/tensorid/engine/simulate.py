@@ -11,7 +11,7 @@ from .. import _config  # noqa: F401
 from .compiled import on_device
 from .data import Experiment
 from .discretisation import Discretisation
-from .events import covering, dosing_of
+from .dosing import covering, dosing_of
 from .integrators import Scheme
 from .model import Model
 from .status import Status

@@ -45,7 +45,7 @@ from .. import _config  # noqa: F401
 from .adjoint import SecondOrderAdjoint
 from .compiled import Compiled
 from .discretisation import Discretisation, march
-from .events import Dosing
+from .dosing import Dosing, jump_hook, rhs
 from .losses import SQUARED, Loss
 from .model import Model
 from .output_sensitivity import output_jacobian
@@ -118,53 +118,8 @@ class Sweeps:
         return lambda z, p_=p: self.predictor.field(self.model, z, p_, uu)
 
     def _rhs(self, uu):
-        """(x, p) ↦ the model's own F, with the infusions running on the interval where
-        the records have events (``uu``: the model's inputs, then the events' channels)."""
-        m = self.model
-        if self.dosing is None:
-            return lambda x, p_: m.f(x, p_, uu)
-        rate = self._dosing_maps[1]
-        U, idx = m.U, np.array(self.dosing.targets, dtype=int)
-        return lambda x, p_: m.f(x, p_, uu[:U]).at[idx].add(rate(p_, uu))
-
-    @cached_property
-    def _dosing_maps(self):
-        """(jump(x, p, u_row), rate(p, u_row)) of the events (events.Dosing.functions)."""
-        assert self.dosing is not None
-        return self.dosing.functions()
-
-    def _jump(self, p, push=None):
-        """``march``'s jump hook: None without events; else the events at a sample,
-        with ``push(fn, state)`` carrying an augmented state's sensitivities through
-        the map z ↦ fn(z, p) (None: a plain state)."""
-        if self.dosing is None:
-            return None
-        jmap = self._dosing_maps[0]
-        if push is None:
-            return lambda state, uh: jmap(state, p, uh)
-        return lambda state, uh: push(lambda z, p_: jmap(z, p_, uh), state)
-
-    def _pi(self, z, p):
-        """The prediction the loss compares with a sample (ŷ for output error)."""
-        return self.predictor.predict(self.model, z, p)
-
-    def _update(self, push=None):
-        """``march``'s update hook: None for output error; for a filter, the measurement
-        update of the carried state, with ``push(fn, state)`` carrying the sensitivities
-        of an augmented state through the map z ↦ fn(z, p)."""
-        pr, m = self.predictor, self.model
-        if pr.update is None:
-            return None
-
-        def update(state, obs_h, p):
-            y_h = obs_h[0] if isinstance(obs_h, tuple) else obs_h
-
-            def fn(z, p_):
-                return pr.update(m, z, p_, y_h)
-
-            return fn(state, p) if push is None else push(fn, state)
-
-        return update
+        """(x, p) ↦ the model's F with the events' infusions (dosing.rhs)."""
+        return rhs(self.model, self.dosing, uu)
 
     def _march(
         self, field, observe, y0, acc0, t, u, obs, p, end=False, update=None, own=None, push=None
@@ -201,7 +156,7 @@ class Sweeps:
             # match the first sample exactly, whose term log det R + 0 then has no
             # minimum in σ_e (→ −∞): it is left out (its gain is zero: it had no other use)
             skip_first=update is not None and bool(self.free_states),
-            jump=self._jump(p, push),
+            jump=jump_hook(self.dosing, p, push),
             held=0 if self.dosing is None else self.dosing.width,
         )
 

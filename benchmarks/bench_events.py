@@ -1,0 +1,93 @@
+"""Event records fitted from NONMEM-style tables by the command line alone, beside R's
+nlme on the same model and data (issue 48):
+
+- phenobarbital in 59 neonates (nlme's Phenobarb, bundled in NONMEM's layout):
+  repeated IV doses, one compartment, random effects on clearance and volume;
+- a multiple-dose study with oral (II/ADDL into the depot, bioavailability F) and
+  IV subjects, simulated with a fixed seed by benchmarks/peers/multiple_dose_nlme.R,
+  which fits it by nlme with a closed-form superposition model.
+
+Each estimate is set beside nlme's, on the log scale where nlme estimates it, with the
+difference in units of nlme's standard error. nlme fits by its alternating
+(Lindstrom-Bates) approximation of the marginal likelihood, tensorid by FOCEI: the
+two optima differ slightly by construction.
+
+    python benchmarks/bench_events.py            (needs Rscript with nlme:
+                                                   apt-get install r-base-core r-cran-nlme)
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PEERS = ROOT / "benchmarks" / "peers"
+
+
+def _rscript(script: Path, *args: str) -> dict:
+    out = subprocess.run(["Rscript", str(script), *args], capture_output=True, text=True,
+                         check=True)  # fmt: skip
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _tensorid(model: str, data: Path, out: Path, *extra: str) -> tuple[dict, float]:
+    start = time.perf_counter()
+    subprocess.run(
+        [sys.executable, "-m", "tensorid", "fit", str(ROOT / model), str(data), "--records",
+         "ID", "--out", str(out), *extra],
+        check=True, capture_output=True, text=True,
+    )  # fmt: skip
+    return json.loads((out / "fit.json").read_text()), time.perf_counter() - start
+
+
+def _rows(fit: dict, peer: dict, names: list[str]) -> list[str]:
+    rows = []
+    for name in names:
+        pop = fit["population"].get(name)
+        value = pop["typical"] if pop else fit["params"][name]
+        lv, se = peer[f"log_{name}"]
+        ours = math.log(value)
+        rows.append(f"| log {name} | {ours:.4f} | {lv:.4f} ({se:.4f}) | {(ours - lv) / se:+.2f} |")
+    omegas = [fit["population"][n]["omega"] for n in names if n in fit["population"]]
+    rows.append(
+        "| ω | " + " / ".join(f"{w:.4f}" for w in omegas) + " | "
+        + " / ".join(f"{w:.4f}" for w in peer["omega"]) + " | |"
+    )  # fmt: skip
+    sd = next(iter(fit["residual_sd"].values()))
+    rows.append(f"| residual SD | {sd:.4f} | {peer['sigma']:.4f} | |")
+    rows.append(f"| −2 log L | {fit['objective']:.4f} | {peer['m2ll']:.4f} | |")
+    return rows
+
+
+def main() -> None:
+    if shutil.which("Rscript") is None:
+        sys.exit("bench_events needs Rscript with nlme: apt-get install r-base-core r-cran-nlme")
+    work = Path(tempfile.mkdtemp(prefix="tensorid-events-"))
+    data = ROOT / "src" / "tensorid" / "datasets" / "phenobarbital.csv"
+    peer = _rscript(PEERS / "phenobarbital_nlme.R")
+    fit, wall = _tensorid("examples/phenobarbital/model.py", data, work / "pheno",
+                          "--columns", "t=TIME,conc=DV")  # fmt: skip
+    print("## Phenobarbital (59 neonates, repeated IV doses)\n")
+    print(f"tensorid fit (CLI, FOCEI): {wall:.1f} s wall; nlme: {peer['seconds']:.2f} s\n")
+    print("| | tensorid | nlme (SE) | difference / SE |\n|---|---|---|---|")
+    print("\n".join(_rows(fit, peer, ["cl", "v"])))
+    table = work / "multiple_dose.csv"
+    peer = _rscript(PEERS / "multiple_dose_nlme.R", str(table))
+    fit, wall = _tensorid("examples/multiple_dose/model.py", table, work / "md",
+                          "--columns", "t=TIME,cp=DV", "--substeps", "16")  # fmt: skip
+    print("\n## Multiple doses, oral (II/ADDL, F) and IV (24 subjects)\n")
+    print(f"tensorid fit (CLI, FOCEI, --substeps 16): {wall:.1f} s wall; nlme: "
+          f"{peer['seconds']:.2f} s\n")  # fmt: skip
+    print("| | tensorid | nlme (SE) | difference / SE |\n|---|---|---|---|")
+    print("\n".join(_rows(fit, peer, ["ka", "cl", "v", "F"])))
+
+
+if __name__ == "__main__":
+    main()
