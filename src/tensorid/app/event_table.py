@@ -153,15 +153,15 @@ def unit_record(where: str, name: str, cols: _Columns, model, require_outputs: b
     if y is not None:
         Y, S = np.zeros((grid.size, model.S)), np.zeros((grid.size, model.S), dtype=bool)
         slot = np.searchsorted(grid, t)
-        for i in np.flatnonzero(seen.any(axis=1)):
-            twice = S[slot[i]] & seen[i]
+        for r in np.flatnonzero(seen.any(axis=1)):
+            twice = S[slot[r]] & seen[r]
             if twice.any():
                 raise ValueError(
                     f"{where}: two observations of {model.outputs[int(np.argmax(twice))]!r} at "
-                    f"time {t[i]:g} ({_at(cols, i)}); keep one row per time and output"
+                    f"time {t[r]:g} ({_at(cols, int(r))}); keep one row per time and output"
                 )
-            Y[slot[i]] = np.where(seen[i], y[i], Y[slot[i]])
-            S[slot[i]] |= seen[i]
+            Y[slot[r]] = np.where(seen[r], y[r], Y[slot[r]])
+            S[slot[r]] |= seen[r]
         y, seen = (Y, S) if S.any() else (None, None)
     if require_outputs and seen is not None:  # what follows the last observation fits nothing
         keep = grid <= grid[np.flatnonzero(seen.any(axis=1))[-1]]

@@ -131,3 +131,14 @@ def theophylline_csv():
     from pathlib import Path
 
     return Path(str(resources.files(__package__).joinpath("theophylline.csv")))
+
+
+def phenobarbital_csv():
+    """The path of the bundled phenobarbital data (R's ``nlme::Phenobarb``: 59 neonates,
+    589 IV doses, 155 concentrations) in NONMEM's layout (ID, TIME, AMT, DV, EVID, MDV,
+    CMT, WT, APGAR), for ``ti.load_data(path, model, records="ID", columns={"t":
+    "TIME", "conc": "DV"})`` or ``tensorid fit ... --records ID``. See README.md beside
+    it."""
+    from pathlib import Path
+
+    return Path(str(resources.files(__package__).joinpath("phenobarbital.csv")))

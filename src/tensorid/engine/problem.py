@@ -26,7 +26,7 @@ from .compiled import on_device, on_host
 from .constraints import add_penalty_terms, check_constraints, penalty_jax
 from .data import Experiment
 from .discretisation import Discretisation, DiscretisationSettings
-from .dosing import check_events, measured
+from .dosing import Dosing, check_events, measured
 from .fleet import check_fleet
 from .hessians import HessianPath, choose_hessian
 from .integrators import Scheme
@@ -142,6 +142,8 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
             infusion's rate), the parameters and the inputs: ``{"depot": "F * amt"}``
             (bioavailability F, estimated or fixed). Default: the amount itself.
     """
+
+    dosing: Dosing | None  # what the records' events do (dosing.py); None: no events
 
     def __init__(
         self,
