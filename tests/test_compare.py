@@ -435,3 +435,23 @@ def test_a_fit_of_another_or_edited_model_file_is_noted(tmp_path, capsys):
     (tmp_path / "ar.py").write_text(DISCRETE + "# edited\n")
     assert cli.main(compare) == 0
     assert "the fit was made with this model file before it was edited" in capsys.readouterr().err
+
+
+def test_compare_scores_a_record_joined_from_an_input_and_an_output_file(tmp_path, capsys):
+    """issue 51, item 5: `u.csv+y.csv` gave one role for two file entries (IndexError)."""
+    _, path, t, u, y = _discrete_record(tmp_path, P=60, noise=0.01)
+    model = str(tmp_path / "ar.py")
+    argv = ["fit", model, str(path), "--fix", "c=1.5", "--out", str(tmp_path / "f")]
+    assert cli.main([*argv, "--no-progress"]) == 0
+    np.savetxt(tmp_path / "u.csv", np.column_stack([t, u]), delimiter=",", header="t,u",
+               comments="")  # fmt: skip
+    np.savetxt(tmp_path / "y.csv", np.column_stack([t, y]), delimiter=",", header="t,y",
+               comments="")  # fmt: skip
+    joined = f"{tmp_path / 'u.csv'}+{tmp_path / 'y.csv'}"
+    argv = ["compare", model, joined, "--params", str(tmp_path / "f" / "fit.json")]
+    assert cli.main([*argv, "--out", str(tmp_path / "c")]) == 0
+    c = json.loads((tmp_path / "c" / "compare.json").read_text())
+    assert [(Path(d["path"]).name, d["role"]) for d in c["provenance"]["data"]] == [
+        ("u.csv", "scored"), ("y.csv", "scored"),
+    ]  # fmt: skip
+    assert np.isfinite(c["outputs"]["y"]["rmse"])

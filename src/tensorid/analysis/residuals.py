@@ -371,7 +371,12 @@ def residual_count(problem) -> int:
     filter with estimated initial states leaves each record's first sample out of its
     likelihood (:func:`skipped_samples`)."""
     first = skipped_samples(problem)
-    return sum(e.P - first for e in problem.experiments) * int((problem.weights > 0).sum())
+    weighted = problem.weights > 0
+    return sum(
+        (e.P - first) * int(weighted.sum()) if e.observed is None
+        else int(e.observed[first:, weighted].sum())  # a record with gaps: what was measured
+        for e in problem.experiments
+    )  # fmt: skip
 
 
 def too_few(n: int, K: int, need: int = 1, what: str = "error bars") -> str | None:

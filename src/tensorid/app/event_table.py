@@ -93,6 +93,8 @@ def _target(where, cols, i, raw, states) -> int:
     try:
         if cell is not None and cell not in MISSING and not _is_number(cell):
             return state_index(cell, states)
+        if cell is not None:  # a text column ("." somewhere): this row's own cell
+            raw = float(cell) if cell not in MISSING else np.nan
         if not np.isfinite(raw):
             return 0
         k = float(raw)
@@ -238,7 +240,7 @@ def _observations(where, cols, model, outputs, evid, mdv, n):
         y[:, model.outputs.index(name)] = numbers(where, cols, name, n)
     row = (evid == 0) & (mdv == 0)
     seen = row[:, None] & np.isfinite(y)
-    if "DVID" in cols.values and model.S > 1:
+    if "DVID" in cols.values:  # one output: the rows of another DVID are not its
         which = np.zeros((n, model.S), dtype=bool)
         dvid = numbers(where, cols, "DVID", n) if "DVID" not in cols.text else None
         for i in np.flatnonzero(row):

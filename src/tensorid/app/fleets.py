@@ -16,8 +16,6 @@ from __future__ import annotations
 import ast
 import math
 
-import numpy as np
-
 from ..engine.equations import _FUNCTIONS
 from ..engine.model import Model
 
@@ -248,7 +246,7 @@ def several_units(spec, train, args) -> None:
         return
     own = [*spec.individual, *spec.free_x0]
     for e in train if spec.individual else []:
-        seen = 0 if e.y is None else int(np.isfinite(e.y).sum())
+        seen = 0 if e.y is None else e.observations
         if seen < len(own):
             raise ValueError(
                 f"unit {e.name!r} has {seen} observation(s) for its {len(own)} own unknowns "

@@ -230,6 +230,13 @@ def _start(spec: ModelSpec, args, e, fitted) -> tuple[np.ndarray, list[str], str
     return m.states_array(x0), free, "; ".join(parts) or base
 
 
+def _scored_provenance(args, m) -> dict:
+    """compare.json's provenance: one role per file entry ("u.mat+y.mat" is two)."""
+    entries = data_entries([args.data], [effective_columns(m, args.columns)])
+    argv, roles = getattr(args, "argv", None), ["scored"] * len(entries)
+    return provenance(args.model, entries, argv, ts=args.ts, roles=roles, fit=args.params[0])
+
+
 def _record(args, spec: ModelSpec, require_outputs: bool):
     """The one record of DATA, with the init window checked before any work."""
     e = one_unit(args, partial(  # one_unit: --records ID --unit 3 (issue 42)
@@ -399,14 +406,7 @@ def run_compare(args) -> int:
         "status": str(sim.status) if scores_finite(score) else NOT_SCORED,
         # why a gof is null although the simulation is finite (a constant output)
         "gof_notes": [n.removeprefix("note: ") for n in metric_notes([score])],
-        "provenance": provenance(
-            args.model,
-            data_entries([args.data], [effective_columns(m, args.columns)]),
-            getattr(args, "argv", None),
-            ts=args.ts,
-            roles=["scored"],
-            fit=args.params[0],
-        ),  # fmt: skip
+        "provenance": _scored_provenance(args, m),
     }
     out.mkdir(parents=True, exist_ok=True)
     old = previous_outputs(out, COMPARE_MANIFEST)

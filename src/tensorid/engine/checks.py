@@ -202,7 +202,8 @@ def check_weights(problem, weights) -> np.ndarray:
 
 def output_scales(problem) -> np.ndarray:
     """The standard deviation of each measured output, all experiments together."""
-    y = np.concatenate([e.y for e in problem.experiments])
+    y = np.concatenate([e.y if e.observed is None else e.y[e.observed.all(axis=1)]
+                        for e in problem.experiments])  # fmt: skip
     with np.errstate(over="ignore", invalid="ignore"):
         return np.nan_to_num(np.std(y, axis=0), nan=np.inf, posinf=np.inf)
 

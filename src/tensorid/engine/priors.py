@@ -58,7 +58,8 @@ def noise_from_data(problem) -> float:
     difference y[k+1] − 2y[k] + y[k−1] has variance 6σ²."""
     num = den = 0.0
     for e in problem.experiments:
-        d2 = np.diff(e.measured, n=2, axis=0)
+        y = e.measured if e.observed is None else e.measured[e.observed.all(axis=1)]
+        d2 = np.diff(y, n=2, axis=0)
         num += float((problem.weights * (d2**2).sum(axis=0)).sum()) / 6.0
         den += d2.shape[0] * int((problem.weights > 0).sum())
     return num / max(den, 1.0)

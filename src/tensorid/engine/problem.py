@@ -36,7 +36,7 @@ from .model import Model
 from .packing import unpack_symmetric
 from .predictors import Predictor, make_predictor
 from .priors import PriorTerms
-from .problem_loss import LossSettings, checked_predictor
+from .problem_loss import LossSettings, checked_predictor, observed_rows
 from .shooting import Shooting, resolve_segments
 from .simulate import Simulation, run_simulation
 from .start import Start, resolve_start
@@ -198,7 +198,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         self.weights = check_weights(self, weights)
         self.loss, scale = make_loss(
             self.predictor.own_loss or loss,
-            loss_scale, list(model.outputs), self.weights, [e.y for e in self.experiments],
+            loss_scale, list(model.outputs), self.weights, observed_rows(self.experiments),
         )  # fmt: skip
         self.loss_weights = np.stack([self.weights, scale])  # every sweep's [w; c] (losses.py)
         # an estimated scale is checked against the residuals after a fit (fitting/robust.py)
@@ -400,7 +400,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
             idx = self._slices(e)
             x0, p = on_device(self.x0[e]), on_device(self.p0)
             dy = np.asarray(self._sweeps.output_jacobian(on_device(theta[idx]), x0, p, t, u))
-            full = np.zeros(np.shape(y) + (self.K,))
+            full = np.zeros(np.shape(y["y"] if isinstance(y, dict) else y) + (self.K,))
             full[..., idx] = dy
             out.append(full)
         return out

@@ -37,6 +37,7 @@ class LossSettings:
     shooting: Any
     _sweeps: Any
     _arrays: list
+    dosing: Any  # the records' events (dosing.Dosing), or None
     threads: int | None
 
     @property
@@ -55,7 +56,7 @@ class LossSettings:
         compiled sweeps, where the loss is the same). ``estimated``: whether that scale
         was estimated from residuals (default: where none is given)."""
         new = copy.copy(self)
-        measured = [e.y for e in self.experiments]
+        measured = observed_rows(self.experiments)
         new.loss, c = make_loss(loss, scale, list(self.model.outputs), self.weights, measured)
         new.loss_weights = np.stack([self.weights, c])
         by_residuals = (scale is None) if estimated is None else bool(estimated)
@@ -63,7 +64,7 @@ class LossSettings:
         sw = self._sweeps
         new._sweeps = shared_sweeps(
             self.model, sw.free_states, sw.free_params, self.discretisation, new.loss,
-            self.predictor,
+            self.predictor, self.dosing,
         )  # fmt: skip
         new.shooting = Shooting(new, self.shooting.counts) if self.shooting else None
         return new
@@ -109,3 +110,9 @@ def _known(get, value):
         return get(value)
     except (ValueError, TypeError):
         return value
+
+
+def observed_rows(experiments) -> list:
+    """Each record's y on its fully observed rows (a record with gaps: the rows of a
+    dose alone hold zeros, which would pull a noise level or a scale towards 0)."""
+    return [e.y if e.observed is None else e.y[e.observed.all(axis=1)] for e in experiments]

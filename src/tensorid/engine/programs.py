@@ -180,7 +180,7 @@ def _key(sweeps, entry: str, leaves, treedef) -> str | None:
     model, package = model_digest(sweeps.model), _package_digest()
     if model is None or package is None:
         return None
-    structure = (
+    structure: tuple = (
         sweeps.free_states,
         sweeps.free_params,
         sweeps.discretisation,
@@ -190,6 +190,8 @@ def _key(sweeps, entry: str, leaves, treedef) -> str | None:
         str(treedef),
         [(tuple(a.shape), str(a.dtype), bool(getattr(a, "weak_type", False))) for a in leaves],
     )
+    if sweeps.dosing is not None:  # the events' targets and amounts are in the program
+        structure += (sweeps.dosing,)
     text = f"{package}\n{_jax_digest()}\n{model}\n{structure!r}"
     # named by the package's version first, so that other versions' files can be told
     return f"{package[:8]}-{hashlib.sha256(text.encode()).hexdigest()[:40]}"

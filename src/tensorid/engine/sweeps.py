@@ -121,6 +121,28 @@ class Sweeps:
         """(x, p) ↦ the model's F with the events' infusions (dosing.rhs)."""
         return rhs(self.model, self.dosing, uu)
 
+    def _pi(self, z, p):
+        """The prediction the loss compares with a sample (ŷ for output error)."""
+        return self.predictor.predict(self.model, z, p)
+
+    def _update(self, push=None):
+        """``march``'s update hook: None for output error; for a filter, the measurement
+        update of the carried state, with ``push(fn, state)`` carrying the sensitivities
+        of an augmented state through the map z ↦ fn(z, p)."""
+        pr, m = self.predictor, self.model
+        if pr.update is None:
+            return None
+
+        def update(state, obs_h, p):
+            y_h = obs_h[0] if isinstance(obs_h, tuple) else obs_h
+
+            def fn(z, p_):
+                return pr.update(m, z, p_, y_h)
+
+            return fn(state, p) if push is None else push(fn, state)
+
+        return update
+
     def _march(
         self, field, observe, y0, acc0, t, u, obs, p, end=False, update=None, own=None, push=None
     ):
