@@ -192,3 +192,46 @@ def test_a_filter_or_segments_with_events_is_refused():
         _problem(_record(), segments=2)
     with pytest.raises(ValueError, match="not 'adjoint'"):
         _problem(_record(), hessian="adjoint")
+
+
+def test_a_lag_moves_the_dose_and_its_derivatives_are_exact():
+    """lags={"depot": "tlag"}: the dose's node moves with tlag (across samples as the
+    fit goes); J equals the same record with the dose given at t + tlag, and ∇J, ∇²J
+    equal jax.hessian's of the same discretised cost and finite differences."""
+    m = ti.Model(
+        rhs=lambda x, p, u: jnp.stack([-p[0] * x[0], p[0] * x[0] - p[1] * x[1]]),
+        output=lambda x, p: x[1:] / p[2],
+        states=["depot", "center"], params=["ka", "ke", "v", "tlag"], outputs=["cp"],
+    )  # fmt: skip
+    t = np.array([0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 12.5, 13.0, 16.0])
+    y = np.array([[0.0, 1.0, 4.0, 5.5, 5.0, 2.5, 1.5, 3.0, 4.5]]).T
+    doses = Events.doses([0.0, 12.0], "depot", 100.0)
+    p0 = {"ka": 1.0, "ke": 0.2, "v": 10.0, "tlag": 0.4}
+    record = ti.Experiment(t, None, y, events=doses)
+    pr = ti.Problem(m, record, x0=[0, 0], substeps=3, p0=p0, lags={"depot": "tlag"})
+    theta = np.array([1.1, 0.15, 9.0, 0.4])
+    # the same grid: the doses' own times are nodes too (nothing happens there)
+    moved = Events.doses([0.4, 12.4], "depot", 100.0) + Events.impulses([0.0, 12.0], 0, 0.0)
+    shifted = ti.Experiment(t, None, y, events=moved)
+    ref = ti.Problem(m, shifted, p0=dict(zip(m.params, theta, strict=True)), x0=[0, 0],
+                     substeps=3, fixed=["tlag"])  # fmt: skip
+    assert pr.cost(theta) == pytest.approx(ref.cost(theta[:3]), rel=1e-12)
+    J, g, H = pr.cost_grad_hess(theta)
+    th = jnp.asarray(theta)
+    np.testing.assert_allclose(g, jax.grad(pr.jax_cost)(th), rtol=1e-9)
+    np.testing.assert_allclose(H, jax.hessian(pr.jax_cost)(th), rtol=1e-8, atol=1e-10)
+    steps = np.diag(1e-6 * theta)
+    fd = [(pr.cost(theta + s) - pr.cost(theta - s)) / (2 * s[i]) for i, s in enumerate(steps)]
+    np.testing.assert_allclose(g, fd, rtol=1e-5)
+    # past a sample: the lagged dose at 0.6 now follows the sample at 0.5
+    th2 = theta.copy()
+    th2[3] = 0.6
+    _, g2, H2 = pr.cost_grad_hess(th2)
+    Href = jax.hessian(pr.jax_cost)(jnp.asarray(th2))
+    np.testing.assert_allclose(H2, Href, rtol=1e-8, atol=1e-10)
+    fd = (pr.cost(th2 + steps[3]) - pr.cost(th2 - steps[3])) / (2 * steps[3, 3])
+    assert g2[3] == pytest.approx(fd, rel=1e-5)
+    sim, e = pr.simulate(th2)[0], pr.experiments[0]
+    h = list(e.t).index(0.5)
+    assert sim.y.shape == (e.P, 1) and sim.x[h, 0] == 0.0  # nothing in the depot at 0.5
+    assert sim.x[h + 1, 0] > 50.0  # but at 1.0

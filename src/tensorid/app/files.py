@@ -79,6 +79,7 @@ class ModelSpec:
     residual_error: str | dict | None = None  # a population fit's: additive, proportional, ...
     omega: str | None = None  # Ω's structure: "diagonal" (default) or "full"
     doses: dict = field(default_factory=dict)  # what a dose puts in a state: {"depot": "F * amt"}
+    lags: dict = field(default_factory=dict)  # a dose's lag per state: {"depot": "tlag"}
 
     def x0_array(self, given=()) -> np.ndarray:
         """x0 of the model file as an array (N,), states it does not name at 0; a state
@@ -298,6 +299,8 @@ def _fleet_settings(ns: dict, out: ModelSpec) -> None:
         out.omega = fleets.omega(ns["omega"])
     if ns.get("doses") is not None:
         out.doses = _doses(ns["doses"], m)
+    if ns.get("lags") is not None:
+        out.lags = _doses(ns["lags"], m, "lags")
     fleets.x0_expressions(out.x0, m)
     where = {"individual": "individual", "population": "population", "fixed": "fixed"}
     fleets.kinds(out.individual, out.population, out.fixed, where)
@@ -312,23 +315,24 @@ _SETTINGS = ("model", "rhs", "output", "inputs", "params", "input_delays", "disc
              "x0", "free_x0", "fixed", "bounds", "weights", "priors", "constraints", "noise",
              "loss", "loss_scale", "predictor", "process_noise", "measurement_noise",
              "interpolation", "covariates", "individual", "population",
-             "residual_error", "omega", "doses")  # fmt: skip
+             "residual_error", "omega", "doses", "lags")  # fmt: skip
 # read only beside text equations: beside a tensorid.Model, ``outputs = [...]`` or
 # ``param = ...`` are the file's own variables (passed to the Model), not misspellings
 _TEXT_ONLY = ("rhs", "output", "inputs", "params", "input_delays", "discrete")
 
 
-def _doses(value, model) -> dict:
+def _doses(value, model, key: str = "doses") -> dict:
     """``doses = {"depot": "F * amt"}``: what a record's dose puts into a state (an
-    expression of amt, the parameters and the inputs), checked before any work."""
+    expression of amt, the parameters and the inputs); ``lags = {"depot": "tlag"}``:
+    how long after its time a dose takes effect; checked before any work."""
     from ..engine.dosing import dosing_of
 
     if not isinstance(value, dict):
         raise TypeError(
-            f"doses must be a dict {{state: expression}} such as {{'depot': 'F * amt'}}, got "
-            f"{type(value).__name__}"
+            f"{key} must be a dict {{state: expression}} such as "
+            f"{{'depot': {'F * amt' if key == 'doses' else 'tlag'!r}}}, got {type(value).__name__}"
         )
-    dosing_of(model, [], value)  # one line for a state or a name the model lacks
+    dosing_of(model, [], **{key: value})  # one line for a state or a name the model lacks
     return dict(value)
 
 

@@ -225,6 +225,8 @@ def problem_keywords(spec, problem: type) -> dict:
         out["omega"] = spec.omega
     if spec.doses:
         out["doses"] = dict(spec.doses)
+    if spec.lags:
+        out["lags"] = dict(spec.lags)
     taken = inspect.signature(problem).parameters
     lacking = [k for k in out if k not in taken]
     if lacking:

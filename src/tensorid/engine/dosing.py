@@ -36,6 +36,11 @@ class Dosing:
             model's parameters and inputs; a target without one takes ``amt``.
         inputs: how many of the march's input columns are the model's own (the
             channels follow).
+        lags: (target index, expression text) pairs: a dose into that state takes
+            effect this long after its time (an absorption lag), an expression of the
+            parameters and the inputs. Lagged events are *moving nodes* of the grid
+            (``arrays``), placed by the march at their time for the parameters at hand
+            (``moving.py``), so that the derivatives are those of the problem posed.
     """
 
     targets: tuple[int, ...]
@@ -44,10 +49,23 @@ class Dosing:
     params: tuple[str, ...] = ()
     input_names: tuple[str, ...] = ()
     states: tuple[str, ...] = ()
+    lags: tuple[tuple[int, str], ...] = ()
 
     @property
     def width(self) -> int:
-        return 4 * len(self.targets)
+        """The channels' columns as the march reads them (with lags, each interval's
+        two ends as (kind, nominal time) besides)."""
+        return 4 * len(self.targets) + (4 if self.lags else 0)
+
+    def arrays(self, e, u) -> tuple[np.ndarray, np.ndarray]:
+        """(t, u with the channels) of record e as the sweeps take them, ``u`` the
+        model's inputs as the march reads them; with lags, the lagged events' nodes
+        follow the record's own P (moving.py)."""
+        if not self.lags:
+            return e.t, np.concatenate([u, self.channels(e)], axis=1)
+        from .moving import node_arrays
+
+        return node_arrays(self, e, u)
 
     def channels(self, e) -> np.ndarray:
         """(P, 4D) of a record with events on its grid: the bolus amounts, the
@@ -76,25 +94,26 @@ class Dosing:
                 out[running, 1, d] += ev.rate[k]
         return out.reshape(t.size, -1)
 
-    def _amount_functions(self):
-        """Per target, ``A(amt, p, u)`` in JAX."""
+    def _amount_functions(self, which: str = "doses"):
+        """Per target, ``A(amt, p, u)`` in JAX (``which="lags"``: the lag's
+        expression, its ``amt`` unused); None where the target has none."""
         import sympy as sp  # here: sympy costs 0.2-0.5 s to import
 
         from .equations import _parse
 
         names = ["amt", *self.input_names, *self.params]
         symbols = {n: sp.Symbol(n) for n in names}
-        given = dict(self.amounts)
-        fns = []
+        given = dict(self.amounts if which == "doses" else self.lags)
+        fns: list = []
         for d in self.targets:
             if d not in given:
                 fns.append(None)
                 continue
-            expr = _parse(f"doses[{self.states[d]!r}]", given[d], symbols)
+            expr = _parse(f"{which}[{self.states[d]!r}]", given[d], symbols)
             stray = sorted(str(v) for v in expr.free_symbols if str(v) not in names)
             if stray:
                 raise ValueError(
-                    f"doses[{self.states[d]!r}] = {given[d]!r} names {stray}, which are "
+                    f"{which}[{self.states[d]!r}] = {given[d]!r} names {stray}, which are "
                     f"neither 'amt' nor inputs {list(self.input_names)} nor parameters "
                     f"{list(self.params)} of the model"
                 )
@@ -102,9 +121,9 @@ class Dosing:
         return fns
 
     def functions(self):
-        """(jump(x, p, u_row), rate(p, u_row)) of the carried state and one row of the
-        march's inputs (the model's own, then the channels)."""
-        fns = self._amount_functions()
+        """(jump(x, p, u_row), rate(p, u_row), lags(p, u_row)) of the carried state and
+        one row of the march's inputs (the model's own, then the channels)."""
+        fns, lag_fns = self._amount_functions(), self._amount_functions("lags")
         D, U, idx = len(self.targets), self.inputs, np.array(self.targets, dtype=int)
 
         def amount(q, p, uu):
@@ -129,23 +148,32 @@ class Dosing:
         def rate(p, uu):
             return amount(split(uu)[1], p, uu)
 
-        return jump, rate
+        def lags(p, uu):  # (D,): each target's lag, 0 where it has none
+            args = [*(uu[k] for k in range(U)), *(p[k] for k in range(len(self.params)))]
+            return jnp.stack([0.0 * p[0] if f is None else f(0.0, *args) * 1.0 for f in lag_fns])
+
+        return jump, rate, lags
 
 
-def dosing_of(model, experiments, doses: Mapping[str, str] | None = None) -> Dosing | None:
+def dosing_of(
+    model, experiments, doses: Mapping[str, str] | None = None, lags: Mapping | None = None
+) -> Dosing | None:
     """The Dosing of a fit's records (None where no record has events and no amount
-    expression is given); one line for an expression naming what the model lacks."""
+    or lag expression is given); one line for an expression naming what the model
+    lacks."""
     with_events = [e for e in experiments if getattr(e, "events", None) is not None]
-    doses = dict(doses or {})
-    if not with_events and not doses:
+    doses, lags = dict(doses or {}), dict(lags or {})
+    if not with_events and not doses and not lags:
         return None
     states = tuple(model.states)
-    for s in doses:
-        if s not in states:
-            raise ValueError(
-                f"doses names {s!r}, which is not a state; the model's states are {list(states)}"
-            )
-    targets: set[int] = {states.index(s) for s in doses}
+    for what, given in (("doses", doses), ("lags", lags)):
+        for s in given:
+            if s not in states:
+                raise ValueError(
+                    f"{what} names {s!r}, which is not a state; the model's states are "
+                    f"{list(states)}"
+                )
+    targets: set[int] = {states.index(s) for s in (*doses, *lags)}
     for e in with_events:
         targets |= set(e.events.targets(states))
     order = tuple(sorted(targets))
@@ -154,10 +182,17 @@ def dosing_of(model, experiments, doses: Mapping[str, str] | None = None) -> Dos
         if not isinstance(text, str):
             raise TypeError(f"doses[{s!r}] must be an expression such as 'F * amt', got {text!r}")
         amounts.append((states.index(s), text))
+    lagged = []
+    for s, text in lags.items():
+        if not isinstance(text, str | int | float) or isinstance(text, bool):
+            raise TypeError(f"lags[{s!r}] must be an expression such as 'tlag', got {text!r}")
+        lagged.append((states.index(s), str(text)))
     out = Dosing(
-        order, tuple(amounts), len(model.inputs), tuple(model.params), tuple(model.inputs), states
-    )
+        order, tuple(amounts), len(model.inputs), tuple(model.params), tuple(model.inputs),
+        states, tuple(lagged),
+    )  # fmt: skip
     out._amount_functions()  # parsed now: one line for a bad expression, before any work
+    out._amount_functions("lags")
     return out
 
 
@@ -174,13 +209,13 @@ def covering(dosing: Dosing | None, model, record) -> Dosing | None:
     return dataclasses.replace(dosing, targets=tuple(sorted(set(dosing.targets) | extra)))
 
 
-def check_events(problem, doses, hessian, segments, segment_length) -> bool:
+def check_events(problem, doses, hessian, segments, segment_length, lags=None) -> bool:
     """``problem.dosing`` set (dosing_of), and one line for what records with events or
     gaps cannot go with (a filter, a smooth input interpolation, multiple shooting,
     the adjoint Hessian); returns whether any record has them (then the Hessian is the
     transition tensors')."""
     exps = problem.experiments
-    problem.dosing = dosing_of(problem.model, exps, doses)
+    problem.dosing = dosing_of(problem.model, exps, doses, lags)
     events = problem.dosing is not None
     gaps = events or any(e.observed is not None for e in exps)
     if not gaps:
@@ -197,6 +232,14 @@ def check_events(problem, doses, hessian, segments, segment_length) -> bool:
         )
     if (segments not in (None, 1)) or segment_length is not None:
         raise ValueError(f"{what} are fitted by single shooting: drop segments")
+    if problem.dosing is not None and problem.dosing.lags:
+        from .integrators import ExplicitRungeKutta
+
+        if not isinstance(problem.discretisation.scheme, ExplicitRungeKutta):
+            raise ValueError(
+                f"lags take an explicit fixed-step scheme (rk4, rk38, heun, euler), not "
+                f"{problem.discretisation.scheme.name!r}"
+            )
     name = hessian if isinstance(hessian, str) else getattr(hessian, "name", "")
     if name == "adjoint":
         raise ValueError(f"{what} take hessian='tensors' (or 'auto'), not 'adjoint'")
@@ -216,6 +259,13 @@ def rhs(model, dosing: Dosing | None, uu):
         return lambda x, p_: model.f(x, p_, uu)
     rate = maps(dosing)[1]
     U, idx = model.U, np.array(dosing.targets, dtype=int)
+    if dosing.lags:  # on the march's unit grid: dx/dσ = (the interval's length) · F
+        from .moving import length
+
+        lag = maps(dosing)[2]
+        return lambda x, p_: (
+            length(dosing, lag, p_, uu) * model.f(x, p_, uu[:U]).at[idx].add(rate(p_, uu))
+        )
     return lambda x, p_: model.f(x, p_, uu[:U]).at[idx].add(rate(p_, uu))
 
 
@@ -231,8 +281,13 @@ def jump_hook(dosing: Dosing | None, p, push=None):
     return lambda state, uh: push(lambda z, p_: jmap(z, p_, uh), state)
 
 
-def measured(e):
-    """y as the sweeps take it: the array, or {"y", "mask"} for a record with gaps."""
-    if e.observed is None:
+def measured(e, size: int | None = None):
+    """y as the sweeps take it: the array, or {"y", "mask"} for a record with gaps (or
+    with ``size`` rows, more than its own: a lagged event's nodes, not observed)."""
+    if e.observed is None and (size is None or size == e.P):
         return on_device(e.y)
-    return {"y": on_device(e.y), "mask": on_device(e.mask)}
+    mask = np.ones_like(e.y) if e.mask is None else e.mask
+    extra = 0 if size is None else size - e.P
+    pad = np.zeros((extra, e.y.shape[1]))
+    y, mask = np.concatenate([e.y, pad]), np.concatenate([mask, pad])
+    return {"y": on_device(y), "mask": on_device(mask)}

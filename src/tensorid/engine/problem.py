@@ -141,6 +141,9 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
             :class:`tensorid.Events`) puts into that state, of ``amt`` (its amount, or an
             infusion's rate), the parameters and the inputs: ``{"depot": "F * amt"}``
             (bioavailability F, estimated or fixed). Default: the amount itself.
+        lags: {state: expression}: a dose into that state takes effect this long after
+            its time (an absorption lag ``{"depot": "tlag"}``, of the parameters and
+            inputs); the grid moves with it, so the derivatives stay exact.
     """
 
     dosing: Dosing | None  # what the records' events do (dosing.py); None: no events
@@ -178,6 +181,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         omega: str = "diagonal",
         constraints: Sequence[str] | str | None = None,
         doses: Mapping[str, str] | None = None,
+        lags: Mapping[str, str] | None = None,
     ):
         predictor = checked_predictor(
             predictor, model, fixed, bounds, loss=loss, loss_scale=loss_scale, weights=weights,
@@ -210,7 +214,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         if self.K == 0:
             raise ValueError("nothing to estimate: every parameter is fixed and free_x0 is empty")
         self.constraints, self.penalty = check_constraints(self, constraints), None  # Fs >= Fc
-        gaps = check_events(self, doses, hessian, segments, segment_length)  # self.dosing too
+        gaps = check_events(self, doses, hessian, segments, segment_length, lags)  # self.dosing
         self._sweeps = shared_sweeps(
             model, tuple(model.states.index(n) for n in self.free_x0),
             tuple(model.params.index(n) for n in self.free_params), discretisation, self.loss,
@@ -224,7 +228,6 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
             hessian, discretisation, model.N, self._sweeps.K, [e.P for e in self.experiments],
             threads, adjoint=self.predictor.supports_adjoint and not gaps,
         )  # fmt: skip
-        self.hessian = self.hessian_path.name  # fit.json's hessian_path
 
     def _with_predictor(self, predictor, process_noise, measurement_noise) -> Model:
         """Set the predictor; a filter's model has its noise intensities appended to the
@@ -240,14 +243,18 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         """The inputs the model sees on experiment e: delayed where the model says so
         (a smooth interpolation's: each interval's coefficients, Discretisation.inputs)."""
         u = self.discretisation.inputs(self.model, e.t, e.u)
-        if self.dosing is None:
-            return u
-        return np.concatenate([u, self.dosing.channels(e)], axis=1)  # the events' channels
+        return u if self.dosing is None else self.dosing.arrays(e, u)[1]  # with the events
+
+    hessian = property(lambda self: self.hessian_path.name, doc="fit.json's hessian_path")
 
     def arrays_of(self, e: Experiment) -> tuple:
-        """(t, u as the model sees it, y) of record e as the sweeps take them (y with its
-        mask where the record has gaps: dosing.measured)."""
-        return on_device(e.t), on_device(self.inputs(e)), measured(e)
+        """(t, u, y) of record e as the sweeps take them (with its events' channels and
+        lagged nodes, and y with its mask where it has gaps: dosing.py)."""
+        u = self.discretisation.inputs(self.model, e.t, e.u)
+        if self.dosing is None:
+            return on_device(e.t), on_device(u), measured(e)
+        t, u = self.dosing.arrays(e, u)
+        return on_device(t), on_device(u), measured(e, t.size)
 
     @property
     def sweeps(self) -> Sweeps:

@@ -59,9 +59,10 @@ def run_simulation(sweeps: Sweeps, data: Experiment, x0, p) -> Simulation:
                 sw.model, sw.free_states, sw.free_params, sw.discretisation, sw.loss,
                 sw.predictor, dosing,
             )  # fmt: skip
-        u = np.concatenate([u, dosing.channels(data)], axis=1)
-    xs, ys, code, at = sweeps.simulate(on_device(x0), on_device(p), on_device(data.t), on_device(u))
-    xs, ys = np.asarray(xs), np.asarray(ys)
+    t = data.t if dosing is None else dosing.arrays(data, u)[0]
+    u = u if dosing is None else dosing.arrays(data, u)[1]
+    xs, ys, code, at = sweeps.simulate(on_device(x0), on_device(p), on_device(t), on_device(u))
+    xs, ys = np.asarray(xs)[: data.P], np.asarray(ys)[: data.P]  # a lagged event's nodes: out
     status = Status.from_code(int(code))
     failed_at: int | None = None if status is Status.OK else int(at)
     bad_y = ~np.isfinite(ys).all(axis=1)
@@ -85,10 +86,12 @@ def simulate(
     atol: float | None = None,
     discretisation: Discretisation | None = None,
     doses: dict | None = None,
+    lags: dict | None = None,
 ) -> Simulation:
     """Simulate ``model`` with ``params`` (dict or array (M,)) from ``x0`` (dict or
     array (N,)) on the inputs and sample times of ``data``, and through its events
-    (``doses``: what a dose puts into a state, as ``Problem(doses=...)``).
+    (``doses``: what a dose puts into a state, ``lags``: how long after its time, as
+    ``Problem(doses=..., lags=...)``).
 
     Pass the fit's ``discretisation`` (``problem.discretisation``), or its scheme,
     substeps and interpolation, to reproduce its reported cost exactly.
@@ -107,7 +110,7 @@ def simulate(
     ).for_model(model)
     p = model.params_array(params, "params")
     x = model.states_array(x0, "x0")
-    dosing = dosing_of(model, [data], doses)
+    dosing = dosing_of(model, [data], doses, lags)
     sim = run_simulation(shared_sweeps(model, (), (), discretisation, dosing=dosing), data, x, p)
     if sim.status is not Status.OK:
         h = sim.failed_at or 0

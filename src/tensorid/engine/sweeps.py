@@ -45,9 +45,10 @@ from .. import _config  # noqa: F401
 from .adjoint import SecondOrderAdjoint
 from .compiled import Compiled
 from .discretisation import Discretisation, march
-from .dosing import Dosing, jump_hook, rhs
+from .dosing import Dosing, jump_hook, maps, rhs
 from .losses import SQUARED, Loss
 from .model import Model
+from .moving import march_moving
 from .output_sensitivity import output_jacobian
 from .packing import quadratic_full
 from .packing import unpack_symmetric as unpack_symmetric  # its old home, re-exported
@@ -163,14 +164,11 @@ class Sweeps:
                 return (acc, y), out
 
             acc0 = (acc0, y0)
-        return march(
-            field,
-            observe,
-            y0,
-            acc0,
-            t,
-            u,
-            obs,
+        kw = dict(
+            field=field,
+            observe=observe,
+            y0=y0,
+            acc0=acc0,
             discretisation=self.discretisation,
             state_field=state_field,
             update=None if update is None else (lambda st, o: update(st, o, p)),
@@ -179,8 +177,10 @@ class Sweeps:
             # minimum in σ_e (→ −∞): it is left out (its gain is zero: it had no other use)
             skip_first=update is not None and bool(self.free_states),
             jump=jump_hook(self.dosing, p, push),
-            held=0 if self.dosing is None else self.dosing.width,
         )
+        if self.dosing is not None and self.dosing.lags:  # events that move with p
+            return march_moving(march, self.dosing, maps(self.dosing)[2], p, t, u, obs, **kw)
+        return march(t=t, u=u, obs=obs, held=0 if self.dosing is None else self.dosing.width, **kw)
 
     # -- plain simulation --------------------------------------------------------------
     def _simulate(self, x0, p, t, u):

@@ -45,7 +45,8 @@ class Units:
     @classmethod
     def of(cls, problem) -> Units:
         exps = problem.experiments
-        P = max(e.P for e in exps)
+        nodes = [problem.arrays_of(e)[0].shape[0] for e in exps]  # a lagged dose's: more
+        P = max(nodes)
         S, U = problem.model.S, len(problem.model.inputs)
         t, u = np.zeros((len(exps), P)), np.zeros((len(exps), P, U))
         y, mask = np.zeros((len(exps), P, S)), np.zeros((len(exps), P, S))
@@ -53,10 +54,12 @@ class Units:
         if dosing is not None:  # the events' channels follow the inputs (events.py)
             u = np.zeros((len(exps), P, U + dosing.width))
         for i, e in enumerate(exps):
-            n, ue = e.P, problem.inputs(e)
-            t[i, :n], t[i, n:] = e.t, e.t[-1]
+            n, ue = nodes[i], problem.inputs(e)
+            t[i, :n], t[i, n:] = np.asarray(problem.arrays_of(e)[0]), e.t[-1]
             u[i, :n], u[i, n:, :U] = ue, ue[-1, :U]  # padding: no event happens again
-            y[i, :n], mask[i, :n] = e.y, 1.0 if e.mask is None else e.mask
+            if dosing is not None and dosing.lags:  # a fixed node at the record's end
+                u[i, n:, -2:] = (-1.0, e.t[-1])
+            y[i, : e.P], mask[i, : e.P] = e.y, 1.0 if e.mask is None else e.mask
         names = [e.name or str(i) for i, e in enumerate(exps)]
         samples = np.array([e.P for e in exps])
         return cls(t, u, y, mask, np.asarray(problem.x0, float), names, samples)
