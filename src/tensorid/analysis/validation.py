@@ -12,6 +12,7 @@ import numpy as np
 from ..engine.checks import same_step, step
 from ..engine.compiled import on_device
 from ..engine.data import Experiment
+from ..engine.dosing import dosing_of
 from ..engine.metrics import gof, nrmse, r2, rmse
 from ..engine.predictors import check_horizon
 from ..engine.problem import Problem
@@ -151,7 +152,7 @@ def training_scores(res) -> list[Score]:
 
 
 def estimate_x0(
-    model, params, x0, free: list[str], record: Experiment, discretisation
+    model, params, x0, free: list[str], record: Experiment, discretisation, events=None
 ) -> tuple[np.ndarray, Status]:
     """The initial state (N,) for ``record``, and how its fit ended: the states named
     in ``free`` estimated by
@@ -167,6 +168,7 @@ def estimate_x0(
         free_x0=free,
         fixed=list(model.params),
         discretisation=discretisation,
+        **(events or {}),  # doses=, lags=: what the fit's events did
     )
     theta, status = _free_x0(problem)
     return problem.unpack(theta)[1][0], status
@@ -212,6 +214,7 @@ def score_record(
     alone: bool = True,
     horizon: int | None = None,
     predictor=None,
+    events: dict | None = None,
 ) -> Score:
     """``model`` with ``params`` held, simulated on ``record`` (MATLAB's compare): the
     initial states named in ``free_x0`` estimated on the first ``init_window`` samples
@@ -228,8 +231,10 @@ def score_record(
     x0_status = None
     if free_x0 and record.y is not None:
         window = record if init_window is None else record.window(0, int(init_window))
-        x0, x0_status = estimate_x0(model, params, x0, list(free_x0), window, disc)
-    sim = run_simulation(shared_sweeps(model, (), (), disc), record, x0, model.params_array(params))
+        x0, x0_status = estimate_x0(model, params, x0, list(free_x0), window, disc, events)
+    dosing = dosing_of(model, [record], **(events or {}))  # the fit's doses= and lags=
+    sweeps = shared_sweeps(model, (), (), disc, dosing=dosing)
+    sim = run_simulation(sweeps, record, x0, model.params_array(params))
     if horizon is not None and (predictor is None or predictor[1].update is None):
         check_horizon(horizon, record.P)  # a bad one is refused all the same
         horizon = None  # output error: every horizon's prediction is the simulation
@@ -279,6 +284,7 @@ def validate(res, data, init_window: int | None = None, horizon: int | None = No
             alone=len(exps) == 1,
             horizon=horizon,
             predictor=(prob.loss, prob.predictor),
+            events=None if prob.dosing is None else prob.dosing.expressions(),
         )  # fmt: skip
         for e, w in zip(exps, windows, strict=True)
     ]

@@ -296,8 +296,8 @@ def _score(args, require_outputs: bool):
     horizon = getattr(args, "horizon", None)
     if horizon is not None and predictor is None:
         print(SIMULATED_HORIZON.format(horizon=horizon), file=sys.stderr)
-    score = score_record(spec.model, params, x0, free, e, disc, args.init_window,
-                         horizon=horizon, predictor=predictor)  # fmt: skip
+    score = score_record(spec.model, params, x0, free, e, disc, args.init_window, horizon=horizon,
+                         predictor=predictor, events={"doses": spec.doses, "lags": spec.lags})  # fmt: skip  # noqa: E501
     return spec, params, score, source, disc.for_model(spec.model), defaults
 
 

@@ -51,6 +51,13 @@ class Dosing:
     states: tuple[str, ...] = ()
     lags: tuple[tuple[int, str], ...] = ()
 
+    def expressions(self) -> dict:
+        """{"doses": {state: text}, "lags": {state: text}}: the expressions as given."""
+        return {
+            "doses": {self.states[d]: text for d, text in self.amounts},
+            "lags": {self.states[d]: text for d, text in self.lags},
+        }
+
     @property
     def width(self) -> int:
         """The channels' columns as the march reads them (with lags, each interval's

@@ -10,10 +10,17 @@ import numpy as np
 GRID_MAX = 36  # units shown in the grid; the rest are in fit.json
 
 
-def _predictions(res):
+DENSE = 240  # points of a record with events drawn between its first and last rows
+
+
+def _predictions(res, dense: bool = False):
     """(units, the typical unit's predictions, each unit's own): the typical unit is
-    η = 0, with the median of the units' values for individual parameters."""
+    η = 0, with the median of the units' values for individual parameters. With
+    ``dense``, for records with events: on each unit's grid and DENSE more times, so
+    that a curve goes through its doses rather than straight between samples."""
     obj = res.objective_function
+    if dense and getattr(obj.problem, "dosing", None) is not None:
+        obj = _densely(obj)
     middle = np.median(res.etas, axis=0)
     middle[: obj.qp] = 0.0
     typical = np.asarray(obj.predict_all(res.x, np.broadcast_to(middle, res.etas.shape)))
@@ -21,11 +28,36 @@ def _predictions(res):
     return obj.units, typical, own
 
 
+def _densely(obj):
+    """``obj`` on its units' records with DENSE unobserved times more each."""
+    import copy
+
+    from ..engine.data import Experiment
+    from .units import Units
+
+    records = []
+    for e in obj.problem.experiments:
+        t = np.unique(np.concatenate([e.t, np.linspace(e.t[0], e.t[-1], DENSE)]))
+        u = np.zeros((t.size, e.u.shape[1]))
+        for k in range(e.u.shape[1]):
+            u[:, k] = np.interp(t, e.t, e.u[:, k])
+        seen = np.isin(t, e.t)  # the samples stay, with their values
+        y = np.zeros((t.size, e.y.shape[1]))
+        y[seen] = e.y
+        observed = np.zeros_like(y, dtype=bool)
+        observed[seen] = True if e.observed is None else e.observed
+        records.append(Experiment(t, u, y, e.name, None, e.events, observed))
+    out = copy.copy(obj)
+    out.units = Units.of(obj.problem, records)
+    out.data = (*out.units.arrays(), obj.data[-1])
+    return out
+
+
 def units_figure(res, output: int = 0):
     """Each unit's observations, its own prediction (η̂) and the typical unit's (η = 0)."""
     import matplotlib.pyplot as plt
 
-    units, typical, own = _predictions(res)
+    units, typical, own = _predictions(res, dense=True)
     n = min(len(units.names), GRID_MAX)
     cols = int(np.ceil(np.sqrt(n)))
     rows = int(np.ceil(n / cols))

@@ -43,8 +43,9 @@ class Units:
     samples: np.ndarray  # (E,) each unit's own number of samples
 
     @classmethod
-    def of(cls, problem) -> Units:
-        exps = problem.experiments
+    def of(cls, problem, records=None) -> Units:
+        """The Problem's records (or ``records`` in their place, one per unit)."""
+        exps = problem.experiments if records is None else records
         nodes = [problem.arrays_of(e)[0].shape[0] for e in exps]  # a lagged dose's: more
         P = max(nodes)
         S, U = problem.model.S, len(problem.model.inputs)
