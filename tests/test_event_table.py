@@ -73,7 +73,7 @@ def test_doses_repeats_and_infusions_are_read_with_rows_that_observe_nothing(tmp
         ("1,2,10,.,1,1,1,12,0,0,70", "has II = 12 but no ADDL"),
         ("1,2,10,.,1,1,1,0,3,0,70", "has ADDL = 3 but no II"),
         ("1,2,-10,.,1,1,1,0,0,0,70", "has AMT -10"),
-        ("1,2,10,.,1,1,1,0,0,-2,70", "RATE -2 on line 3"),
+        ("1,2,10,.,1,1,1,0,0,-1,70", "RATE -1 on line 3"),
         ("1,2,.,x,0,0,2,0,0,0,70", "holds 'x' on line 3"),
         ("1,0.5,.,1,0,0,2,0,0,0,70", "goes backwards on line 3"),
     ],

@@ -235,3 +235,34 @@ def test_a_lag_moves_the_dose_and_its_derivatives_are_exact():
     h = list(e.t).index(0.5)
     assert sim.y.shape == (e.P, 1) and sim.x[h, 0] == 0.0  # nothing in the depot at 0.5
     assert sim.x[h + 1, 0] > 50.0  # but at 1.0
+
+
+def test_a_modelled_infusion_s_duration_moves_its_end_with_exact_derivatives():
+    """durations={"center": "D"} with rate −2 (NONMEM's RATE = −2): the amount over
+    D(p); J equals the record with the infusion at amount/D given as data, and ∇J,
+    ∇²J equal jax.hessian's and finite differences'."""
+    m = ti.Model(
+        rhs=lambda x, p, u: jnp.stack([-p[0] * x[0]]),
+        output=lambda x, p: x / p[1],
+        states=["center"], params=["ke", "v", "D"], outputs=["cp"],
+    )  # fmt: skip
+    t = np.array([0.5, 1.0, 1.5, 2.5, 4.0, 6.0, 12.5, 13.0, 14.0])
+    y = np.array([[2.0, 3.5, 4.5, 4.0, 3.0, 2.0, 1.5, 3.0, 4.5]]).T
+    doses = Events.doses([0.0, 12.0], "center", 100.0, rate=-2.0)
+    p0 = {"ke": 0.2, "v": 20.0, "D": 1.6}
+    pr = ti.Problem(m, ti.Experiment(t, None, y, events=doses), x0=[0.0], p0=p0,
+                    substeps=3, durations={"center": "D"})  # fmt: skip
+    theta = np.array([0.15, 18.0, 1.6])  # ends at 1.6 and 13.6 (no sample there: a kink)
+    given = Events.doses([0.0, 12.0], "center", 100.0, rate=62.5)
+    ref = ti.Problem(m, ti.Experiment(t, None, y, events=given), x0=[0.0], p0=p0,
+                     substeps=3, fixed=["D"])  # fmt: skip
+    assert pr.cost(theta) == pytest.approx(ref.cost(theta[:2]), rel=1e-12)
+    for th in (theta, np.array([0.15, 18.0, 1.2])):  # D = 1.2: its end before the sample at 1.5
+        _, g, H = pr.cost_grad_hess(th)
+        np.testing.assert_allclose(H, jax.hessian(pr.jax_cost)(jnp.asarray(th)), rtol=1e-8,
+                                   atol=1e-10)  # fmt: skip
+        steps = np.diag(1e-6 * th)
+        fd = [(pr.cost(th + s) - pr.cost(th - s)) / (2 * s[i]) for i, s in enumerate(steps)]
+        np.testing.assert_allclose(g, fd, rtol=1e-5)
+    with pytest.raises(ValueError, match="no duration is stated for 'center'"):
+        ti.Problem(m, ti.Experiment(t, None, y, events=doses), x0=[0.0], p0=p0)

@@ -217,11 +217,11 @@ def _dose(where, cols, i, model, t, amt, rate, ii, addl, ss, cmt) -> Events:
             "the doses before it (ADDL with II) so that the state reaches it"
         )
     rate = float(np.nan_to_num(rate))
-    if rate < 0:
+    if rate < 0 and rate != -2:
         raise ValueError(
-            f"{where}: RATE {rate:g} {line}: a rate or duration the model sets (RATE -1 "
-            "or -2) is not supported yet, nor is a negative rate; give RATE > 0 (an "
-            "infusion) or 0 (a bolus)"
+            f"{where}: RATE {rate:g} {line}: a rate the model sets (RATE -1) is not "
+            "supported yet, nor is a negative rate; give RATE > 0 (an infusion), 0 (a "
+            "bolus) or -2 (the duration the model file's durations state)"
         )
     target = _target(where, cols, i, cmt, list(model.states))
     try:

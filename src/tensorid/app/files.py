@@ -80,6 +80,11 @@ class ModelSpec:
     omega: str | None = None  # Ω's structure: "diagonal" (default) or "full"
     doses: dict = field(default_factory=dict)  # what a dose puts in a state: {"depot": "F * amt"}
     lags: dict = field(default_factory=dict)  # a dose's lag per state: {"depot": "tlag"}
+    durations: dict = field(default_factory=dict)  # RATE = -2's duration: {"central": "D"}
+
+    def events(self) -> dict:
+        """{"doses", "lags", "durations"}: what a record's events do, as the file says."""
+        return {"doses": self.doses, "lags": self.lags, "durations": self.durations}
 
     def x0_array(self, given=()) -> np.ndarray:
         """x0 of the model file as an array (N,), states it does not name at 0; a state
@@ -301,6 +306,8 @@ def _fleet_settings(ns: dict, out: ModelSpec) -> None:
         out.doses = _doses(ns["doses"], m)
     if ns.get("lags") is not None:
         out.lags = _doses(ns["lags"], m, "lags")
+    if ns.get("durations") is not None:
+        out.durations = _doses(ns["durations"], m, "durations")
     fleets.x0_expressions(out.x0, m)
     where = {"individual": "individual", "population": "population", "fixed": "fixed"}
     fleets.kinds(out.individual, out.population, out.fixed, where)
@@ -315,7 +322,7 @@ _SETTINGS = ("model", "rhs", "output", "inputs", "params", "input_delays", "disc
              "x0", "free_x0", "fixed", "bounds", "weights", "priors", "constraints", "noise",
              "loss", "loss_scale", "predictor", "process_noise", "measurement_noise",
              "interpolation", "covariates", "individual", "population",
-             "residual_error", "omega", "doses", "lags")  # fmt: skip
+             "residual_error", "omega", "doses", "lags", "durations")  # fmt: skip
 # read only beside text equations: beside a tensorid.Model, ``outputs = [...]`` or
 # ``param = ...`` are the file's own variables (passed to the Model), not misspellings
 _TEXT_ONLY = ("rhs", "output", "inputs", "params", "input_delays", "discrete")

@@ -225,8 +225,9 @@ def problem_keywords(spec, problem: type) -> dict:
         out["omega"] = spec.omega
     if spec.doses:
         out["doses"] = dict(spec.doses)
-    if spec.lags:
-        out["lags"] = dict(spec.lags)
+    for key in ("lags", "durations"):  # events that move with the parameters
+        if getattr(spec, key):
+            out[key] = dict(getattr(spec, key))
     taken = inspect.signature(problem).parameters
     lacking = [k for k in out if k not in taken]
     if lacking:

@@ -297,7 +297,7 @@ def _score(args, require_outputs: bool):
     if horizon is not None and predictor is None:
         print(SIMULATED_HORIZON.format(horizon=horizon), file=sys.stderr)
     score = score_record(spec.model, params, x0, free, e, disc, args.init_window, horizon=horizon,
-                         predictor=predictor, events={"doses": spec.doses, "lags": spec.lags})  # fmt: skip  # noqa: E501
+                         predictor=predictor, events=spec.events())  # fmt: skip
     return spec, params, score, source, disc.for_model(spec.model), defaults
 
 

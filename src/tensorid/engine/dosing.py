@@ -50,25 +50,32 @@ class Dosing:
     input_names: tuple[str, ...] = ()
     states: tuple[str, ...] = ()
     lags: tuple[tuple[int, str], ...] = ()
+    durations: tuple[tuple[int, str], ...] = ()
+
+    @property
+    def moving(self) -> bool:
+        """Whether some events move with the parameters (lags, modelled durations)."""
+        return bool(self.lags or self.durations)
 
     def expressions(self) -> dict:
         """{"doses": {state: text}, "lags": {state: text}}: the expressions as given."""
         return {
             "doses": {self.states[d]: text for d, text in self.amounts},
             "lags": {self.states[d]: text for d, text in self.lags},
+            "durations": {self.states[d]: text for d, text in self.durations},
         }
 
     @property
     def width(self) -> int:
         """The channels' columns as the march reads them (with lags, each interval's
         two ends as (kind, nominal time) besides)."""
-        return 4 * len(self.targets) + (4 if self.lags else 0)
+        return (5 * len(self.targets) + 4) if self.moving else 4 * len(self.targets)
 
     def arrays(self, e, u) -> tuple[np.ndarray, np.ndarray]:
         """(t, u with the channels) of record e as the sweeps take them, ``u`` the
         model's inputs as the march reads them; with lags, the lagged events' nodes
         follow the record's own P (moving.py)."""
-        if not self.lags:
+        if not self.moving:
             return e.t, np.concatenate([u, self.channels(e)], axis=1)
         from .moving import node_arrays
 
@@ -110,7 +117,7 @@ class Dosing:
 
         names = ["amt", *self.input_names, *self.params]
         symbols = {n: sp.Symbol(n) for n in names}
-        given = dict(self.amounts if which == "doses" else self.lags)
+        given = dict({"doses": self.amounts, "lags": self.lags}.get(which, self.durations))
         fns: list = []
         for d in self.targets:
             if d not in given:
@@ -131,6 +138,7 @@ class Dosing:
         """(jump(x, p, u_row), rate(p, u_row), lags(p, u_row)) of the carried state and
         one row of the march's inputs (the model's own, then the channels)."""
         fns, lag_fns = self._amount_functions(), self._amount_functions("lags")
+        dur_fns = self._amount_functions("durations")
         D, U, idx = len(self.targets), self.inputs, np.array(self.targets, dtype=int)
 
         def amount(q, p, uu):
@@ -152,35 +160,46 @@ class Dosing:
             xs = x[idx]
             return x.at[idx].set((1.0 - r) * xs + r * v + amount(b, p, uu))
 
-        def rate(p, uu):
-            return amount(split(uu)[1], p, uu)
-
-        def lags(p, uu):  # (D,): each target's lag, 0 where it has none
+        def of(fns_, p, uu, empty):  # (D,) expressions of p and the inputs
             args = [*(uu[k] for k in range(U)), *(p[k] for k in range(len(self.params)))]
-            return jnp.stack([0.0 * p[0] if f is None else f(0.0, *args) * 1.0 for f in lag_fns])
+            return jnp.stack([empty + 0.0 * p[0] if f is None else f(0.0, *args) * 1.0
+                              for f in fns_])  # fmt: skip
 
-        return jump, rate, lags
+        def shifts(p, uu):  # (lags, durations) (D,) each: 0 and 1 where none is stated
+            return of(lag_fns, p, uu, 0.0), of(dur_fns, p, uu, 1.0)
+
+        def rate(p, uu):
+            q = split(uu)[1]
+            if self.durations:  # the modelled infusions' amounts running, over D(p)
+                q = q + uu[U + 4 * D : U + 5 * D] / shifts(p, uu)[1]
+            return amount(q, p, uu)
+
+        return jump, rate, shifts
 
 
 def dosing_of(
-    model, experiments, doses: Mapping[str, str] | None = None, lags: Mapping | None = None
+    model,
+    experiments,
+    doses: Mapping | None = None,
+    lags: Mapping | None = None,
+    durations: Mapping | None = None,
 ) -> Dosing | None:
     """The Dosing of a fit's records (None where no record has events and no amount
     or lag expression is given); one line for an expression naming what the model
     lacks."""
     with_events = [e for e in experiments if getattr(e, "events", None) is not None]
-    doses, lags = dict(doses or {}), dict(lags or {})
-    if not with_events and not doses and not lags:
+    doses, lags, durations = dict(doses or {}), dict(lags or {}), dict(durations or {})
+    if not with_events and not doses and not lags and not durations:
         return None
     states = tuple(model.states)
-    for what, given in (("doses", doses), ("lags", lags)):
+    for what, given in (("doses", doses), ("lags", lags), ("durations", durations)):
         for s in given:
             if s not in states:
                 raise ValueError(
                     f"{what} names {s!r}, which is not a state; the model's states are "
                     f"{list(states)}"
                 )
-    targets: set[int] = {states.index(s) for s in (*doses, *lags)}
+    targets: set[int] = {states.index(s) for s in (*doses, *lags, *durations)}
     for e in with_events:
         targets |= set(e.events.targets(states))
     order = tuple(sorted(targets))
@@ -189,18 +208,36 @@ def dosing_of(
         if not isinstance(text, str):
             raise TypeError(f"doses[{s!r}] must be an expression such as 'F * amt', got {text!r}")
         amounts.append((states.index(s), text))
-    lagged = []
-    for s, text in lags.items():
-        if not isinstance(text, str | int | float) or isinstance(text, bool):
-            raise TypeError(f"lags[{s!r}] must be an expression such as 'tlag', got {text!r}")
-        lagged.append((states.index(s), str(text)))
+    timed: dict[str, list] = {"lags": [], "durations": []}
+    for what, given in (("lags", lags), ("durations", durations)):
+        for s, text in given.items():
+            if not isinstance(text, str | int | float) or isinstance(text, bool):
+                raise TypeError(f"{what}[{s!r}] must be an expression such as 'D', got {text!r}")
+            timed[what].append((states.index(s), str(text)))
+    _modelled_need_durations(with_events, states, {s for s, _ in timed["durations"]})
     out = Dosing(
         order, tuple(amounts), len(model.inputs), tuple(model.params), tuple(model.inputs),
-        states, tuple(lagged),
+        states, tuple(timed["lags"]), tuple(timed["durations"]),
     )  # fmt: skip
-    out._amount_functions()  # parsed now: one line for a bad expression, before any work
-    out._amount_functions("lags")
+    for which in ("doses", "lags", "durations"):  # one line for a bad one, before any work
+        out._amount_functions(which)
     return out
+
+
+def _modelled_need_durations(records, states, stated: set[int]) -> None:
+    """One line for an infusion whose duration the model is to set (RATE = −2) into a
+    state that ``durations`` does not name."""
+    for e in records:
+        for k, kind in enumerate(e.events.kind):
+            s = e.events.state[k]
+            if kind == "modelled-infusion" and state_index(s, states) not in stated:
+                name = states[state_index(s, states)]
+                raise ValueError(
+                    f"record {e.name!r}: the infusion at t = {e.events.time[k]:g} into "
+                    f"{name!r} has its duration set by the model (RATE = -2), but no "
+                    f"duration is stated for {name!r}: add durations = {{{name!r}: 'D'}} "
+                    "(a parameter or an expression)"
+                )
 
 
 def covering(dosing: Dosing | None, model, record) -> Dosing | None:
@@ -216,13 +253,15 @@ def covering(dosing: Dosing | None, model, record) -> Dosing | None:
     return dataclasses.replace(dosing, targets=tuple(sorted(set(dosing.targets) | extra)))
 
 
-def check_events(problem, doses, hessian, segments, segment_length, lags=None) -> bool:
+def check_events(
+    problem, doses, hessian, segments, segment_length, lags=None, durations=None
+) -> bool:
     """``problem.dosing`` set (dosing_of), and one line for what records with events or
     gaps cannot go with (a filter, a smooth input interpolation, multiple shooting,
     the adjoint Hessian); returns whether any record has them (then the Hessian is the
     transition tensors')."""
     exps = problem.experiments
-    problem.dosing = dosing_of(problem.model, exps, doses, lags)
+    problem.dosing = dosing_of(problem.model, exps, doses, lags, durations)
     events = problem.dosing is not None
     gaps = events or any(e.observed is not None for e in exps)
     if not gaps:
@@ -239,7 +278,7 @@ def check_events(problem, doses, hessian, segments, segment_length, lags=None) -
         )
     if (segments not in (None, 1)) or segment_length is not None:
         raise ValueError(f"{what} are fitted by single shooting: drop segments")
-    if problem.dosing is not None and problem.dosing.lags:
+    if problem.dosing is not None and problem.dosing.moving:
         from .integrators import ExplicitRungeKutta
 
         if not isinstance(problem.discretisation.scheme, ExplicitRungeKutta):
@@ -266,7 +305,7 @@ def rhs(model, dosing: Dosing | None, uu):
         return lambda x, p_: model.f(x, p_, uu)
     rate = maps(dosing)[1]
     U, idx = model.U, np.array(dosing.targets, dtype=int)
-    if dosing.lags:  # on the march's unit grid: dx/dσ = (the interval's length) · F
+    if dosing.moving:  # on the march's unit grid: dx/dσ = (the interval's length) · F
         from .moving import length
 
         lag = maps(dosing)[2]

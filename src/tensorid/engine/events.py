@@ -29,7 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-KINDS = ("bolus", "infusion", "reset", "reset-all", "impulse")
+KINDS = ("bolus", "infusion", "reset", "reset-all", "impulse", "modelled-infusion")
+MODELLED = -2.0  # NONMEM's RATE for an infusion whose duration the model sets
 
 
 class EventNote(UserWarning):
@@ -47,7 +48,9 @@ class Events:
         amount: (n,) a bolus's or an infusion's amount, or a reset's value.
         rate: (n,) an infusion's rate (amount per time unit); 0 for a bolus.
         kind: (n,) "bolus", "infusion", "reset" (x := amount), "reset-all" (every
-            state := 0, NONMEM's EVID 3) or "impulse" (x += amount, of either sign).
+            state := 0, NONMEM's EVID 3), "impulse" (x += amount, of either sign) or
+            "modelled-infusion" (NONMEM's RATE = −2: the amount over the duration the
+            model states, ``Problem(durations={"central": "D"})``).
 
     Build them with :meth:`doses`, :meth:`resets` and :meth:`impulses`; ``+``
     joins two sets. Repeated doses (II, ADDL) are expanded when built.
@@ -73,7 +76,10 @@ class Events:
         bad = [k for k in self.kind if k not in KINDS]
         if bad:
             raise ValueError(f"events: kind {bad[0]!r} is not one of {KINDS}")
-        neg = np.flatnonzero((self.rate < 0) | ((self.amount < 0) & self._dose_mask()))
+        modelled = np.array([k == "modelled-infusion" for k in self.kind], dtype=bool)
+        neg = np.flatnonzero(
+            ((self.rate < 0) & ~modelled) | ((self.amount < 0) & self._dose_mask())
+        )
         if neg.size:
             i = int(neg[0])
             what = "rate" if self.rate[i] < 0 else "amount"
@@ -90,14 +96,17 @@ class Events:
         set_(self, "kind", tuple(self.kind))
 
     def _dose_mask(self) -> np.ndarray:
-        return np.array([k in ("bolus", "infusion") for k in self.kind], dtype=bool)
+        return np.array(
+            [k in ("bolus", "infusion", "modelled-infusion") for k in self.kind], dtype=bool
+        )
 
     # -- construction ----------------------------------------------------------------
     @classmethod
     def doses(cls, time, state, amount, rate=0.0, ii=0.0, addl=0, *, impulse=False) -> Events:
         """Doses: a bolus where ``rate`` is 0, else a zero-order infusion of ``amount``
-        at ``rate`` (it lasts amount / rate). ``addl`` more doses follow each, every
-        ``ii`` time units (NONMEM's ADDL and II: both or neither)."""
+        at ``rate`` (it lasts amount / rate; ``rate=-2``: for the duration the model
+        states, NONMEM's RATE = −2). ``addl`` more doses follow each, every ``ii`` time
+        units (NONMEM's ADDL and II: both or neither)."""
         time, amount = np.atleast_1d(np.asarray(time, float)), np.atleast_1d(amount)
         n = time.size
         state = _each(state, n, "state")
@@ -113,7 +122,11 @@ class Events:
                 s.append(state[i])
                 a.append(amount[i])
                 r.append(rate[i])
-        kinds = tuple("infusion" if q > 0 else "impulse" if impulse else "bolus" for q in r)
+        kinds = tuple(
+            "infusion" if q > 0 else "modelled-infusion" if q == MODELLED
+            else "impulse" if impulse else "bolus"
+            for q in r
+        )  # fmt: skip
         return cls(np.array(t), tuple(s), np.array(a), np.array(r), kinds)
 
     @classmethod

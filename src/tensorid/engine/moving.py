@@ -30,14 +30,15 @@ from .events import state_index
 
 
 def node_arrays(dosing, e, u) -> tuple[np.ndarray, np.ndarray]:
-    """(t, u with the channels): the record's P nodes, then the lagged events' nodes;
-    channels per node: bolus, rate increment, reset flag, reset value (D each), the
-    node's target position (−1: a fixed node) and its nominal time."""
+    """(t, u with the channels): the record's P nodes, then the moving events' nodes;
+    channels per node: bolus, rate increment, reset flag, reset value, modelled
+    infusion's amount increment (D each), the node's kind (−1: a fixed node; d: the
+    lag of target d; D + d: its lag and its duration) and its nominal time."""
     D, t = len(dosing.targets), e.t
     lagged = {d for d, _ in dosing.lags}
     pos = {s: i for i, s in enumerate(dosing.targets)}
-    fixed = np.zeros((t.size, 4, D))
-    rows: list[tuple[float, int, float, float]] = []  # (time, target position, bolus, rate)
+    fixed = np.zeros((t.size, 5, D))
+    rows: list[tuple] = []  # (time, kind, bolus, rate, modelled amount)
     ev = e.events
     for k in range(0 if ev is None else len(ev)):
         kind, h = ev.kind[k], int(np.searchsorted(t, ev.time[k]))
@@ -50,25 +51,28 @@ def node_arrays(dosing, e, u) -> tuple[np.ndarray, np.ndarray]:
             fixed[h, 2, d], fixed[h, 3, d] = 1.0, ev.amount[k]
         elif kind in ("bolus", "impulse"):
             if s in lagged:
-                rows.append((ev.time[k], d, ev.amount[k], 0.0))
+                rows.append((ev.time[k], d, ev.amount[k], 0.0, 0.0))
             else:
                 fixed[h, 0, d] += ev.amount[k]
+        elif kind == "modelled-infusion":  # its end at its (lagged) start + D(p)
+            a = ev.amount[k]
+            rows += [(ev.time[k], d, 0.0, 0.0, a), (ev.time[k], D + d, 0.0, 0.0, -a)]
         else:  # an infusion: +rate at its start, −rate at its end (on the grid: merge)
             end = ev.time[k] + ev.amount[k] / ev.rate[k]
             if s in lagged:
-                rows += [(ev.time[k], d, 0.0, ev.rate[k]), (end, d, 0.0, -ev.rate[k])]
+                rows += [(ev.time[k], d, 0.0, ev.rate[k], 0.0), (end, d, 0.0, -ev.rate[k], 0.0)]
                 continue
             fixed[h, 1, d] += ev.rate[k]
             if end <= t[-1]:
                 fixed[int(np.searchsorted(t, end)), 1, d] -= ev.rate[k]
-    nodes = np.array(rows, dtype=float).reshape(-1, 4)
-    moving = np.zeros((nodes.shape[0], 4, D))
-    index = nodes[:, 1].astype(int)
-    moving[np.arange(nodes.shape[0]), 0, index] = nodes[:, 2]
-    moving[np.arange(nodes.shape[0]), 1, index] = nodes[:, 3]
+    nodes = np.array(rows, dtype=float).reshape(-1, 5)
+    moving = np.zeros((nodes.shape[0], 5, D))
+    index, n = nodes[:, 1].astype(int) % max(D, 1), np.arange(nodes.shape[0])
+    moving[n, 0, index], moving[n, 1, index] = nodes[:, 2], nodes[:, 3]
+    moving[n, 4, index] = nodes[:, 4]
     times = np.concatenate([t, nodes[:, 0]])
     kind = np.concatenate([np.full(t.size, -1.0), nodes[:, 1]])
-    ch = np.concatenate([fixed, moving]).reshape(times.size, 4 * D)
+    ch = np.concatenate([fixed, moving]).reshape(times.size, 5 * D)
     ch = np.concatenate([ch, kind[:, None], times[:, None]], axis=1)
     U = u.shape[1]
     u_m = np.stack([np.interp(nodes[:, 0], t, u[:, k]) for k in range(U)], axis=1) if U else None
@@ -78,10 +82,13 @@ def node_arrays(dosing, e, u) -> tuple[np.ndarray, np.ndarray]:
     return times, np.concatenate([uu, ch], axis=1)
 
 
-def _shift(dosing, lag, kind):
-    """The lag of a node of ``kind`` (its target position; −1: none)."""
+def _shift(dosing, shifts, kind):
+    """How far a node of ``kind`` moves: 0 (−1, a fixed node), its target's lag (d),
+    or its lag and its infusion's duration (D + d); ``shifts`` = (lags, durations)."""
     D = len(dosing.targets)
-    return jnp.where(kind >= 0, lag[jnp.clip(kind.astype(int), 0, D - 1)], 0.0)
+    lag, duration = shifts
+    d = jnp.clip(kind.astype(int) % D, 0, D - 1)
+    return jnp.where(kind >= 0, lag[d] + jnp.where(kind >= D, duration[d], 0.0), 0.0)
 
 
 def length(dosing, lags, p, uu):
@@ -89,20 +96,22 @@ def length(dosing, lags, p, uu):
     (its ends' kinds and nominal times follow the 4D channels); ``lags(p, uu)`` the
     targets' lags (dosing.Dosing.functions)."""
     U, D = dosing.inputs, len(dosing.targets)
-    ks, ns, ke, ne = (uu[U + 4 * D + i] for i in range(4))
-    lag = lags(p, uu)
-    return (ne + _shift(dosing, lag, ke)) - (ns + _shift(dosing, lag, ks))
+    ks, ns, ke, ne = (uu[U + 5 * D + i] for i in range(4))
+    shifts = lags(p, uu)
+    return (ne + _shift(dosing, shifts, ke)) - (ns + _shift(dosing, shifts, ks))
 
 
 def march_moving(march, dosing, lags, p, t, u, obs, **kw):
     """``march`` over the nodes ordered by their times at ``p`` (see the module
     docstring; ``lags`` as for ``length``); the outputs in the arrays' order."""
     U, D = dosing.inputs, len(dosing.targets)
-    kind, nominal = u[:, U + 4 * D], u[:, U + 4 * D + 1]
+    kind, nominal = u[:, U + 5 * D], u[:, U + 5 * D + 1]
     order = jnp.argsort(nominal + _shift(dosing, lags(p, u[0]), kind), stable=True)
     us = u[order]
-    us = us.at[:, U + D : U + 2 * D].set(jnp.cumsum(us[:, U + D : U + 2 * D], axis=0))
-    ends = jnp.concatenate([us[1:, U + 4 * D :], us[-1:, U + 4 * D :]])
+    for block in (1, 4):  # the rates and the modelled amounts running on each interval
+        cols = slice(U + block * D, U + (block + 1) * D)
+        us = us.at[:, cols].set(jnp.cumsum(us[:, cols], axis=0))
+    ends = jnp.concatenate([us[1:, U + 5 * D :], us[-1:, U + 5 * D :]])
     u2 = jnp.concatenate([us, ends], axis=1)  # [.., kind, nominal, next kind, next nominal]
     obs2 = jax.tree_util.tree_map(lambda a: a[order], obs)
     grid = jnp.arange(u.shape[0], dtype=jnp.result_type(float))

@@ -143,7 +143,9 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
             (bioavailability F, estimated or fixed). Default: the amount itself.
         lags: {state: expression}: a dose into that state takes effect this long after
             its time (an absorption lag ``{"depot": "tlag"}``, of the parameters and
-            inputs); the grid moves with it, so the derivatives stay exact.
+            inputs); the grid moves with it, so the derivatives stay exact. ``durations``:
+            {state: expression}, how long an infusion into it lasts where a record's
+            rate is −2 (NONMEM's RATE = −2: modelled), its end moving likewise.
     """
 
     dosing: Dosing | None  # what the records' events do (dosing.py); None: no events
@@ -182,6 +184,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         constraints: Sequence[str] | str | None = None,
         doses: Mapping[str, str] | None = None,
         lags: Mapping[str, str] | None = None,
+        durations: Mapping[str, str] | None = None,
     ):
         predictor = checked_predictor(
             predictor, model, fixed, bounds, loss=loss, loss_scale=loss_scale, weights=weights,
@@ -214,7 +217,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         if self.K == 0:
             raise ValueError("nothing to estimate: every parameter is fixed and free_x0 is empty")
         self.constraints, self.penalty = check_constraints(self, constraints), None  # Fs >= Fc
-        gaps = check_events(self, doses, hessian, segments, segment_length, lags)  # self.dosing
+        gaps = check_events(self, doses, hessian, segments, segment_length, lags, durations)
         self._sweeps = shared_sweeps(
             model, tuple(model.states.index(n) for n in self.free_x0),
             tuple(model.params.index(n) for n in self.free_params), discretisation, self.loss,

@@ -87,11 +87,12 @@ def simulate(
     discretisation: Discretisation | None = None,
     doses: dict | None = None,
     lags: dict | None = None,
+    durations: dict | None = None,
 ) -> Simulation:
     """Simulate ``model`` with ``params`` (dict or array (M,)) from ``x0`` (dict or
     array (N,)) on the inputs and sample times of ``data``, and through its events
-    (``doses``: what a dose puts into a state, ``lags``: how long after its time, as
-    ``Problem(doses=..., lags=...)``).
+    (``doses``: what a dose puts into a state, ``lags``: how long after its time,
+    ``durations``: how long a modelled infusion lasts, as ``Problem(doses=...)``).
 
     Pass the fit's ``discretisation`` (``problem.discretisation``), or its scheme,
     substeps and interpolation, to reproduce its reported cost exactly.
@@ -110,7 +111,7 @@ def simulate(
     ).for_model(model)
     p = model.params_array(params, "params")
     x = model.states_array(x0, "x0")
-    dosing = dosing_of(model, [data], doses, lags)
+    dosing = dosing_of(model, [data], doses, lags, durations)
     sim = run_simulation(shared_sweeps(model, (), (), discretisation, dosing=dosing), data, x, p)
     if sim.status is not Status.OK:
         h = sim.failed_at or 0

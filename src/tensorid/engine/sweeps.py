@@ -178,7 +178,7 @@ class Sweeps:
             skip_first=update is not None and bool(self.free_states),
             jump=jump_hook(self.dosing, p, push),
         )
-        if self.dosing is not None and self.dosing.lags:  # events that move with p
+        if self.dosing is not None and self.dosing.moving:  # events that move with p
             return march_moving(march, self.dosing, maps(self.dosing)[2], p, t, u, obs, **kw)
         return march(t=t, u=u, obs=obs, held=0 if self.dosing is None else self.dosing.width, **kw)
 

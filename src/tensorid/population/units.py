@@ -58,7 +58,7 @@ class Units:
             n, ue = nodes[i], problem.inputs(e)
             t[i, :n], t[i, n:] = np.asarray(problem.arrays_of(e)[0]), e.t[-1]
             u[i, :n], u[i, n:, :U] = ue, ue[-1, :U]  # padding: no event happens again
-            if dosing is not None and dosing.lags:  # a fixed node at the record's end
+            if dosing is not None and dosing.moving:  # a fixed node at the record's end
                 u[i, n:, -2:] = (-1.0, e.t[-1])
             y[i, : e.P], mask[i, : e.P] = e.y, 1.0 if e.mask is None else e.mask
         names = [e.name or str(i) for i, e in enumerate(exps)]
