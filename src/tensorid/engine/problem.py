@@ -137,15 +137,10 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
             (plain arithmetic on parameter names, or a single record's free initial
             states), which :func:`tensorid.fit` keeps by an augmented Lagrangian around
             its exact-derivative trust region (see :mod:`tensorid.solve.constrained`).
-        doses: {state: expression}: what a dose (an event of the records, see
-            :class:`tensorid.Events`) puts into that state, of ``amt`` (its amount, or an
-            infusion's rate), the parameters and the inputs: ``{"depot": "F * amt"}``
-            (bioavailability F, estimated or fixed). Default: the amount itself.
-        lags: {state: expression}: a dose into that state takes effect this long after
-            its time (an absorption lag ``{"depot": "tlag"}``, of the parameters and
-            inputs); the grid moves with it, so the derivatives stay exact. ``durations``:
-            {state: expression}, how long an infusion into it lasts where a record's
-            rate is −2 (NONMEM's RATE = −2: modelled), its end moving likewise.
+        doses, lags, durations: {state: expression} for the records' events
+            (:class:`tensorid.Events`): what a dose puts into the state (of ``amt``, the
+            parameters and inputs: ``{"depot": "F * amt"}``), how long after its time it
+            does (``{"depot": "tlag"}``), how long a modelled infusion (rate −2) lasts.
     """
 
     dosing: Dosing | None  # what the records' events do (dosing.py); None: no events
@@ -218,11 +213,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
             raise ValueError("nothing to estimate: every parameter is fixed and free_x0 is empty")
         self.constraints, self.penalty = check_constraints(self, constraints), None  # Fs >= Fc
         gaps = check_events(self, doses, hessian, segments, segment_length, lags, durations)
-        self._sweeps = shared_sweeps(
-            model, tuple(model.states.index(n) for n in self.free_x0),
-            tuple(model.params.index(n) for n in self.free_params), discretisation, self.loss,
-            self.predictor, self.dosing,
-        )  # fmt: skip
+        self._sweeps = self._shared_sweeps()
         self.threads = check_threads(threads)
         self._arrays = [self.arrays_of(e) for e in self.experiments]
         counts = resolve_segments(self.experiments, segments, segment_length)  # shooting.py
@@ -231,6 +222,13 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
             hessian, discretisation, model.N, self._sweeps.K, [e.P for e in self.experiments],
             threads, adjoint=self.predictor.supports_adjoint and not gaps,
         )  # fmt: skip
+
+    def _shared_sweeps(self) -> Sweeps:
+        m = self.model
+        free = [tuple(m.states.index(n) for n in self.free_x0),
+                tuple(m.params.index(n) for n in self.free_params)]  # fmt: skip
+        d = self.discretisation
+        return shared_sweeps(m, *free, d, self.loss, self.predictor, self.dosing)
 
     def _with_predictor(self, predictor, process_noise, measurement_noise) -> Model:
         """Set the predictor; a filter's model has its noise intensities appended to the
