@@ -266,3 +266,14 @@ def test_a_modelled_infusion_s_duration_moves_its_end_with_exact_derivatives():
         np.testing.assert_allclose(g, fd, rtol=1e-5)
     with pytest.raises(ValueError, match="no duration is stated for 'center'"):
         ti.Problem(m, ti.Experiment(t, None, y, events=doses), x0=[0.0], p0=p0)
+
+
+def test_a_reset_of_every_state_stops_the_infusions_running():
+    """NONMEM's EVID 3: every state to 0 and the infusions stopped."""
+    m = ti.Model(rhs=lambda x, p, u: -p[0] * x, states=["c"], params=["k"])
+    t = np.linspace(0.0, 10.0, 21)
+    ev = Events.doses(0.0, "c", 100.0, rate=10.0) + Events.resets(4.0, None)
+    sim = ti.simulate(m, {"k": 0.1}, [0.0], ti.Experiment(t, None, np.zeros((21, 1)), events=ev))
+    h = list(t).index(4.0)
+    assert sim.y[h, 0] > 10.0  # the sample at the reset sees the state before it
+    np.testing.assert_array_equal(sim.y[h + 1 :, 0], 0.0)  # nothing runs after it

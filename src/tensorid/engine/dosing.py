@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .compiled import on_device
-from .events import state_index
+from .events import state_index, stopped
 
 
 @dataclass(frozen=True)
@@ -103,7 +103,7 @@ class Dosing:
             elif kind == "reset":
                 out[h, 2, d], out[h, 3, d] = 1.0, ev.amount[k]
             else:  # infusion: its rate on every interval from its start to its end
-                end = ev.time[k] + ev.amount[k] / ev.rate[k]
+                end = stopped(ev, k, ev.time[k] + ev.amount[k] / ev.rate[k])
                 running = (t >= ev.time[k]) & (t < end - 1e-12 * max(abs(end), 1.0))
                 out[running, 1, d] += ev.rate[k]
         return out.reshape(t.size, -1)

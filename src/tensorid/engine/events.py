@@ -236,6 +236,14 @@ def state_index(s, states: Sequence[str]) -> int:
     return int(s)
 
 
+def stopped(ev: Events, k: int, end: float) -> float:
+    """Infusion k's end: its own, or the first reset of every state after its start
+    (NONMEM's EVID 3 and 4 stop the infusions running)."""
+    later = [r for r, kind in zip(ev.time, ev.kind, strict=True)
+             if kind == "reset-all" and ev.time[k] < r < end]  # fmt: skip
+    return min(later, default=end)
+
+
 def merge(t, u, y, observed, events: Events):
     """The record on one grid of its rows and its events' times: (t, u, y, observed,
     events within the record, events after its last row). New times are not observed;

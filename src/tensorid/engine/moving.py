@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .events import state_index
+from .events import state_index, stopped
 
 
 def node_arrays(dosing, e, u) -> tuple[np.ndarray, np.ndarray]:
@@ -63,6 +63,7 @@ def node_arrays(dosing, e, u) -> tuple[np.ndarray, np.ndarray]:
                 rows += [(ev.time[k], d, 0.0, ev.rate[k], 0.0), (end, d, 0.0, -ev.rate[k], 0.0)]
                 continue
             fixed[h, 1, d] += ev.rate[k]
+            end = stopped(ev, k, end)  # a reset of every state stops it (EVID 3, 4)
             if end <= t[-1]:
                 fixed[int(np.searchsorted(t, end)), 1, d] -= ev.rate[k]
     nodes = np.array(rows, dtype=float).reshape(-1, 5)
