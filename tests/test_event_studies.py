@@ -49,3 +49,79 @@ def test_phenobarbital_from_its_nonmem_table_agrees_with_nlme(tmp_path):
     assert row and float(row[1]) == pytest.approx(
         math.log(fit["population"]["cl"]["typical"]), abs=1e-4
     )
+
+
+def _censored_fleet(seed=0, units=16, limit=1.0):
+    import numpy as np
+
+    import tensorid as ti
+
+    m = ti.Model(
+        rhs=lambda x, p, u: -p[0] / p[1] * x, output=lambda x, p: x / p[1],
+        states=["a"], params=["cl", "v"], outputs=["c"],
+    )  # fmt: skip
+    rng = np.random.default_rng(seed)
+    t = np.array([0.5, 1, 2, 4, 6, 8, 12, 16, 24])
+    exps = []
+    for i in range(units):
+        p = {"cl": 2.0 * np.exp(0.3 * rng.standard_normal()), "v": 10.0}
+        ev = ti.Events.doses(0.0, "a", 100.0)
+        e = ti.Experiment(t, None, np.zeros((t.size, 1)), events=ev)
+        y = ti.simulate(m, p, [0.0], e, substeps=8).y + 0.3 * rng.standard_normal((e.P, 1))
+        below = (y < limit) & e.mask.astype(bool) if e.mask is not None else y < limit
+        y = np.where(below, limit, y)
+        exps.append(ti.Experiment(e.t, None, y, name=str(i), events=ev,
+                                  observed=e.observed, censored=below))  # fmt: skip
+    return m, exps
+
+
+def test_censored_samples_enter_the_likelihood_as_beals_m3_and_focei_refuses_them():
+    import jax.numpy as jnp
+    import numpy as np
+    from scipy.stats import norm
+
+    import tensorid as ti
+    from tensorid.population.objective import Objective
+
+    m, exps = _censored_fleet(units=3)
+    assert sum(int(e.censored.sum()) for e in exps) > 0
+    pr = ti.Problem(m, exps, p0={"cl": 2.0, "v": 10.0}, x0=[0.0], population={"cl": 0.3},
+                    fixed=["v"], substeps=8)  # fmt: skip
+    with pytest.raises(ValueError, match="method='laplace'"):
+        Objective(pr, "focei")
+    obj = Objective(pr, "laplace")
+    psi = jnp.array([np.log(2.1), np.log(0.25), np.log(0.35)])
+    eta = jnp.array([0.1])
+    unit = tuple(a[1] for a in obj.data)
+    f = np.asarray(obj.predict(psi, eta, unit))[:, 0]
+    e, sd = exps[1], 0.35
+    seen, cens = e.mask[:, 0] > 0, e.censored[:, 0]
+    plain = (
+        -norm.logpdf(e.y[seen, 0], f[seen], sd).sum()
+        - norm.logcdf((e.y[cens, 0] - f[cens]) / sd).sum()
+        - seen.sum() * 0.5 * np.log(2 * np.pi)  # ℓ leaves out the 2π constants
+        + 0.5 * (0.1 / 0.25) ** 2
+    )
+    assert float(obj.ell(eta, psi, unit)) == pytest.approx(plain, rel=1e-12)
+    assert e.observations == int(seen.sum() + cens.sum())
+    with pytest.raises(ValueError, match="population's likelihood"):
+        ti.Problem(m, exps, p0={"cl": 2.0, "v": 10.0}, x0=[0.0], fixed=["v"])
+
+
+@pytest.mark.slow
+def test_a_censored_fleet_fitted_by_laplace_recovers_the_truth():
+    import numpy as np
+
+    import tensorid as ti
+
+    m, exps = _censored_fleet(seed=3, units=24)
+    share = sum(int(e.censored.sum()) for e in exps) / sum(e.observations for e in exps)
+    assert share > 0.2  # a fifth of the samples or more below the limit
+    pr = ti.Problem(m, exps, p0={"cl": 1.5, "v": 10.0}, x0=[0.0], population={"cl": 0.5},
+                    fixed=["v"], substeps=8)  # fmt: skip
+    res = ti.fit(pr, method="laplace")
+    assert res.success
+    pop = res.population["cl"]
+    assert abs(pop["typical"] - 2.0) < 3 * pop["typical_stderr"]
+    assert abs(res.residual_sd["c"] - 0.3) < 0.1
+    del np

@@ -9,8 +9,10 @@ ID``) as one Experiment with its events (engine/events.py):
   then a dose. Without EVID, a row with AMT > 0 is a dose.
 - CMT: the dose's state, by 1-based position in the model's states or by name
   (default: the first state, as NONMEM's).
-- RATE > 0: a zero-order infusion of AMT at that rate; II with ADDL: ADDL more doses
-  every II. DVID: which output (1-based, or by name) an observation row measures.
+- RATE > 0: a zero-order infusion of AMT at that rate (−2: for the duration the
+  model states); II with ADDL: ADDL more doses every II. DVID: which output (1-based,
+  or by name) an observation row measures. CENS = 1: the observation was below its
+  quantification limit, which DV holds (Beal's M3, nlmixr2's and Monolix's column).
 
 A unit's clock is its rows' own times, from its first row (a dose or an observation);
 a row of a dose and one of an observation at one time: the observation comes first
@@ -25,7 +27,7 @@ from ..engine.data import Experiment
 from ..engine.events import Events, state_index
 from .readers import _Columns
 
-COLUMNS = ("EVID", "AMT", "CMT", "RATE", "II", "ADDL", "SS", "MDV", "DVID")
+COLUMNS = ("EVID", "AMT", "CMT", "RATE", "II", "ADDL", "SS", "MDV", "DVID", "CENS")
 MISSING = ("", ".", "NA", "nan", "NaN")
 
 
@@ -148,15 +150,24 @@ def unit_record(where: str, name: str, cols: _Columns, model, require_outputs: b
     events = _events(where, cols, model, t, evid, amt)
     outputs = [o for o in model.outputs if o in cols.values]
     y, seen = _observations(where, cols, model, outputs, evid, mdv, n)
-    if require_outputs and (y is None or not seen.any()):
+    cens = None
+    if seen is not None and "CENS" in cols.values:  # below the limit: DV holds it
+        flag = numbers(where, cols, "CENS", n, 0.0)
+        cens, seen = seen & (np.nan_to_num(flag) == 1)[:, None], seen & ~(flag == 1)[:, None]
+    if require_outputs and (y is None or not (seen.any() or (cens is not None and cens.any()))):
         return None
     grid, first = np.unique(t, return_index=True)
     u = _inputs(where, cols, model, first)
     if y is not None:
         Y, S = np.zeros((grid.size, model.S)), np.zeros((grid.size, model.S), dtype=bool)
+        C = np.zeros_like(S)
         slot = np.searchsorted(grid, t)
+        if cens is not None:
+            for r in np.flatnonzero(cens.any(axis=1)):
+                Y[slot[r]] = np.where(cens[r], y[r], Y[slot[r]])
+                C[slot[r]] |= cens[r]
         for r in np.flatnonzero(seen.any(axis=1)):
-            twice = S[slot[r]] & seen[r]
+            twice = (S[slot[r]] | C[slot[r]]) & seen[r]
             if twice.any():
                 raise ValueError(
                     f"{where}: two observations of {model.outputs[int(np.argmax(twice))]!r} at "
@@ -164,12 +175,14 @@ def unit_record(where: str, name: str, cols: _Columns, model, require_outputs: b
                 )
             Y[slot[r]] = np.where(seen[r], y[r], Y[slot[r]])
             S[slot[r]] |= seen[r]
-        y, seen = (Y, S) if S.any() else (None, None)
+        y, seen, cens = (Y, S, C if C.any() else None) if (S | C).any() else (None, None, None)
     if require_outputs and seen is not None:  # what follows the last observation fits nothing
-        keep = grid <= grid[np.flatnonzero(seen.any(axis=1))[-1]]
+        last = np.flatnonzero((seen if cens is None else seen | cens).any(axis=1))[-1]
+        keep = grid <= grid[last]
         grid, u, y, seen = grid[keep], u[keep], y[keep], seen[keep]
+        cens = None if cens is None else cens[keep]
     try:
-        e = Experiment(grid, u, y, name=name, events=events, observed=seen)
+        e = Experiment(grid, u, y, name=name, events=events, observed=seen, censored=cens)
     except ValueError as err:
         raise ValueError(f"{where}: {err}") from None
     return e

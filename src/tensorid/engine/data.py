@@ -182,6 +182,9 @@ class Experiment:
         observed: (P, S) booleans, False where a sample of an output was not measured
             (its y is ignored and may be NaN): a row with no observation, or outputs
             measured at different times. None: every sample observed.
+        censored: (P, S) booleans, True where a sample was below its quantification
+            limit, which its y holds (Beal's M3: a population fit by Laplace counts the
+            probability of lying below it); such a sample is not ``observed``.
     """
 
     t: np.ndarray
@@ -191,6 +194,7 @@ class Experiment:
     init_window: int | None = None
     events: Events | None = None
     observed: np.ndarray | None = None
+    censored: np.ndarray | None = None
     late_events: int = field(default=0, init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -214,8 +218,14 @@ class Experiment:
         _check_finite("u", u)
         y = None if self.y is None else _as_2d("y", self.y, P)
         seen = _observed(self.observed, y, P)
+        cens = None if self.censored is None else np.asarray(self.censored, dtype=bool)
+        if cens is not None:
+            if y is None or cens.shape != y.shape:
+                raise ValueError("censored marks samples of y: give it y's shape (P, S)")
+            seen = ~cens if seen is None else seen & ~cens
         if y is not None:
-            y = np.where(seen, y, 0.0) if seen is not None else y
+            kept = seen if cens is None else seen | cens
+            y = np.where(kept, y, 0.0) if kept is not None else y
             _check_finite("y", y)
         if self.events is not None:
             if not isinstance(self.events, Events):
@@ -223,7 +233,12 @@ class Experiment:
                     f"events must be a tensorid.Events, got {type(self.events).__name__}; "
                     "build them with ti.Events.doses(...), .resets(...) or .impulses(...)"
                 )
+            grid = t
             t, u, y, seen, events, late = merge(t, u, y, seen, self.events)
+            if cens is not None:  # the new rows are not censored samples either
+                wide = np.zeros((t.size, cens.shape[1]), dtype=bool)
+                wide[np.searchsorted(t, grid)] = cens
+                cens = wide
             object.__setattr__(self, "events", events)
             object.__setattr__(self, "late_events", late)
             if t.size < 2:
@@ -234,6 +249,7 @@ class Experiment:
         if seen is not None and seen.all():
             seen = None
         object.__setattr__(self, "observed", seen)
+        object.__setattr__(self, "censored", cens if cens is not None and cens.any() else None)
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "u", u)
         object.__setattr__(self, "y", y)
@@ -273,7 +289,8 @@ class Experiment:
         """How many numbers were measured (samples × outputs, less the gaps)."""
         if self.y is None:
             return 0
-        return int(self.y.size if self.observed is None else self.observed.sum())
+        seen = int(self.y.size if self.observed is None else self.observed.sum())
+        return seen + (0 if self.censored is None else int(self.censored.sum()))
 
     @property
     def measured(self) -> np.ndarray:
@@ -311,6 +328,7 @@ class Experiment:
             name=self.name if name is None else name,
             events=events,
             observed=None if self.observed is None else self.observed[start:stop],
+            censored=None if self.censored is None else self.censored[start:stop],
         )
 
     def __repr__(self) -> str:

@@ -262,6 +262,12 @@ def check_events(
     transition tensors')."""
     exps = problem.experiments
     problem.dosing = dosing_of(problem.model, exps, doses, lags, durations)
+    if any(e.censored is not None for e in exps) and not problem.population:
+        raise ValueError(
+            "samples below their quantification limit (censored, Beal's M3) are fitted by "
+            "a population's likelihood (population= with method='laplace'); for a least-"
+            "squares fit drop them or give their limit as an observation"
+        )
     events = problem.dosing is not None
     gaps = events or any(e.observed is not None for e in exps)
     if not gaps:

@@ -224,11 +224,10 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         )  # fmt: skip
 
     def _shared_sweeps(self) -> Sweeps:
-        m = self.model
-        free = [tuple(m.states.index(n) for n in self.free_x0),
-                tuple(m.params.index(n) for n in self.free_params)]  # fmt: skip
-        d = self.discretisation
-        return shared_sweeps(m, *free, d, self.loss, self.predictor, self.dosing)
+        m, d = self.model, self.discretisation
+        states = tuple(m.states.index(n) for n in self.free_x0)
+        params = tuple(m.params.index(n) for n in self.free_params)
+        return shared_sweeps(m, states, params, d, self.loss, self.predictor, self.dosing)
 
     def _with_predictor(self, predictor, process_noise, measurement_noise) -> Model:
         """Set the predictor; a filter's model has its noise intensities appended to the

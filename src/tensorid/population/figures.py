@@ -5,6 +5,7 @@ percentiles over time beside those of fleets simulated from the fitted populatio
 
 from __future__ import annotations
 
+import jax.numpy as jnp
 import numpy as np
 
 GRID_MAX = 36  # units shown in the grid; the rest are in fit.json
@@ -49,7 +50,9 @@ def _densely(obj):
         records.append(Experiment(t, u, y, e.name, None, e.events, observed))
     out = copy.copy(obj)
     out.units = Units.of(obj.problem, records)
-    out.data = (*out.units.arrays(), obj.data[-1])
+    out.data = (*out.units.arrays(), obj.data[5])
+    if obj.censored:  # the curves' times: none is a censored sample
+        out.data += (jnp.zeros_like(out.data[2]),)
     return out
 
 

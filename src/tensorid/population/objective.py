@@ -40,6 +40,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 import jax.scipy.linalg
+import jax.scipy.special
 import numpy as np
 
 from ..engine.initial import moving
@@ -96,17 +97,28 @@ class Objective:
         self.errors = tuple(kinds.get(o, "additive") for o in m.outputs)
         self.additive = [g for g, k in enumerate(self.errors) if k != "proportional"]
         self.proportional = [g for g, k in enumerate(self.errors) if k != "additive"]
-        self.plain = not self.proportional  # σ constant in η: the additive form
         self.units = Units.of(problem)
-        # per unit (t, u, y, mask, x0, p): the fixed parameters travel with the data, so
-        # that a fleet of another size or other fixed values reuses the compiled programs
+        # samples below their limit (Beal's M3): P(y < limit) in ℓ, which moves with σ
+        self.censored = self.units.cens is not None
+        self.plain = not self.proportional and not self.censored  # σ constant in η
+        if self.censored and method != "laplace":
+            raise ValueError(
+                "records with samples below their quantification limit (CENS, Beal's M3) "
+                f"are fitted by method='laplace' (as NONMEM's M3), not {method!r}: "
+                "FOCEI's curvature takes every residual as Gaussian"
+            )
+        # per unit (t, u, y, mask, x0, p[, cens]): the fixed parameters travel with the
+        # data, so that a fleet of another size or other fixed values reuses the programs
         p = np.tile(np.asarray(problem.p0, dtype=float), (len(self.units.names), 1))
         self.data = (*self.units.arrays(), jnp.asarray(p))
+        if self.censored:
+            self.data += (jnp.asarray(self.units.cens),)
         self.weights = tuple(float(w) for w in problem.weights)
         self.key: tuple = (self.sweeps, tuple(self.pop), self.qp, self.full, tuple(self.shared))
         self.key += (method,)
         self.key += (tuple((k, str(v)) for k, v in exprs.items()) if self.moving else (),)
         self.key += (self.weights,) if self.joint else (self.errors,)
+        self.key += ("censored",) if self.censored else ()
         self.Y = outputs(self.sweeps)
         outs = m.outputs
         self.names = (
@@ -131,6 +143,7 @@ class Objective:
         new.units = dataclasses.replace(
             u, t=u.t[index], u=u.u[index], y=u.y[index], mask=u.mask[index],
             x0=u.x0[index], names=[u.names[i] for i in index], samples=u.samples[index],
+            cens=None if u.cens is None else u.cens[index],
         )  # fmt: skip
         new.data = tuple(a[np.asarray(index)] for a in self.data)
         new.unconverged, new.unfinite = [], []
@@ -201,7 +214,7 @@ class Objective:
         return (x0 if self.moving is None else self.moving(x0, unit[1][0], p)), p
 
     def predict(self, psi, eta, unit):
-        t, u, _, _, x0, p = unit
+        t, u, _, _, x0, p = unit[:6]
         theta = self.theta(psi, eta)
         if self.moving is None:
             return self.Y(theta, x0, p, t, u)
@@ -220,7 +233,12 @@ class Objective:
         if self.plain:
             return 0.5 * (jnp.sum(r**2 * jnp.exp(-2 * noise)) + prior)
         V = jnp.where(mask > 0, self.variance(noise, f), 1.0)  # 1: no observation
-        return 0.5 * (jnp.sum(r**2 / V + mask * jnp.log(V)) + prior)
+        out = 0.5 * (jnp.sum(r**2 / V + mask * jnp.log(V)) + prior)
+        if self.censored:  # −log P(y < limit) = −log Φ((limit − ŷ)/σ), y holding the limit
+            c = unit[6]
+            z = jnp.where(c > 0, (y - f) / jnp.sqrt(self.variance(noise, f)), 0.0)
+            out = out - jnp.sum(jnp.where(c > 0, jax.scipy.special.log_ndtr(z), 0.0))
+        return out
 
     def curvature(self, eta, psi, unit):
         """M_i over the random effects: the matrix whose log determinant the

@@ -41,6 +41,7 @@ class Units:
     x0: np.ndarray
     names: list[str]
     samples: np.ndarray  # (E,) each unit's own number of samples
+    cens: np.ndarray | None = None  # (E, P, S) 1 below its limit (y holds it); None: none
 
     @classmethod
     def of(cls, problem, records=None) -> Units:
@@ -63,7 +64,13 @@ class Units:
             y[i, : e.P], mask[i, : e.P] = e.y, 1.0 if e.mask is None else e.mask
         names = [e.name or str(i) for i, e in enumerate(exps)]
         samples = np.array([e.P for e in exps])
-        return cls(t, u, y, mask, np.asarray(problem.x0, float), names, samples)
+        cens = None
+        if any(getattr(e, "censored", None) is not None for e in exps):
+            cens = np.zeros_like(y)
+            for i, e in enumerate(exps):
+                if e.censored is not None:
+                    cens[i, : e.P] = e.censored
+        return cls(t, u, y, mask, np.asarray(problem.x0, float), names, samples, cens)
 
     def arrays(self):
         return tuple(jnp.asarray(a) for a in (self.t, self.u, self.y, self.mask, self.x0))
