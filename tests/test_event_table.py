@@ -137,3 +137,18 @@ def test_other_names_are_mapped_with_events_and_the_cli_fits_a_table(tmp_path):
     assert fit["success"]
     assert fit["params"]["cl"] == pytest.approx(3.0, rel=0.05)
     assert fit["params"]["v"] == pytest.approx(30.0, rel=0.05)
+
+
+def test_a_fleet_fit_refuses_what_it_would_drop_and_a_population_of_one_unit():
+    """issue 51, item 3: ti.fit(population problem, starts=3) fitted once without a word;
+    a population of one unit "converged" with ω = 4.8e-7 and NaN shrinkage."""
+    m = ti.Model(rhs=lambda x, p, u: -p[0] * x, states=["x"], params=["k"])
+    t = np.linspace(0, 4, 9)
+    exps = [ti.Experiment(t, None, np.exp(-k * t)[:, None], name=str(i))
+            for i, k in enumerate((0.9, 1.1, 1.0))]  # fmt: skip
+    pr = ti.Problem(m, exps, p0={"k": 1.0}, x0=[1.0], population={"k": 0.2})
+    for option in ({"starts": 3}, {"gtol": 0.1}, {"theta0": [1.0]}, {"polish": False}):
+        with pytest.raises(ValueError, match=f"{next(iter(option))}=.* is not taken by a fit"):
+            ti.fit(pr, **option)
+    with pytest.raises(ValueError, match="need at least 2 units"):
+        ti.Problem(m, exps[:1], p0={"k": 1.0}, x0=[1.0], population={"k": 0.2})

@@ -25,6 +25,12 @@ def check_population(problem, population, segments) -> dict[str, float]:
             f"standard deviation, e.g. {{'ka': 0.5}}), got {population!r}"
         )
     m = problem.model
+    if len(problem.experiments) < 2:
+        raise ValueError(
+            "population parameters need at least 2 units (one experiment each): with one, "
+            "its variation from unit to unit cannot be told from its own value; fit it "
+            "without population (its parameters shared), or give more units"
+        )
     out: dict[str, float] = {}
     for name, omega in population.items():
         if name not in m.params or str(name).startswith("log_sigma_"):
