@@ -86,14 +86,17 @@ def test_a_bad_event_row_is_one_line_naming_the_file_the_unit_and_the_line(tmp_p
     assert "unit '1'" in str(e.value) and "\n" not in str(e.value)
 
 
-def test_steady_state_is_refused_and_a_dose_after_the_last_row_said_once(tmp_path):
+def test_steady_state_1_is_read_2_refused_and_a_dose_after_the_last_row_said_once(tmp_path):
     spec = ti.load_model(tmp_path / "model.py") if (tmp_path / "model.py").exists() else None
     p = _table(tmp_path, "1,0,10,.,1,1,1,0,0,0,70\n1,2,.,1,0,0,2,0,0,0,70\n")
     spec = ti.load_model(tmp_path / "model.py")
     text = p.read_text().replace("ID,TIME", "SS,ID,TIME").splitlines()
-    p.write_text("\n".join([text[0]] + ["1," + r for r in text[1:]]) + "\n")
-    with pytest.raises(ValueError, match="steady-state dosing is not supported yet"):
+    p.write_text("\n".join([text[0]] + ["2," + r for r in text[1:]]) + "\n")
+    with pytest.raises(ValueError, match="only SS 1"):
         ti.load_data(p, spec.model, records="ID", columns={"t": "TIME", "cp": "DV"})
+    p.write_text(p.read_text().replace("2,1,0,10,.,1,1,1,0,0", "1,1,0,10,.,1,1,1,24,0"))
+    (e,) = ti.load_data(p, spec.model, records="ID", columns={"t": "TIME", "cp": "DV"})
+    assert e.events.kind == ("steady-state", "bolus") and e.events.interval[0] == 24
     late = "".join(
         f"{u},0,10,.,1,1,1,0,0,0,70\n{u},2,.,1,0,0,2,0,0,0,70\n{u},9,10,.,1,1,1,0,0,0,70\n"
         for u in (1, 2)

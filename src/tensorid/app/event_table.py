@@ -224,10 +224,11 @@ def _dose(where, cols, i, model, t, amt, rate, ii, addl, ss, cmt) -> Events:
             f"{where}: the dose {line} has AMT {amt:g}; a dose's amount is a number > 0 "
             "(EVID 2 marks a row with neither a dose nor an observation)"
         )
-    if np.nan_to_num(ss) != 0:
+    if np.nan_to_num(ss) not in (0, 1):
         raise ValueError(
-            f"{where}: SS {ss:g} {line}: steady-state dosing is not supported yet; give "
-            "the doses before it (ADDL with II) so that the state reaches it"
+            f"{where}: SS {ss:g} {line}: only SS 1 (the dose at steady state, the states "
+            "before it replaced) is supported; SS 2 adds a steady state to the states, "
+            "which is right for linear models only: give the doses before it (ADDL with II)"
         )
     rate = float(np.nan_to_num(rate))
     if rate < 0 and rate != -2:
@@ -238,7 +239,8 @@ def _dose(where, cols, i, model, t, amt, rate, ii, addl, ss, cmt) -> Events:
         )
     target = _target(where, cols, i, cmt, list(model.states))
     try:
-        return Events.doses(t, target, amt, rate, float(np.nan_to_num(ii)), np.nan_to_num(addl))
+        ii, addl = float(np.nan_to_num(ii)), np.nan_to_num(addl)
+        return Events.doses(t, target, amt, rate, ii, addl, ss=np.nan_to_num(ss) == 1)
     except ValueError as err:
         raise ValueError(f"{where}, {line}: {str(err).removeprefix('events: ')}") from None
 

@@ -316,11 +316,7 @@ class Experiment:
         events = self.events
         if events is not None:  # the window's own: from its first sample on
             t0 = self.t[start:stop][0]
-            keep = np.flatnonzero(events.time >= t0)
-            events = Events(
-                events.time[keep], tuple(events.state[i] for i in keep), events.amount[keep],
-                events.rate[keep], tuple(events.kind[i] for i in keep),
-            )  # fmt: skip
+            events = events.take(np.flatnonzero(events.time >= t0))
         return Experiment(
             self.t[start:stop],
             self.u[start:stop],

@@ -51,6 +51,7 @@ class Dosing:
     states: tuple[str, ...] = ()
     lags: tuple[tuple[int, str], ...] = ()
     durations: tuple[tuple[int, str], ...] = ()
+    steady: bool = False  # some records hold steady-state doses (steady.py)
 
     @property
     def moving(self) -> bool:
@@ -69,7 +70,9 @@ class Dosing:
     def width(self) -> int:
         """The channels' columns as the march reads them (with lags, each interval's
         two ends as (kind, nominal time) besides)."""
-        return (5 * len(self.targets) + 4) if self.moving else 4 * len(self.targets)
+        if self.moving:
+            return 5 * len(self.targets) + 4
+        return 4 * len(self.targets) + (5 if self.steady else 0)
 
     def arrays(self, e, u) -> tuple[np.ndarray, np.ndarray]:
         """(t, u with the channels) of record e as the sweeps take them, ``u`` the
@@ -83,12 +86,15 @@ class Dosing:
 
     def channels(self, e) -> np.ndarray:
         """(P, 4D) of a record with events on its grid: the bolus amounts, the
-        infusion rates running on each interval, the reset flags and values."""
+        infusion rates running on each interval, the reset flags and values; with
+        steady-state doses, 5 more: a flag, the target's position, the amount, the rate
+        and the dosing interval of the one at each sample (steady.py)."""
         D, t = len(self.targets), e.t
         out = np.zeros((t.size, 4, D))
+        ss = np.zeros((t.size, 5 if self.steady else 0))
         ev = e.events
         if ev is None:
-            return out.reshape(t.size, -1)
+            return np.concatenate([out.reshape(t.size, -1), ss], axis=1)
         pos = {s: i for i, s in enumerate(self.targets)}
         names = self.states
         for k in range(len(ev)):
@@ -98,7 +104,9 @@ class Dosing:
                 out[h, 2, :], out[h, 3, :] = 1.0, 0.0
                 continue
             d = pos[state_index(ev.state[k], names)]
-            if kind in ("bolus", "impulse"):
+            if kind == "steady-state":
+                ss[h] = (1.0, d, ev.amount[k], ev.rate[k], ev.interval[k])
+            elif kind in ("bolus", "impulse"):
                 out[h, 0, d] += ev.amount[k]
             elif kind == "reset":
                 out[h, 2, d], out[h, 3, d] = 1.0, ev.amount[k]
@@ -106,7 +114,7 @@ class Dosing:
                 end = stopped(ev, k, ev.time[k] + ev.amount[k] / ev.rate[k])
                 running = (t >= ev.time[k]) & (t < end - 1e-12 * max(abs(end), 1.0))
                 out[running, 1, d] += ev.rate[k]
-        return out.reshape(t.size, -1)
+        return np.concatenate([out.reshape(t.size, -1), ss], axis=1)
 
     def _amount_functions(self, which: str = "doses"):
         """Per target, ``A(amt, p, u)`` in JAX (``which="lags"``: the lag's
@@ -155,7 +163,9 @@ class Dosing:
             ch = uu[U : U + 4 * D].reshape(4, D)
             return ch[0], ch[1], ch[2], ch[3]
 
-        def jump(x, p, uu):
+        def jump(x, p, uu, settle=None):
+            if settle is not None:  # a steady-state dose: every state to its cycle's
+                x = settle(x, p, uu)
             b, _, r, v = split(uu)
             xs = x[idx]
             return x.at[idx].set((1.0 - r) * xs + r * v + amount(b, p, uu))
@@ -174,7 +184,7 @@ class Dosing:
                 q = q + uu[U + 4 * D : U + 5 * D] / shifts(p, uu)[1]
             return amount(q, p, uu)
 
-        return jump, rate, shifts
+        return jump, rate, shifts, amount
 
 
 def dosing_of(
@@ -215,9 +225,15 @@ def dosing_of(
                 raise TypeError(f"{what}[{s!r}] must be an expression such as 'D', got {text!r}")
             timed[what].append((states.index(s), str(text)))
     _modelled_need_durations(with_events, states, {s for s, _ in timed["durations"]})
+    steady = any("steady-state" in e.events.kind for e in with_events)
+    if steady and (timed["lags"] or timed["durations"]):
+        raise ValueError(
+            "steady-state doses (SS = 1) with lags or modelled durations are not supported "
+            "yet: give the dosing history (ADDL with II) instead of SS"
+        )
     out = Dosing(
         order, tuple(amounts), len(model.inputs), tuple(model.params), tuple(model.inputs),
-        states, tuple(timed["lags"]), tuple(timed["durations"]),
+        states, tuple(timed["lags"]), tuple(timed["durations"]), steady,
     )  # fmt: skip
     for which in ("doses", "lags", "durations"):  # one line for a bad one, before any work
         out._amount_functions(which)
@@ -248,9 +264,11 @@ def covering(dosing: Dosing | None, model, record) -> Dosing | None:
     if dosing is None:
         return dosing_of(model, [record])
     extra = set(record.events.targets(model.states)) - set(dosing.targets)
-    if not extra:
+    steady = dosing.steady or "steady-state" in record.events.kind
+    if not extra and steady == dosing.steady:
         return dosing
-    return dataclasses.replace(dosing, targets=tuple(sorted(set(dosing.targets) | extra)))
+    targets = tuple(sorted(set(dosing.targets) | extra))
+    return dataclasses.replace(dosing, targets=targets, steady=steady)
 
 
 def check_events(
@@ -284,12 +302,13 @@ def check_events(
         )
     if (segments not in (None, 1)) or segment_length is not None:
         raise ValueError(f"{what} are fitted by single shooting: drop segments")
-    if problem.dosing is not None and problem.dosing.moving:
+    if problem.dosing is not None and (problem.dosing.moving or problem.dosing.steady):
         from .integrators import ExplicitRungeKutta
 
         if not isinstance(problem.discretisation.scheme, ExplicitRungeKutta):
             raise ValueError(
-                f"lags take an explicit fixed-step scheme (rk4, rk38, heun, euler), not "
+                f"lags, modelled durations and steady-state doses take an explicit "
+                f"fixed-step scheme (rk4, rk38, heun, euler), not "
                 f"{problem.discretisation.scheme.name!r}"
             )
     name = hessian if isinstance(hessian, str) else getattr(hessian, "name", "")
@@ -321,16 +340,16 @@ def rhs(model, dosing: Dosing | None, uu):
     return lambda x, p_: model.f(x, p_, uu[:U]).at[idx].add(rate(p_, uu))
 
 
-def jump_hook(dosing: Dosing | None, p, push=None):
+def jump_hook(dosing: Dosing | None, p, push=None, settle=None):
     """``march``'s jump hook: None without events; else the events at a sample, with
     ``push(fn, state)`` carrying an augmented state's sensitivities through the map
-    z ↦ fn(z, p) (None: a plain state)."""
+    z ↦ fn(z, p) (None: a plain state); ``settle``: steady-state doses (steady.py)."""
     if dosing is None:
         return None
     jmap = maps(dosing)[0]
     if push is None:
-        return lambda state, uh: jmap(state, p, uh)
-    return lambda state, uh: push(lambda z, p_: jmap(z, p_, uh), state)
+        return lambda state, uh: jmap(state, p, uh, settle)
+    return lambda state, uh: push(lambda z, p_: jmap(z, p_, uh, settle), state)
 
 
 def measured(e, size: int | None = None):

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-KINDS = ("bolus", "infusion", "reset", "reset-all", "impulse", "modelled-infusion")
+KINDS = ("bolus", "infusion", "reset", "reset-all", "impulse", "modelled-infusion", "steady-state")
 MODELLED = -2.0  # NONMEM's RATE for an infusion whose duration the model sets
 
 
@@ -50,7 +50,11 @@ class Events:
         kind: (n,) "bolus", "infusion", "reset" (x := amount), "reset-all" (every
             state := 0, NONMEM's EVID 3), "impulse" (x += amount, of either sign) or
             "modelled-infusion" (NONMEM's RATE = −2: the amount over the duration the
-            model states, ``Problem(durations={"central": "D"})``).
+            model states, ``Problem(durations={"central": "D"})``) or "steady-state"
+            (NONMEM's SS = 1: every state set to the steady state of this dose, a bolus
+            or, with a rate, an infusion, repeated every ``interval``; the dose itself
+            is an event of its own at the same time).
+        interval: (n,) a steady-state event's dosing interval (II); 0 for the others.
 
     Build them with :meth:`doses`, :meth:`resets` and :meth:`impulses`; ``+``
     joins two sets. Repeated doses (II, ADDL) are expanded when built.
@@ -61,11 +65,14 @@ class Events:
     amount: np.ndarray
     rate: np.ndarray
     kind: tuple
+    interval: np.ndarray = None  # type: ignore[assignment]  # None becomes zeros
 
     def __post_init__(self) -> None:
         n = len(self.state)
         set_ = object.__setattr__
-        for name in ("time", "amount", "rate"):
+        if self.interval is None:
+            set_(self, "interval", np.zeros(n))
+        for name in ("time", "amount", "rate", "interval"):
             a = np.asarray(getattr(self, name), dtype=float).reshape(-1)
             if a.size != n:
                 raise ValueError(f"events: {name} has {a.size} entries for {n} events")
@@ -102,11 +109,15 @@ class Events:
 
     # -- construction ----------------------------------------------------------------
     @classmethod
-    def doses(cls, time, state, amount, rate=0.0, ii=0.0, addl=0, *, impulse=False) -> Events:
+    def doses(
+        cls, time, state, amount, rate=0.0, ii=0.0, addl=0, *, impulse=False, ss=False
+    ) -> Events:
         """Doses: a bolus where ``rate`` is 0, else a zero-order infusion of ``amount``
         at ``rate`` (it lasts amount / rate; ``rate=-2``: for the duration the model
         states, NONMEM's RATE = −2). ``addl`` more doses follow each, every ``ii`` time
-        units (NONMEM's ADDL and II: both or neither)."""
+        units (NONMEM's ADDL and II: both or neither). ``ss``: each dose (not its
+        repeats) at steady state, as if it had been given every ``ii`` for ever
+        (NONMEM's SS = 1: the states before it are replaced)."""
         time, amount = np.atleast_1d(np.asarray(time, float)), np.atleast_1d(amount)
         n = time.size
         state = _each(state, n, "state")
@@ -116,7 +127,7 @@ class Events:
         addl = np.broadcast_to(np.asarray(addl, float), (n,))
         t, s, a, r = [], [], [], []
         for i in range(n):
-            repeats = _repeats(ii[i], addl[i], time[i])
+            repeats = _repeats(ii[i], addl[i], time[i], ss)
             for k in range(repeats + 1):
                 t.append(time[i] + k * ii[i])
                 s.append(state[i])
@@ -127,7 +138,18 @@ class Events:
             else "impulse" if impulse else "bolus"
             for q in r
         )  # fmt: skip
-        return cls(np.array(t), tuple(s), np.array(a), np.array(r), kinds)
+        out = cls(np.array(t), tuple(s), np.array(a), np.array(r), kinds)
+        if not ss:
+            return out
+        if not (ii > 0).all() or (rate < 0).any():
+            raise ValueError(
+                "events: a steady-state dose needs II > 0 (its dosing interval) and a bolus "
+                "or an infusion at a given rate"
+            )
+        if ((rate > 0) & (amount / np.where(rate > 0, rate, 1.0) > ii)).any():
+            raise ValueError("events: a steady-state infusion lasts longer than its II")
+        steady = cls(time, state, amount, rate, ("steady-state",) * n, np.asarray(ii, float))
+        return steady + out
 
     @classmethod
     def impulses(cls, time, state, amount) -> Events:
@@ -151,7 +173,15 @@ class Events:
             np.concatenate([self.amount, other.amount]),
             np.concatenate([self.rate, other.rate]),
             self.kind + other.kind,
+            np.concatenate([self.interval, other.interval]),
         )
+
+    def take(self, index) -> Events:
+        """The events at ``index`` (positions), in that order."""
+        return Events(
+            self.time[index], tuple(self.state[i] for i in index), self.amount[index],
+            self.rate[index], tuple(self.kind[i] for i in index), self.interval[index],
+        )  # fmt: skip
 
     def __len__(self) -> int:
         return len(self.state)
@@ -172,17 +202,7 @@ class Events:
         keep = self.time <= last
         if keep.all():
             return self, 0
-        idx = np.flatnonzero(keep)
-        return (
-            Events(
-                self.time[idx],
-                tuple(self.state[i] for i in idx),
-                self.amount[idx],
-                self.rate[idx],
-                tuple(self.kind[i] for i in idx),
-            ),
-            int((~keep).sum()),
-        )
+        return self.take(np.flatnonzero(keep)), int((~keep).sum())
 
     def targets(self, states: Sequence[str]) -> tuple[int, ...]:
         """The state indices these events act on (every state for a reset-all)."""
@@ -205,8 +225,9 @@ def _each(value, n: int, what: str) -> tuple:
     return out
 
 
-def _repeats(ii: float, addl: float, t: float) -> int:
-    """ADDL as a count, checked against II (both or neither)."""
+def _repeats(ii: float, addl: float, t: float, ss: bool = False) -> int:
+    """ADDL as a count, checked against II (both or neither; a steady-state dose has
+    its II alone)."""
     if not (float(addl).is_integer() and addl >= 0):
         raise ValueError(f"events: ADDL of the dose at t = {t:g} must be a whole number >= 0")
     if addl > 0 and not ii > 0:
@@ -214,7 +235,7 @@ def _repeats(ii: float, addl: float, t: float) -> int:
             f"events: the dose at t = {t:g} has ADDL = {addl:g} but no II (the interval "
             "between its repeats): give II > 0, or ADDL = 0"
         )
-    if ii > 0 and addl == 0:
+    if ii > 0 and addl == 0 and not ss:
         raise ValueError(
             f"events: the dose at t = {t:g} has II = {ii:g} but no ADDL (how many more "
             "doses): give ADDL >= 1, or II = 0"

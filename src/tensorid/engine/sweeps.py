@@ -55,6 +55,7 @@ from .packing import unpack_symmetric as unpack_symmetric  # its old home, re-ex
 from .predictors import SIMULATION, Predictor
 from .programs import Program
 from .second_order import _weighted, layout, second_order
+from .steady import settle_map
 
 # numbers of per-sample scores (P·K) a fit's first-order step keeps beside (J, ∇J,
 # Gauss-Newton) rather than compiling a program without them (first_order_gn)
@@ -118,6 +119,11 @@ class Sweeps:
             return lambda z, p_=p: rhs(z, p_)
         return lambda z, p_=p: self.predictor.field(self.model, z, p_, uu)
 
+    @cached_property
+    def _settle(self):
+        """Steady-state doses' map (steady.py), where the records hold any."""
+        return settle_map(self) if self.dosing is not None and self.dosing.steady else None
+
     def _rhs(self, uu):
         """(x, p) ↦ the model's F with the events' infusions (dosing.rhs)."""
         return rhs(self.model, self.dosing, uu)
@@ -176,7 +182,7 @@ class Sweeps:
             # match the first sample exactly, whose term log det R + 0 then has no
             # minimum in σ_e (→ −∞): it is left out (its gain is zero: it had no other use)
             skip_first=update is not None and bool(self.free_states),
-            jump=jump_hook(self.dosing, p, push),
+            jump=jump_hook(self.dosing, p, push, self._settle),
         )
         if self.dosing is not None and self.dosing.moving:  # events that move with p
             return march_moving(march, self.dosing, maps(self.dosing)[2], p, t, u, obs, **kw)
