@@ -27,10 +27,12 @@ CYCLE_STEPS = 8
 def settle_map(sweeps):
     """``settle(x, p, uu)``: x where the sample's row ``uu`` holds no steady-state dose,
     else x_ss of the one it holds (its flag, target position, amount, rate and II
-    follow the 4D channels: dosing.Dosing.channels)."""
+    follow the 4D channels: dosing.Dosing.channels); None where no record holds one."""
     from .dosing import maps
 
     dosing, model = sweeps.dosing, sweeps.model
+    if dosing is None or not dosing.steady:
+        return None
     U, D = dosing.inputs, len(dosing.targets)
     idx = np.array(dosing.targets, dtype=int)
     amount = maps(dosing)[3]

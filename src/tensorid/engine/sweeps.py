@@ -119,11 +119,6 @@ class Sweeps:
             return lambda z, p_=p: rhs(z, p_)
         return lambda z, p_=p: self.predictor.field(self.model, z, p_, uu)
 
-    @cached_property
-    def _settle(self):
-        """Steady-state doses' map (steady.py), where the records hold any."""
-        return settle_map(self) if self.dosing is not None and self.dosing.steady else None
-
     def _rhs(self, uu):
         """(x, p) ↦ the model's F with the events' infusions (dosing.rhs)."""
         return rhs(self.model, self.dosing, uu)
@@ -182,7 +177,7 @@ class Sweeps:
             # match the first sample exactly, whose term log det R + 0 then has no
             # minimum in σ_e (→ −∞): it is left out (its gain is zero: it had no other use)
             skip_first=update is not None and bool(self.free_states),
-            jump=jump_hook(self.dosing, p, push, self._settle),
+            jump=jump_hook(self.dosing, p, push, settle_map(self)),
         )
         if self.dosing is not None and self.dosing.moving:  # events that move with p
             return march_moving(march, self.dosing, maps(self.dosing)[2], p, t, u, obs, **kw)

@@ -94,8 +94,7 @@ def fit(
     """
     started = time.perf_counter()
     if getattr(problem, "population", None) or getattr(problem, "individual", None):
-        _fleet_options(locals())
-        return _fleet(problem, method, maxiter, callback, executor, workers, timeout)
+        return _fleet(problem, method, maxiter, callback, executor, workers, timeout, locals())
     solver = check_method(problem, method)
     options = _options(options, x_scale, maxiter, gtol, ftol, xtol, callback, polish)
     theta0 = _check_start(problem, problem.theta0 if theta0 is None else theta0, "theta0")
@@ -156,7 +155,8 @@ def _fleet_options(given: dict) -> None:
             )
 
 
-def _fleet(problem, method, maxiter, callback, executor, workers, timeout) -> FitResult:
+def _fleet(problem, method, maxiter, callback, executor, workers, timeout, given) -> FitResult:
+    _fleet_options(given)
     kind = check_fleet_method(problem, method)
     where = dict(executor=executor, workers=workers, timeout=timeout)
     # typed as FitResult for the many callers of ordinary problems: method "auto" or
