@@ -155,3 +155,19 @@ def test_a_fleet_fit_refuses_what_it_would_drop_and_a_population_of_one_unit():
             ti.fit(pr, **option)
     with pytest.raises(ValueError, match="need at least 2 units"):
         ti.Problem(m, exps[:1], p0={"k": 1.0}, x0=[1.0], population={"k": 0.2})
+
+
+def test_a_repeated_residual_error_is_refused_before_any_work(capsys):
+    """issue 51, item 3: `--residual-error cp=combined cp=additive` ran the last."""
+    from pathlib import Path
+
+    from tensorid import cli
+
+    root = Path(__file__).resolve().parents[1]
+    rc = cli.main([
+        "fit", str(root / "examples/theophylline/model.py"),
+        str(root / "src/tensorid/datasets/theophylline.csv"), "--records", "ID",
+        "--columns", "t=Time,cp=conc", "--residual-error", "cp=combined", "cp=additive",
+    ])  # fmt: skip
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "'cp' is given 2 times" in err[0], err

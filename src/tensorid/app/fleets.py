@@ -98,7 +98,16 @@ def residual_error(value, model: Model, key: str = "residual_error") -> str | di
         if len(value) == 1 and "=" not in value[0]:
             value = value[0]
         elif all("=" in v for v in value):
-            value = dict(v.split("=", 1) for v in value)
+            pairs = [v.split("=", 1) for v in value]
+            names = [n for n, _ in pairs]
+            twice = sorted({n for n in names if names.count(n) > 1})
+            if twice:  # the last would win without a word
+                raise ValueError(
+                    f"{key}: {twice[0]!r} is given {names.count(twice[0])} times "
+                    f"({' '.join(v for v in value if v.split('=', 1)[0] == twice[0])}); "
+                    "give each output's kind once"
+                )
+            value = dict(pairs)
     chosen = (
         [value]
         if isinstance(value, str)
