@@ -171,3 +171,19 @@ def test_a_repeated_residual_error_is_refused_before_any_work(capsys):
     ])  # fmt: skip
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "'cp' is given 2 times" in err[0], err
+
+
+def test_the_same_data_under_two_names_is_refused(tmp_path, capsys):
+    """issue 51, item 3: a copy of the training file under another name halved every
+    variance without a word (the same path twice was refused already)."""
+    import shutil
+    from pathlib import Path
+
+    from tensorid import cli
+
+    root = Path(__file__).resolve().parents[1] / "examples" / "silverbox"
+    shutil.copy(root / "train.csv", tmp_path / "copy.csv")
+    rc = cli.main(["fit", str(root / "model.py"), str(root / "train.csv"),
+                   str(tmp_path / "copy.csv"), "--out", str(tmp_path / "f")])  # fmt: skip
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "holds the same bytes as another file" in err[0], err

@@ -313,13 +313,25 @@ def no_repeats(files: list, maps) -> None:
     per_file = maps if isinstance(maps, list) else [maps] * len(files)
     seen: dict = {}
     for f, m in zip(files, per_file, strict=True):
-        key = (str(Path(f).resolve()), repr(sorted((m or {}).items())))
+        key = (_content(Path(f)), repr(sorted((m or {}).items())))
         if key in seen:
+            same = "is given twice" if Path(seen[key]).resolve() == Path(f).resolve() else (
+                "holds the same bytes as another file")  # fmt: skip
             raise ValueError(
-                f"the training data {f} is given twice ({seen[key]} and {f}): its samples "
+                f"the training data {f} {same} ({seen[key]} and {f}): its samples "
                 "would count twice and every standard error shrink by √2; give it once"
             )
         seen[key] = f
+
+
+def _content(p) -> str:
+    """A file's SHA-256 (its resolved path where it cannot be read: a joined u+y)."""
+    import hashlib
+
+    try:
+        return hashlib.sha256(p.read_bytes()).hexdigest()
+    except OSError:
+        return str(p.resolve())
 
 
 def _one(maps: list | None):
