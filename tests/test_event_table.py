@@ -187,3 +187,28 @@ def test_the_same_data_under_two_names_is_refused(tmp_path, capsys):
                    str(tmp_path / "copy.csv"), "--out", str(tmp_path / "f")])  # fmt: skip
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "holds the same bytes as another file" in err[0], err
+
+
+def test_the_python_api_s_raw_internal_errors_are_one_line_each():
+    """issue 51, item 4: executor="nope", records=["ID"] and fit_population of a
+    Problem without a fleet ended in AttributeError, TypeError: unhashable type and
+    "zero-size array to reduction operation"."""
+    from pathlib import Path
+
+    from tensorid.population.estimate import fit_population
+
+    m = ti.Model(rhs=lambda x, p, u: -p[0] * x, states=["x"], params=["k"])
+    t = np.linspace(0, 4, 9)
+    exps = [ti.Experiment(t, None, np.exp(-k * t)[:, None], name=str(i))
+            for i, k in enumerate((0.9, 1.1, 1.0))]  # fmt: skip
+    fleet = ti.Problem(m, exps, p0={"k": 1.0}, x0=[1.0], population={"k": 0.2})
+    with pytest.raises(TypeError, match="executor must be a concurrent.futures executor"):
+        ti.fit(fleet, executor="nope")
+    with pytest.raises(TypeError, match="executor must be"):
+        ti.fit(ti.Problem(m, exps, p0={"k": 1.0}, x0=[1.0]), executor="nope")
+    with pytest.raises(ValueError, match="needs a Problem with population= or individual="):
+        fit_population(ti.Problem(m, exps, p0={"k": 1.0}, x0=[1.0]))
+    root = Path(__file__).resolve().parents[1]
+    theo = ti.load_model(root / "examples/theophylline/model.py").model
+    with pytest.raises(TypeError, match="records must be the name of the id column"):
+        ti.load_data(root / "src/tensorid/datasets/theophylline.csv", theo, records=["ID"])

@@ -357,6 +357,10 @@ def load_data(
     observation is kept."""
     if isinstance(paths, str | Path):
         paths = [paths]
+    if records is not None and not isinstance(records, str):
+        raise TypeError(
+            f"records must be the name of the id column (a str such as 'ID'), got {records!r}"
+        )
     if ts is not None and not 0 < ts < np.inf:
         raise ValueError(f"the sampling time ts must be positive and finite, got {ts}")
     if records is not None and samples is not None:

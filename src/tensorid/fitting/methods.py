@@ -24,6 +24,7 @@ from ..engine.compilation import compile_clock
 from ..engine.problem import Problem
 from ..engine.status import Status
 from ..population import fit_population
+from ..population.estimate import check_executor
 from ..solve.multistart import SAMPLINGS, draw_starts
 from ..solve.options import FitOptions
 from ..solve.registry import LOCKSTEP, METHODS, listed, resolve
@@ -101,7 +102,7 @@ def fit(
     if starts is not None:
         _check_count("starts", starts)
     n = 1 if starts is None else int(starts)
-    _check_multistart(spread, sampling, workers, timeout, seed)
+    _check_multistart(spread, sampling, workers, timeout, seed, executor)
     if n > 1:
         batch = _check_batch(solver, batch, n, executor, workers)
     with compile_clock() as clock:  # this process's compilations (not the workers')
@@ -318,9 +319,10 @@ def _check_count(name: str, n) -> None:
         raise ValueError(f"{name} must be a positive integer, got {n!r}")
 
 
-def _check_multistart(spread, sampling, workers, timeout, seed=0) -> None:
+def _check_multistart(spread, sampling, workers, timeout, seed=0, executor=None) -> None:
     """The multi-start options, checked with one start too (spread=-1 or timeout=-1
     passed without a word there)."""
+    check_executor(executor)
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
         raise TypeError(f"seed must be a whole number, got {seed!r}")
     if spread is not None and not (

@@ -89,6 +89,15 @@ def _bounds(obj: Objective) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
+def check_executor(executor) -> None:
+    """One line for an executor that is none (it failed at its first submit)."""
+    if executor is not None and not callable(getattr(executor, "submit", None)):
+        raise TypeError(
+            "executor must be a concurrent.futures executor (with submit), e.g. a Dask "
+            f"client's client.get_executor(); got {executor!r}"
+        )
+
+
 def fit_population(
     problem,
     method: str = "focei",
@@ -125,6 +134,12 @@ def fit_population(
         :class:`PopulationResult`.
     """
     began = time.perf_counter()
+    if not (getattr(problem, "population", None) or getattr(problem, "individual", None)):
+        raise ValueError(
+            "fit_population needs a Problem with population= or individual= parameters; "
+            "this one has neither: fit it with ti.fit"
+        )
+    check_executor(executor)
     obj = Objective(problem, method)
     obj.unconverged, obj.unfinite = [], []
     spread = executor is not None or (workers or 1) > 1
