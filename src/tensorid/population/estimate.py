@@ -89,6 +89,18 @@ def _bounds(obj: Objective) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
+def _a_fleet(problem, executor):
+    """``problem``, refused in one line unless it is a fleet's (and ``executor``
+    unless it is one)."""
+    if not (getattr(problem, "population", None) or getattr(problem, "individual", None)):
+        raise ValueError(
+            "fit_population needs a Problem with population= or individual= parameters; "
+            "this one has neither: fit it with ti.fit"
+        )
+    check_executor(executor)
+    return problem
+
+
 def check_executor(executor) -> None:
     """One line for an executor that is none (it failed at its first submit)."""
     if executor is not None and not callable(getattr(executor, "submit", None)):
@@ -134,13 +146,7 @@ def fit_population(
         :class:`PopulationResult`.
     """
     began = time.perf_counter()
-    if not (getattr(problem, "population", None) or getattr(problem, "individual", None)):
-        raise ValueError(
-            "fit_population needs a Problem with population= or individual= parameters; "
-            "this one has neither: fit it with ti.fit"
-        )
-    check_executor(executor)
-    obj = Objective(problem, method)
+    obj = Objective(_a_fleet(problem, executor), method)
     obj.unconverged, obj.unfinite = [], []
     spread = executor is not None or (workers or 1) > 1
     units = UnitMap(obj, executor, workers, timeout) if spread else None
