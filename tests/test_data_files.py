@@ -296,6 +296,9 @@ def test_records_of_one_name_get_names_of_their_own(tmp_path, capsys):
         (tmp_path / d).mkdir()
         (tmp_path / d / "val.csv").write_text(_text())
     a, b = tmp_path / "A" / "val.csv", tmp_path / "B" / "val.csv"
+    # B's own record (the same bytes under another name are refused as training data:
+    # test_event_table.py), its last sample moved a little
+    b.write_text(_text().rstrip("\n").rsplit(",", 1)[0] + f",{float(Y[-1]) + 1e-3!r}\n")
     assert [e.name for e in ti.load_data([a, b], MODEL)] == ["A/val", "B/val"]
     assert [e.name for e in ti.load_data([a, a, b], MODEL)] == ["A/val", "A/val#2", "B/val"]
     assert [e.name for e in ti.load_data([a, a], MODEL)] == ["val", "val#2"]
