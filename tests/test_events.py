@@ -279,41 +279,55 @@ def test_a_reset_of_every_state_stops_the_infusions_running():
     np.testing.assert_array_equal(sim.y[h + 1 :, 0], 0.0)  # nothing runs after it
 
 
-def test_a_steady_state_dose_starts_from_its_cycle_with_exact_derivatives():
-    """NONMEM's SS = 1: the states at the dose are those of the dose given every II for
-    ever (a bolus: A e^{-k II} / (1 − e^{-k II}) before it, for elimination k); the
-    gradient and Hessian through the steady state equal jax.hessian's and finite
-    differences'; an infusion at steady state matches a long dosing history."""
-    m = ti.Model(
+def _steady_model():
+    return ti.Model(
         rhs=lambda x, p, u: jnp.stack([-p[0] * x[0] - 0.02 * x[0] ** 2 / (1 + x[0])]),
         output=lambda x, p: x / p[1], states=["c"], params=["k", "v"], outputs=["cp"],
     )  # fmt: skip
-    t = np.array([0.5, 2.0, 6.0, 11.0, 14.0])
-    y = np.array([[9.0, 8.0, 6.0, 4.0, 8.5]]).T
+
+
+T_SS = np.array([0.5, 2.0, 6.0, 11.0, 14.0])
+Y_SS = np.array([[9.0, 8.0, 6.0, 4.0, 8.5]]).T
+
+
+def test_a_steady_state_dose_starts_from_its_cycle():
+    """NONMEM's SS = 1: the states at the dose are those of the dose given every II for
+    ever (a bolus: A e^{-k II} / (1 − e^{-k II}) before it, for elimination k); an
+    infusion at steady state matches a long dosing history."""
     linear = ti.Model(rhs=lambda x, p, u: -p[0] * x, output=lambda x, p: x / p[1],
                       states=["c"], params=["k", "v"], outputs=["cp"])  # fmt: skip
     ss = Events.doses(0.0, "c", 100.0, ii=12.0, addl=1, ss=True)
-    e = ti.Experiment(t, None, y, events=ss)
+    e = ti.Experiment(T_SS, None, Y_SS, events=ss)
     sim = ti.simulate(linear, {"k": 0.1, "v": 10.0}, [0.0], e, substeps=16)
     q = np.exp(-0.1 * 12.0)
     trough = 100.0 * q / (1 - q)
     h = list(e.t).index(0.5)
     assert sim.x[h, 0] == pytest.approx((trough + 100.0) * np.exp(-0.05), rel=1e-6)
-    pr = ti.Problem(m, e, p0={"k": 0.1, "v": 10.0}, x0=[0.0], substeps=4)
-    theta = np.array([0.12, 9.0])
-    _, g, H = pr.cost_grad_hess(theta)
-    np.testing.assert_allclose(H, jax.hessian(pr.jax_cost)(jnp.asarray(theta)), rtol=1e-8)
-    steps = np.diag(1e-6 * theta)
-    fd = [(pr.cost(theta + s) - pr.cost(theta - s)) / (2 * s[i]) for i, s in enumerate(steps)]
-    np.testing.assert_allclose(g, fd, rtol=1e-5)
     # an infusion at steady state (2 h of every 12) against 30 cycles of history
+    m = _steady_model()
     inf = Events.doses(0.0, "c", 100.0, rate=50.0, ii=12.0, addl=1, ss=True)
     history = Events.doses(-360.0, "c", 100.0, rate=50.0, ii=12.0, addl=31)
-    e1 = ti.Experiment(t, None, y, events=inf)
-    e2 = ti.Experiment(np.concatenate([[-360.0], t]), None, np.vstack([[0.0], y]), events=history)
+    e1 = ti.Experiment(T_SS, None, Y_SS, events=inf)
+    e2 = ti.Experiment(np.concatenate([[-360.0], T_SS]), None, np.vstack([[0.0], Y_SS]),
+                       events=history)  # fmt: skip
     at = {"k": 0.12, "v": 9.0}
     a = ti.simulate(m, at, [0.0], e1, substeps=32).y[list(e1.t).index(0.5) :]
     b = ti.simulate(m, at, [0.0], e2, substeps=32).y[list(e2.t).index(0.5) :]
     np.testing.assert_allclose(a[: len(b)], b[: len(a)], rtol=1e-4)
     with pytest.raises(ValueError, match="II > 0"):
         Events.doses(0.0, "c", 100.0, ss=True)
+
+
+@pytest.mark.slow  # jax.hessian through the Newton iterations compiles for about a minute
+def test_the_derivatives_through_a_steady_state_are_exact():
+    """The gradient and Hessian through the steady state (a nonlinear model: Newton on
+    the dosing cycle) equal jax.hessian's and finite differences'."""
+    ss = Events.doses(0.0, "c", 100.0, ii=12.0, addl=1, ss=True)
+    e = ti.Experiment(T_SS, None, Y_SS, events=ss)
+    pr = ti.Problem(_steady_model(), e, p0={"k": 0.1, "v": 10.0}, x0=[0.0], substeps=4)
+    theta = np.array([0.12, 9.0])
+    _, g, H = pr.cost_grad_hess(theta)
+    np.testing.assert_allclose(H, jax.hessian(pr.jax_cost)(jnp.asarray(theta)), rtol=1e-8)
+    steps = np.diag(1e-6 * theta)
+    fd = [(pr.cost(theta + s) - pr.cost(theta - s)) / (2 * s[i]) for i, s in enumerate(steps)]
+    np.testing.assert_allclose(g, fd, rtol=1e-5)
