@@ -147,6 +147,8 @@ def _fleet_options(given: dict) -> None:
     """One line naming the first option a fleet's fit would drop."""
     for name, default in _NOT_FOR_FLEETS.items():
         value = given[name]
+        if name == "starts" and value == 1:  # one start: what a fleet's fit does
+            continue
         same = value is default or (value is not None and default is not None and value == default)
         if not same:
             raise ValueError(
