@@ -125,3 +125,46 @@ def test_a_censored_fleet_fitted_by_laplace_recovers_the_truth():
     assert abs(pop["typical"] - 2.0) < 3 * pop["typical_stderr"]
     assert abs(res.residual_sd["c"] - 0.3) < 0.1
     del np
+
+
+def test_a_population_with_lags_has_its_units_and_m3_keeps_finite_gradients():
+    """A population over records with a lag (moving nodes: their channels' width) and
+    Beal's M3 with a proportional error where ŷ = 0 (the gradient was NaN there)."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    import tensorid as ti
+    from tensorid.population.objective import Objective
+
+    m = ti.Model(
+        rhs=lambda x, p, u: jnp.stack([-p[0] * x[0], p[0] * x[0] - p[1] * x[1]]),
+        output=lambda x, p: x[1:] / 10.0,
+        states=["depot", "center"], params=["ka", "ke", "tlag"], outputs=["cp"],
+    )  # fmt: skip
+    t = np.array([0.0, 0.5, 1.0, 2.0, 4.0, 8.0])
+    ev = ti.Events.doses(0.0, "depot", 100.0)
+    exps = [ti.Experiment(t, None, np.full((6, 1), 2.0), name=str(i), events=ev)
+            for i in range(3)]  # fmt: skip
+    p0 = {"ka": 1.0, "ke": 0.2, "tlag": 0.3}
+    pr = ti.Problem(m, exps, p0=p0, x0=[0, 0], population={"ka": 0.3}, lags={"depot": "tlag"})
+    obj = Objective(pr)
+    psi = jnp.asarray(obj.x0 if hasattr(obj, "x0") else np.zeros(obj.size))
+    yhat = np.asarray(obj.predict_all(np.array([0.0, np.log(0.3), 0.2, 0.3, np.log(0.5)]),
+                                      np.zeros((3, 1))))  # fmt: skip
+    sim = pr.simulate(pr.theta0)[0]
+    np.testing.assert_allclose(yhat[0, :6, 0], sim.y[:, 0], rtol=1e-12)
+    # M3: a dose row at t = 0 (not observed, ŷ = 0 there: σ = 0 for a proportional
+    # error), the last sample below its limit
+    t2 = t[1:]
+    below = np.zeros((5, 1), dtype=bool)
+    below[-1, 0] = True
+    cens = [ti.Experiment(t2, None, np.full((5, 1), 0.5), name=str(i), events=ev,
+                          censored=below) for i in range(3)]  # fmt: skip
+    pr = ti.Problem(m, cens, p0=p0, x0=[0, 0], population={"ka": 0.3}, fixed=["tlag"],
+                    residual_error="proportional")  # fmt: skip
+    obj = Objective(pr, "laplace")
+    unit = tuple(a[0] for a in obj.data)
+    psi = jnp.array([0.0, np.log(0.3), 0.2, np.log(0.2)])
+    g = jax.grad(obj.ell, argnums=1)(jnp.array([0.1]), psi, unit)
+    assert np.isfinite(np.asarray(g)).all()

@@ -213,3 +213,26 @@ def test_the_python_api_s_raw_internal_errors_are_one_line_each():
     theo = ti.load_model(root / "examples/theophylline/model.py").model
     with pytest.raises(TypeError, match="records must be the name of the id column"):
         ti.load_data(root / "src/tensorid/datasets/theophylline.csv", theo, records=["ID"])
+
+
+def test_what_the_reviewers_found_is_refused_in_one_line(tmp_path):
+    """CENS other than 0 or 1 (Monolix's −1: above a limit) was fitted as a measurement;
+    a reset of every state did not stop a lagged infusion; an x_scale array for a
+    fleet ended in 'truth value of an array is ambiguous'."""
+    (tmp_path / "model.py").write_text(MODEL)
+    spec = ti.load_model(tmp_path / "model.py")
+    p = tmp_path / "c.csv"
+    p.write_text("ID,TIME,AMT,DV,EVID,CENS\n1,0,100,.,1,0\n1,1,.,2.0,0,0\n1,2,.,0.1,0,-1\n")
+    with pytest.raises(ValueError, match="CENS -1 on line 4 is not supported"):
+        ti.load_data(p, spec.model, records="ID", columns={"t": "TIME", "cp": "DV"})
+    t = np.array([1.0, 2.0, 6.0])
+    ev = ti.Events.doses(0.0, "depot", 100.0, rate=25.0) + ti.Events.resets(2.0, None)
+    e = ti.Experiment(t, None, np.ones((3, 1)), events=ev)
+    with pytest.raises(ValueError, match="would not stop it"):
+        ti.Problem(spec.model, e, p0=spec.p0, lags={"depot": "0.5"}).cost_grad(np.ones(3))
+    m = ti.Model(rhs=lambda x, p, u: -p[0] * x, states=["x"], params=["k"])
+    exps = [ti.Experiment(t, None, np.exp(-k * t)[:, None], name=str(i))
+            for i, k in enumerate((0.9, 1.1, 1.0))]  # fmt: skip
+    fleet = ti.Problem(m, exps, p0={"k": 1.0}, x0=[1.0], population={"k": 0.2})
+    with pytest.raises(ValueError, match="x_scale=.* is not taken by a fit"):
+        ti.fit(fleet, x_scale=np.array([1.0]))

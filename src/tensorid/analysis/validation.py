@@ -5,7 +5,7 @@ benchmarks' protocol with an initialisation window).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -160,6 +160,8 @@ def estimate_x0(
     as in ``x0``; ``x0`` itself where the simulation from it is not finite. (Gauss-Newton:
     a few initial states are fitted in a few steps, and a second-order sweep would
     cost the command line its compilation.)"""
+    if record.censored is not None:  # a least-squares fit of x0: the measured samples alone
+        record = replace(record, censored=None)
     problem = Problem(
         model,
         record,

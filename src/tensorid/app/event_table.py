@@ -152,8 +152,14 @@ def unit_record(where: str, name: str, cols: _Columns, model, require_outputs: b
     y, seen = _observations(where, cols, model, outputs, evid, mdv, n)
     cens = None
     if seen is not None and "CENS" in cols.values:  # below the limit: DV holds it
-        flag = numbers(where, cols, "CENS", n, 0.0)
-        cens, seen = seen & (np.nan_to_num(flag) == 1)[:, None], seen & ~(flag == 1)[:, None]
+        flag = np.nan_to_num(numbers(where, cols, "CENS", n, 0.0))
+        odd = np.flatnonzero(~np.isin(flag, (0, 1)))
+        if odd.size:
+            raise ValueError(
+                f"{where}: CENS {flag[odd[0]]:g} {_at(cols, int(odd[0]))} is not supported; "
+                "CENS is 0 (a measurement) or 1 (below the limit DV holds)"
+            )
+        cens, seen = seen & (flag == 1)[:, None], seen & ~(flag == 1)[:, None]
     if require_outputs and (y is None or not (seen.any() or (cens is not None and cens.any()))):
         return None
     grid, first = np.unique(t, return_index=True)
@@ -164,6 +170,11 @@ def unit_record(where: str, name: str, cols: _Columns, model, require_outputs: b
         slot = np.searchsorted(grid, t)
         if cens is not None:
             for r in np.flatnonzero(cens.any(axis=1)):
+                if (C[slot[r]] & cens[r]).any():
+                    raise ValueError(
+                        f"{where}: two censored observations at time {t[r]:g} "
+                        f"({_at(cols, int(r))}); keep one row per time and output"
+                    )
                 Y[slot[r]] = np.where(cens[r], y[r], Y[slot[r]])
                 C[slot[r]] |= cens[r]
         for r in np.flatnonzero(seen.any(axis=1)):

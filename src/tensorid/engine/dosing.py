@@ -105,6 +105,11 @@ class Dosing:
                 continue
             d = pos[state_index(ev.state[k], names)]
             if kind == "steady-state":
+                if ss[h, 0]:
+                    raise ValueError(
+                        f"record {e.name!r}: two steady-state doses at t = {t[h]:g}; one "
+                        "steady state per time is supported (give the other's history)"
+                    )
                 ss[h] = (1.0, d, ev.amount[k], ev.rate[k], ev.interval[k])
             elif kind in ("bolus", "impulse"):
                 out[h, 0, d] += ev.amount[k]

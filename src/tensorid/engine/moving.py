@@ -54,6 +54,12 @@ def node_arrays(dosing, e, u) -> tuple[np.ndarray, np.ndarray]:
                 rows.append((ev.time[k], d, ev.amount[k], 0.0, 0.0))
             else:
                 fixed[h, 0, d] += ev.amount[k]
+        elif "reset-all" in ev.kind and (kind == "modelled-infusion" or s in lagged):
+            raise ValueError(
+                f"record {e.name!r}: a reset of every state (EVID 3, 4) with an infusion "
+                "whose times move with the parameters (a lag, a modelled duration) is not "
+                "supported yet: it would not stop it"
+            )
         elif kind == "modelled-infusion":  # its end at its (lagged) start + D(p)
             a = ev.amount[k]
             rows += [(ev.time[k], d, 0.0, 0.0, a), (ev.time[k], D + d, 0.0, 0.0, -a)]

@@ -149,7 +149,9 @@ def _fleet_options(given: dict) -> None:
         value = given[name]
         if name == "starts" and value == 1:  # one start: what a fleet's fit does
             continue
-        same = value is default or (value is not None and default is not None and value == default)
+        same = value is default or (
+            value is not None and default is not None and np.ndim(value) == 0 and value == default
+        )
         if not same:
             raise ValueError(
                 f"{name}={value!r} is not taken by a fit with population or individual "

@@ -236,7 +236,8 @@ class Objective:
         out = 0.5 * (jnp.sum(r**2 / V + mask * jnp.log(V)) + prior)
         if self.censored:  # −log P(y < limit) = −log Φ((limit − ŷ)/σ), y holding the limit
             c = unit[6]
-            z = jnp.where(c > 0, (y - f) / jnp.sqrt(self.variance(noise, f)), 0.0)
+            Vc = jnp.where(c > 0, self.variance(noise, f), 1.0)  # (σ² = 0 where ŷ = 0)
+            z = jnp.where(c > 0, (y - f) / jnp.sqrt(Vc), 0.0)
             out = out - jnp.sum(jnp.where(c > 0, jax.scipy.special.log_ndtr(z), 0.0))
         return out
 

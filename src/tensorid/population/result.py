@@ -193,7 +193,7 @@ class PopulationResult:
             residual_sd=residual_sd, residual_error=residual_error,
             omega_correlation=correlation,
             units=units, nit=r.nit, nfev=r.nfev, status=status, method=obj.method,
-            seconds=seconds, observations=int(obj.units.mask.sum()), problem=obj.problem,
+            seconds=seconds, observations=_observations(obj.units), problem=obj.problem,
             history=list(getattr(r, "history", [])), objective_function=obj,
         )  # fmt: skip
 
@@ -304,3 +304,8 @@ class PopulationResult:
 
     def __str__(self) -> str:
         return self.summary()
+
+
+def _observations(units) -> int:
+    """The samples measured, those below their limit (censored) included."""
+    return int(units.mask.sum()) + (0 if units.cens is None else int(units.cens.sum()))

@@ -53,8 +53,8 @@ class Units:
         t, u = np.zeros((len(exps), P)), np.zeros((len(exps), P, U))
         y, mask = np.zeros((len(exps), P, S)), np.zeros((len(exps), P, S))
         dosing = getattr(problem, "dosing", None)
-        if dosing is not None:  # the events' channels follow the inputs (events.py)
-            u = np.zeros((len(exps), P, U + dosing.width))
+        if dosing is not None:  # the events' channels follow the inputs (dosing.py)
+            u = np.zeros((len(exps), P, problem.inputs(exps[0]).shape[1]))
         for i, e in enumerate(exps):
             n, ue = nodes[i], problem.inputs(e)
             t[i, :n], t[i, n:] = np.asarray(problem.arrays_of(e)[0]), e.t[-1]
