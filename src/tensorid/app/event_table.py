@@ -26,6 +26,7 @@ import numpy as np
 from ..engine.data import Experiment
 from ..engine.events import Events, state_index
 from .readers import _Columns
+from .records import _at
 
 COLUMNS = ("EVID", "AMT", "CMT", "RATE", "II", "ADDL", "SS", "MDV", "DVID", "CENS")
 MISSING = ("", ".", "NA", "nan", "NaN")
@@ -58,10 +59,6 @@ def mapped(p, cols: _Columns, events: dict | None) -> _Columns:
 def is_event_table(cols: _Columns) -> bool:
     """Whether the file is an event table: it has an AMT or an EVID column."""
     return "AMT" in cols.values or "EVID" in cols.values
-
-
-def _at(cols: _Columns, i: int) -> str:
-    return f"on line {cols.lines[i]}" if cols.lines else f"at row {i}"
 
 
 def numbers(where: str, cols: _Columns, name: str, n: int, default=np.nan) -> np.ndarray:

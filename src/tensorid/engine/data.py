@@ -137,7 +137,7 @@ def _observed(observed, y, P: int) -> np.ndarray | None:
     """The (P, S) observation mask, checked; where y is given, its NaN entries are
     unobserved too (a missing value in a record with gaps)."""
     if observed is None:
-        return None if y is None or np.isfinite(y).all() else None
+        return None
     if y is None:
         raise ValueError("observed is given but y is not: it marks which samples of y count")
     seen = np.asarray(observed)

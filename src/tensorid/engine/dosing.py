@@ -59,7 +59,7 @@ class Dosing:
         return bool(self.lags or self.durations)
 
     def expressions(self) -> dict:
-        """{"doses": {state: text}, "lags": {state: text}}: the expressions as given."""
+        """{"doses", "lags", "durations"}: each {state: text}, the expressions as given."""
         return {
             "doses": {self.states[d]: text for d, text in self.amounts},
             "lags": {self.states[d]: text for d, text in self.lags},
@@ -357,13 +357,12 @@ def jump_hook(dosing: Dosing | None, p, push=None, settle=None):
     return lambda state, uh: push(lambda z, p_: jmap(z, p_, uh, settle), state)
 
 
-def measured(e, size: int | None = None):
+def measured(e, size: int):
     """y as the sweeps take it: the array, or {"y", "mask"} for a record with gaps (or
     with ``size`` rows, more than its own: a lagged event's nodes, not observed)."""
-    if e.observed is None and (size is None or size == e.P):
+    if e.observed is None and size == e.P:
         return on_device(e.y)
     mask = np.ones_like(e.y) if e.mask is None else e.mask
-    extra = 0 if size is None else size - e.P
-    pad = np.zeros((extra, e.y.shape[1]))
+    pad = np.zeros((size - e.P, e.y.shape[1]))
     y, mask = np.concatenate([e.y, pad]), np.concatenate([mask, pad])
     return {"y": on_device(y), "mask": on_device(mask)}

@@ -267,14 +267,19 @@ def stopped(ev: Events, k: int, end: float) -> float:
 
 def merge(t, u, y, observed, events: Events):
     """The record on one grid of its rows and its events' times: (t, u, y, observed,
-    events within the record, events after its last row). New times are not observed;
-    the inputs there are interpolated linearly between the rows (held outside)."""
+    events within the record, events after its last row) (``regrid``)."""
     events, late = events.within(float(t[-1]))
     extra = events.grid_times()
-    extra = extra[extra <= t[-1]]
+    return (*regrid(t, u, y, observed, extra[extra <= t[-1]]), events, late)
+
+
+def regrid(t, u, y, observed, extra):
+    """(t, u, y, observed) on the union of the rows' times and ``extra``: the new times
+    are not observed; the inputs there are interpolated linearly between the rows
+    (held outside them)."""
     grid = np.unique(np.concatenate([t, extra]))
     if grid.size == t.size:
-        return t, u, y, observed, events, late
+        return t, u, y, observed
     rows = np.searchsorted(grid, t)
     U = u.shape[1]
     u2 = np.stack([np.interp(grid, t, u[:, k]) for k in range(U)], axis=1) if U else None
@@ -289,7 +294,7 @@ def merge(t, u, y, observed, events: Events):
     seen = np.zeros((grid.size, y.shape[1] if y is not None else 0), dtype=bool)
     if y is not None:
         seen[rows] = np.ones_like(y, dtype=bool) if observed is None else observed
-    return grid, u2, y2, seen, events, late
+    return grid, u2, y2, seen
 
 
 def warn_late(where: str, late: dict[str, int]) -> None:

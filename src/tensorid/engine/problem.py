@@ -242,18 +242,20 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
     def inputs(self, e: Experiment) -> np.ndarray:
         """The inputs the model sees on experiment e: delayed where the model says so
         (a smooth interpolation's: each interval's coefficients, Discretisation.inputs)."""
+        return self.grid(e)[1]
+
+    def grid(self, e: Experiment) -> tuple[np.ndarray, np.ndarray]:
+        """(t, u) of record e as the march reads them: with its events' channels after
+        the inputs and its moving events' nodes after its own samples (dosing.py)."""
         u = self.discretisation.inputs(self.model, e.t, e.u)
-        return u if self.dosing is None else self.dosing.arrays(e, u)[1]  # with the events
+        return (e.t, u) if self.dosing is None else self.dosing.arrays(e, u)
 
     hessian = property(lambda self: self.hessian_path.name, doc="fit.json's hessian_path")
 
     def arrays_of(self, e: Experiment) -> tuple:
-        """(t, u, y) of record e as the sweeps take them (with its events' channels and
-        lagged nodes, and y with its mask where it has gaps: dosing.py)."""
-        u = self.discretisation.inputs(self.model, e.t, e.u)
-        if self.dosing is None:
-            return on_device(e.t), on_device(u), measured(e)
-        t, u = self.dosing.arrays(e, u)
+        """(t, u, y) of record e as the sweeps take them (``grid``; y with its mask where
+        the record has gaps or moving events' nodes: dosing.measured)."""
+        t, u = self.grid(e)
         return on_device(t), on_device(u), measured(e, t.size)
 
     @property

@@ -59,8 +59,7 @@ def run_simulation(sweeps: Sweeps, data: Experiment, x0, p) -> Simulation:
                 sw.model, sw.free_states, sw.free_params, sw.discretisation, sw.loss,
                 sw.predictor, dosing,
             )  # fmt: skip
-    t = data.t if dosing is None else dosing.arrays(data, u)[0]
-    u = u if dosing is None else dosing.arrays(data, u)[1]
+    t, u = (data.t, u) if dosing is None else dosing.arrays(data, u)
     xs, ys, code, at = sweeps.simulate(on_device(x0), on_device(p), on_device(t), on_device(u))
     xs, ys = np.asarray(xs)[: data.P], np.asarray(ys)[: data.P]  # a lagged event's nodes: out
     status = Status.from_code(int(code))

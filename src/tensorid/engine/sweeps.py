@@ -81,7 +81,7 @@ class Sweeps:
     discretisation: Discretisation
     loss: Loss = SQUARED
     predictor: Predictor = SIMULATION
-    dosing: Dosing | None = None  # the records' events (events.py): None, none
+    dosing: Dosing | None = None  # what the records' events do (dosing.py); None: none
 
     @property
     def K(self) -> int:

@@ -136,17 +136,19 @@ def check_fleet_method(problem, method) -> str:
     )
 
 
-# fit's options that a fleet's fit does not take yet, with their defaults: one given is
-# refused in one line (they were dropped without a word: starts=3 fitted once)
-_NOT_FOR_FLEETS = {"theta0": None, "starts": None, "spread": None, "sampling": "lhs",
-                   "seed": 0, "batch": None, "x_scale": "auto", "gtol": 1e-10,
-                   "ftol": 1e-12, "xtol": 1e-12, "options": None, "polish": True}  # fmt: skip
+# fit's options that a fleet's fit does not take yet: one given other than its default
+# (fit's signature) is refused in one line (they were dropped without a word)
+_NOT_FOR_FLEETS = ("theta0", "starts", "spread", "sampling", "seed", "batch", "x_scale",
+                   "gtol", "ftol", "xtol", "options", "polish")  # fmt: skip
 
 
 def _fleet_options(given: dict) -> None:
     """One line naming the first option a fleet's fit would drop."""
-    for name, default in _NOT_FOR_FLEETS.items():
-        value = given[name]
+    import inspect
+
+    defaults = inspect.signature(fit).parameters
+    for name in _NOT_FOR_FLEETS:
+        value, default = given[name], defaults[name].default
         if name == "starts" and value == 1:  # one start: what a fleet's fit does
             continue
         same = value is default or (

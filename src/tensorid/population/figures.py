@@ -34,20 +34,13 @@ def _densely(obj):
     import copy
 
     from ..engine.data import Experiment
+    from ..engine.events import regrid
     from .units import Units
 
     records = []
-    for e in obj.problem.experiments:
-        t = np.unique(np.concatenate([e.t, np.linspace(e.t[0], e.t[-1], DENSE)]))
-        u = np.zeros((t.size, e.u.shape[1]))
-        for k in range(e.u.shape[1]):
-            u[:, k] = np.interp(t, e.t, e.u[:, k])
-        seen = np.isin(t, e.t)  # the samples stay, with their values
-        y = np.zeros((t.size, e.y.shape[1]))
-        y[seen] = e.y
-        observed = np.zeros_like(y, dtype=bool)
-        observed[seen] = True if e.observed is None else e.observed
-        records.append(Experiment(t, u, y, e.name, None, e.events, observed))
+    for e in obj.problem.experiments:  # its samples stay, with their values
+        dense = regrid(e.t, e.u, e.y, e.observed, np.linspace(e.t[0], e.t[-1], DENSE))
+        records.append(Experiment(*dense[:3], e.name, None, e.events, dense[3]))
     out = copy.copy(obj)
     out.units = Units.of(obj.problem, records)
     out.data = (*out.units.arrays(), obj.data[5])

@@ -47,18 +47,16 @@ class Units:
     def of(cls, problem, records=None) -> Units:
         """The Problem's records (or ``records`` in their place, one per unit)."""
         exps = problem.experiments if records is None else records
-        nodes = [problem.arrays_of(e)[0].shape[0] for e in exps]  # a lagged dose's: more
-        P = max(nodes)
+        grids = [problem.grid(e) for e in exps]  # a moving event's nodes: more than e.P
+        P = max(te.size for te, _ in grids)
         S, U = problem.model.S, len(problem.model.inputs)
-        t, u = np.zeros((len(exps), P)), np.zeros((len(exps), P, U))
+        t, u = np.zeros((len(exps), P)), np.zeros((len(exps), P, grids[0][1].shape[1]))
         y, mask = np.zeros((len(exps), P, S)), np.zeros((len(exps), P, S))
-        dosing = getattr(problem, "dosing", None)
-        if dosing is not None:  # the events' channels follow the inputs (dosing.py)
-            u = np.zeros((len(exps), P, problem.inputs(exps[0]).shape[1]))
-        for i, e in enumerate(exps):
-            n, ue = nodes[i], problem.inputs(e)
-            t[i, :n], t[i, n:] = np.asarray(problem.arrays_of(e)[0]), e.t[-1]
-            u[i, :n], u[i, n:, :U] = ue, ue[-1, :U]  # padding: no event happens again
+        dosing = problem.dosing
+        for i, (e, (te, ue)) in enumerate(zip(exps, grids, strict=True)):
+            n = te.size
+            t[i, :n], t[i, n:] = te, e.t[-1]
+            u[i, :n], u[i, n:, :U] = ue, ue[-1, :U]  # padding: the channels' no event
             if dosing is not None and dosing.moving:  # a fixed node at the record's end
                 u[i, n:, -2:] = (-1.0, e.t[-1])
             y[i, : e.P], mask[i, : e.P] = e.y, 1.0 if e.mask is None else e.mask
