@@ -151,7 +151,6 @@ MAKERS: dict[str, Callable[[Path], None]] = {
     "weights_bad.py": _written(FIRST + 'weights = "equal"\n'),
     "missing_state.py": _written(_edit(FIRST, '{"x": "-a*x + b*u"}', '{"x": "-a*v + b*u"}')),
     "output_typo.py": _written(_edit(FIRST, '{"y": "x"}', '{"y": "xx"}')),
-    "output_input.py": _written(_edit(FIRST, '{"y": "x"}', '{"y": "x + u"}')),
     "output_list.py": _written(_edit(FIRST, 'output = {"y": "x"}', 'output = ["x"]')),
     "inputs_string.py": _written(_edit(FIRST, 'inputs = ["u"]', 'inputs = "u"')),
     "inputs_word.py": _written(_edit(FIRST, 'inputs = ["u"]', 'inputs = "force"')),

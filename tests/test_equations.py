@@ -4,6 +4,7 @@
 import subprocess
 import sys
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -64,8 +65,12 @@ def test_sympy_is_not_imported_for_plain_equations(tmp_path):
 
 
 def test_the_direct_path_keeps_the_checks():
-    with pytest.raises(ValueError, match="may not depend on inputs"):
-        ti.model_from_equations({"x": "-k*x + u"}, {"y": "x + u"}, ["u"], ["k"])
+    m = ti.model_from_equations({"x": "-k*x + u"}, {"y": "x + u"}, ["u"], ["k"])
+    assert (
+        m.reads_inputs and not ti.model_from_equations({"x": "-k*x + u"}, None, ["u"]).reads_inputs
+    )
+    y = m.h(jnp.array([1.0]), jnp.array([0.5]), jnp.array([2.0, 99.0]))  # a march's row
+    assert float(y[0]) == 3.0
     with pytest.raises(ValueError, match="'q' .* is not a state, input or parameter"):
         ti.model_from_equations({"x": "-k*x + q"}, None, [], ["k"])
     m = ti.model_from_equations({"x": "-k*x"}, None, [], ["k"])

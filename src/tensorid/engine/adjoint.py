@@ -235,9 +235,9 @@ class SecondOrderAdjoint:
         def adjoint(lam_next, e):
             x, yv, s, dt_, a, b, lv = e
             seen = s > 0
-            ell, l1, _, _ = sw.loss.terms(yv, m.h(x, p), w)
+            ell, l1, _, _ = sw.loss.terms(yv, m.h(x, p, a), w)
             l1 = _kept(seen, l1)
-            mu = _kept(seen, jax.vjp(lambda x_: m.h(x_, p), x)[1](l1)[0])
+            mu = _kept(seen, jax.vjp(lambda x_: m.h(x_, p, a), x)[1](l1)[0])
             back = jax.vjp(lambda x_: self._phi(x_, p, dt_, a, b), x)[1](lam_next)[0]
             return mu + _kept(lv, back), (_kept(lv, lam_next), _kept(seen, ell))
 
@@ -264,15 +264,16 @@ class SecondOrderAdjoint:
         m, Pt = sw.model, jnp.asarray(sw.seeds()[1].T)
         nx, fp = len(sw.free_states), np.asarray(sw.free_params, dtype=int)
         seen = s > 0
-        D = _kept(seen, jax.vmap(lambda sx, sp: jax.jvp(m.h, (x, p), (sx, sp))[1])(S.T, Pt))
-        _, l1, l2, gamma = (_kept(seen, q) for q in sw.loss.terms(yv, m.h(x, p), w))
+        h = functools.partial(m.h, u=a)  # the output at sample h reads u_h (a)
+        D = _kept(seen, jax.vmap(lambda sx, sp: jax.jvp(h, (x, p), (sx, sp))[1])(S.T, Pt))
+        _, l1, l2, gamma = (_kept(seen, q) for q in sw.loss.terms(yv, h(x, p), w))
         dt_ = jnp.where(lv, dt_, 0.0)
 
         def grad_and_step(x_, p_):
             """(∇L_h, Φ_h): the next state from the same trace as the gradient."""
             xn, back = jax.vjp(lambda xx, pp: self._phi(xx, pp, dt_, a, b), x_, p_)
             gx, gp = back(lam)
-            hx, hp = jax.vjp(m.h, x_, p_)[1](l1)
+            hx, hp = jax.vjp(h, x_, p_)[1](l1)
             return (gx + hx, gp + hp), xn
 
         _, lin = jax.linearize(grad_and_step, x, p)

@@ -178,7 +178,7 @@ def _inputs_at(ua, ub, s, interpolation: str, held: int):
 def _settle(y, obs_h, u_h, update, jump):
     """The state after a sample: a filter's update, then the record's events."""
     if update is not None:
-        y = update(y, obs_h)
+        y = update(y, obs_h, u_h)
     return y if jump is None else jump(y, u_h)
 
 
@@ -202,11 +202,12 @@ def march(
     into an accumulator.
 
     Arguments:
-        observe: ``observe(acc, y, obs_h) -> (acc, out_h)``, called at t_0 and after
-            each interval; ``obs`` is a pytree whose leaves have a leading sample axis.
+        observe: ``observe(acc, y, obs_h, u_h) -> (acc, out_h)``, called at t_0 and
+            after each interval with the sample's row of ``u`` (an output may read the
+            inputs); ``obs`` is a pytree whose leaves have a leading sample axis.
         state_field: ``state_field(x, u)``, the model's own F, needed by implicit
             schemes (for F_x) when ``y`` is augmented.
-        update: ``update(y, obs_h) -> y``, applied at each sample after ``observe``:
+        update: ``update(y, obs_h, u_h) -> y``, applied at each sample after ``observe``:
             a filter's measurement update (None: the state is not corrected).
         skip_first: the accumulator leaves out t_0's sample (its ``out_h`` is kept).
         jump: ``jump(y, u_h) -> y``, after ``update``: a record's events (dosing.py).
@@ -222,7 +223,7 @@ def march(
     state_field = field if state_field is None else state_field
     first = jax.tree_util.tree_map(lambda a: a[0], obs)
     rest = jax.tree_util.tree_map(lambda a: a[1:], obs)
-    acc, out0 = observe(acc0, y0, first)
+    acc, out0 = observe(acc0, y0, first, u[0])
     if skip_first:  # acc0 as the scan will carry it (its dtypes and shapes)
         acc = jax.tree_util.tree_map(
             lambda a, b: jnp.broadcast_to(jnp.asarray(b, jnp.result_type(a)), jnp.shape(a)),
@@ -246,7 +247,7 @@ def march(
         code = jnp.where((code == 0) & blown, Status.NONFINITE_STATE.code, code)
         new = (fail == 0) & (code != 0)
         fail, at = jnp.where(new, code, fail), jnp.where(new, k, at)
-        acc, out = observe(acc, y, obs_h)
+        acc, out = observe(acc, y, obs_h, ub)
         y = _settle(y, obs_h, ub, update, jump)
         return (y, h_trial, acc, fail, at), out
 

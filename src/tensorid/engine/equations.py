@@ -171,13 +171,7 @@ def _with_sympy(rhs, output, states, inputs, params):
     known = {n: sp.Symbol(n) for n in states + inputs}
     rhs_e = [_parse(f"rhs[{s!r}]", rhs[s], known) for s in states]
     out_e = [_parse(f"output[{o!r}]", output[o], known) for o in output]
-    for o, e in zip(output, out_e, strict=True):
-        used_inputs = sorted(str(s) for s in e.free_symbols if str(s) in inputs)
-        if used_inputs:
-            raise ValueError(
-                f"output[{o!r}] uses inputs {used_inputs}; outputs are C(x, p) "
-                "and may not depend on inputs"
-            )
+    reads = any(str(v) in inputs for e in out_e for v in e.free_symbols)
     found: list[str] = []
     for e in rhs_e + out_e:
         for s in sorted(e.free_symbols, key=str):
@@ -197,12 +191,13 @@ def _with_sympy(rhs, output, states, inputs, params):
     ps = [sp.Symbol(n) for n in params]
     us = [sp.Symbol(n) for n in inputs]
     f_num = sp.lambdify([xs, ps, us], rhs_e, modules="jax")
-    h_num = sp.lambdify([xs, ps], out_e, modules="jax")
+    h_num = sp.lambdify([xs, ps, us] if reads else [xs, ps], out_e, modules="jax")
     _known_functions(f_num, rhs_e, [f"rhs[{s!r}]" for s in states])
     _known_functions(h_num, out_e, [f"output[{o!r}]" for o in output])
     f, h = _stacked(f_num), _stacked(h_num)
     f.equations = dict(zip(states, map(str, rhs_e), strict=True))  # type: ignore[attr-defined]
     h.equations = dict(zip(output, map(str, out_e), strict=True))  # type: ignore[attr-defined]
+    h.reads_inputs = reads  # type: ignore[attr-defined]
     return f, h, params
 
 
@@ -296,14 +291,20 @@ def _direct(rhs, output, states, inputs, params):
         return None
     try:
         trees = []
-        for texts, allowed in ((rhs, declared), (output, states + params)):
+        for texts in (rhs, output):
             for text in texts.values():
                 if not isinstance(text, str | int | float):
                     return None
                 tree = ast.parse(str(text).strip(), mode="eval")
-                if not _plain(tree, set(allowed)):
-                    return None  # SymPy reads it (or says which input an output uses)
+                if not _plain(tree, set(declared)):
+                    return None  # SymPy reads it (and says what is wrong)
                 trees.append(_ToJax().visit(tree))
+        # an output that names an input reads the inputs at each sample: h(x, p, u)
+        reads = any(
+            isinstance(n, ast.Name) and n.id in inputs
+            for t in trees[len(states) :]
+            for n in ast.walk(t)
+        )
         source = [ast.unparse(t) for t in trees]
         ns = len(states)
 
@@ -316,9 +317,10 @@ def _direct(rhs, output, states, inputs, params):
             + unpack("_p", params)
             + unpack("_u", inputs)
             + f"    return [{', '.join(source[:ns])}]\n"
-            "def h(_x, _p):\n"
+            + ("def h(_x, _p, _u):\n" if reads else "def h(_x, _p):\n")
             + unpack("_x", states)
             + unpack("_p", params)
+            + (unpack("_u", inputs) if reads else "")
             + f"    return [{', '.join(source[ns:])}]\n"
         )
         scope: dict = {"_jnp": jnp}
@@ -328,6 +330,7 @@ def _direct(rhs, output, states, inputs, params):
     f, h = _stacked(scope["f"]), _stacked(scope["h"])
     f.equations = {s: str(rhs[s]).strip() for s in states}  # type: ignore[attr-defined]
     h.equations = {o: str(output[o]).strip() for o in output}  # type: ignore[attr-defined]
+    h.reads_inputs = reads  # type: ignore[attr-defined]
     return f, h, params
 
 

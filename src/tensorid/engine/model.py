@@ -8,6 +8,7 @@ shapes and code JAX cannot trace are reported there, before any compilation.
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -75,9 +76,12 @@ class Model:
         rhs: callable ``f(x, p, u) -> dx/dt``
             ``x`` has shape (N,), ``p`` shape (M,), ``u`` shape (U,) (U may be 0);
             must return shape (N,). Written with ``jax.numpy``.
-        output: callable ``h(x, p) -> y``, optional
+        output: callable ``h(x, p) -> y`` or ``h(x, p, u) -> y``, optional
             Must return shape (S,) (a scalar is accepted when S = 1). May be
-            nonlinear and depend on ``p``. Default: every state is an output.
+            nonlinear and depend on ``p``; with a third argument it reads the inputs
+            at each sample (a baseline, a covariate, a feed-through D u), and the
+            derivatives go through it as through x and p. Default: every state is an
+            output.
         states: list of names
             Names of the x entries, in order. Names must be unique across states and
             params, because bounds and fixed lists refer to both.
@@ -111,6 +115,7 @@ class Model:
     input_delays: dict | None = None
     discrete: bool = False
     _scalar_output: bool = field(default=False, init=False, repr=False)
+    _output_reads_inputs: bool = field(default=False, init=False, repr=False)
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -137,6 +142,7 @@ class Model:
             if self.outputs is None:
                 raise ValueError("pass outputs=[names] to go with the output function")
             outputs = _names("outputs", self.outputs)
+            set_(self, "_output_reads_inputs", _reads_inputs(self.output))
         if not outputs:
             raise ValueError("a model needs at least one output")
         clash = sorted(set(states) & set(params))
@@ -193,8 +199,12 @@ class Model:
                 f"rhs returned dtype {dx.dtype}; it must return floats "
                 "(use 1.0 instead of 1, and jnp.float64 arrays)"
             )
-        y = _trace("output", self.output, (x, p), sig.rsplit(",", 1)[0])
-        _check_indexing("output", self.output, (self.N, self.M), self)
+        if self.reads_inputs:
+            y = _trace("output", self.output, (x, p, u), sig)
+            _check_indexing("output", self.output, (self.N, self.M, self.U), self)
+        else:
+            y = _trace("output", self.output, (x, p), sig.rsplit(",", 1)[0])
+            _check_indexing("output", self.output, (self.N, self.M), self)
         if y.shape != (self.S,):
             if self.S == 1 and y.shape == ():
                 object.__setattr__(self, "_scalar_output", True)
@@ -251,9 +261,20 @@ class Model:
         """dx/dt, always of shape (N,)."""
         return jnp.reshape(self.rhs(x, p, u), (self.N,))
 
-    def h(self, x: Array, p: Array) -> Array:
-        """y, always of shape (S,)."""
-        return jnp.reshape(self.output(x, p), (self.S,))
+    @property
+    def reads_inputs(self) -> bool:
+        """Whether the output reads the inputs: ``h(x, p, u)``."""
+        return self._output_reads_inputs
+
+    def h(self, x: Array, p: Array, u: Array | None = None) -> Array:
+        """y, always of shape (S,); ``u`` the inputs at the sample (a march's row,
+        whose first U entries are the model's inputs), needed where the output reads
+        them."""
+        if not self.reads_inputs:
+            return jnp.reshape(self.output(x, p), (self.S,))
+        if u is None:
+            raise ValueError(f"{self.name}: its output reads the inputs; pass them")
+        return jnp.reshape(self.output(x, p, u[: self.U]), (self.S,))
 
     def params_array(self, params, what: str = "params") -> np.ndarray:
         """A dict {name: value} or an array of length M, as a float array in model order."""
@@ -268,6 +289,20 @@ class Model:
             f"Model({self.name!r}, states={list(self.states)}, params={list(self.params)}, "
             f"inputs={list(self.inputs)}, outputs={list(self.outputs)})"
         )
+
+
+def _reads_inputs(fn: Callable) -> bool:
+    """Whether an output function takes (x, p, u): a ``reads_inputs`` attribute where
+    it has one (text equations, wrappers), else three positional parameters."""
+    marked = getattr(fn, "reads_inputs", None)
+    if marked is not None:
+        return bool(marked)
+    try:
+        params = inspect.signature(fn).parameters.values()
+    except (TypeError, ValueError):  # a builtin or extension: (x, p) as before
+        return False
+    kinds = (inspect.Parameter.POSITIONAL_ONLY, inspect.Parameter.POSITIONAL_OR_KEYWORD)
+    return sum(q.kind in kinds and q.default is q.empty for q in params) >= 3
 
 
 def _identity_output(x: Array, p: Array) -> Array:

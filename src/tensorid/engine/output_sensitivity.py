@@ -8,6 +8,8 @@ numbers but traces several times slower, which a command-line fit waits for.)"""
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -35,8 +37,8 @@ def output_jacobian(self, theta, x0, p, t, u):
     def field(state, uu):
         return push(self._rhs(uu), state)
 
-    def observe(acc, state, _):
-        return acc, columns(m.h, *state).T
+    def observe(acc, state, _, u_h):
+        return acc, columns(functools.partial(m.h, u=u_h), *state).T
 
     state0 = (x0, jnp.asarray(dx0))
     zeros = jnp.zeros(t.shape)

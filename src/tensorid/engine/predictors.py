@@ -6,8 +6,8 @@ so a predictor is only these maps, written once):
 
     dz/dt = field(z, p, u)          between samples (or z⁺ = field(z, p, u) for a
                                     discrete-time model)
-    π     = predict(z, p)           at each sample: what the loss compares with y
-    z⁺    = update(z, p, y)         at each sample, after the loss has seen z
+    π     = predict(z, p, u)        at each sample: what the loss compares with y
+    z⁺    = update(z, p, y, u)      at each sample, after the loss has seen z
                                     (None: the state is not corrected)
 
 :class:`OutputError` (``"simulation"``; ``Simulation`` is its deprecated name) is
@@ -94,8 +94,8 @@ class Predictor:
     def field(self, model, z, p, u):
         return model.f(z, p, u)
 
-    def predict(self, model, z, p):
-        return model.h(z, p)
+    def predict(self, model, z, p, u=None):
+        return model.h(z, p, u)
 
     def build(self, model, process_noise, measurement_noise, measured) -> tuple:
         """(model, predictor, {noise parameter: start}) for a Problem of ``model``:
@@ -227,23 +227,23 @@ class ExtendedKalman(Predictor):
     def _R(self, p):
         return jnp.exp(2.0 * p[jnp.array(self.measurement, dtype=int)])
 
-    def _measurement(self, model, z, p):
+    def _measurement(self, model, z, p, u):
         x, P = self._split(z)
 
         def h(xx):
-            return model.h(xx, p)
+            return model.h(xx, p, u)
 
         C = jax.jacfwd(h)(x)
         R = self._R(p)
         S = C @ P @ C.T + jnp.diag(R)
         return x, P, h(x), C, R, S
 
-    def predict(self, model, z, p):
-        _, _, yhat, _, _, S = self._measurement(model, z, p)
+    def predict(self, model, z, p, u=None):
+        _, _, yhat, _, _, S = self._measurement(model, z, p, u)
         return jnp.concatenate([yhat, S.reshape(-1)])
 
-    def update(self, model, z, p, y):  # type: ignore[override]
-        x, P, yhat, C, R, S = self._measurement(model, z, p)
+    def update(self, model, z, p, y, u=None):  # type: ignore[override]
+        x, P, yhat, C, R, S = self._measurement(model, z, p, u)
         PCt = P @ C.T
         K = jnp.linalg.solve(S, PCt.T).T  # P Cᵀ S⁻¹ (S symmetric)
         IKC = jnp.eye(x.shape[0], dtype=z.dtype) - K @ C
@@ -282,7 +282,7 @@ class ExtendedKalman(Predictor):
         if noisy is None:
             noisy = Model(
                 _Leading(model.rhs, M),
-                _Leading(model.h, M, like=model.output),
+                _Leading(model.h, M, like=model.output, reads_inputs=model.reads_inputs),
                 states=model.states,
                 params=list(model.params) + wq + wr,
                 inputs=model.inputs,
@@ -315,11 +315,12 @@ class _Leading:
     """A model function of (x, p[:M], ...) called with the longer p of a filter's
     model (its noise intensities appended): picklable, for worker processes."""
 
-    def __init__(self, fn, M: int, like=None):
+    def __init__(self, fn, M: int, like=None, reads_inputs: bool | None = None):
         self.fn, self.M = fn, M
         marker = fn if like is None else like  # the user's function that ``fn`` wraps
         if hasattr(marker, "equations"):  # text equations: no index to check (model.py)
             self.equations = marker.equations
+        self.reads_inputs = reads_inputs  # None: read from the signature (model.py)
 
     def __call__(self, x, p, *rest):
         return self.fn(x, p[: self.M], *rest)

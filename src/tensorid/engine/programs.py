@@ -150,7 +150,10 @@ def model_digest(model) -> str | None:
     digest: str | None = None
     try:
         x, p, u = (jax.ShapeDtypeStruct((n,), np.float64) for n in (model.N, model.M, model.U))
-        jaxprs = [jax.make_jaxpr(model.f)(x, p, u), jax.make_jaxpr(model.h)(x, p)]
+        jaxprs = [
+            jax.make_jaxpr(model.f)(x, p, u),
+            jax.make_jaxpr(model.h)(x, p, *([u] if model.reads_inputs else [])),
+        ]
         text = "\n".join(str(j) for j in jaxprs)
         if not any(word in text for word in _NOT_KEPT):
             h = hashlib.sha256(text.encode())

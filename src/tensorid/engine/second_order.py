@@ -13,6 +13,7 @@ schemes (whose Newton solves and error control act on x alone), keep the tuple.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import jax
@@ -141,13 +142,14 @@ def second_order(sw, theta, x0, p, t, u, y, w, v=None, end=False, both=False):
         # ẋ, d(dx)/dt = F_z Z, d(d2x)/dt = F_zz[Z,Z] + F_x d2x
         return push(sw._f(p, uu), state)
 
-    def observe(acc, state, obs_h):
+    def observe(acc, state, obs_h, u_h):
         J, g, H = acc[:3]
         x, dxT, d2T = lay.split(state)
         y_h, w_h = _weighted(obs_h, w)
-        Ca, e2 = pairs(sw._pi, x, *directions(dxT, d2T))
+        pi = functools.partial(sw._pi, u_h=u_h)
+        Ca, e2 = pairs(pi, x, *directions(dxT, d2T))
         D = Ca[:K]  # (K, outputs) = (C_z Z)ᵀ
-        ell, l1, l2, gamma = sw.loss.terms(y_h, sw._pi(x, p), w_h)
+        ell, l1, l2, gamma = sw.loss.terms(y_h, pi(x, p), w_h)
 
         def quadratic(c):
             return quadratic_packed(D, c, packed, v)
@@ -181,11 +183,12 @@ def output_tensors(sw, theta, x0, p, t, u):
     def field(state, uu):
         return push(sw._rhs(uu), state)
 
-    def observe(acc, state, _):
+    def observe(acc, state, _, u_h):
         x, dxT, d2T = lay.split(state)
-        Ca, e2 = pairs(m.h, x, *directions(dxT, d2T))
+        h = functools.partial(m.h, u=u_h)
+        Ca, e2 = pairs(h, x, *directions(dxT, d2T))
         d2 = jnp.zeros((K, K, e2.shape[-1])).at[jj, kk].set(e2).at[kk, jj].set(e2)
-        return acc, (m.h(x, p), Ca[:K].T, jnp.moveaxis(d2, -1, 0))
+        return acc, (h(x, p), Ca[:K].T, jnp.moveaxis(d2, -1, 0))
 
     state0 = lay.pack(x0, jnp.asarray(dx0.T), jnp.zeros((ncols, lay.N)))
     _, outs, _ = sw._march(field, observe, state0, 0.0, t, u, jnp.zeros(t.shape), p, push=push)

@@ -286,7 +286,13 @@ class Shooting:
         m, pr = self.problem.model, self.problem
         rng = np.random.default_rng(0)
         X = rng.normal(size=(3, m.N)) * (1 + np.abs(pr.x0[0]))
-        Y = np.array([np.asarray(m.h(jnp.asarray(x), jnp.asarray(pr.p0))) for x in X])
+        U = rng.normal(size=(3, m.U))  # an output that reads inputs equals no state alone
+        Y = np.array(
+            [
+                np.asarray(m.h(jnp.asarray(x), jnp.asarray(pr.p0), jnp.asarray(v)))
+                for x, v in zip(X, U, strict=True)
+            ]
+        )
         out: dict[int, int] = {}
         for n in range(m.N):
             for o in range(m.S):

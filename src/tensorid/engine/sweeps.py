@@ -123,9 +123,10 @@ class Sweeps:
         """(x, p) ↦ the model's F with the events' infusions (dosing.rhs)."""
         return rhs(self.model, self.dosing, uu)
 
-    def _pi(self, z, p):
-        """The prediction the loss compares with a sample (ŷ for output error)."""
-        return self.predictor.predict(self.model, z, p)
+    def _pi(self, z, p, u_h=None):
+        """The prediction the loss compares with a sample (ŷ for output error); ``u_h``
+        the sample's row of inputs (read where the output reads them)."""
+        return self.predictor.predict(self.model, z, p, u_h)
 
     def _update(self, push=None):
         """``march``'s update hook: None for output error; for a filter, the measurement
@@ -135,11 +136,11 @@ class Sweeps:
         if pr.update is None:
             return None
 
-        def update(state, obs_h, p):
+        def update(state, obs_h, u_h, p):
             y_h = obs_h[0] if isinstance(obs_h, tuple) else obs_h
 
             def fn(z, p_):
-                return pr.update(m, z, p_, y_h)
+                return pr.update(m, z, p_, y_h, u_h)
 
             return fn(state, p) if push is None else push(fn, state)
 
@@ -160,8 +161,8 @@ class Sweeps:
         if end:
             inner = observe
 
-            def observe(acc, y, obs_h):
-                acc, out = inner(acc[0], y, obs_h)
+            def observe(acc, y, obs_h, u_h):
+                acc, out = inner(acc[0], y, obs_h, u_h)
                 return (acc, y), out
 
             acc0 = (acc0, y0)
@@ -172,7 +173,7 @@ class Sweeps:
             acc0=acc0,
             discretisation=self.discretisation,
             state_field=state_field,
-            update=None if update is None else (lambda st, o: update(st, o, p)),
+            update=None if update is None else (lambda st, o, uh: update(st, o, uh, p)),
             # a filter starts with P0 = 0: where the initial state is an unknown, it can
             # match the first sample exactly, whose term log det R + 0 then has no
             # minimum in σ_e (→ −∞): it is left out (its gain is zero: it had no other use)
@@ -191,8 +192,8 @@ class Sweeps:
         def field(x, uu):
             return self._rhs(uu)(x, p)
 
-        def observe(acc, x, _):
-            return acc, (x, m.h(x, p))
+        def observe(acc, x, _, u_h):
+            return acc, (x, m.h(x, p, u_h))
 
         _, (xs, ys), (code, at) = self._march(
             field, observe, x0, 0.0, t, u, jnp.zeros(t.shape), p, own=field
@@ -205,9 +206,9 @@ class Sweeps:
         def field(z, uu):
             return self._f(p, uu)(z)
 
-        def observe(J, z, obs_h):
+        def observe(J, z, obs_h, u_h):
             y_h, w_h = _weighted(obs_h, w)
-            return J + self.loss.value(y_h, self._pi(z, p), w_h), None
+            return J + self.loss.value(y_h, self._pi(z, p, u_h), w_h), None
 
         J, _, _ = self._march(field, observe, z0, jnp.zeros(()), t, u, y, p, update=self._update())
         return J
@@ -220,8 +221,8 @@ class Sweeps:
         def field(z, uu):
             return self._f(p, uu)(z)
 
-        def observe(acc, z, _):
-            return acc, (z, self._pi(z, p))
+        def observe(acc, z, _, u_h):
+            return acc, (z, self._pi(z, p, u_h))
 
         _, (zs, pis), _ = self._march(field, observe, z0, 0.0, t, u, y, p, update=self._update())
         return zs, pis
@@ -236,7 +237,7 @@ class Sweeps:
         x0, p = self.expand(theta, x0, p)
         m, pr = self.model, self.predictor
         if pr.update is not None:
-            zs = jax.vmap(lambda z, yy: pr.update(m, z, p, yy))(zs, y)
+            zs = jax.vmap(lambda z, yy, uu: pr.update(m, z, p, yy, uu))(zs, y, u)
         xs = pr.states(zs)
 
         def field(x, uu):
@@ -245,7 +246,7 @@ class Sweeps:
         def ahead(h):
             window = [jax.lax.dynamic_slice_in_dim(a, h, k + 1) for a in (t, u)]
             _, ys, _ = march(
-                field, lambda acc, x, _: (acc, m.h(x, p)), xs[h], 0.0, *window,
+                field, lambda acc, x, _, uh: (acc, m.h(x, p, uh)), xs[h], 0.0, *window,
                 jnp.zeros(k + 1), discretisation=self.discretisation,
             )  # fmt: skip
             return ys[-1]
@@ -282,12 +283,13 @@ class Sweeps:
         def field(state, uu):
             return push(self._f(p, uu), state)
 
-        def observe(acc, state, obs_h):
+        def observe(acc, state, obs_h, u_h):
             J, g, H = acc
             x, dxT, _ = lay.split(state)
             y_h, w = _weighted(obs_h, w_all)
-            ell, l1, _, gamma = self.loss.terms(y_h, self._pi(x, p), w)
-            D = columns(self._pi, x, dxT)  # (K, outputs) = (C_z Z)ᵀ
+            pi = functools.partial(self._pi, u_h=u_h)
+            ell, l1, _, gamma = self.loss.terms(y_h, pi(x, p), w)
+            D = columns(pi, x, dxT)  # (K, outputs) = (C_z Z)ᵀ
             if gauss_newton:
                 H = H + quadratic_full(D, gamma)
             return (J + ell, g + D @ l1, H), (D @ l1 if scores else None)
