@@ -604,3 +604,23 @@ def test_methods_of_a_fleet_and_of_one_system_are_told_apart():
     own = ti.Problem(m, units, p0=p0, x0={"depot": "Dose", "center": 0.0}, individual=["cl"])
     with pytest.raises(ValueError, match="'laplace' is not one for a fit with individual"):
         ti.fit(own, "laplace")
+
+
+@pytest.mark.slow  # three population fits, two of them twice: about 45 s
+def test_a_population_fit_raises_the_default_substeps_where_they_are_too_coarse():
+    """Samples 11-12 h apart against an absorption half-life of half an hour: at the
+    default 4 substeps the estimates are the scheme's. The fit raises them by itself,
+    fits again from its estimates and ends where a fit with those substeps given ends;
+    substeps the user gives are kept, with the warning."""
+    m, units = simulated_fleet(6, times=(1, 12, 24, 36))
+    kw = dict(p0={"ka": 1.2, "cl": 2.0, "v": 25.0}, x0={"depot": "Dose", "center": 0.0},
+              population={"ka": 0.4, "cl": 0.4})  # fmt: skip
+    with pytest.warns(UserWarning, match="substeps were raised from 4 to 16"):
+        res = ti.fit(ti.Problem(m, units, **kw))
+    assert res.problem.substeps in (16, 64) and res.success
+    given = ti.fit(ti.Problem(m, units, substeps=res.problem.substeps, **kw))
+    assert res.objective == pytest.approx(given.objective, rel=1e-7)
+    np.testing.assert_allclose(res.x, given.x, rtol=1e-4, atol=1e-6)
+    with pytest.warns(UserWarning, match="raise the substeps"):
+        kept = ti.fit(ti.Problem(m, units, substeps=4, **kw))
+    assert kept.problem.substeps == 4 and abs(kept.objective - res.objective) > 0.1

@@ -137,9 +137,11 @@ def integration_options(p: argparse.ArgumentParser, inherit: bool = False) -> No
     p.add_argument(
         "--substeps",
         type=int,
-        default=None if inherit else 4,
-        help="steps per sample interval" + default % 4,
-    )
+        default=None,  # not given: 4, which a population fit raises where too coarse
+        help="steps per sample interval"
+        + (default % 4 if inherit else " (default 4; a population fit raises them by "
+           "itself where doubling them moves its predictions)"),
+    )  # fmt: skip
     p.add_argument("--rtol", type=float, default=None, help="adaptive schemes: relative tolerance")
     p.add_argument("--atol", type=float, default=None, help="adaptive schemes: absolute tolerance")
     p.add_argument(

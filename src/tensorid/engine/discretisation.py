@@ -12,7 +12,7 @@ carries in place of its samples (``Discretisation.inputs``).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import jax
 import jax.numpy as jnp
@@ -25,6 +25,7 @@ from .intersample import SMOOTH, chebyshev_at, track
 from .status import Status
 
 INTERPOLATIONS = ("linear", "zoh", *SMOOTH)
+DEFAULT_SUBSTEPS = 4
 
 
 @dataclass(frozen=True)
@@ -40,11 +41,15 @@ class Discretisation:
         interpolation: the input between samples: "linear", "zoh" (held), "cubic"
             (not-a-knot spline), "bandlimited" (windowed sinc) or "periodic"
             (trigonometric, for a record of whole periods); see ``intersample.py``.
+        chosen: whether the substeps are the user's (False: the default, which a
+            population fit raises by itself where its check finds them too coarse).
+            Not part of the discretisation's identity (its compiled programs).
     """
 
     scheme: Scheme | RungeKuttaScheme
     substeps: int = 4
     interpolation: str = "linear"
+    chosen: bool = field(default=True, compare=False)
 
     def __post_init__(self) -> None:
         if not isinstance(self.scheme, RungeKuttaScheme):
@@ -67,13 +72,15 @@ class Discretisation:
     def of(
         cls,
         scheme: str | Scheme = "rk4",
-        substeps: int = 4,
+        substeps: int | None = None,
         interpolation: str = "linear",
         rtol: float | None = None,
         atol: float | None = None,
     ) -> Discretisation:
-        """The discretisation from user-level settings (scheme by name, tolerances)."""
-        return cls(get_scheme(scheme, rtol, atol), substeps, interpolation)
+        """The discretisation from user-level settings (scheme by name, tolerances;
+        substeps None: the default 4, not the user's choice)."""
+        steps = DEFAULT_SUBSTEPS if substeps is None else substeps
+        return cls(get_scheme(scheme, rtol, atol), steps, interpolation, substeps is not None)
 
     @classmethod
     def resolve(cls, given: Discretisation | None, scheme, substeps, interpolation, rtol, atol):
@@ -85,7 +92,7 @@ class Discretisation:
             raise TypeError(
                 f"discretisation must be a tensorid.Discretisation, got {type(given).__name__}"
             )
-        defaults = (scheme == "rk4", substeps == 4, interpolation == "linear")
+        defaults = (scheme == "rk4", substeps in (None, 4), interpolation == "linear")
         if not all(defaults) or rtol is not None or atol is not None:
             raise ValueError(
                 "give either discretisation= or scheme/substeps/interpolation/rtol/atol, not both"

@@ -105,8 +105,8 @@ class Model:
     """
 
     rhs: Callable[[Array, Array, Array], Array]
-    # None (every state is an output) is replaced in __post_init__
-    output: Callable[[Array, Array], Array] = None  # type: ignore[assignment]
+    # (x, p) or (x, p, u); None (every state is an output) is replaced in __post_init__
+    output: Callable[..., Array] = None  # type: ignore[assignment]
     states: Sequence[str] = ()
     params: Sequence[str] = ()
     inputs: Sequence[str] = ()

@@ -6,9 +6,11 @@ so a predictor is only these maps, written once):
 
     dz/dt = field(z, p, u)          between samples (or z⁺ = field(z, p, u) for a
                                     discrete-time model)
-    π     = predict(z, p, u)        at each sample: what the loss compares with y
-    z⁺    = update(z, p, y, u)      at each sample, after the loss has seen z
+    π     = predict(z, p[, u])      at each sample: what the loss compares with y
+    z⁺    = update(z, p, y[, u])    at each sample, after the loss has seen z
                                     (None: the state is not corrected)
+
+(u, the sample's inputs, is passed where the model's output reads them.)
 
 :class:`OutputError` (``"simulation"``; ``Simulation`` is its deprecated name) is
 the default: z = x, the model's own F and C, no update; π = ŷ.

@@ -60,8 +60,9 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         fixed: list of parameter names held at their p0 value.
         bounds: dict {name: (lo, hi)} for parameters or free initial states; None or
             ±inf for an open side.
-        substeps: Runge-Kutta steps per sample interval (for an adaptive scheme: the
-            first trial step is one sample interval / substeps).
+        substeps: Runge-Kutta steps per sample interval (default 4, which a population
+            fit raises where doubling them moves its predictions; for an adaptive
+            scheme: the first trial step is one sample interval / substeps).
         interpolation: the input between samples: "linear", "zoh", "cubic",
             "bandlimited" or "periodic" (docs/your-own-model.md says which to choose).
         scheme: explicit fixed-step "rk4" (default), "rk38", "heun", "euler"; implicit
@@ -154,7 +155,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         free_x0: Sequence[str] | None = None,
         fixed: Sequence[str] | None = None,
         bounds: Mapping[str, tuple[float, float]] | None = None,
-        substeps: int = 4,
+        substeps: int | None = None,
         interpolation: str = "linear",
         scheme: str | Scheme = "rk4",
         weights: Mapping[str, float] | Sequence[float] | np.ndarray | str | None = None,
@@ -443,8 +444,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
 
     def __repr__(self) -> str:
         return (
-            f"Problem({self.model.name!r}, experiments={len(self.experiments)}, "
-            f"theta={self.theta_names}, scheme={self.scheme.name}, "
-            f"substeps={self.substeps}, interpolation={self.interpolation!r}, "
-            f"hessian={self.hessian!r})"
+            f"Problem({self.model.name!r}, experiments={len(self.experiments)}, theta="
+            f"{self.theta_names}, scheme={self.scheme.name}, substeps={self.substeps}, "
+            f"interpolation={self.interpolation!r}, hessian={self.hessian!r})"
         )

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Mapping
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -64,6 +65,19 @@ class LossSettings:
         sw = self._sweeps
         new._sweeps = shared_sweeps(
             self.model, sw.free_states, sw.free_params, self.discretisation, new.loss,
+            self.predictor, self.dosing,
+        )  # fmt: skip
+        new.shooting = Shooting(new, self.shooting.counts) if self.shooting else None
+        return new
+
+    def with_substeps(self, substeps: int):
+        """This problem with ``substeps`` steps per sample interval, as the fit's own
+        refinement of the default (a copy sharing the data and the settings)."""
+        new = copy.copy(self)
+        new.discretisation = replace(self.discretisation, substeps=int(substeps))
+        sw = self._sweeps
+        new._sweeps = shared_sweeps(
+            self.model, sw.free_states, sw.free_params, new.discretisation, self.loss,
             self.predictor, self.dosing,
         )  # fmt: skip
         new.shooting = Shooting(new, self.shooting.counts) if self.shooting else None

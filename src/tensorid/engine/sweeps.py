@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from functools import cached_property
 
 import jax
 import jax.numpy as jnp
@@ -124,9 +123,11 @@ class Sweeps:
         return rhs(self.model, self.dosing, uu)
 
     def _pi(self, z, p, u_h=None):
-        """The prediction the loss compares with a sample (ŷ for output error); ``u_h``
-        the sample's row of inputs (read where the output reads them)."""
-        return self.predictor.predict(self.model, z, p, u_h)
+        """The loss's prediction at a sample (ŷ for output error), u_h where C reads u."""
+        return self.predictor.predict(self.model, z, p, *self._seen(u_h))
+
+    def _seen(self, u_h) -> tuple:
+        return (u_h,) if self.model.reads_inputs else ()
 
     def _update(self, push=None):
         """``march``'s update hook: None for output error; for a filter, the measurement
@@ -140,7 +141,7 @@ class Sweeps:
             y_h = obs_h[0] if isinstance(obs_h, tuple) else obs_h
 
             def fn(z, p_):
-                return pr.update(m, z, p_, y_h, u_h)
+                return pr.update(m, z, p_, y_h, *self._seen(u_h))
 
             return fn(state, p) if push is None else push(fn, state)
 
@@ -237,7 +238,7 @@ class Sweeps:
         x0, p = self.expand(theta, x0, p)
         m, pr = self.model, self.predictor
         if pr.update is not None:
-            zs = jax.vmap(lambda z, yy, uu: pr.update(m, z, p, yy, uu))(zs, y, u)
+            zs = jax.vmap(lambda z, yy, *uu: pr.update(m, z, p, yy, *uu))(zs, y, *self._seen(u))
         xs = pr.states(zs)
 
         def field(x, uu):
@@ -359,7 +360,7 @@ class Sweeps:
     # -- compiled entry points ---------------------------------------------------------
     _own_simulate = Compiled("_simulate")
 
-    @cached_property
+    @functools.cached_property
     def simulate(self):
         """Compiled :meth:`_simulate`, which depends on the model and the
         discretisation alone: every Sweeps of a model shares the one of its plain
@@ -391,7 +392,7 @@ class Sweeps:
     segments = Compiled("_segment", batched=True, axes=(0, 0, None, 0, 0, 0, 0))
     segments_gn = Compiled("_segment_gn", batched=True, axes=(0, 0, None, 0, 0, 0, 0))
 
-    @cached_property
+    @functools.cached_property
     def k_step(self):
         """Compiled :meth:`_k_step`: one program per horizon k, each kept across
         processes (programs.py); called as ``k_step(theta, x0, p, t, u, y, k=k)``."""
@@ -406,11 +407,11 @@ class Sweeps:
         return run
 
     # (J, ∇J, ∇²J, Gauss-Newton part) by second-order adjoints (see adjoint.py)
-    @cached_property
+    @functools.cached_property
     def adjoint(self) -> SecondOrderAdjoint:
         return SecondOrderAdjoint(self)
 
-    @cached_property
+    @functools.cached_property
     def adjoint_batch(self) -> SecondOrderAdjoint:
         return SecondOrderAdjoint(self, batched=True)
 
@@ -418,7 +419,7 @@ class Sweeps:
         return {
             k: v
             for k, v in self.__dict__.items()
-            if not isinstance(_entry(k), Compiled | cached_property)
+            if not isinstance(_entry(k), Compiled | functools.cached_property)
         }
 
     def __setstate__(self, state):

@@ -110,6 +110,33 @@ def check_executor(executor) -> None:
         )
 
 
+# where a population fit's check finds the default substeps too coarse, it raises them
+# fourfold and fits again, up to this many per sample interval
+MAX_SUBSTEPS = 64
+
+
+def _estimate(obj: Objective, executor, workers, timeout, began, start=None, **options):
+    """(PopulationResult, η̂) of the outer fit from ``start`` (see _outer), the units'
+    work spread where asked; Ctrl-C: FitInterrupted with the best point so far."""
+    obj.unconverged, obj.unfinite = [], []
+    spread = executor is not None or (workers or 1) > 1
+    units = UnitMap(obj, executor, workers, timeout) if spread else None
+    complete, state = False, dict[str, Any]()  # state: the best point so far
+    try:
+        r, etas = _outer(obj, units, state, start, **options)
+        complete = True
+    except KeyboardInterrupt:  # Ctrl-C: the best point so far, kept and handed up
+        if units is not None:
+            units.close(False)
+        raise FitInterrupted(_interrupted(obj, state, began)) from None  # type: ignore[arg-type]
+    finally:
+        if units is not None and complete:
+            units.close(True)
+    etas, ok = obj.solve_inner(r.x, etas)
+    status = r.status if ok else Status.SOLVER_FAILED
+    return PopulationResult.build(obj, r, etas, status, time.perf_counter() - began), etas
+
+
 def fit_population(
     problem,
     method: str = "focei",
@@ -147,28 +174,25 @@ def fit_population(
     """
     began = time.perf_counter()
     obj = Objective(_a_fleet(problem, executor), method)
-    obj.unconverged, obj.unfinite = [], []
-    spread = executor is not None or (workers or 1) > 1
-    units = UnitMap(obj, executor, workers, timeout) if spread else None
-    complete, state = False, dict[str, Any]()  # state: the best point so far
-    try:
-        r, etas = _outer(obj, units, state, maxiter=maxiter, gtol=gtol, ftol=ftol,
-                         xtol=xtol, callback=callback)  # fmt: skip
-        complete = True
-    except KeyboardInterrupt:  # Ctrl-C: the best point so far, kept and handed up
-        if units is not None:
-            units.close(False)
-        raise FitInterrupted(_interrupted(obj, state, began)) from None  # type: ignore[arg-type]
-    finally:
-        if units is not None and complete:
-            units.close(True)
-    etas, ok = obj.solve_inner(r.x, etas)
-    status = r.status if ok else Status.SOLVER_FAILED
-    res = PopulationResult.build(obj, r, etas, status, time.perf_counter() - began)
-    coarse = None
-    if np.isfinite(res.objective):
-        coarse = coarse_steps(obj, res.x, etas, _sd(obj, res))
-    notes = [coarse] if coarse else []
+    fit = dict(executor=executor, workers=workers, timeout=timeout, began=began,
+               maxiter=maxiter, gtol=gtol, ftol=ftol, xtol=xtol, callback=callback)  # fmt: skip
+    res, etas = _estimate(obj, **fit)
+    worst = coarse_steps(obj, res, etas)
+    notes, steps = [], obj.problem.discretisation
+    # the default substeps, where too coarse: refined and refitted from the estimates,
+    # so that the answer is the model's (a user's own choice is kept, and warned about)
+    while worst is not None and not steps.chosen and steps.substeps < MAX_SUBSTEPS:
+        notes.append(
+            f"the substeps were raised from {steps.substeps} to {4 * steps.substeps} and the "
+            f"fit repeated from its estimates: at {steps.substeps} the predictions moved by "
+            f"{worst:.2g} residual SDs when the substeps doubled (--substeps on the command "
+            "line, substeps= in Python, chooses them)"
+        )
+        obj = Objective(obj.problem.with_substeps(4 * steps.substeps), method)
+        res, etas = _estimate(obj, start=(res.x, etas), **fit)
+        worst, steps = coarse_steps(obj, res, etas), obj.problem.discretisation
+    if worst is not None:
+        notes.append(_coarse_note(steps, worst))
     notes += _near_singular(res)
     if obj.unfinite:
         names = obj.unfinite
@@ -227,13 +251,14 @@ def _interrupted(obj: Objective, state: dict, began: float) -> PopulationResult:
                                   time.perf_counter() - began)  # fmt: skip
 
 
-def _outer(obj: Objective, units: UnitMap | None, state: dict, **options):
+def _outer(obj: Objective, units: UnitMap | None, state: dict, start=None, **options):
     """The outer trust region over ψ, each evaluation starting every unit's inner
     problem from the best point's η̂; (its TRResult, that η̂). ``state`` keeps the best
-    point evaluated, for an interrupt."""
-    psi0 = _start(obj)
+    point evaluated, for an interrupt; ``start``: (ψ, η̂) to start from (default: p0's
+    and the given ω's, η = 0)."""
+    psi0, etas0 = (_start(obj), obj.start_etas()) if start is None else start
     lo, hi = _bounds(obj)
-    state.update(etas=obj.start_etas(), best=np.inf, n=0)
+    state.update(etas=etas0, best=np.inf, n=0)
 
     def fun(psi):
         if units is None:
@@ -257,12 +282,15 @@ def _outer(obj: Objective, units: UnitMap | None, state: dict, **options):
     return r, state["etas"]
 
 
-def coarse_steps(obj: Objective, x, etas, sigma) -> str | None:
+def coarse_steps(obj: Objective, res: PopulationResult, etas) -> float | None:
     """A fixed-step scheme's substeps are per sample interval, and a fleet's intervals
     differ (a quarter of an hour after a dose, twelve hours later): where doubling the
     substeps moves any unit's prediction at the estimates by more than a tenth of its
-    output's residual SD, the estimates are the discretisation's; say so."""
+    output's residual SD, the estimates are the discretisation's. Returns that largest
+    move in residual SDs, None where it is smaller (or cannot be measured)."""
     d = obj.problem.discretisation
+    if not np.isfinite(res.objective):
+        return None
     if not isinstance(d.scheme, ExplicitRungeKutta | DiagonallyImplicitRungeKutta):
         return None  # adaptive steps control their own error; a discrete map is exact
     fine = shared_sweeps(
@@ -278,12 +306,15 @@ def coarse_steps(obj: Objective, x, etas, sigma) -> str | None:
 
         return jax.jit(jax.vmap(simulate, in_axes=(None, 0, 0)))
 
+    x, sigma = res.x, _sd(obj, res)
     program = obj._program(("finer", d.substeps), build)
     finer = np.asarray(blocked(program, (jnp.asarray(x), jnp.asarray(etas), obj.data), (1, 2)))
     coarse = np.asarray(obj.predict_all(x, etas))
     worst = float(np.max(np.abs(finer - coarse) * obj.units.mask / np.maximum(sigma, 1e-300)))
-    if not worst > 0.1:
-        return None
+    return worst if worst > 0.1 else None
+
+
+def _coarse_note(d, worst: float) -> str:
     return (
         f"the predictions at the estimates move by {worst:.2g} residual SDs when the "
         f"substeps per sample interval go from {d.substeps} to {2 * d.substeps}: the "
