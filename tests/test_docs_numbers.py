@@ -117,3 +117,86 @@ def test_the_tank_refills_example_prints_what_docs_events_shows(capsys):
     assert shown, "docs/events.md's output block of examples/tank_refills.py moved"
     runpy.run_path(str(ROOT / "examples/tank_refills.py"), run_name="__main__")
     assert capsys.readouterr().out.strip() == shown[1].strip()
+
+
+def _fleet_page_runs() -> list[tuple[str, str]]:
+    """(command, the text block it prints) for each theophylline command of
+    docs/fleets.md whose output the page shows (a bash block, then a text block with
+    one output per command, blank-line separated)."""
+    page = (ROOT / "docs/fleets.md").read_text()
+    runs = []
+    for bash, text in re.findall(r"```bash\n(.*?)```\s*```text\n(.*?)```", page, flags=re.S):
+        commands = [c.strip() for c in bash.replace("\\\n", " ").splitlines() if c.strip()]
+        outputs = text.strip().split("\n\n")
+        if all(c.startswith("tensorid fit examples/theophylline") for c in commands):
+            assert len(commands) == len(outputs), bash
+            runs += list(zip(commands, outputs, strict=True))
+    return runs
+
+
+def _masked(text: str) -> list[str]:
+    """The lines with the wall time masked (it is the machine's, not the fit's)."""
+    return [re.sub(r"iterations, [\d.]+ s", "iterations, _ s", ln.rstrip()) for ln in
+            text.strip().splitlines()]  # fmt: skip
+
+
+@pytest.mark.slow  # three population fits from the command line: about 2 minutes
+def test_the_fleet_page_s_theophylline_blocks_are_what_its_commands_print(tmp_path):
+    """Every number of docs/fleets.md's theophylline blocks (status line, objective,
+    iteration count, estimates) is what its command prints (issue 51: they drifted)."""
+    import shlex
+    import subprocess
+    import sys
+
+    runs = _fleet_page_runs()
+    assert len(runs) == 3, "docs/fleets.md's theophylline blocks moved: update this test"
+    for i, (command, shown) in enumerate(runs):
+        argv = shlex.split(command)[1:]
+        argv[argv.index("--out") + 1] = str(tmp_path / f"run{i}")
+        done = subprocess.run([sys.executable, "-m", "tensorid", *argv, "--no-progress"],
+                              cwd=ROOT, capture_output=True, text=True, timeout=600)  # fmt: skip
+        assert done.returncode == 0, done.stderr
+        printed = done.stdout[done.stdout.index("Population fit") :]
+        printed = printed[: printed.index("results in")]
+        assert _masked(printed) == _masked(shown), command
+
+
+@pytest.mark.slow  # a population fit that compiles twice: about 50 s
+def test_the_fleet_page_s_default_substeps_paragraph_is_what_the_fit_does(tmp_path):
+    """docs/fleets.md: without --substeps, theophylline's fit raises them from 4 to 16
+    by itself and ends where --substeps 40 ends."""
+    import subprocess
+    import sys
+
+    text = " ".join((ROOT / "docs/fleets.md").read_text().split())
+    said = re.search(
+        r"moves the predictions at its estimates by ([\d.]+) residual SDs, raises them to "
+        r"(\d+) .*? ends where `--substeps 40` ends \(−2 log L ([\d.]+), ka CV ([\d.]+) %\)",
+        text,
+    )
+    assert said, "docs/fleets.md's substeps paragraph moved: update this test"
+    argv = ["fit", "examples/theophylline/model.py", "src/tensorid/datasets/theophylline.csv",
+            "--records", "ID", "--columns", "t=Time,cp=conc", "--out", str(tmp_path),
+            "--no-progress"]  # fmt: skip
+    done = subprocess.run([sys.executable, "-m", "tensorid", *argv], cwd=ROOT,
+                          capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    out = done.stdout
+    assert f"moved by {said[1]} residual SDs" in out
+    assert f"raised from 4 to {said[2]}" in out
+    assert f"-2 log L = {said[3]} " in out
+    ka = next(ln.split() for ln in out.splitlines() if ln.strip().startswith("ka "))
+    assert ka[5] == said[4]
+
+
+@pytest.mark.slow  # 200 units fitted twice: about 40 s
+def test_the_fleet_page_s_oscillator_block_is_what_the_example_prints(capsys):
+    """docs/fleets.md's 200 oscillators, run as written: every line but the seconds."""
+    import runpy
+
+    page = (ROOT / "docs/fleets.md").read_text()
+    shown = re.search(r"```text\n(Fleet fit \(individual k\).*?)```", page, re.S)
+    assert shown, "docs/fleets.md's oscillator block moved: update this test"
+    runpy.run_path(str(ROOT / "examples/fleet_oscillators.py"), run_name="__main__")
+    printed = [ln for ln in capsys.readouterr().out.splitlines() if "with compilation" not in ln]
+    assert _masked("\n".join(printed)) == _masked(shown[1])

@@ -174,6 +174,42 @@ def test_a_repeated_residual_error_is_refused_before_any_work(capsys):
     assert rc == 2 and len(err) == 1 and "'cp' is given 2 times" in err[0], err
 
 
+@pytest.mark.parametrize(
+    "flags, blamed",
+    [
+        (["--constraint", "ka>cl"], "--constraint ka>cl: constraints are not kept"),
+        (["--noise", "0.5"], "--noise 0.5: noise is only used with priors"),
+        (["--weights", "cp=2"], "--weights cp=2: a population fit estimates"),
+        (["--prior", "ka=1,0.1"], "--prior ka=1,0.1: a fit with population parameters"),
+        (["--fix", "ka=0.4"], "['ka'] is fixed (--fix) and also varies over the units "
+                              "(population in "),
+        (["--start-from", "{bad}"], "{bad}: population['ka']: its start value p0 = -0.4 must"),
+    ],
+)  # fmt: skip
+def test_a_fleet_s_refused_flag_is_named_not_the_model_file(tmp_path, capsys, flags, blamed):
+    """issue 51, item 4: command-line settings refused for a fleet were blamed on the
+    model file (and a start-from file's value shown as np.float64(-0.4))."""
+    import json
+    from pathlib import Path
+
+    from tensorid import cli
+
+    root = Path(__file__).resolve().parents[1]
+    bad = tmp_path / "start.json"
+    bad.write_text(json.dumps({"params": {"ka": -0.4, "cl": 2.7, "v": 31.8}}))
+    flags = [f.replace("{bad}", str(bad)) for f in flags]
+    rc = cli.main([
+        "fit", str(root / "examples/theophylline/model.py"),
+        str(root / "src/tensorid/datasets/theophylline.csv"), "--records", "ID",
+        "--columns", "t=Time,cp=conc", "--out", str(tmp_path / "f"), *flags,
+    ])  # fmt: skip
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1, err
+    assert blamed.replace("{bad}", str(bad)) in err[0] and "np.float64" not in err[0], err
+    if flags[0] != "--fix":  # the setting is the flag's alone: the file is not blamed
+        assert "model.py" not in err[0], err
+
+
 def test_the_same_data_under_two_names_is_refused(tmp_path, capsys):
     """issue 51, item 3: a copy of the training file under another name halved every
     variance without a word (the same path twice was refused already)."""

@@ -82,7 +82,8 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
             **fleets.problem_keywords(spec, Problem),  # individual=, population= where given
         )
     except (ValueError, TypeError) as e:  # the model file's settings, or the flags'
-        raise type(e)(f"{spec.path}{_flags_given(args)}: {_as_flags(str(e), args)}") from None
+        message = _as_flags(str(e), args)
+        raise type(e)(f"{_origin(message, spec, args)}: {message}") from None
 
 
 _FLAGS = {
@@ -92,6 +93,25 @@ _FLAGS = {
     "hessian": "--hessian",
 }  # fmt: skip
 _UNSET: tuple = (None, [], {}, "auto")  # a flag left at its default
+
+
+# settings a refusal may name, and the flag that gives each on the command line
+_SETTING_FLAGS = {"constraints": ("constraint", "--constraint"), "priors": ("prior", "--prior"),
+                  "noise": ("noise", "--noise"), "weights": ("weights", "--weights")}  # fmt: skip
+
+
+def _origin(message: str, spec: ModelSpec, args) -> str:
+    """Where a refused value came from: the flags that gave the settings the refusal
+    names (--start-from's file for a start value p0), else the model file (and the
+    flags given that override its settings)."""
+    named = [
+        f"{flag} {_text(getattr(args, attr))}"
+        for key, (attr, flag) in _SETTING_FLAGS.items()
+        if getattr(args, attr, None) not in _UNSET and re.search(rf"(?<![\w-]){key}\b", message)
+    ]
+    if getattr(args, "start_from", None) and re.search(r"\bp0 = ", message):
+        named.insert(0, f"--start-from {args.start_from}")
+    return " ".join(named) if named else f"{spec.path}{_flags_given(args)}"
 
 
 def _flags_given(args) -> str:
@@ -150,9 +170,13 @@ def checked_method(problem, method: str, origin: str = "--predictor ekf") -> Non
 
 
 def _text(value) -> str:
+    """A flag's value as typed: name=value pairs, words, numbers (MEAN,SD)."""
+    if isinstance(value, tuple) and all(isinstance(v, int | float) for v in value):
+        return ",".join(_text(v) for v in value)
     if isinstance(value, list | tuple | dict):
-        pairs = value.items() if isinstance(value, dict) else value
-        return ",".join(f"{k}={v:g}" for k, v in pairs)
+        items = value.items() if isinstance(value, dict) else value
+        return " ".join(f"{i[0]}={_text(i[1])}" if isinstance(i, tuple) and len(i) == 2
+                        else _text(i) for i in items)  # fmt: skip
     return f"{value:g}" if isinstance(value, float) else str(value)
 
 

@@ -146,10 +146,10 @@ def kinds(individual: list[str], population: dict, fixed, where: dict[str, str])
         )
     held = [n for n in [*individual, *population] if n in fixed]
     if held:
+        kind = "individual" if held[0] in individual else "population"
         raise ValueError(
             f"{held} is fixed ({where['fixed']}) and also varies over the units "
-            f"({where['individual']}/{where['population']}): drop it from one of them "
-            "(--free NAME frees it)"
+            f"({where[kind]}): drop it from one of them (--free NAME frees it)"
         )
 
 
@@ -200,8 +200,10 @@ def from_command_line(spec, args):
     where = {
         "individual": "--individual" if given_i is not None else f"individual in {path}",
         "population": "--population" if given_p is not None else f"population in {path}",
-        "fixed": f"fixed in {path}, or --fix",
+        "fixed": f"fixed in {path}",
     }
+    if set(dict(getattr(args, "fix", None) or [])) & {*ind, *pop}:
+        where["fixed"] = "--fix"
     kinds(ind, pop, spec.fixed, where)
     om = spec.omega if getattr(args, "omega", None) is None else omega(args.omega, "--omega")
     given_e = getattr(args, "residual_error", None)

@@ -46,14 +46,14 @@ def check_population(problem, population, segments) -> dict[str, float]:
         ok = isinstance(omega, int | float | np.floating) and not isinstance(omega, bool)
         if not ok or not np.isfinite(omega) or omega <= 0:
             raise ValueError(
-                f"population[{name!r}] = {omega!r}: ω (the standard deviation of the "
+                f"population[{name!r}] = {_plain(omega)!r}: ω (the standard deviation of the "
                 "unit-to-unit variation on the log scale) must be a finite number > 0, "
                 "e.g. 0.3 for about 30 % variation"
             )
         if not problem.p0[m.params.index(name)] > 0:
             raise ValueError(
                 f"population[{name!r}]: its start value p0 = "
-                f"{problem.p0[m.params.index(name)]!r} must be > 0 (the unit's value is "
+                f"{float(problem.p0[m.params.index(name)]):g} must be > 0 (the unit's value is "
                 "the typical value times exp(η))"
             )
         out[str(name)] = float(omega)
@@ -205,3 +205,8 @@ def check_fleet(problem, population, individual, residual_error, omega, segments
     fixed_x0_parameters(problem, bool(pop or ind))
     errors = check_residual_error(problem, residual_error, pop)
     return pop, ind, errors, check_omega(omega, pop)
+
+
+def _plain(value):
+    """A NumPy scalar as the Python number it holds (its repr is np.float64(...))."""
+    return value.item() if isinstance(value, np.generic) else value
