@@ -624,3 +624,36 @@ def test_a_population_fit_raises_the_default_substeps_where_they_are_too_coarse(
     with pytest.warns(UserWarning, match="raise the substeps"):
         kept = ti.fit(ti.Problem(m, units, substeps=4, **kw))
     assert kept.problem.substeps == 4 and abs(kept.objective - res.objective) > 0.1
+
+
+@pytest.mark.parametrize("where", ["inner re-solve", "substeps check"])
+def test_ctrl_c_after_the_outer_fit_converged_keeps_the_converged_point(monkeypatch, where):
+    """issue 51, item 1: Ctrl-C after the outer optimiser converged (the inner re-solve,
+    the error bars, the substeps check) lost the fit: now FitInterrupted holds it."""
+    from tensorid.population import estimate
+    from tensorid.solve.solution import FitInterrupted
+
+    pr = fleet_problem()
+    done = ti.fit(pr)
+
+    def stop(*args, **kw):
+        raise KeyboardInterrupt
+
+    if where == "inner re-solve":  # once the outer loop has returned
+        outer = estimate._outer
+
+        def converged(*args, **kw):
+            out = outer(*args, **kw)
+            monkeypatch.setattr(Objective, "solve_inner", stop)
+            return out
+
+        monkeypatch.setattr(estimate, "_outer", converged)
+    else:
+        monkeypatch.setattr(estimate, "coarse_steps", stop)
+    with pytest.raises(FitInterrupted) as caught:
+        ti.fit(pr)
+    kept = caught.value.result
+    np.testing.assert_allclose(kept.x, done.x, rtol=1e-9)
+    assert kept.objective == pytest.approx(done.objective, rel=1e-12)
+    if where == "substeps check":  # the fit itself had finished: its error bars kept
+        assert np.isfinite(kept.population["ka"]["omega_stderr"]) and "interrupted" in kept.notes[0]

@@ -275,6 +275,23 @@ def test_ctrl_c_ends_the_command_with_one_line(monkeypatch, capsys, tmp_path):
     assert capsys.readouterr().err.strip() == "tensorid: interrupted"
 
 
+def test_ctrl_c_while_the_command_still_imports_is_one_line(tmp_path):
+    """issue 51, item 2: Ctrl-C while NumPy and JAX were being imported printed a
+    KeyboardInterrupt traceback of the imports."""
+    import signal
+    import sys
+    import time
+
+    args = ["fit", str(EXAMPLE / "model.py"), str(EXAMPLE / "train.csv"), "--out",
+            str(tmp_path / "x")]  # fmt: skip
+    proc = subprocess.Popen([sys.executable, "-m", "tensorid", *args], stderr=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True)  # fmt: skip
+    time.sleep(0.4)  # JAX's import alone takes longer
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and err.strip() == "tensorid: interrupted", err
+
+
 def test_files_are_written_with_the_usual_permissions(tmp_path):
     import os
     import stat

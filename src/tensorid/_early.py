@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import gc
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -133,10 +134,19 @@ def settle() -> None:
     0.01 s: the fit 1.43 -> 1.24 s with the figure process's alike (``python -m``,
     medians of 9 alternating runs, 2 cores). Only in the command's own process,
     never on a user's import of the package."""
+    if state.importing:
+        state.importing = False
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     if state.collector_paused:
         state.collector_paused = False
         gc.freeze()
         gc.enable()
+
+
+def _interrupted_while_importing(signum, frame) -> None:
+    """Ctrl-C before the command has started: nothing is computed yet to keep."""
+    sys.stderr.write("tensorid: interrupted\n")
+    os._exit(130)
 
 
 def start() -> None:
@@ -146,9 +156,14 @@ def start() -> None:
     figures also OpenBLAS at one thread, and the renderer started now (where it
     draws in forks; the command's Renderer takes it over, and without one it ends
     with this process, whose end ends its input)."""
-    if the_command(sys.argv, getattr(sys, "orig_argv", [])) and gc.isenabled():
-        gc.disable()
-        state.collector_paused = True
+    if the_command(sys.argv, getattr(sys, "orig_argv", [])):
+        # Ctrl-C while NumPy and JAX load: one line, not a traceback of their imports
+        # (settle hands Ctrl-C back to the command's own handling)
+        signal.signal(signal.SIGINT, _interrupted_while_importing)
+        state.importing = True
+        if gc.isenabled():
+            gc.disable()
+            state.collector_paused = True
     if not figure_command(sys.argv, getattr(sys, "orig_argv", [])):
         return
     if not any(os.environ.get(k) for k in _THREADS):  # OpenBLAS reads them in this order

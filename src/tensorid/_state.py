@@ -18,6 +18,7 @@ class State:
         # until the command's Renderer takes it; and the garbage collector paused
         self.renderer: tuple[int, Any] | None = None
         self.collector_paused = False
+        self.importing = False  # Ctrl-C said in one line until the command starts
         # engine/compilation.py: its compile-time listener registered with JAX
         self.compile_listener = False
         # engine/executables.py: the processor, XLA_FLAGS and devices, as digested;

@@ -125,16 +125,17 @@ def _estimate(obj: Objective, executor, workers, timeout, began, start=None, **o
     try:
         r, etas = _outer(obj, units, state, start, **options)
         complete = True
+        # the converged point's η̂ and error bars: a Ctrl-C here keeps that point too
+        etas, ok = obj.solve_inner(r.x, etas)
+        status = r.status if ok else Status.SOLVER_FAILED
+        return PopulationResult.build(obj, r, etas, status, time.perf_counter() - began), etas
     except KeyboardInterrupt:  # Ctrl-C: the best point so far, kept and handed up
-        if units is not None:
+        if units is not None and not complete:
             units.close(False)
         raise FitInterrupted(_interrupted(obj, state, began)) from None  # type: ignore[arg-type]
     finally:
         if units is not None and complete:
             units.close(True)
-    etas, ok = obj.solve_inner(r.x, etas)
-    status = r.status if ok else Status.SOLVER_FAILED
-    return PopulationResult.build(obj, r, etas, status, time.perf_counter() - began), etas
 
 
 def fit_population(
@@ -177,8 +178,13 @@ def fit_population(
     fit = dict(executor=executor, workers=workers, timeout=timeout, began=began,
                maxiter=maxiter, gtol=gtol, ftol=ftol, xtol=xtol, callback=callback)  # fmt: skip
     res, etas = _estimate(obj, **fit)
-    worst = coarse_steps(obj, res, etas)
-    notes, steps = [], obj.problem.discretisation
+    notes: list[str] = []
+    try:  # Ctrl-C in the check: the fit it checks is kept, with a note
+        worst = coarse_steps(obj, res, etas)
+    except KeyboardInterrupt:
+        why = "interrupted during the check of the substeps, which did not finish"
+        raise FitInterrupted(replace(res, notes=[why])) from None  # type: ignore[arg-type]
+    steps = obj.problem.discretisation
     # the default substeps, where too coarse: refined and refitted from the estimates,
     # so that the answer is the model's (a user's own choice is kept, and warned about)
     while worst is not None and not steps.chosen and steps.substeps < MAX_SUBSTEPS:
@@ -190,7 +196,11 @@ def fit_population(
         )
         obj = Objective(obj.problem.with_substeps(4 * steps.substeps), method)
         res, etas = _estimate(obj, start=(res.x, etas), **fit)
-        worst, steps = coarse_steps(obj, res, etas), obj.problem.discretisation
+        try:
+            worst, steps = coarse_steps(obj, res, etas), obj.problem.discretisation
+        except KeyboardInterrupt:
+            why = "interrupted during the check of the refined substeps, which did not finish"
+            raise FitInterrupted(replace(res, notes=[*notes, why])) from None  # type: ignore[arg-type]
     if worst is not None:
         notes.append(_coarse_note(steps, worst))
     notes += _near_singular(res)
