@@ -210,6 +210,53 @@ def test_a_fleet_s_refused_flag_is_named_not_the_model_file(tmp_path, capsys, fl
         assert "model.py" not in err[0], err
 
 
+def test_a_text_value_is_said_as_its_own_unit_s(tmp_path, capsys):
+    """issue 51, item 4: a text value on a line of unit 2 was reported as unit 1's."""
+    from pathlib import Path
+
+    from tensorid import cli
+
+    root = Path(__file__).resolve().parents[1]
+    lines = (root / "src/tensorid/datasets/theophylline.csv").read_text().splitlines()
+    head = lines[0].split(",")
+    at = next(i for i, ln in enumerate(lines) if ln.split(",")[head.index("ID")] == "2") + 3
+    cells = lines[at].split(",")
+    cells[head.index("conc")] = "abc"
+    lines[at] = ",".join(cells)
+    data = tmp_path / "theo.csv"
+    data.write_text("\n".join(lines) + "\n")
+    rc = cli.main(["fit", str(root / "examples/theophylline/model.py"), str(data), "--records",
+                   "ID", "--columns", "t=Time,cp=conc", "--out", str(tmp_path / "f")])  # fmt: skip
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1, err
+    assert (
+        f"unit '2': column 'conc' holds a value that is not a number, 'abc' on line {at + 1}"
+        in err[0]
+    )
+
+
+@pytest.mark.parametrize(
+    "model, data, columns",
+    [("theophylline", "theophylline.csv", "t=Time,cp=conc"),
+     ("phenobarbital", "phenobarbital.csv", "t=TIME,conc=DV")],
+)  # fmt: skip
+def test_a_file_of_several_units_without_records_says_to_name_them(tmp_path, capsys, model,
+                                                                     data, columns):  # fmt: skip
+    """issue 51, item 4: a many-unit file without --records was explained as a varying
+    covariate or as time that goes backwards."""
+    from pathlib import Path
+
+    from tensorid import cli
+
+    root = Path(__file__).resolve().parents[1]
+    rc = cli.main(["fit", str(root / "examples" / model / "model.py"),
+                   str(root / "src/tensorid/datasets" / data), "--columns", columns,
+                   "--out", str(tmp_path / "f")])  # fmt: skip
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1, err
+    assert "the file holds several units; name its unit column with --records" in err[0]
+
+
 def test_the_same_data_under_two_names_is_refused(tmp_path, capsys):
     """issue 51, item 3: a copy of the training file under another name halved every
     variance without a word (the same path twice was refused already)."""

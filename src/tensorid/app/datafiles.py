@@ -26,6 +26,7 @@ from .records import (
     has_id_column,
     increasing,
     no_samples,
+    not_several_units,
     split_units,
 )
 from .timebase import DataNote, _time  # noqa: F401  (DataNote: here for cli.py and users)
@@ -264,6 +265,8 @@ def _one_or_joined(
     if records is not None:
         has_id_column(label, cols, records)
     cols = event_table.mapped(label, _mapped(label, cols, columns, model), events)
+    if records is None:
+        not_several_units(label, cols)
     if event_table.is_event_table(cols):
         return _event_records(label, cols, model, require_outputs, records, covariates)
     if records is None:

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..engine.data import Experiment
 from ..engine.events import Events, state_index
-from .readers import _Columns
+from .readers import Said, _Columns
 from .records import _at
 
 COLUMNS = ("EVID", "AMT", "CMT", "RATE", "II", "ADDL", "SS", "MDV", "DVID", "CENS")
@@ -70,7 +70,7 @@ def numbers(where: str, cols: _Columns, name: str, n: int, default=np.nan) -> np
     if isinstance(v, str):  # read as text: "." or names among numbers
         cells = cols.text.get(name)
         if cells is None:
-            raise ValueError(f"{where}: {v}")
+            raise ValueError(v if isinstance(v, Said) else f"{where}: {v}")
         out = np.empty(len(cells))
         for i, c in enumerate(cells):
             c = c.strip()

@@ -39,13 +39,17 @@ class _Columns:
         return name in self.values or name in self.constants
 
 
+class Said(str):
+    """Why a column cannot be used, as a whole line naming its file and unit."""
+
+
 _NOT_NUMBERS = {"U": "text", "S": "text", "O": "objects (a cell array?)", "V": "records"}
 
 
 def _real(path: Path, what: str, name: str, v: np.ndarray | str) -> np.ndarray:
     """A signal as real floats; complex values with an imaginary part are refused."""
     if isinstance(v, str):
-        raise ValueError(f"{path}: {v}")
+        raise ValueError(v if isinstance(v, Said) else f"{path}: {v}")
     if v.dtype.kind == "c":
         if np.any(v.imag != 0):
             raise ValueError(

@@ -11,6 +11,7 @@ constant within each unit (each file, without ``records``). Every mistake is one
 
 from __future__ import annotations
 
+import re
 import warnings
 
 import numpy as np
@@ -18,7 +19,7 @@ import numpy as np
 from ..engine.data import Experiment
 from ..engine.model import Model
 from .fleets import did_you_mean
-from .readers import _Columns
+from .readers import Said, _Columns
 from .timebase import DataNote
 
 
@@ -85,7 +86,14 @@ def split_units(p, cols: _Columns, column: str) -> list[tuple[str, _Columns]]:
     order: dict[str, list[int]] = {}
     for i, name in enumerate(ids):
         order.setdefault(name, []).append(i)
-    return [(name, _part(cols, np.array(rows), len(ids))) for name, rows in order.items()]
+    parts = [(name, _part(cols, np.array(rows), len(ids))) for name, rows in order.items()]
+    for n, v in cols.values.items():  # a column that could not be read, at a line:
+        cited = re.search(r"on line (\d+)", v) if isinstance(v, str) and cols.lines else None
+        if cited and int(cited[1]) in cols.lines:  # said as that line's unit's
+            owner = ids[cols.lines.index(int(cited[1]))]
+            for _, part in parts:
+                part.values[n] = Said(f"{as_text(p, owner)}: {v}")
+    return parts
 
 
 def no_samples(p, units: list[tuple[str, _Columns]], model: Model, require_outputs: bool):
@@ -156,6 +164,37 @@ def increasing(p, name: str, cols: _Columns) -> None:
             f"{t[i]:g}); a unit's rows must be in increasing time: sort the file by id "
             "and time, and drop repeated rows"
         )
+
+
+def not_several_units(p, cols: _Columns) -> None:
+    """A file read as one record whose time starts again where another column changes
+    holds several units: one line that says to name that column with --records (it
+    was explained as a covariate that varies, or time that goes backwards)."""
+    t = cols.values.get("t")
+    if not isinstance(t, np.ndarray) or t.dtype.kind not in "biuf" or t.size < 3:
+        return
+    again = np.flatnonzero(np.diff(t.astype(float)) < 0) + 1
+    if not again.size:
+        return
+    found = []  # the columns that change wherever time starts again (and seldom else)
+    for c, v in cols.values.items():
+        cells = cols.text.get(c) or (list(v) if isinstance(v, np.ndarray) and v.ndim == 1 else None)
+        if c == "t" or cells is None or len(cells) != t.size:
+            continue
+        changes = {i for i in range(1, t.size) if cells[i] != cells[i - 1]}
+        if changes and set(again.tolist()) <= changes and len(changes) < t.size / 2:
+            found.append(c)
+    if found:  # an id's name first (ID, Subject, unit), else the first in the file
+        c = next((n for n in found if n.lower() in _ID_NAMES), found[0])
+        i = int(again[0])
+        raise ValueError(
+            f"{p}: the time starts again {_at(cols, i)} ({t[i - 1]:g} then {t[i]:g}) "
+            f"where column {c!r} changes: the file holds several units; name its unit "
+            f"column with --records {c} (Python: records={c!r})"
+        )
+
+
+_ID_NAMES = ("id", "subject", "unit", "record", "serial", "patient", "batch")
 
 
 def check_covariates(p, name: str | None, cols: _Columns, covariates) -> None:
