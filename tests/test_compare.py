@@ -455,3 +455,27 @@ def test_compare_scores_a_record_joined_from_an_input_and_an_output_file(tmp_pat
         ("u.csv", "scored"), ("y.csv", "scored"),
     ]  # fmt: skip
     assert np.isfinite(c["outputs"]["y"]["rmse"])
+
+
+def test_compare_scores_a_population_fit_whose_x0_is_an_expression(tmp_path, capsys):
+    """issue 51, item 4: compare of a population fit whose x0 is an expression of the
+    unit's data (theophylline's "Dose * Wt") advised --x0, which compare lacks; now the
+    expression is evaluated on the record with the fit's parameters, and the command
+    says they are the population's typical values."""
+    root = Path(__file__).resolve().parents[1]
+    theo = root / "src/tensorid/datasets/theophylline.csv"
+    fit = tmp_path / "fit.json"
+    typical = {"ka": 1.5902, "cl": 2.7515, "v": 31.809}
+    fit.write_text(json.dumps({"params": typical, "population": {"ka": {"omega": 0.63}}}))
+    rc = cli.main(["compare", str(root / "examples/theophylline/model.py"), str(theo),
+                   "--params", str(fit), "--records", "ID", "--unit", "3",
+                   "--columns", "t=Time,cp=conc", "--out", str(tmp_path / "c")])  # fmt: skip
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    rows = [r.split(",") for r in theo.read_text().splitlines()]
+    head, unit = rows[0], next(r for r in rows[1:] if r[rows[0].index("ID")] == "3")
+    dose = float(unit[head.index("Dose")]) * float(unit[head.index("Wt")])
+    assert f"initial state depot={dose:.6g}, center=0" in out
+    assert "the population's typical values" in out
+    scored = json.loads((tmp_path / "c" / "compare.json").read_text())
+    assert scored["outputs"]["cp"]["gof"] > 0.5

@@ -15,6 +15,7 @@ import numpy as np
 from ..analysis.figures import file_name
 from ..analysis.summary import gof_text, metric_notes, score_notes, undefined_gof
 from ..analysis.validation import Score, check_init_window, score_record
+from ..engine import initial
 from ..engine.checks import same_step
 from ..engine.diagnostics import describe_failure
 from ..engine.discretisation import Discretisation
@@ -182,7 +183,11 @@ def _parameters(spec: ModelSpec, given: list[str], fitted: dict | None) -> tuple
         )
     rest = ", ".join(f"{n}={params[n]:.6g}" for n in m.params if n not in named)
     note = f"parameters {rest} (the model file's p0{', not in --params' if named else ''})"
-    return params, note if rest else ""
+    note = note if rest else ""
+    if fitted is not None and fitted.get("population"):  # which of a fleet's values
+        typical = "the population's typical values (each fitted unit's own are in its units)"
+        note = "; ".join([f"parameters: {typical}", *([note] if note else [])])
+    return params, note
 
 
 def _integration(args, fitted: dict | None, spec: ModelSpec | None = None) -> Discretisation:
@@ -204,18 +209,26 @@ def _integration(args, fitted: dict | None, spec: ModelSpec | None = None) -> Di
         raise ValueError(tolerances_as_flags(str(e))) from None
 
 
-def _start(spec: ModelSpec, args, e, fitted) -> tuple[np.ndarray, list[str], str]:
+def _start(spec: ModelSpec, args, e, fitted, params) -> tuple[np.ndarray, list[str], str]:
     """(x0 to start from, the states to estimate on the record, where x0 comes from):
     --x0 where given; the states the fit (else the model file) frees are estimated
-    when the record has outputs; the others are the fit.json's or the model file's."""
+    when the record has outputs; the others are the fit.json's or the model file's (an
+    expression of the inputs and parameters, as a fleet's "Dose * Wt", evaluated on
+    this record with ``params``)."""
     m = spec.model
-    x0 = dict(zip(m.states, spec.x0_array(getattr(args, "x0", [])), strict=True))
+    given = _assignments(getattr(args, "x0", []), "--x0")
+    exprs = {k: v for k, v in (spec.x0 or {}).items() if isinstance(v, str) and k not in given}
+    x0 = dict(zip(m.states, spec.x0_array([*given, *exprs]), strict=True))
+    if exprs:
+        values, _ = initial.evaluate(m, [e], exprs, m.params_array(params))
+        x0.update({k: float(values[0, m.states.index(k)]) for k in exprs})
     base, free = "the model file's x0", list(spec.free_x0)
+    if exprs:
+        base += f", {', '.join(f'{k} = {v}' for k, v in exprs.items())} on this record"
     if fitted is not None and "x0" in fitted:
         x0 = dict(zip(m.states, np.atleast_2d(fitted["x0"])[0], strict=True))
         base = f"the x0 of {args.params[0]} (its first training record's)"
         free = list(fitted.get("free_x0", free))
-    given = _assignments(getattr(args, "x0", []), "--x0")
     unknown = sorted(set(given) - set(m.states))
     if unknown:
         raise ValueError(f"--x0 names {unknown}; the model's states are {list(m.states)}")
@@ -292,7 +305,7 @@ def _score(args, require_outputs: bool):
     if predictor is not None:  # (a filter's fit.json)
         noise_levels(params, _assignments(args.params[1:], "--params"), args.params[0])
     disc = _integration(args, fitted, spec)
-    x0, free, source = _start(spec, args, e, fitted)
+    x0, free, source = _start(spec, args, e, fitted, params)
     horizon = getattr(args, "horizon", None)
     if horizon is not None and predictor is None:
         print(SIMULATED_HORIZON.format(horizon=horizon), file=sys.stderr)
