@@ -657,3 +657,26 @@ def test_ctrl_c_after_the_outer_fit_converged_keeps_the_converged_point(monkeypa
     assert kept.objective == pytest.approx(done.objective, rel=1e-12)
     if where == "substeps check":  # the fit itself had finished: its error bars kept
         assert np.isfinite(kept.population["ka"]["omega_stderr"]) and "interrupted" in kept.notes[0]
+
+
+@pytest.mark.slow  # a population fit of its own model: about 27 s
+def test_a_parameter_with_no_effect_is_named_and_held_not_a_collapsed_fit():
+    """issue 51, item 4: a parameter that cancels in the output (q/q) ended the fit as
+    "the trust region collapsed ... the cost may be noisy", every SE NaN and q's
+    shrinkage 100 %: now q is named, held where it started, and the rest converge with
+    their error bars."""
+    _, units = simulated_fleet(4)
+    m = ti.model_from_equations(
+        rhs={"depot": "-ka*depot", "center": "ka*depot - cl/v*center"},
+        output={"cp": "center/v*q/q"}, inputs=["Dose"], params=["ka", "cl", "v", "q"],
+    )  # fmt: skip
+    pr = ti.Problem(m, units, p0={"ka": 1.2, "cl": 2.0, "v": 25.0, "q": 1.3},
+                    x0={"depot": "Dose", "center": 0.0}, substeps=20,
+                    population={"ka": 0.4, "cl": 0.4, "q": 0.3})  # fmt: skip
+    with pytest.warns(UserWarning, match="q has no effect on the outputs"):
+        res = ti.fit(pr)
+    assert res.success, res.message
+    assert res.population["q"]["typical"] == pytest.approx(1.3)
+    assert np.isnan(res.population["q"]["typical_stderr"])
+    assert all(np.isfinite(res.population[n]["typical_stderr"]) for n in ("ka", "cl"))
+    assert np.isfinite(res.shared["v"]["stderr"])

@@ -68,15 +68,17 @@ def cache(tmp_path_factory):
 def test_a_second_process_reads_the_programs_and_gets_the_same_numbers(cache):
     first = _run(cache)
     assert "_second_order" in first["traced"] and "_simulate" in first["traced"]
-    kept = list((cache.parent / "jax-programs").glob("*.jaxexport"))
+    kept = list((cache / "programs").glob("*.jaxexport"))
     assert len(kept) >= 2
+    # everything under the one folder (issue 51: TENSORID_CACHE_DIR=X also wrote X-programs)
+    assert sorted(p.name for p in cache.parent.iterdir()) == [cache.name]
     second = _run(cache)
     assert second["traced"] == []  # nothing traced: every program was read
     for key in ("J", "g", "H", "sim"):
         assert second[key] == first[key]
     # and the numbers are those of a process that keeps nothing
     plain = _run(cache.parent / "off", TENSORID_CACHE="0")
-    assert plain["traced"] and not (cache.parent / "off-programs").exists()
+    assert plain["traced"] and not (cache.parent / "off" / "programs").exists()
     for key in ("J", "g", "H", "sim"):
         assert plain[key] == first[key]
 
@@ -93,7 +95,7 @@ def test_another_model_is_traced_afresh_not_read(cache):
 @pytest.mark.slow  # fresh processes; the default run keeps the bit-for-bit check
 def test_a_damaged_program_file_is_traced_again(cache):
     _run(cache)
-    folder = cache.parent / "jax-programs"
+    folder = cache / "programs"
     for f in (*folder.glob("*.jaxexport"), *folder.glob("*.xla")):
         f.write_bytes(b"not a program")
     again = _run(cache)
@@ -108,7 +110,7 @@ def test_a_second_process_loads_the_executables(tmp_path):
     folder of its own: where JAX's cache already holds a program, none is kept.)"""
     cache = tmp_path / "jax"
     first = _run(cache)
-    folder = cache.parent / "jax-programs"
+    folder = cache / "programs"
     kept = sorted(folder.glob("*.xla"))
     assert len(kept) == len(list(folder.glob("*.jaxexport"))) >= 2
     for f in folder.glob("*.jaxexport"):  # not needed where the executable is there
@@ -515,5 +517,5 @@ def test_jax_s_cache_met_before_an_executable_is_kept_does_not_break_a_fit(tmp_p
     plain = run(tmp_path / "off", TENSORID_CACHE="0")
     for _ in range(3):
         assert run(tmp_path / "jax") == plain
-        for f in (tmp_path / "jax-programs").glob("*.xla"):
+        for f in (tmp_path / "jax" / "programs").glob("*.xla"):
             f.unlink()  # as pruning may leave JAX's cache with the program

@@ -135,8 +135,13 @@ def test_a_covariate_that_changes_within_a_unit_is_refused_an_input_may_vary(tmp
     assert len(ti.load_data(path, m, records="id")) == 2  # u is an input: it may vary
     text = _error(lambda: ti.load_data(path, m, records="id", covariates=["u"]))
     assert "covariate 'u' changes within unit '2'" in text and "line 5" in text
-    # without records, a file is one unit
+    # without records, a file is one unit: where its time starts again as id changes,
+    # it is said to be several (issue 51: it was explained as a covariate that changes)
     text = _error(lambda: ti.load_data(path, m, covariates=["u"]))
+    assert "the file holds several units" in text and "--records id" in text
+    rows = [(1, 0, 1, 0), (1, 1, 1, 1), (1, 2, 1, 0), (1, 3, 3, 1)]  # one unit indeed
+    text = _error(lambda: ti.load_data(_rows(tmp_path / "g.csv", "id,t,u,y", rows), m,
+                                       covariates=["u"]))  # fmt: skip
     assert "covariate 'u' changes within the record" in text
 
 
@@ -334,11 +339,14 @@ def test_simulate_reads_one_unit_of_a_long_file(tmp_path, capsys):
     for extra, expect in (
         ([], "holds 12 units (--records ID): name the one to use with --unit ID"),
         (["--unit", "31", "--x0", "depot=320"], "has no unit '31' in its column 'ID'"),
-        (["--unit", "3"], "x0['depot'] = 'Dose * Wt' is an expression"),
     ):
         assert cli.main([*sim, *extra, "--out", str(out)]) == 2
         err = capsys.readouterr().err.strip()
         assert expect in err and len(err.splitlines()) == 1, err
+    # x0 = Dose * Wt evaluated on the unit's record (it was refused, advising --x0)
+    assert cli.main([*sim, "--unit", "3", "--out", str(out)]) == 0
+    unit = raw[raw["ID"] == 3][0]
+    assert f"depot={unit['Dose'] * unit['Wt']:.6g}" in capsys.readouterr().out
     one = ["simulate", str(EXAMPLE), str(theophylline_csv()), "--unit", "3"]
     assert cli.main([*one, "--out", str(out)]) == 2
     assert "--unit 3 picks a unit of --records" in capsys.readouterr().err

@@ -111,7 +111,7 @@ def _origin(message: str, spec: ModelSpec, args) -> str:
     ]
     if getattr(args, "start_from", None) and re.search(r"\bp0 = ", message):
         named.insert(0, f"--start-from {args.start_from}")
-    return " ".join(named) if named else f"{spec.path}{_flags_given(args)}"
+    return f"{' '.join(named)} (model {spec.path})" if named else f"{spec.path}{_flags_given(args)}"
 
 
 def _flags_given(args) -> str:

@@ -87,10 +87,11 @@ def split_units(p, cols: _Columns, column: str) -> list[tuple[str, _Columns]]:
     for i, name in enumerate(ids):
         order.setdefault(name, []).append(i)
     parts = [(name, _part(cols, np.array(rows), len(ids))) for name, rows in order.items()]
+    lines = cols.lines or []
     for n, v in cols.values.items():  # a column that could not be read, at a line:
-        cited = re.search(r"on line (\d+)", v) if isinstance(v, str) and cols.lines else None
-        if cited and int(cited[1]) in cols.lines:  # said as that line's unit's
-            owner = ids[cols.lines.index(int(cited[1]))]
+        cited = re.search(r"on line (\d+)", v) if isinstance(v, str) else None
+        if cited and int(cited[1]) in lines:  # said as that line's unit's
+            owner = ids[lines.index(int(cited[1]))]
             for _, part in parts:
                 part.values[n] = Said(f"{as_text(p, owner)}: {v}")
     return parts
@@ -174,15 +175,15 @@ def not_several_units(p, cols: _Columns) -> None:
     if not isinstance(t, np.ndarray) or t.dtype.kind not in "biuf" or t.size < 3:
         return
     again = np.flatnonzero(np.diff(t.astype(float)) < 0) + 1
-    if not again.size:
-        return
-    found = []  # the columns that change wherever time starts again (and seldom else)
+    if not again.size or np.min(np.diff([0, *again, t.size])) < 2:
+        return  # no restart, or a "unit" of one row: a time stamp out of place
+    found = []  # the columns that change where time starts again, and only there
     for c, v in cols.values.items():
         cells = cols.text.get(c) or (list(v) if isinstance(v, np.ndarray) and v.ndim == 1 else None)
         if c == "t" or cells is None or len(cells) != t.size:
             continue
         changes = {i for i in range(1, t.size) if cells[i] != cells[i - 1]}
-        if changes and set(again.tolist()) <= changes and len(changes) < t.size / 2:
+        if changes == set(again.tolist()):  # constant between the restarts: an id
             found.append(c)
     if found:  # an id's name first (ID, Subject, unit), else the first in the file
         c = next((n for n in found if n.lower() in _ID_NAMES), found[0])

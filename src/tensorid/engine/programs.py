@@ -80,8 +80,9 @@ except OSError:
 
 
 def folder() -> Path | None:
-    """Where programs are kept: beside JAX's compilation cache (``.../jax`` →
-    ``.../jax-programs``), or None when that cache is off or TENSORID_PROGRAMS is 0
+    """Where programs are kept: in JAX's compilation cache folder, as ``programs``
+    (everything under the one folder TENSORID_CACHE_DIR names), or None when that
+    cache is off or TENSORID_PROGRAMS is 0
     (the compiled code is then still cached; a first process pays 10-20 % more
     compile time for writing its programs, which the test suite, compiling hundreds
     once each, does without)."""
@@ -92,7 +93,7 @@ def folder() -> Path | None:
     cache = jax.config.values.get("jax_compilation_cache_dir")
     if not cache:
         return None
-    return Path(cache).with_name(Path(cache).name + "-programs")
+    return Path(cache) / "programs"
 
 
 def _package_digest() -> str | None:

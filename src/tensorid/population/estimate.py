@@ -128,7 +128,10 @@ def _estimate(obj: Objective, executor, workers, timeout, began, start=None, **o
         # the converged point's η̂ and error bars: a Ctrl-C here keeps that point too
         etas, ok = obj.solve_inner(r.x, etas)
         status = r.status if ok else Status.SOLVER_FAILED
-        return PopulationResult.build(obj, r, etas, status, time.perf_counter() - began), etas
+        flat = state.get("flat", np.zeros(obj.size, bool))
+        res = PopulationResult.build(obj, r, etas, status, time.perf_counter() - began, flat)
+        note = no_effect_note(obj, flat)
+        return (replace(res, notes=[note]) if note else res), etas
     except KeyboardInterrupt:  # Ctrl-C: the best point so far, kept and handed up
         if units is not None and not complete:
             units.close(False)
@@ -178,31 +181,7 @@ def fit_population(
     fit = dict(executor=executor, workers=workers, timeout=timeout, began=began,
                maxiter=maxiter, gtol=gtol, ftol=ftol, xtol=xtol, callback=callback)  # fmt: skip
     res, etas = _estimate(obj, **fit)
-    notes: list[str] = []
-    try:  # Ctrl-C in the check: the fit it checks is kept, with a note
-        worst = coarse_steps(obj, res, etas)
-    except KeyboardInterrupt:
-        why = "interrupted during the check of the substeps, which did not finish"
-        raise FitInterrupted(replace(res, notes=[why])) from None  # type: ignore[arg-type]
-    steps = obj.problem.discretisation
-    # the default substeps, where too coarse: refined and refitted from the estimates,
-    # so that the answer is the model's (a user's own choice is kept, and warned about)
-    while worst is not None and not steps.chosen and steps.substeps < MAX_SUBSTEPS:
-        notes.append(
-            f"the substeps were raised from {steps.substeps} to {4 * steps.substeps} and the "
-            f"fit repeated from its estimates: at {steps.substeps} the predictions moved by "
-            f"{worst:.2g} residual SDs when the substeps doubled (--substeps on the command "
-            "line, substeps= in Python, chooses them)"
-        )
-        obj = Objective(obj.problem.with_substeps(4 * steps.substeps), method)
-        res, etas = _estimate(obj, start=(res.x, etas), **fit)
-        try:
-            worst, steps = coarse_steps(obj, res, etas), obj.problem.discretisation
-        except KeyboardInterrupt:
-            why = "interrupted during the check of the refined substeps, which did not finish"
-            raise FitInterrupted(replace(res, notes=[*notes, why])) from None  # type: ignore[arg-type]
-    if worst is not None:
-        notes.append(_coarse_note(steps, worst))
+    obj, res, etas, notes = _refined(obj, res, etas, fit)
     notes += _near_singular(res)
     if obj.unfinite:
         names = obj.unfinite
@@ -222,6 +201,36 @@ def fit_population(
     for n in notes:
         warnings.warn(n, UserWarning, stacklevel=2)
     return replace(res, notes=notes)
+
+
+def _refined(obj: Objective, res: PopulationResult, etas, fit: dict):
+    """(objective, result, η̂, notes) after the substeps check: the default substeps,
+    where too coarse, raised fourfold and the fit repeated from its estimates, so that
+    the answer is the model's (a user's own choice is kept, and warned about). Ctrl-C
+    in a check keeps the fit it checks, with a note."""
+    notes: list[str] = list(res.notes)
+    steps = obj.problem.discretisation
+    while True:
+        try:
+            worst = coarse_steps(obj, res, etas)
+        except KeyboardInterrupt:
+            why = f"interrupted during the check of the substeps ({steps.substeps}), unfinished"
+            raise FitInterrupted(replace(res, notes=[*notes, why])) from None  # type: ignore[arg-type]
+        if worst is None or steps.chosen or steps.substeps >= MAX_SUBSTEPS:
+            break
+        notes.append(
+            f"the substeps were raised from {steps.substeps} to {4 * steps.substeps} and the "
+            f"fit repeated from its estimates: at {steps.substeps} the predictions moved by "
+            f"{worst:.2g} residual SDs when the substeps doubled (--substeps on the command "
+            "line, substeps= in Python, chooses them)"
+        )
+        obj = Objective(obj.problem.with_substeps(4 * steps.substeps), obj.method)
+        res, etas = _estimate(obj, start=(res.x, etas), **fit)
+        notes += [n for n in res.notes if n not in notes]
+        steps = obj.problem.discretisation
+    if worst is not None:
+        notes.append(_coarse_note(steps, worst))
+    return obj, res, etas, notes
 
 
 def _near_singular(res: PopulationResult) -> list[str]:
@@ -278,8 +287,12 @@ def _outer(obj: Objective, units: UnitMap | None, state: dict, start=None, **opt
         if not (np.isfinite(J) and np.isfinite(grad).all() and np.isfinite(H).all()):
             return np.inf, np.zeros(obj.size), np.eye(obj.size)
         state["n"] += 1
+        flat = flat_directions(grad, H)
+        if flat.any():  # held: no step there (it would change nothing but the rounding)
+            grad, H = np.where(flat, 0.0, grad), H * np.outer(~flat, ~flat)
+            H[flat, flat] = np.max(np.abs(np.diag(H)), initial=1.0)
         if J < state["best"]:  # the next start: the best point's η̂ (a rejected trial
-            state.update(etas=etas, best=J, x=np.array(psi), g=grad, H=H)  # (its branch)
+            state.update(etas=etas, best=J, x=np.array(psi), g=grad, H=H, flat=flat)
         return J, grad, H
 
     if obj.size == 0:  # every parameter individual: the units' own fits are the fit
@@ -290,6 +303,36 @@ def _outer(obj: Objective, units: UnitMap | None, state: dict, start=None, **opt
     # (Ctrl-C: the loop ends the run, then fit_population keeps the best point)
     r = interrupted(minimize_trust_region(fun, psi0, lo, hi, radius=1.0, fatol=-np.inf, **options))
     return r, state["etas"]
+
+
+def flat_directions(grad, H) -> np.ndarray:
+    """The directions of ψ in which the objective does not change at all, its gradient
+    and its row of H zero to rounding (a parameter that has no effect on the outputs:
+    it cancels in them, or its state stays 0): (size,) bool."""
+    scale = float(np.max(np.abs(np.diag(H)), initial=0.0))
+    tiny = 1e-10 * (scale + float(np.max(np.abs(grad), initial=0.0)))
+    return (np.max(np.abs(H), axis=1, initial=0.0) <= tiny) & (np.abs(grad) <= tiny) & (scale > 0)
+
+
+def no_effect_note(obj: Objective, flat: np.ndarray) -> str | None:
+    """One line naming the parameters whose every direction of ψ is flat."""
+    names = []
+    for k in np.flatnonzero(flat):
+        if k < 2 * obj.qp:  # a typical value or its ω
+            n = obj.pop[k % obj.qp]
+        elif k < obj.first_shared + obj.ns:
+            n = obj.shared[k - obj.first_shared]
+        else:
+            n = obj.names[k]
+        names += [n] if n not in names else []
+    if not names:
+        return None
+    return (
+        f"{', '.join(names)} {'has' if len(names) == 1 else 'have'} no effect on the outputs "
+        "at the estimates (the objective does not change with it at all: it cancels in the "
+        "outputs, or what it acts on stays 0); it was held where it started and has no "
+        "error bars: fix it, or drop it from the model"
+    )
 
 
 def coarse_steps(obj: Objective, res: PopulationResult, etas) -> float | None:

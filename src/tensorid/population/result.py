@@ -35,6 +35,17 @@ def _measured(r, status) -> np.ndarray:
     return H
 
 
+def _unmeasured(cov: np.ndarray, flat) -> np.ndarray:
+    """``cov`` with the directions ``flat`` NaN: the data say nothing about them (their
+    held unit curvature is no measurement)."""
+    if flat is None or not np.any(flat):
+        return cov
+    cov = cov.copy()
+    cov[flat, :] = np.nan
+    cov[:, flat] = np.nan
+    return cov
+
+
 def _residual_error(obj, x, se) -> dict:
     """{output: {"model", "additive", "additive_stderr", "proportional", ...}}."""
     out: dict = {o: {"model": k} for o, k in zip(obj.problem.model.outputs, obj.errors,
@@ -149,12 +160,14 @@ class PopulationResult:
         return np.sqrt(np.diag(self.cov))
 
     @classmethod
-    def build(cls, obj, r, etas, status, seconds) -> PopulationResult:
+    def build(cls, obj, r, etas, status, seconds, flat=None) -> PopulationResult:
+        """The result at ``r``'s point; ``flat``: the directions of ψ the objective does
+        not change in at all (held by the fit, without error bars)."""
         if obj.joint:
-            return cls._joint(obj, r, etas, status, seconds)
+            return cls._joint(obj, r, etas, status, seconds, flat)
         qp, f, x = obj.qp, obj.first_shared, np.asarray(r.x, dtype=float)
         H = _measured(r, status)
-        cov = 2.0 * _inverse(H)  # O = −2 log L: the information is H / 2
+        cov = _unmeasured(2.0 * _inverse(H), flat)  # O = −2 log L: the information is H / 2
         se = np.sqrt(np.where(np.diag(cov) < 0, np.inf, np.diag(cov)))  # NaN: not measured
         population = {}
         omega, omega_se, correlation = _omega(obj, x, cov, se)
@@ -198,7 +211,7 @@ class PopulationResult:
         )  # fmt: skip
 
     @classmethod
-    def _joint(cls, obj, r, etas, status, seconds) -> PopulationResult:
+    def _joint(cls, obj, r, etas, status, seconds, flat=None) -> PopulationResult:
         """Individual parameters: least squares over the shared and every unit's own
         parameters. Covariance 2 s² H⁻¹ of the joint problem (s² = J / (N − K)), by
         blocks: the shared ones' from the Schur complement (the outer Hessian), each
@@ -207,7 +220,7 @@ class PopulationResult:
         u = obj.units
         N, K = int(u.mask.sum()), obj.ns + len(u.names) * obj.q
         s2 = float(r.fun) / (N - K) if N > K else float("nan")
-        cov = 2.0 * s2 * _inverse(H) if obj.ns else np.zeros((0, 0))
+        cov = _unmeasured(2.0 * s2 * _inverse(H), flat) if obj.ns else np.zeros((0, 0))
         se = np.sqrt(np.where(np.diag(cov) >= 0, np.diag(cov), np.nan))
         shared = {
             n: {"value": float(x[j]), "stderr": float(se[j])} for j, n in enumerate(obj.shared)
@@ -220,7 +233,7 @@ class PopulationResult:
         for i, uid in enumerate(u.names):
             Hi = _inverse(Hb[i])
             Z = -Hi @ L[i]
-            ci = s2 * Hi + Z @ cov @ Z.T
+            ci = s2 * Hi + Z @ np.where(np.isnan(cov), 0.0, cov) @ Z.T  # (a flat one: Z's 0)
             vals = {n: float(etas[i, k]) for k, n in enumerate(obj.pop)}
             errs = {
                 n: float(np.sqrt(ci[k, k])) if ci[k, k] >= 0 else np.nan
