@@ -99,3 +99,25 @@ def test_the_emitters_flag_only_where_jaxlib_knows_it(monkeypatch):
         flags = _config._xla_flags()
         assert ("--xla_cpu_use_fusion_emitters=false" in flags) is added, version
         assert any(str(SMALL_LOOP_BYTES) in f for f in flags)
+
+
+def test_the_command_keeps_xla_s_own_log_lines_off_the_terminal():
+    """issue 51, item 9: XLA's raw "Very slow compile?" alarm reached the terminal; the
+    command sets XLA's log level before JAX loads (a level the user set is kept), the
+    package imported by a user's own program leaves it alone."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import sys; sys.argv = [{argv!r}, 'paper']; import tensorid._early, os; "
+            "print(os.environ.get('TF_CPP_MIN_LOG_LEVEL'))")  # fmt: skip
+    env = {k: v for k, v in os.environ.items() if k != "TF_CPP_MIN_LOG_LEVEL"}
+
+    def level(argv, **extra):
+        out = subprocess.run([sys.executable, "-c", code.format(argv=argv)], env={**env, **extra},
+                             capture_output=True, text=True, check=True)  # fmt: skip
+        return out.stdout.split()[-1]
+
+    assert level("/usr/bin/tensorid") == "3"
+    assert level("/usr/bin/tensorid", TF_CPP_MIN_LOG_LEVEL="0") == "0"
+    assert level("analysis.py") != "3"  # (JAX itself sets 1 on import)

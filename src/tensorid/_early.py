@@ -161,6 +161,10 @@ def start() -> None:
         # (settle hands Ctrl-C back to the command's own handling)
         signal.signal(signal.SIGINT, _interrupted_while_importing)
         state.importing = True
+        # XLA's own log lines ("Very slow compile? If you want to file a bug ...") are
+        # not the command's to print: the progress display says what is compiling. An
+        # error still raises; a level the user set is kept
+        os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
         if gc.isenabled():
             gc.disable()
             state.collector_paused = True
