@@ -22,6 +22,7 @@ from ..engine.sweeps import shared_sweeps
 from ..solve.minimize import interrupted, minimize_trust_region
 from ..solve.solution import FitInterrupted
 from ..solve.trust_region import TRResult
+from .boundary import Collapsed, collapse_note, collapsing, flat_directions, no_effect_note, without
 from .distributed import UnitMap, evaluate_chunk
 from .objective import Objective
 from .result import PopulationResult
@@ -136,6 +137,10 @@ def _estimate(obj: Objective, executor, workers, timeout, began, start=None, **o
         if units is not None and not complete:
             units.close(False)
         raise FitInterrupted(_interrupted(obj, state, began)) from None  # type: ignore[arg-type]
+    except Collapsed:
+        if units is not None:
+            units.close(True)
+        raise
     finally:
         if units is not None and complete:
             units.close(True)
@@ -180,8 +185,16 @@ def fit_population(
     obj = Objective(_a_fleet(problem, executor), method)
     fit = dict(executor=executor, workers=workers, timeout=timeout, began=began,
                maxiter=maxiter, gtol=gtol, ftol=ftol, xtol=xtol, callback=callback)  # fmt: skip
-    res, etas = _estimate(obj, **fit)
+    collapsed: list[tuple[list[str], float]] = []
+    while True:  # a random effect collapsing to 0: dropped, the fit repeated (boundary.py)
+        try:
+            res, etas = _estimate(obj, **fit)
+            break
+        except Collapsed as gone:
+            collapsed.append((gone.names, gone.value))
+            obj = Objective(without(obj, gone.names, gone.psi), method)
     obj, res, etas, notes = _refined(obj, res, etas, fit)
+    notes = [collapse_note(n, v, res.objective) for n, v in collapsed] + notes
     notes += _near_singular(res)
     if obj.unfinite:
         names = obj.unfinite
@@ -293,6 +306,9 @@ def _outer(obj: Objective, units: UnitMap | None, state: dict, start=None, **opt
             H[flat, flat] = np.max(np.abs(np.diag(H)), initial=1.0)
         if J < state["best"]:  # the next start: the best point's η̂ (a rejected trial
             state.update(etas=etas, best=J, x=np.array(psi), g=grad, H=H, flat=flat)
+            gone = collapsing(obj, psi, grad)
+            if gone:  # a random effect going to 0: refitted without it (boundary.py)
+                raise Collapsed(gone, np.array(psi), etas, J)
         return J, grad, H
 
     if obj.size == 0:  # every parameter individual: the units' own fits are the fit
@@ -303,36 +319,6 @@ def _outer(obj: Objective, units: UnitMap | None, state: dict, start=None, **opt
     # (Ctrl-C: the loop ends the run, then fit_population keeps the best point)
     r = interrupted(minimize_trust_region(fun, psi0, lo, hi, radius=1.0, fatol=-np.inf, **options))
     return r, state["etas"]
-
-
-def flat_directions(grad, H) -> np.ndarray:
-    """The directions of ψ in which the objective does not change at all, its gradient
-    and its row of H zero to rounding (a parameter that has no effect on the outputs:
-    it cancels in them, or its state stays 0): (size,) bool."""
-    scale = float(np.max(np.abs(np.diag(H)), initial=0.0))
-    tiny = 1e-10 * (scale + float(np.max(np.abs(grad), initial=0.0)))
-    return (np.max(np.abs(H), axis=1, initial=0.0) <= tiny) & (np.abs(grad) <= tiny) & (scale > 0)
-
-
-def no_effect_note(obj: Objective, flat: np.ndarray) -> str | None:
-    """One line naming the parameters whose every direction of ψ is flat."""
-    names = []
-    for k in np.flatnonzero(flat):
-        if k < 2 * obj.qp:  # a typical value or its ω
-            n = obj.pop[k % obj.qp]
-        elif k < obj.first_shared + obj.ns:
-            n = obj.shared[k - obj.first_shared]
-        else:
-            n = obj.names[k]
-        names += [n] if n not in names else []
-    if not names:
-        return None
-    return (
-        f"{', '.join(names)} {'has' if len(names) == 1 else 'have'} no effect on the outputs "
-        "at the estimates (the objective does not change with it at all: it cancels in the "
-        "outputs, or what it acts on stays 0); it was held where it started and has no "
-        "error bars: fix it, or drop it from the model"
-    )
 
 
 def coarse_steps(obj: Objective, res: PopulationResult, etas) -> float | None:
