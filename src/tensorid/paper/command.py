@@ -73,9 +73,9 @@ def _robustness_table(rows: list[dict], rtol: float) -> Table:
 # the quick study's time, said the same in README.md and docs/index.md (a test checks):
 # measured from a fresh clone, with an empty compilation cache and then a warm one
 QUICK_SECONDS = {
-    "empty cache": 20,
-    "warm cache": 7,
-    "measured": "measured 2026-11-29 on 2 cores, idle",
+    "empty cache": 27,
+    "warm cache": 11,
+    "measured": "measured 2026-12-06 on 2 cores, idle",
 }
 
 
