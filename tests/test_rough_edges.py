@@ -392,3 +392,19 @@ def test_a_model_file_s_own_variables_are_not_taken_for_misspelt_settings(tmp_pa
     (tmp_path / "typo.py").write_text(text + 'outputs = ["y"]\n')
     with pytest.warns(UserWarning, match=r"typo\.py: outputs .* did you mean output\?"):
         load_model(tmp_path / "typo.py")
+
+
+def test_fit_help_is_in_sections_and_every_option_has_one():
+    """issue 51, item 9: `tensorid fit --help` was 54 options in one list."""
+    from tensorid.app.options import FIT_SECTIONS
+
+    sub = next(
+        a for a in cli.build_parser()._actions if a.__class__.__name__ == "_SubParsersAction"
+    )
+    fit = sub.choices["fit"]
+    options = next(g for g in fit._action_groups if g.title == "options")
+    assert [a.dest for a in options._group_actions] == ["help"]  # the rest in sections
+    text = fit.format_help()
+    at = [text.index(f"\n{title}:\n") for title in FIT_SECTIONS]
+    assert at == sorted(at)
+    assert fit.parse_args(["m.py", "d.csv", "--substeps", "8"]).substeps == 8  # parsing as before

@@ -28,11 +28,13 @@ from .argtypes import (
 from .fit_flags import add_fit_flags
 from .options import (
     _TS_HELP,
+    FIT_SECTIONS,
     fleet_options,
     integration_options,
     record_options,
     register_compare,
     register_simulate,
+    sections,
 )
 
 __all__ = [
@@ -338,6 +340,7 @@ def register(sub) -> None:
     add_fit_flags(f)  # --maxiter, --gtol, --ftol, --xtol, --prior, --noise, --weights
     f.add_argument("--no-progress", action="store_true", help="no live progress display")
     honest_options(f)
+    sections(f, FIT_SECTIONS)
     f.set_defaults(func=_fit)
 
     register_simulate(sub)
