@@ -56,28 +56,26 @@ class LossSettings:
         units) for a robust one: a copy that shares the data and settings (and the
         compiled sweeps, where the loss is the same). ``estimated``: whether that scale
         was estimated from residuals (default: where none is given)."""
-        new = copy.copy(self)
         measured = observed_rows(self.experiments)
-        new.loss, c = make_loss(loss, scale, list(self.model.outputs), self.weights, measured)
-        new.loss_weights = np.stack([self.weights, c])
+        loss, c = make_loss(loss, scale, list(self.model.outputs), self.weights, measured)
         by_residuals = (scale is None) if estimated is None else bool(estimated)
-        new.loss_scale_estimated = new.loss.robust and by_residuals
-        sw = self._sweeps
-        new._sweeps = shared_sweeps(
-            self.model, sw.free_states, sw.free_params, self.discretisation, new.loss,
-            self.predictor, self.dosing,
-        )  # fmt: skip
-        new.shooting = Shooting(new, self.shooting.counts) if self.shooting else None
-        return new
+        return self._copy_with(loss=loss, loss_weights=np.stack([self.weights, c]),
+                               loss_scale_estimated=loss.robust and by_residuals)  # fmt: skip
 
     def with_substeps(self, substeps: int):
         """This problem with ``substeps`` steps per sample interval, as the fit's own
         refinement of the default (a copy sharing the data and the settings)."""
+        return self._copy_with(discretisation=replace(self.discretisation, substeps=int(substeps)))
+
+    def _copy_with(self, **changed):
+        """A copy with the attributes ``changed``, its sweeps (shared where the same)
+        and shooting segments made for them."""
         new = copy.copy(self)
-        new.discretisation = replace(self.discretisation, substeps=int(substeps))
+        for name, value in changed.items():
+            setattr(new, name, value)
         sw = self._sweeps
         new._sweeps = shared_sweeps(
-            self.model, sw.free_states, sw.free_params, new.discretisation, self.loss,
+            self.model, sw.free_states, sw.free_params, new.discretisation, new.loss,
             self.predictor, self.dosing,
         )  # fmt: skip
         new.shooting = Shooting(new, self.shooting.counts) if self.shooting else None
