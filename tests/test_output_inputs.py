@@ -104,6 +104,7 @@ def _simulated(pr, theta):
     return sw._simulate(x0, p, t, u)[1][:, 0]
 
 
+@pytest.mark.slow  # jax.hessian through the moving nodes: about 20 s from a cold cache
 def test_with_a_lag_the_output_s_input_stays_with_its_sample():
     """A lag reorders the march's nodes at each evaluation; the output reads the input
     of its own sample whatever moved past it."""
@@ -123,6 +124,7 @@ def test_with_a_lag_the_output_s_input_stays_with_its_sample():
     assert g[3] == pytest.approx(-2 * np.sum(r * e.u[e.observed[:, 0], 0]), rel=1e-9)
 
 
+@pytest.mark.slow  # three more sweeps' programs and jax.hessian of the filter: about 18 s
 def test_the_filter_and_the_adjoint_read_the_output_s_input():
     m = ti.model_from_equations(
         rhs={"x": "-k*x + b*u"}, output={"y": "x + c*u**2"}, inputs=["u"], params=["k", "b", "c"]

@@ -186,14 +186,8 @@ def fit_population(
     fit = dict(executor=executor, workers=workers, timeout=timeout, began=began,
                maxiter=maxiter, gtol=gtol, ftol=ftol, xtol=xtol, callback=callback)  # fmt: skip
     collapsed: list[tuple[list[str], float]] = []
-    while True:  # a random effect collapsing to 0: dropped, the fit repeated (boundary.py)
-        try:
-            res, etas = _estimate(obj, **fit)
-            break
-        except Collapsed as gone:
-            collapsed.append((gone.names, gone.value))
-            obj = Objective(without(obj, gone.names, gone.psi), method)
-    obj, res, etas, notes = _refined(obj, res, etas, fit)
+    obj, res, etas = _dropping(obj, fit, collapsed)
+    obj, res, etas, notes = _refined(obj, res, etas, fit, collapsed)
     notes = [collapse_note(n, v, res.objective) for n, v in collapsed] + notes
     notes += _near_singular(res)
     if obj.unfinite:
@@ -216,7 +210,20 @@ def fit_population(
     return replace(res, notes=notes)
 
 
-def _refined(obj: Objective, res: PopulationResult, etas, fit: dict):
+def _dropping(obj: Objective, fit: dict, collapsed: list, start=None):
+    """(objective, result, η̂) of ``_estimate``, a random effect that collapses to 0
+    dropped and the fit repeated from where it had got (boundary.py); each drop
+    appended to ``collapsed`` as (names, −2 log L as they collapsed)."""
+    while True:
+        try:
+            res, etas = _estimate(obj, start=start, **fit)
+            return obj, res, etas
+        except Collapsed as gone:
+            collapsed.append((gone.names, gone.value))
+            obj, start = Objective(without(obj, gone.names, gone.psi), obj.method), None
+
+
+def _refined(obj: Objective, res: PopulationResult, etas, fit: dict, collapsed: list):
     """(objective, result, η̂, notes) after the substeps check: the default substeps,
     where too coarse, raised fourfold and the fit repeated from its estimates, so that
     the answer is the model's (a user's own choice is kept, and warned about). Ctrl-C
@@ -237,8 +244,8 @@ def _refined(obj: Objective, res: PopulationResult, etas, fit: dict):
             f"{worst:.2g} residual SDs when the substeps doubled (--substeps on the command "
             "line, substeps= in Python, chooses them)"
         )
-        obj = Objective(obj.problem.with_substeps(4 * steps.substeps), obj.method)
-        res, etas = _estimate(obj, start=(res.x, etas), **fit)
+        finer = Objective(obj.problem.with_substeps(4 * steps.substeps), obj.method)
+        obj, res, etas = _dropping(finer, fit, collapsed, start=(res.x, etas))
         notes += [n for n in res.notes if n not in notes]
         steps = obj.problem.discretisation
     if worst is not None:
