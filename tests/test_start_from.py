@@ -73,6 +73,10 @@ def test_the_command_line_starts_from_a_fit_json(tmp_path, capsys):
     assert cli.main([*again, "--out", str(tmp_path / "b")]) == 0
     second = json.loads((tmp_path / "b" / "fit.json").read_text())
     assert second["history"][0]["cost"] == pytest.approx(first["cost"], rel=1e-12)
+    # which fit it started from, and its bytes (issue 51, item 7: fit.json did not say)
+    started = second["provenance"]["start_from"]
+    assert started["path"] == str(tmp_path / "a" / "fit.json") and len(started["sha256"]) == 64
+    assert "start_from" not in first["provenance"]
     assert second["cost"] <= first["cost"]
     capsys.readouterr()
     # a fit.json of another model: one line, exit status 2, before any work

@@ -245,7 +245,8 @@ def _provenance(args, m, train_maps, val_maps) -> dict:
             entry["samples"] = _window(window)
     roles = ["training"] * len(train) + ["validation"] * len(val)
     argv = getattr(args, "argv", None)
-    return provenance(args.model, train + val, argv, ts=args.ts, roles=roles)
+    start = getattr(args, "start_from", None)  # (issue 51: fit.json did not say)
+    return provenance(args.model, train + val, argv, ts=args.ts, roles=roles, start_from=start)
 
 
 def _report(res, val, args, out: Path, old: set[Path], kept: dict, renderer) -> int:

@@ -70,10 +70,12 @@ def provenance(
     ts: float | None = None,
     roles: list[str] | None = None,
     fit=None,
+    start_from=None,
 ) -> dict:
     """fit.json's and compare.json's "provenance": with ``ts`` (--ts), each data
     entry's time base; ``roles`` names each entry "training", "validation" or
-    "scored"; ``fit``: the fit.json a compare scored (path and SHA-256)."""
+    "scored"; ``fit``: the fit.json a compare scored (path and SHA-256);
+    ``start_from``: the fit.json a fit started from (--start-from, path and SHA-256)."""
     words = ["tensorid", *(sys.argv[1:] if argv is None else argv)]
     for k, entry in enumerate(data):
         _time_base(entry, ts)
@@ -87,6 +89,7 @@ def provenance(
         "time": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "working_directory": os.getcwd(),
     }
+    out |= {"start_from": _file(start_from)} if start_from is not None else {}
     return out | ({"fit": _file(fit)} if fit is not None else {})
 
 
