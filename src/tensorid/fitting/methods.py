@@ -274,6 +274,11 @@ def check_method(problem, method) -> Method:
     """The method object named ``method`` (registry.py), checked against ``problem``."""
     if not isinstance(problem, Problem):
         raise TypeError(f"fit needs a tensorid.Problem, got {type(problem).__name__}")
+    if not isinstance(method, str | Method):  # fit(problem, theta): a start where method goes
+        raise TypeError(
+            f"method must be a method's name or a tensorid Method, got "
+            f"{type(method).__name__}; a start goes by keyword: fit(problem, theta0=...)"
+        )
     if method in FLEET_METHODS:
         raise ValueError(
             f"method {method!r} is a population fit's (Problem(population=...)); this "
