@@ -25,7 +25,7 @@ from .argtypes import tolerances_as_flags
 from .files import ModelSpec, load_data
 from .fit_flags import statistics
 from .overrides import given_once
-from .provenance import data_entries
+from .provenance import data_entries, sha256
 from .simulate import effective_columns
 
 
@@ -337,7 +337,7 @@ def no_repeats(files: list, maps) -> None:
     per_file = maps if isinstance(maps, list) else [maps] * len(files)
     seen: dict = {}
     for f, m in zip(files, per_file, strict=True):
-        key = (_content(Path(f)), repr(sorted((m or {}).items())))
+        key = (sha256(f) or str(Path(f).resolve()), repr(sorted((m or {}).items())))
         if key in seen:
             same = "is given twice" if Path(seen[key]).resolve() == Path(f).resolve() else (
                 "holds the same bytes as another file")  # fmt: skip
@@ -346,16 +346,6 @@ def no_repeats(files: list, maps) -> None:
                 "would count twice and every standard error shrink by √2; give it once"
             )
         seen[key] = f
-
-
-def _content(p) -> str:
-    """A file's SHA-256 (its resolved path where it cannot be read: a joined u+y)."""
-    import hashlib
-
-    try:
-        return hashlib.sha256(p.read_bytes()).hexdigest()
-    except OSError:
-        return str(p.resolve())
 
 
 def _one(maps: list | None):

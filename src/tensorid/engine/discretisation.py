@@ -47,7 +47,7 @@ class Discretisation:
     """
 
     scheme: Scheme | RungeKuttaScheme
-    substeps: int = 4
+    substeps: int = DEFAULT_SUBSTEPS
     interpolation: str = "linear"
     chosen: bool = field(default=True, compare=False)
 
@@ -92,7 +92,8 @@ class Discretisation:
             raise TypeError(
                 f"discretisation must be a tensorid.Discretisation, got {type(given).__name__}"
             )
-        defaults = (scheme == "rk4", substeps in (None, 4), interpolation == "linear")
+        steps = substeps in (None, DEFAULT_SUBSTEPS)
+        defaults = (scheme == "rk4", steps, interpolation == "linear")
         if not all(defaults) or rtol is not None or atol is not None:
             raise ValueError(
                 "give either discretisation= or scheme/substeps/interpolation/rtol/atol, not both"
@@ -113,7 +114,8 @@ class Discretisation:
             return self
         if discrete:
             return Discretisation(DISCRETE, 1, "zoh")
-        if (self.scheme.name, self.substeps) == ("rk4", 4):  # the defaults: not a choice
+        # the defaults: not a choice
+        if (self.scheme.name, self.substeps) == ("rk4", DEFAULT_SUBSTEPS):
             return Discretisation(DISCRETE, 1, "zoh")
         raise ValueError(
             f"{model.name} is a discrete-time model (x[k+1] = f(x[k], p, u[k])): it steps "
