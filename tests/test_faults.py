@@ -232,10 +232,20 @@ def slow(self, wait=True, **kw):  # the parent descheduled between terminate and
         time.sleep(0.5)
     return out
 ProcessPoolExecutor.shutdown = slow
+DONE = sys.argv[3]  # a folder where each finished chunk leaves a file
 def task(problem, chunk):  # results of the size asked for
+    open(os.path.join(DONE, f"{os.getpid()}-{time.perf_counter_ns()}"), "w").close()
     return [problem[: int(sys.argv[1])] for _ in chunk]
+def interrupt_after_progress():
+    # Ctrl-C once chunks have finished, however loaded the machine: a fixed 4 s raced
+    # the pools' start when three ran at once on CI (no start had finished by then)
+    deadline = time.monotonic() + 60.0
+    while len(os.listdir(DONE)) < 8 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    time.sleep(1.0)  # (for their results to reach the parent)
+    os.kill(os.getpid(), signal.SIGINT)
 if __name__ == "__main__":
-    threading.Timer(4.0, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+    threading.Thread(target=interrupt_after_progress, daemon=True).start()
     try:  # a problem larger than a pipe holds: the queue's feeder is mid-write
         run_starts(np.ones(200_000), task, np.zeros((20000, 1)), workers=2)
     except StartsStopped as e:
@@ -256,7 +266,11 @@ def test_an_interrupted_pool_lets_the_command_exit_on_a_loaded_machine(tmp_path,
     # off the stop with a traceback, losing the finished starts.
     script = tmp_path / "slow_shutdown.py"
     script.write_text(_PYTHON_SIGINT + "\n" + _SLOW_SHUTDOWN)
-    for code, out, err in _run_at_once(script, [[str(size), how]] * runs, timeout=90):
+    folders = [tmp_path / f"done{i}" for i in range(runs)]
+    for folder in folders:
+        folder.mkdir()
+    argvs = [[str(size), how, str(folder)] for folder in folders]
+    for code, out, err in _run_at_once(script, argvs, timeout=120):
         assert code == 0, err[-2000:]
         assert out.split() == ["stopped", "INTERRUPTED", "True"], err[-2000:]
         assert "Traceback" not in err, err[-2000:]
