@@ -268,6 +268,9 @@ def test_the_command_lines_names_are_the_registries():
     assert names.METHODS == tuple(registry.REGISTRY) == ti.METHODS
     assert names.FLEET_METHODS == FLEET_METHODS
     assert names.SCHEMES == tuple(integrators.SCHEMES)
+    from tensorid.population.errors import ERROR_MODELS
+
+    assert names.RESIDUAL_ERRORS == tuple(ERROR_MODELS)
 
 
 def test_the_names_module_imports_nothing():

@@ -8,6 +8,7 @@ built-in names in the registry's order (tests/test_recipes.py checks that they a
     HESSIANS     tensorid.engine.hessians.REGISTRY     (--hessian)
     METHODS      tensorid.fitting.registry.REGISTRY    (--method), and FLEET_METHODS
     SCHEMES      tensorid.engine.integrators.SCHEMES   (--scheme)
+    RESIDUAL_ERRORS  tensorid.population.errors.ERROR_MODELS  (--residual-error)
 
 A plug-in registered at run time is taken by the library by name or as an object;
 the command line offers it once its name is here too.
@@ -21,3 +22,5 @@ FLEET_METHODS = ("focei", "laplace")  # a population fit's approximations (popul
 SCHEMES = (
     "euler", "heun", "rk4", "rk38", "implicit-euler", "sdirk2", "sdirk3", "bosh3", "dopri5",
 )  # fmt: skip
+# a population fit's residual-error models (tensorid.population.errors.ERROR_MODELS)
+RESIDUAL_ERRORS = ("additive", "proportional", "combined", "exponential")

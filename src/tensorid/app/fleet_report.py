@@ -10,10 +10,12 @@ fit.json keys (a contract, added to, never renamed):
   the parameter's units, ω the standard deviation of η (the log of the unit's value
   over the typical one);
 - ``residual_sd``: {output: standard deviation of the measurement noise} (its
-  additive part; 0 where the output's error is proportional alone);
-- ``residual_error``: {output: {"model": "additive" | "proportional" | "combined",
-  "additive", "additive_stderr", "proportional", "proportional_stderr"}} (a population
-  fit's; σ² = additive² + (proportional · prediction)², the terms its model has);
+  additive part; 0 where the output's error has none: proportional, exponential);
+- ``residual_error``: {output: {"model": "additive" | "proportional" | "combined" |
+  "exponential", and each term the model has with its SD and ``<term>_stderr``:
+  "additive", "proportional", "exponential"}} (a population fit's; the models'
+  formulas in tensorid/population/errors.py: σ² = additive² + (proportional ·
+  prediction)², log y = log prediction + ε with SD(ε) = exponential);
 - ``omega_correlation``: {"a,b": {"value", "stderr"}}: the correlation of η_a and η_b
   where Ω is full (``omega = "full"``);
 - ``units``: [{"id", "params": {name: value}, "stderr": {name: value}}], in the order
@@ -160,16 +162,17 @@ def fleet_lines(data: dict) -> list[str]:
         lines += [f"Correlations of the random effects (Ω full): {text}.", ""]
     sd, errors = data.get("residual_sd"), data.get("residual_error")
     if errors and any(e.get("model") != "additive" for e in errors.values()):
+        from ..population.errors import ERROR_MODELS, TERMS
+
+        models = {e.get("model") for e in errors.values()}
+        known = [ERROR_MODELS[k] for k in ERROR_MODELS if k in models]
         text = "; ".join(
             f"{o} ({e['model']}): "
-            + ", ".join(
-                f"{w} {_pm(e.get(w), e.get(w + '_stderr'))}"
-                for w in ("additive", "proportional")
-                if w in e
-            )
+            + ", ".join(f"{w} {_pm(e.get(w), e.get(w + '_stderr'))}" for w in TERMS if w in e)
             for o, e in errors.items()
         )
-        lines += [f"Residual error (σ² = additive² + (proportional · prediction)²): {text}.", ""]
+        formulas = "; ".join(m.formula for m in known if m.name != "additive") or "σ"
+        lines += [f"Residual error ({formulas}): {text}.", ""]
     elif sd:
         text = ", ".join(f"{o} {_text(v)}" for o, v in sd.items())
         lines += [f"Residual standard deviation (additive, per output): {text}.", ""]

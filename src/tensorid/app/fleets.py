@@ -92,7 +92,7 @@ def population(value, model: Model, key: str = "population") -> dict[str, float]
 def residual_error(value, model: Model, key: str = "residual_error") -> str | dict:
     """``residual_error = "combined"`` (every output) or ``{"cp": "proportional"}``;
     on the command line ``combined`` or ``cp=proportional`` (NAME=KIND pairs)."""
-    from ..engine.fleet import RESIDUAL_ERRORS
+    from ..names import RESIDUAL_ERRORS
 
     if isinstance(value, list | tuple):  # the command line's words
         if len(value) == 1 and "=" not in value[0]:

@@ -110,8 +110,9 @@ def fleet_options(f: argparse.ArgumentParser) -> None:
         default=None,
         metavar="KIND",
         help="a population fit's measurement error: additive (default, σ = a), "
-        "proportional (σ = b·|prediction|) or combined (σ² = a² + b²·prediction²), for "
-        "every output or OUTPUT=KIND each; replaces the model file's residual_error",
+        "proportional (σ = b·|prediction|), combined (σ² = a² + b²·prediction²) or "
+        "exponential (log y = log prediction + ε), for every output or OUTPUT=KIND each; "
+        "replaces the model file's residual_error",
     )
     f.add_argument(
         "--omega",

@@ -11,6 +11,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from ..names import RESIDUAL_ERRORS  # (population/errors.py holds the models)
 from .checks import did_you_mean
 
 
@@ -142,11 +143,8 @@ def fixed_x0_parameters(problem, fleet: bool) -> None:
         )
 
 
-RESIDUAL_ERRORS = ("additive", "proportional", "combined")
-
-
 def check_residual_error(problem, residual_error, population) -> dict[str, str]:
-    """{output: "additive" | "proportional" | "combined"} of a population fit, from one
+    """{output: an error model's name (RESIDUAL_ERRORS)} of a population fit, from one
     kind for every output or a dict per output (the others additive); {} for the
     default (additive everywhere)."""
     if residual_error is None:
@@ -169,7 +167,7 @@ def check_residual_error(problem, residual_error, population) -> dict[str, str]:
         if kind not in RESIDUAL_ERRORS:
             raise ValueError(
                 f"residual_error[{o!r}] = {kind!r}: it must be one of {RESIDUAL_ERRORS} "
-                "(σ = a, σ = b·|ŷ| or σ² = a² + b²ŷ²)"
+                "(σ = a, σ = b·|ŷ|, σ² = a² + b²ŷ² or log y = log ŷ + ε)"
             )
     if not population and any(k != "additive" for k in given.values()):
         raise ValueError(

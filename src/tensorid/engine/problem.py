@@ -129,11 +129,11 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         population: {parameter: ω start}: a fleet's random effects (one experiment per
             unit; the unit's value is the typical value times exp(η), η ~ N(0, ω²));
             ``individual``: parameters each unit has its own value of (no distribution);
-            ``residual_error``: "additive" (default), "proportional" or "combined"
-            (σ² = a² + b²ŷ²), for every output or {output: kind}; ``omega``: "diagonal"
-            (default) or "full" (correlated random effects). :func:`tensorid.fit` then
-            estimates by the marginal likelihood, or least squares for individual
-            parameters alone (:mod:`tensorid.population`; docs: Fleets and populations).
+            ``residual_error``: "additive" (default), "proportional", "combined" or
+            "exponential" (population/errors.py), for every output or {output: kind};
+            ``omega``: "diagonal" (default) or "full" (correlated random effects).
+            :func:`tensorid.fit` then estimates by the marginal likelihood, or least
+            squares for individual parameters alone (docs: Fleets and populations).
         constraints: inequalities between parameters such as ["Fs >= Fc", "k <= 2*m"]
             (plain arithmetic on parameter names, or a single record's free initial
             states), which :func:`tensorid.fit` keeps by an augmented Lagrangian around

@@ -31,8 +31,8 @@ from .units import blocked
 
 def _start(obj: Objective) -> np.ndarray:
     """ψ0: the typical values from p0, ω as given, the shared parameters from p0, and
-    each output's residual error from the residuals of the typical unit (additive: their
-    RMS; proportional: their RMS relative to the prediction; combined: half each)."""
+    each output's residual error from the residuals of the typical unit (each error
+    model's own start: errors.py)."""
     pr, m = obj.problem, obj.problem.model
     if obj.joint:  # the shared parameters alone
         return np.array([pr.p0[m.params.index(n)] for n in obj.shared], dtype=float)
@@ -40,39 +40,33 @@ def _start(obj: Objective) -> np.ndarray:
     mu = [np.log(pr.p0[m.params.index(n)]) for n in random]
     logw = [np.log(pr.population[n]) for n in random] + [0.0] * (obj.n_omega - obj.qp)
     s = [pr.p0[m.params.index(n)] for n in obj.shared]
-    noise = len(obj.additive) + len(obj.proportional)
+    noise = len(obj.error.terms)
     psi = np.array(mu + logw + s + [0.0] * noise, dtype=float)
     u = obj.units
     yhat = np.asarray(obj.predict_all(psi, obj.start_etas()))
     _zero_predictions(obj, yhat)
-    n = np.maximum(u.mask.sum((0, 1)), 1)
-    sig = np.sqrt((((u.y - yhat) * u.mask) ** 2).sum((0, 1)) / n)
-    scale = np.sqrt((u.y**2 * u.mask).sum((0, 1)) / n)
-    typical = np.isfinite(sig) & (sig > 1e-8 * scale)
-    log_a = np.log(np.where(typical, sig, np.maximum(0.1 * scale, 1e-12)))
-    seen = (u.mask > 0) & (np.abs(yhat) > 1e-12 * np.maximum(scale, 1e-300))
-    rel = (u.y - yhat) / np.where(seen, yhat, 1.0) * seen
-    rel_rms = np.sqrt((rel**2).sum((0, 1)) / np.maximum(seen.sum((0, 1)), 1))
-    log_b = np.log(np.where(np.isfinite(rel_rms) & (rel_rms > 1e-8), rel_rms, 0.1))
-    both = np.array([k == "combined" for k in obj.errors]) * np.log(0.5)
-    psi[obj.first_shared + obj.ns :] = np.concatenate(
-        [(log_a + both)[obj.additive], (log_b + both)[obj.proportional]]
-    )
+    psi[obj.first_shared + obj.ns :] = obj.error.log_start(u.y, yhat, u.mask)
     return psi
 
 
 def _zero_predictions(obj: Objective, yhat: np.ndarray) -> None:
     """A proportional error alone has no variance where the prediction is 0 (a
-    concentration before the dose arrives): one line naming the first such sample."""
+    concentration before the dose arrives), an exponential one no logarithm: one line
+    naming the first such sample."""
     u, outs = obj.units, obj.problem.model.outputs
-    for g in (g for g, kind in enumerate(obj.errors) if kind == "proportional"):
-        zero = (u.mask[..., g] > 0) & (yhat[..., g] == 0)
+    for g, e in enumerate(obj.error.models):
+        if not e.positive:
+            continue
+        low = yhat[..., g] <= 0 if e.log_scale else yhat[..., g] == 0
+        zero = (u.mask[..., g] > 0) & low
         if zero.any():
             i, h = np.argwhere(zero)[0]
+            what = "no logarithm" if e.log_scale else "no variance"
             raise ValueError(
-                f"residual_error 'proportional' for {outs[g]}: unit {u.names[i]}'s "
-                f"prediction at t = {u.t[i, h]:g} is 0, where a proportional error has no "
-                f"variance; use 'combined' (σ² = a² + b²ŷ²) for {outs[g]}"
+                f"residual_error {e.name!r} for {outs[g]}: unit {u.names[i]}'s "
+                f"prediction at t = {u.t[i, h]:g} is {yhat[i, h, g]:g}, where "
+                f"{'an' if e.name[0] in 'aeiou' else 'a'} {e.name} error has {what}; "
+                f"use 'combined' (σ² = a² + b²ŷ²) for {outs[g]}"
             )
 
 
@@ -269,9 +263,12 @@ def _near_singular(res: PopulationResult) -> list[str]:
 
 def _sd(obj: Objective, res: PopulationResult) -> np.ndarray:
     """The residual SD against which predictions are measured: per output (individual
-    parameters alone), or per sample where it follows the prediction."""
-    if obj.joint or obj.plain:
+    parameters alone), or per sample where it follows the prediction; on each error
+    model's scale (log y for an exponential one)."""
+    if obj.joint:
         return np.array(list(res.residual_sd.values()))
+    if obj.plain:  # each output's one term
+        return np.exp(res.x[obj.first_shared + obj.ns + obj.error.first])
     return obj.residual_sd(res.x, res.etas)
 
 
@@ -356,7 +353,9 @@ def coarse_steps(obj: Objective, res: PopulationResult, etas) -> float | None:
     program = obj._program(("finer", d.substeps), build)
     finer = np.asarray(blocked(program, (jnp.asarray(x), jnp.asarray(etas), obj.data), (1, 2)))
     coarse = np.asarray(obj.predict_all(x, etas))
-    worst = float(np.max(np.abs(finer - coarse) * obj.units.mask / np.maximum(sigma, 1e-300)))
+    mask = obj.units.mask
+    moved = np.asarray(obj.error.scaled(finer, mask)) - np.asarray(obj.error.scaled(coarse, mask))
+    worst = float(np.max(np.abs(moved) * mask / np.maximum(sigma, 1e-300)))
     return worst if worst > 0.1 else None
 
 

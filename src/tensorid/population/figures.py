@@ -135,7 +135,8 @@ def vpc(res, replicates: int = 200, seed: int = 0, bins: int = 8, output: int = 
         pred = np.asarray(obj.predict_all(res.x, etas))[..., output]
         sd = _noise_sd(res, obj, etas, pred.shape, output)
         pred = pred[seen]
-        sims.append(percentiles(pred + sd[seen] * rng.standard_normal(pred.shape)))
+        z = rng.standard_normal(pred.shape)
+        sims.append(percentiles(obj.error.sample(pred, sd[seen], z, output)))
     sims_a = np.stack(sims)  # (R, B, 3)
     centre = np.array([t[which == b].mean() if (which == b).any() else np.nan
                        for b in range(len(edges) - 1)])  # fmt: skip
@@ -148,8 +149,8 @@ def vpc(res, replicates: int = 200, seed: int = 0, bins: int = 8, output: int = 
 
 def _noise_sd(res, obj, etas, shape, output: int) -> np.ndarray:
     """The residual SD of each simulated sample of ``output``."""
-    if obj.plain:
-        return np.full(shape, list(res.residual_sd.values())[output])
+    if obj.plain:  # the output's one term: σ on its scale
+        return np.full(shape, np.exp(res.x[obj.first_shared + obj.ns + obj.error.first[output]]))
     return obj.residual_sd(res.x, etas)[..., output]
 
 

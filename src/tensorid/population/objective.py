@@ -45,6 +45,7 @@ import numpy as np
 
 from ..engine.initial import moving
 from ..engine.sweeps import shared_sweeps
+from .errors import ResidualErrors, positive_observations
 from .inner import solve_units
 from .units import Units, blocked, outputs
 
@@ -92,15 +93,15 @@ class Objective:
         self.pop_pos = jnp.array([problem.free_params.index(n) for n in self.pop], dtype=int)
         self.sh_pos = jnp.array([problem.free_params.index(n) for n in self.shared], dtype=int)
         self.q, self.ns, self.S = len(self.pop), len(self.shared), m.S
-        # each output's residual error: σ² = a² + b² ŷ² (additive a, proportional b)
+        # each output's residual-error model (errors.py): σ² and the scale it is on
         kinds = getattr(problem, "residual_error", None) or {}
         self.errors = tuple(kinds.get(o, "additive") for o in m.outputs)
-        self.additive = [g for g, k in enumerate(self.errors) if k != "proportional"]
-        self.proportional = [g for g, k in enumerate(self.errors) if k != "additive"]
+        self.error = ResidualErrors(self.errors, m.outputs)
         self.units = Units.of(problem)
+        positive_observations(self.error, self.units, m.outputs)
         # samples below their limit (Beal's M3): P(y < limit) in ℓ, which moves with σ
         self.censored = self.units.cens is not None
-        self.plain = not self.proportional and not self.censored  # σ constant in η
+        self.plain = self.error.constant and not self.censored  # σ constant in η
         if self.censored and method != "laplace":
             raise ValueError(
                 "records with samples below their quantification limit (CENS, Beal's M3) "
@@ -120,7 +121,6 @@ class Objective:
         self.key += (self.weights,) if self.joint else (self.errors,)
         self.key += ("censored",) if self.censored else ()
         self.Y = outputs(self.sweeps)
-        outs = m.outputs
         self.names = (
             self.shared
             if self.joint
@@ -129,8 +129,7 @@ class Objective:
                 + [f"log_omega_{n}" for n in self.pop[: self.qp]]
                 + [f"omega_chol_{a}_{b}" for a, b in self.lower_pairs()]
                 + self.shared
-                + [f"log_sigma_{outs[g]}" for g in self.additive]
-                + [f"log_prop_{outs[g]}" for g in self.proportional]
+                + self.error.names
             )
         )
         self.size = len(self.names)
@@ -195,17 +194,8 @@ class Objective:
         return th.at[self.pop_pos].set(own).at[self.sh_pos].set(s)
 
     def variance(self, noise, yhat):
-        """σ²_hg = a_g² + b_g² ŷ_hg² of each output's residual error (P, S)."""
-        na = len(self.additive)
-        a2 = (
-            jnp.zeros(self.S).at[jnp.asarray(self.additive, dtype=int)].set(jnp.exp(2 * noise[:na]))
-        )
-        b2 = (
-            jnp.zeros(self.S)
-            .at[jnp.asarray(self.proportional, dtype=int)]
-            .set(jnp.exp(2 * noise[na:]))
-        )
-        return a2 + b2 * yhat**2
+        """σ²_hg of each output's residual error (P, S), on its model's scale."""
+        return self.error.variance(noise, yhat)
 
     def start(self, theta, unit):
         """(x0, p) of the unit at its free parameters θ: x0's expressions evaluated
@@ -226,20 +216,23 @@ class Objective:
         _, logw, _, noise = self.split(psi)
         y, mask = unit[2], unit[3]
         f = self.predict(psi, eta, unit)
-        r = (y - f) * mask
         if self.joint:  # least squares, J_i / 2 with the Problem's weights
-            return 0.5 * jnp.sum(r**2 * jnp.asarray(self.weights))
+            return 0.5 * jnp.sum(((y - f) * mask) ** 2 * jnp.asarray(self.weights))
+        r, bad = self.error.residuals(y, f, mask)  # on each error model's scale
         prior = self.prior(eta[: self.qp], logw)
         if self.plain:
-            return 0.5 * (jnp.sum(r**2 * jnp.exp(-2 * noise)) + prior)
+            out = 0.5 * (jnp.sum(r**2 * jnp.exp(-2 * noise[self.error.first])) + prior)
+            return jnp.where(bad, jnp.inf, out)
         V = jnp.where(mask > 0, self.variance(noise, f), 1.0)  # 1: no observation
         out = 0.5 * (jnp.sum(r**2 / V + mask * jnp.log(V)) + prior)
         if self.censored:  # −log P(y < limit) = −log Φ((limit − ŷ)/σ), y holding the limit
             c = unit[6]
             Vc = jnp.where(c > 0, self.variance(noise, f), 1.0)  # (σ² = 0 where ŷ = 0)
-            z = jnp.where(c > 0, (y - f) / jnp.sqrt(Vc), 0.0)
+            rc, below = self.error.residuals(y, f, c)
+            z = jnp.where(c > 0, rc / jnp.sqrt(Vc), 0.0)
             out = out - jnp.sum(jnp.where(c > 0, jax.scipy.special.log_ndtr(z), 0.0))
-        return out
+            bad = bad | below
+        return jnp.where(bad, jnp.inf, out)
 
     def curvature(self, eta, psi, unit):
         """M_i over the random effects: the matrix whose log determinant the
@@ -249,9 +242,10 @@ class Objective:
         if self.method == "laplace":
             return jax.hessian(self.ell)(eta, psi, unit)[:qp, :qp]
         _, logw, _, noise = self.split(psi)
-        A = jax.jacfwd(lambda e: self.predict(psi, e, unit))(eta)[..., :qp]  # (P, S, qp)
+        fitted = lambda e: self.error.scaled(self.predict(psi, e, unit), unit[3])  # noqa: E731
+        A = jax.jacfwd(fitted)(eta)[..., :qp]  # (P, S, qp): of h(ŷ)
         if self.plain:
-            Aw = A * (jnp.sqrt(unit[3]) * jnp.exp(-noise))[..., None]
+            Aw = A * (jnp.sqrt(unit[3]) * jnp.exp(-noise[self.error.first]))[..., None]
         else:  # FOCE with interaction: σ² at the unit's η̂
             f = self.predict(psi, eta, unit)
             V = jnp.where(unit[3] > 0, self.variance(noise, f), 1.0)
@@ -269,13 +263,14 @@ class Objective:
         if self.plain:  # ℓ leaves out Σ log σ², constant in η
             O = (
                 2 * self.ell(eta, psi, unit)
-                + jnp.sum(n * (LOG_2PI + 2 * noise))
+                + jnp.sum(n * (LOG_2PI + 2 * noise[self.error.first]))
                 + 2 * jnp.sum(logw[: self.qp])
                 + logdet
             )
         else:
             O = 2 * self.ell(eta, psi, unit) + jnp.sum(n * LOG_2PI) + logdet
             O = O + 2 * jnp.sum(logw[: self.qp])  # log det Ω
+        O = O + self.error.jacobian(unit[2], unit[3])  # the objective of y, not of h(y)
         return jnp.where(sign > 0, O, jnp.inf)
 
     def unit_value_grad(self, psi, eta, unit):

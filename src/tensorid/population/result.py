@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..engine.status import Status
+from .errors import ERROR_MODELS
 
 
 def _inverse(H: np.ndarray) -> np.ndarray:
@@ -51,9 +52,7 @@ def _residual_error(obj, x, se) -> dict:
     out: dict = {o: {"model": k} for o, k in zip(obj.problem.model.outputs, obj.errors,
                                                   strict=True)}  # fmt: skip
     first = obj.first_shared + obj.ns
-    columns = [("additive", g) for g in obj.additive]
-    columns += [("proportional", g) for g in obj.proportional]
-    for j, (what, g) in enumerate(columns):
+    for j, (what, g) in enumerate(obj.error.terms):
         v = float(np.exp(x[first + j]))
         out[obj.problem.model.outputs[g]].update(
             {what: v, f"{what}_stderr": v * float(se[first + j])}
@@ -281,8 +280,7 @@ class PopulationResult:
                 continue
             parts = [
                 f"{what} {e[what]:.5g} (SE {e[what + '_stderr']:.3g})"
-                for what in ("additive", "proportional")
-                if what in e
+                for what in ERROR_MODELS[e["model"]].terms
             ]
             lines.append(f"  residual error of {o} ({e['model']}): {', '.join(parts)}")
         return "\n".join(lines + [f"  note: {n}" for n in self.notes])

@@ -1,0 +1,154 @@
+"""Residual-error models as plug-ins (tensorid/population/errors.py): the exponential
+(log-additive) model's objective and exact gradient against a plainly written one, a
+fit that recovers the truth it was simulated with, and its bad input in one line."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from test_population import _over_units, _value_and_grad, one_compartment
+
+import tensorid as ti
+from tensorid.app.fleet_report import fleet_lines
+from tensorid.population.errors import ERROR_MODELS, ResidualErrors
+from tensorid.population.objective import Objective
+
+SIGMA = 0.15  # the log-scale SD the fleets are simulated with
+
+
+@functools.cache
+def lognormal_fleet(n_units: int, seed: int = 0):
+    """Units of the one-compartment model, ka and cl log-normal, v shared, and
+    y = ŷ·exp(σε); the dose row at t = 0 is not an observation (ŷ = 0 there)."""
+    rng = np.random.default_rng(seed)
+    m, units = one_compartment(), []
+    for i in range(n_units):
+        t = np.array([0.0, 0.5, 1, 2, 4, 8, 12, 24]) + np.r_[0, rng.uniform(-0.1, 0.1, 7)]
+        p = {"ka": 1.5 * np.exp(0.5 * rng.standard_normal()), "v": 30.0}
+        p["cl"] = 2.5 * np.exp(0.3 * rng.standard_normal())
+        u = np.full((t.size, 1), 300.0 + 20 * i)
+        sim = ti.simulate(m, p, [u[0, 0], 0.0], ti.Experiment(t, u), substeps=20)
+        y = sim.y * np.exp(SIGMA * rng.standard_normal(sim.y.shape))
+        seen = np.arange(t.size) > 0
+        units.append(ti.Experiment(t, u, y, name=f"u{i}", observed=seen))
+    return m, units
+
+
+def lognormal_problem(n_units: int, seed: int = 0, **kw) -> ti.Problem:
+    m, units = lognormal_fleet(n_units, seed)
+    return ti.Problem(
+        m, list(units), p0={"ka": 1.2, "cl": 2.0, "v": 25.0},
+        x0={"depot": "Dose", "center": 0.0}, substeps=20,
+        population={"ka": 0.4, "cl": 0.4}, residual_error="exponential", **kw,
+    )  # fmt: skip
+
+
+def _plain_exponential(obj: Objective, etas):
+    """The FOCEI objective of y with log y = log ŷ + ε written plainly: ŷ by the
+    engine's simulation differentiated by JAX, the inner optimum by one Newton step
+    from the converged one, the curvature from ∂log ŷ/∂η, and the Jacobian of the log
+    (2 Σ log y) so that it is the objective of y."""
+    sw = obj.sweeps
+
+    def logyhat(psi, z, unit):
+        t, u, _, mask, x0, p = unit
+        x0_, p_ = sw.expand(obj.theta(psi, z), x0, p)
+        f = sw._simulate(x0_, p_, t, u)[1]
+        return jnp.log(jnp.where(mask > 0, f, 1.0))
+
+    def ell(z, psi, unit):
+        logw, logsig = psi[2:4], psi[-1]
+        y, mask = unit[2], unit[3]
+        r = (jnp.log(jnp.where(mask > 0, y, 1.0)) - logyhat(psi, z, unit)) * mask
+        return 0.5 * (jnp.sum(r**2) * jnp.exp(-2 * logsig) + jnp.sum((z * jnp.exp(-logw)) ** 2))
+
+    def unit_O(psi, unit, z):
+        z = z - jnp.linalg.solve(jax.hessian(ell)(z, psi, unit), jax.grad(ell)(z, psi, unit))
+        logw, logsig, mask = psi[2:4], psi[-1], unit[3]
+        A = jax.jacfwd(lambda e: logyhat(psi, e, unit))(z) * mask[..., None]
+        M = jnp.einsum("psj,psk->jk", A, A) * jnp.exp(-2 * logsig) + jnp.diag(jnp.exp(-2 * logw))
+        n = jnp.sum(mask)
+        jac = 2 * jnp.sum(jnp.log(jnp.where(mask > 0, unit[2], 1.0)) * mask)
+        return (
+            2 * ell(z, psi, unit) + n * (jnp.log(2 * jnp.pi) + 2 * logsig) + 2 * jnp.sum(logw)
+            + jnp.linalg.slogdet(M)[1] + jac
+        )  # fmt: skip
+
+    return _over_units(unit_O, obj, etas)
+
+
+def test_an_exponential_error_has_the_plain_objective_and_gradient():
+    obj = Objective(lognormal_problem(3), "focei")
+    assert obj.names[-1] == "log_exp_cp" and obj.plain
+    psi = np.array([np.log(1.3), np.log(2.2), np.log(0.5), np.log(0.35), 26.0, np.log(0.2)])
+    etas, ok = obj.solve_inner(psi, np.zeros((3, 2)))
+    assert ok
+    O, g = obj.value_grad(psi, etas)
+    value, gp = _value_and_grad(_plain_exponential(obj, etas), psi)
+    assert O.sum() == pytest.approx(value, rel=1e-12)
+    np.testing.assert_allclose(g.sum(0), gp, rtol=1e-8, atol=1e-8 * np.abs(gp).max())
+
+
+def test_every_model_of_the_registry_has_its_terms_named_in_psi():
+    """ψ's residual-error entries: all outputs' first term, then their second; each
+    model's variance as its formula says; a sample drawn on its own scale."""
+    errs = ResidualErrors(("combined", "exponential", "additive"), ["a", "b", "c"])
+    assert errs.names == ["log_sigma_a", "log_sigma_c", "log_prop_a", "log_exp_b"]
+    assert list(errs.first) == [0, 3, 1] and errs.logs == [1] and not errs.constant
+    noise = np.log([0.5, 0.2, 0.1, 0.3])
+    yhat = np.array([[2.0, 4.0, 6.0]])
+    v = np.asarray(errs.variance(jnp.asarray(noise), jnp.asarray(yhat)))
+    np.testing.assert_allclose(v, [[0.25 + 0.01 * 4, 0.09, 0.04]], rtol=1e-14)
+    s = errs.sample(np.full(4000, 4.0), 0.3, np.random.default_rng(0).standard_normal(4000), 1)
+    assert s.min() > 0 and np.log(s).std() == pytest.approx(0.3, rel=0.05)
+    assert all(m.name == k and m.terms for k, m in ERROR_MODELS.items())
+
+
+def test_observations_at_or_below_zero_are_one_line_for_a_log_scale_error():
+    m, units = lognormal_fleet(2)
+    y = units[1].y.copy()
+    y[3] = 0.0
+    bad = [units[0], ti.Experiment(units[1].t, units[1].u, y, name="u1", observed=np.arange(8) > 0)]
+    with pytest.raises(ValueError, match=r"'exponential' for cp: unit u1's observation at t = "
+                       r"\S+ is 0, which has no logarithm.*'combined'"):  # fmt: skip
+        Objective(ti.Problem(m, bad, p0={"ka": 1.2, "cl": 2.0, "v": 25.0},
+                             x0={"depot": "Dose", "center": 0.0}, population={"ka": 0.4},
+                             residual_error={"cp": "exponential"}))  # fmt: skip
+
+
+def test_a_dose_row_observed_at_zero_prediction_is_one_line():
+    m, units = lognormal_fleet(2)
+    seen = [ti.Experiment(e.t, e.u, np.r_[[[0.5]], e.y[1:]], name=e.name)
+            for e in units]  # fmt: skip
+    pr = ti.Problem(m, seen, p0={"ka": 1.2, "cl": 2.0, "v": 25.0},
+                    x0={"depot": "Dose", "center": 0.0}, population={"ka": 0.4},
+                    residual_error="exponential")  # fmt: skip
+    with pytest.raises(ValueError, match="prediction at t = 0 is 0, where an exponential "
+                       "error has no logarithm; use 'combined'"):  # fmt: skip
+        ti.fit(pr)
+
+
+def test_the_report_names_the_models_formula():
+    data = {"residual_error": {"cp": {"model": "exponential", "exponential": 0.15,
+                                      "exponential_stderr": 0.01}}}  # fmt: skip
+    (line,) = [x for x in fleet_lines(data) if x.startswith("Residual error")]
+    assert "log y = log prediction + ε" in line and "cp (exponential): exponential 0.15" in line
+
+
+@pytest.mark.slow  # a 24-unit population fit of its own structure: about 40 s cold
+def test_an_exponential_error_fit_recovers_the_truth_it_was_simulated_with():
+    res = ti.fit(lognormal_problem(24, seed=1))
+    assert res.success
+    e = res.residual_error["cp"]
+    assert (
+        e["model"] == "exponential" and abs(e["exponential"] - SIGMA) < 3 * e["exponential_stderr"]
+    )
+    for name, truth in (("ka", 1.5), ("cl", 2.5)):
+        pop = res.population[name]
+        assert abs(pop["typical"] - truth) < 3 * pop["typical_stderr"], (name, pop)
+    assert abs(res.shared["v"]["value"] - 30.0) < 3 * res.shared["v"]["stderr"]
+    assert "residual error of cp (exponential): exponential" in str(res)
