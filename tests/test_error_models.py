@@ -14,6 +14,7 @@ from test_population import _over_units, _value_and_grad, one_compartment
 
 import tensorid as ti
 from tensorid.app.fleet_report import fleet_lines
+from tensorid.population.diagnostics import COLUMNS
 from tensorid.population.errors import ERROR_MODELS, ResidualErrors
 from tensorid.population.objective import Objective
 
@@ -152,3 +153,49 @@ def test_an_exponential_error_fit_recovers_the_truth_it_was_simulated_with():
         assert abs(pop["typical"] - truth) < 3 * pop["typical_stderr"], (name, pop)
     assert abs(res.shared["v"]["value"] - 30.0) < 3 * res.shared["v"]["stderr"]
     assert "residual error of cp (exponential): exponential" in str(res)
+    # the per-observation table: CWRES of a unit as written out plainly (A = ∂log ŷ/∂η
+    # by JAX through the engine's simulation), and CWRES, NPDE ~ N(0, 1) on this fleet
+    tab, obj = res.table(), res.objective_function
+    assert len(tab["DV"]) == 24 * 7 and list(tab) == list(COLUMNS)
+    i, unit = 5, tuple(a[5] for a in obj.data)
+    seen = unit[3][:, 0] > 0
+
+    def log_yhat(eta):
+        x0, p = obj.sweeps.expand(obj.theta(jnp.asarray(res.x), eta), unit[4], unit[5])
+        return jnp.log(obj.sweeps._simulate(x0, p, unit[0], unit[1])[1][:, 0])
+
+    eta = jnp.asarray(res.etas[i])
+    A = np.asarray(jax.jacfwd(log_yhat)(eta))[seen]
+    omega = np.diag([res.population[n]["omega"] ** 2 for n in ("ka", "cl")])
+    C = A @ omega @ A.T + e["exponential"] ** 2 * np.eye(int(seen.sum()))
+    mean = np.asarray(log_yhat(eta))[seen] - A @ res.etas[i]
+    plain = np.linalg.solve(np.linalg.cholesky(C), np.log(np.asarray(unit[2])[seen, 0]) - mean)
+    np.testing.assert_allclose(tab["CWRES"][tab["ID"] == "u5"], plain, rtol=1e-7, atol=1e-9)
+    for what in ("CWRES", "NPDE", "IWRES"):
+        v = tab[what].astype(float)
+        assert abs(v.mean()) < 0.2 and 0.75 < v.std() < 1.25, (what, v.mean(), v.std())
+
+
+def test_the_table_is_written_as_csv_and_drawn_without_a_fit(tmp_path):
+    """observations.csv's cells (10 digits, empty where not finite) and the residual
+    panels, from a table alone."""
+    import csv
+    from types import SimpleNamespace
+
+    from tensorid.app.population_run import _table_csv
+    from tensorid.population.figures import residuals_figure
+
+    rng = np.random.default_rng(0)
+    n = 40
+    tab = {c: rng.standard_normal(n) for c in COLUMNS}
+    tab["ID"] = np.array(["a"] * 20 + ["b"] * 20, dtype=object)
+    tab["OUTPUT"] = np.array(["cp"] * n, dtype=object)
+    tab["NPDE"][3] = np.nan
+    res = SimpleNamespace(table=lambda: tab, problem=SimpleNamespace(model=one_compartment()))
+    _table_csv(res, tmp_path / "t.csv")
+    with (tmp_path / "t.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == n and rows[3]["NPDE"] == "" and rows[25]["ID"] == "b"
+    assert float(rows[0]["CWRES"]) == pytest.approx(tab["CWRES"][0], rel=1e-9)
+    fig = residuals_figure(res)
+    assert [a.get_ylabel() for a in fig.axes] == ["CWRES", "CWRES", "IWRES", "residual"]

@@ -4,6 +4,7 @@ inputs, each one line before any work."""
 
 from __future__ import annotations
 
+import csv
 import hashlib
 import inspect
 import json
@@ -311,7 +312,16 @@ def test_theophylline_example_fits_from_the_command_line(tmp_path, capsys):
     error = data["residual_error"]["cp"]
     assert error["model"] == "combined" and error["additive"] > 0 and error["proportional"] > 0
     assert data["residual_sd"]["cp"] == error["additive"]
-    assert "Residual error" in (out / "report.md").read_text()
+    report = (out / "report.md").read_text()
+    assert "Residual error" in report and "![residuals](residuals.png)" in report
+    # one row per observation, in the population modeller's columns
+    with (out / "observations.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 132 and list(rows[0]) == ["ID", "TIME", "OUTPUT", "DV", "PRED",
+                                                  "IPRED", "RES", "IRES", "IWRES", "CWRES",
+                                                  "NPDE"]  # fmt: skip
+    cwres = np.array([float(r["CWRES"]) for r in rows])
+    assert rows[1]["ID"] == "1" and abs(cwres.mean()) < 0.3 and 0.7 < cwres.std() < 1.3
 
 
 def test_a_unit_with_fewer_observations_than_its_own_unknowns_is_refused(tmp_path, capsys):

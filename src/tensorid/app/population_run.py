@@ -1,11 +1,13 @@
 """The end of ``tensorid fit`` for a fleet's population fit: the console's table,
 fit.json (the population keys of app/fleet_report.py with the run's settings and
-provenance), report.md and the figures (every unit's data and fits, observed against
-predicted, the visual predictive check). Validation records, profiles and the
-single-system statistics do not apply to it and are not run."""
+provenance), report.md, observations.csv (one row per observation: PRED, IPRED,
+IWRES, CWRES, NPDE, ...) and the figures (every unit's data and fits, observed against
+predicted, the visual predictive check, the residuals). Validation records, profiles
+and the single-system statistics do not apply to it and are not run."""
 
 from __future__ import annotations
 
+import csv
 import json
 from functools import partial
 from pathlib import Path
@@ -14,7 +16,12 @@ import numpy as np
 
 from .._config import __version__
 from ..analysis.figures import save_png
-from ..population.figures import observed_predicted_figure, units_figure, vpc_figure
+from ..population.figures import (
+    observed_predicted_figure,
+    residuals_figure,
+    units_figure,
+    vpc_figure,
+)
 from .fleet_report import fleet_json, fleet_lines
 from .keeping import _replace_quietly
 from .output import write_atomic, write_kept, write_text
@@ -100,7 +107,11 @@ def report_population(res, out: Path, old: set[Path], recorded: dict) -> int:
     written, figures = [path], []
     drawn = [("units", units_figure), ("observed_predicted", observed_predicted_figure)]
     if res.population and np.isfinite(res.objective):  # simulated fleets need an Ω
-        drawn.append(("vpc", vpc_figure))
+        drawn += [("vpc", vpc_figure), ("residuals", residuals_figure)]
+        try:
+            written.append(write_atomic(out / "observations.csv", partial(_table_csv, res)))
+        except Exception as e:  # the table is not worth the fit: say so, go on
+            failures.append(f"could not write {out / 'observations.csv'}: {_reason(e)}")
     for stem, build in drawn:
         try:
             fig = build(res)
@@ -120,6 +131,30 @@ def report_population(res, out: Path, old: set[Path], recorded: dict) -> int:
         print(f"tensorid: {f}")
     print(f"results in {out}/")
     return 0 if res.success and not failures else 1
+
+
+def _reason(e: Exception) -> str:
+    return (e.strerror if isinstance(e, OSError) else None) or str(e)
+
+
+def _table_csv(res, path: Path) -> None:
+    """observations.csv: one row per observation (population/diagnostics.py)."""
+    tab = res.table()
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(tab)
+        for row in zip(*tab.values(), strict=True):
+            w.writerow(
+                v if isinstance(v, str) else ("" if not np.isfinite(v) else f"{v:.10g}")
+                for v in row
+            )
+
+
+def _cell(v) -> str:
+    """A table cell: text as it is, a number to 10 digits, empty where not finite."""
+    if isinstance(v, str):
+        return v
+    return f"{v:.10g}" if np.isfinite(v) else ""
 
 
 def save_interrupted(res, out: Path, old: set[Path], recorded: dict) -> int:

@@ -172,3 +172,40 @@ def vpc_figure(res, output: int = 0):
     ax.legend(fontsize=6, ncol=2)
     fig.tight_layout()
     return fig
+
+
+def residuals_figure(res, output: int = 0):
+    """The population modeller's four residual panels of ``output``: CWRES against
+    time and against PRED, IWRES against IPRED, and CWRES and NPDE against the normal
+    quantiles (each should scatter evenly about 0, within ±2, without a trend)."""
+    import matplotlib.pyplot as plt
+
+    from ..analysis.quantiles import normal
+
+    tab = res.table()
+    name = res.problem.model.outputs[output]
+    keep = tab["OUTPUT"] == name
+    col = {k: np.asarray(v[keep], dtype=float) for k, v in tab.items() if k not in ("ID", "OUTPUT")}
+    fig, axes = plt.subplots(2, 2, figsize=(8, 6.4))
+    panels = (("TIME", "CWRES", "time"), ("PRED", "CWRES", "population prediction"),
+              ("IPRED", "IWRES", "individual prediction"))  # fmt: skip
+    for ax, (x, y, label) in zip(axes.flat, panels, strict=False):
+        ax.plot(col[x], col[y], "o", ms=3, alpha=0.6)
+        for level, style in ((0.0, "-"), (2.0, ":"), (-2.0, ":")):
+            ax.axhline(level, color="k", lw=0.8, ls=style)
+        ax.set_xlabel(label)
+        ax.set_ylabel(y)
+    ax = axes.flat[3]
+    for what, colour in (("CWRES", "C0"), ("NPDE", "C3")):
+        v = np.sort(col[what][np.isfinite(col[what])])
+        if v.size:
+            q = [normal((k + 0.5) / v.size) for k in range(v.size)]
+            ax.plot(q, v, "o", ms=3, color=colour, alpha=0.6, label=what)
+    lim = 3.5
+    ax.plot([-lim, lim], [-lim, lim], "k-", lw=0.8)
+    ax.set_xlabel("normal quantile")
+    ax.set_ylabel("residual")
+    ax.legend(fontsize=7, loc="upper left")
+    fig.suptitle(f"{name}: residuals ({int(keep.sum())} observations)", fontsize=10)
+    fig.tight_layout()
+    return fig

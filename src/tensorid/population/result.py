@@ -130,6 +130,7 @@ class PopulationResult:
     residual_error: dict = field(default_factory=dict)
     # full Ω: {"cl,v": {"value": correlation of η_cl and η_v, "stderr": ...}}
     omega_correlation: dict = field(default_factory=dict)
+    _table: dict | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def success(self) -> bool:
@@ -142,6 +143,17 @@ class PopulationResult:
     @property
     def cost(self) -> float:
         return self.objective
+
+    def table(self) -> dict:
+        """The per-observation table {column: array}: ID, TIME, OUTPUT, DV, PRED,
+        IPRED, RES, IRES, IWRES, CWRES, NPDE (population/diagnostics.py), computed
+        once."""
+        if self._table is None:
+            from .diagnostics import table
+
+            object.__setattr__(self, "_table", table(self))  # (frozen: kept once)
+        assert self._table is not None
+        return self._table
 
     @property
     def objective_nlmixr(self) -> float:
