@@ -260,6 +260,14 @@ def test_clock_jitter_snaps_to_the_grid_with_a_note(tmp_path, capsys):
     with pytest.warns(UserWarning, match=r"within 2.\de-08 s .* snapped"):
         e = ti.load_data(path, model)[0]
     assert np.ptp(np.diff(e.t)) < 1e-15 and np.diff(e.t)[0] == pytest.approx(1e-3, rel=1e-6)
+    # the plainest grid within the tolerance: the stamps as the clock meant them
+    # (0.001, not the least-squares grid's 0.00099999998 + 3.1e-09), and as
+    # simulation.csv writes them
+    np.testing.assert_array_equal(e.t, np.round(t, 3))
+    assert cli.main(["simulate", str(tmp_path / "ar.py"), str(path), "--out",
+                     str(tmp_path / "sim")]) == 0  # fmt: skip
+    rows = (tmp_path / "sim" / "simulation.csv").read_text().splitlines()
+    assert [r.split(",")[0] for r in rows[:4]] == ["t", "0.0", "0.001", "0.002"]
     # the command line prints the note as one line (here before refusing the window)
     argv = ["simulate", str(tmp_path / "ar.py"), str(path), "--init-window", "500"]
     assert cli.main([*argv, "--out", str(tmp_path / "s")]) == 2

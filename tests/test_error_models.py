@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from test_population import _over_units, _value_and_grad, one_compartment
+from test_population import _over_units, _value_and_grad, central_differences, one_compartment
 
 import tensorid as ti
 from tensorid.app.fleet_report import fleet_lines
@@ -82,12 +82,24 @@ def _plain_exponential(obj: Objective, etas):
     return _over_units(unit_O, obj, etas)
 
 
-def test_an_exponential_error_has_the_plain_objective_and_gradient():
+def _exponential_point():
     obj = Objective(lognormal_problem(3), "focei")
     assert obj.names[-1] == "log_exp_cp" and obj.plain
     psi = np.array([np.log(1.3), np.log(2.2), np.log(0.5), np.log(0.35), 26.0, np.log(0.2)])
     etas, ok = obj.solve_inner(psi, np.zeros((3, 2)))
     assert ok
+    return obj, psi, etas
+
+
+def test_an_exponential_errors_gradient_is_that_of_central_differences():
+    obj, psi, etas = _exponential_point()
+    g = obj.value_grad(psi, etas)[1].sum(0)
+    np.testing.assert_allclose(g, central_differences(obj, psi, etas), rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.slow  # its plainly written reference compiles for 25-35 s
+def test_an_exponential_error_has_the_plain_objective_and_gradient():
+    obj, psi, etas = _exponential_point()
     O, g = obj.value_grad(psi, etas)
     value, gp = _value_and_grad(_plain_exponential(obj, etas), psi)
     assert O.sum() == pytest.approx(value, rel=1e-12)

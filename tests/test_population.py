@@ -115,6 +115,25 @@ def _plain_objective(obj: Objective, etas, newton_steps: int = 2, laplace: bool 
     return _over_units(unit_O, obj, etas)
 
 
+def central_differences(obj: Objective, psi, etas, h: float = 1e-5) -> np.ndarray:
+    """dO/dψ by central differences of the objective, each unit's η̂ solved again at
+    every ψ ± h: the fit's own compiled programs, nothing new to compile (a plainly
+    written reference through jax.grad compiles for 25-30 s; the slow tests hold it)."""
+    g = np.zeros(psi.size)
+    for k in range(psi.size):
+        step = h * max(1.0, abs(psi[k]))
+        sides = []
+        for sign in (1.0, -1.0):
+            moved = np.array(psi, dtype=float)
+            moved[k] += sign * step
+            # (a unit's Newton steps may stall at rounding's level, short of the
+            # solver's 1e-11: its η̂ is then as good as the converged ones)
+            eta = obj.solve_inner(moved, etas)[0]
+            sides.append(obj.value_grad(moved, eta)[0].sum())
+        g[k] = (sides[0] - sides[1]) / (2 * step)
+    return g
+
+
 def _fleet_point(n_units=4, method="focei"):  # (4: the programs of the 4-unit fits)
     obj = Objective(fleet_problem(n_units), method)
     psi = np.array([np.log(1.3), np.log(2.2), np.log(0.5), np.log(0.35), 26.0, np.log(0.4)])
@@ -123,6 +142,15 @@ def _fleet_point(n_units=4, method="focei"):  # (4: the programs of the 4-unit f
     return obj, psi, etas
 
 
+def test_the_outer_gradient_is_that_of_central_differences():
+    """The implicit-function gradient through every unit's η̂, against central
+    differences of the objective (the same programs as the fit below)."""
+    obj, psi, etas = _fleet_point()
+    g = obj.value_grad(psi, etas)[1].sum(0)
+    np.testing.assert_allclose(g, central_differences(obj, psi, etas), rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.slow  # its plainly written reference compiles for 20-25 s
 def test_the_outer_gradient_is_that_of_the_plain_objective():
     obj, psi, etas = _fleet_point()
     O, g = obj.value_grad(psi, etas)
@@ -190,10 +218,8 @@ def _plain_combined(obj: Objective, etas):
     return _over_units(unit_O, obj, etas)
 
 
-def test_combined_error_and_individual_values_beside_random_effects_exact_gradient():
-    """ka log-normal over the units, cl each unit's own, v shared, σ² = a² + b²ŷ²: the
-    outer objective and its gradient (implicit-function theorem through (η̂, cl̂))
-    are those of the plainly written one."""
+def _combined_point():
+    """ka log-normal over the units, cl each unit's own, v shared, σ² = a² + b²ŷ²."""
     m, units = simulated_fleet(3)
     pr = ti.Problem(
         m, units, p0={"ka": 1.2, "cl": 2.0, "v": 25.0}, x0={"depot": "Dose", "center": 0.0},
@@ -204,6 +230,21 @@ def test_combined_error_and_individual_values_beside_random_effects_exact_gradie
     psi = np.array([np.log(1.3), np.log(0.5), 26.0, np.log(0.2), np.log(0.05)])
     etas, ok = obj.solve_inner(psi, obj.start_etas())
     assert ok and np.all(etas[:, 1] > 0.5)  # cl's own values, near the truth (2.5)
+    return obj, psi, etas
+
+
+def test_combined_error_and_individual_values_beside_random_effects_gradient():
+    """The outer gradient (implicit-function theorem through (η̂, cl̂)) against
+    central differences of the objective."""
+    obj, psi, etas = _combined_point()
+    g = obj.value_grad(psi, etas)[1].sum(0)
+    np.testing.assert_allclose(g, central_differences(obj, psi, etas), rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.slow  # its plainly written reference compiles for 25-30 s
+def test_combined_error_and_individual_values_beside_random_effects_exact_gradient():
+    """The outer objective and its gradient are those of the plainly written one."""
+    obj, psi, etas = _combined_point()
     O, g = obj.value_grad(psi, etas)
     plain = _plain_combined(obj, etas)
     value, gp = _value_and_grad(plain, psi)

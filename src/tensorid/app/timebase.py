@@ -49,6 +49,8 @@ def _on_grid(p, t: np.ndarray) -> np.ndarray:
     rounding = max(1e-9 * Ts, 64 * np.finfo(float).eps * float(np.abs(t).max()))
     if not rounding < off <= JITTER * Ts:  # uniform to rounding, or truly uneven
         return t
+    grid, Ts = _plainest(t, grid, Ts, t0, k)
+    off = float(np.abs(t - grid).max())
     warnings.warn(
         f"{p}: the time stamps lie within {off:.2g} s ({off / Ts:.1e} sample times, "
         f"tolerance {JITTER:g}) of a uniform grid of {Ts:.8g} s; snapped to it",
@@ -56,6 +58,19 @@ def _on_grid(p, t: np.ndarray) -> np.ndarray:
         stacklevel=2,
     )
     return grid
+
+
+def _plainest(t, grid, Ts: float, t0: float, k) -> tuple[np.ndarray, float]:
+    """(grid, Ts): the uniform grid of the fewest digits within JITTER sample times of
+    every stamp (0, 0.1, 0.2, ... rather than the least-squares 2.1e-07 + k·0.10000001),
+    or the least-squares one where none is."""
+    for digits in range(1, 16):
+        places = digits - 1 - int(np.floor(np.log10(Ts)))
+        step, start = round(Ts, places), round(t0, places)
+        plain = np.round(start + k * step, max(places, 0) + 6)  # (k·step's last digits)
+        if step > 0 and float(np.abs(t - plain).max()) <= JITTER * Ts:
+            return plain, step
+    return grid, Ts
 
 
 def _time(p, cols: _Columns, ts, P: int, data: dict) -> np.ndarray:
