@@ -153,7 +153,7 @@ def test_the_report_names_the_models_formula():
 
 
 @pytest.mark.slow  # a 24-unit population fit of its own structure: about 40 s cold
-def test_an_exponential_error_fit_recovers_the_truth_it_was_simulated_with():
+def test_an_exponential_error_fit_recovers_the_truth_it_was_simulated_with(tmp_path):
     res = ti.fit(lognormal_problem(24, seed=1))
     assert res.success
     e = res.residual_error["cp"]
@@ -186,6 +186,9 @@ def test_an_exponential_error_fit_recovers_the_truth_it_was_simulated_with():
     for what in ("CWRES", "NPDE", "IWRES"):
         v = tab[what].astype(float)
         assert abs(v.mean()) < 0.2 and 0.75 < v.std() < 1.25, (what, v.mean(), v.std())
+    written = res.plot(tmp_path)
+    assert [p.name for p in written] == ["units.png", "observed_predicted.png", "vpc.png",
+                                         "residuals.png"]  # fmt: skip
 
 
 def test_the_table_is_written_as_csv_and_drawn_without_a_fit(tmp_path):

@@ -154,6 +154,9 @@ def test_a_fleet_fit_refuses_what_it_would_drop_and_a_population_of_one_unit():
         with pytest.raises(ValueError, match=f"{next(iter(option))}=.* is not taken by a fit"):
             ti.fit(pr, **option)
     assert ti.fit(pr, starts=1, seed=0, polish=True, maxiter=2).nit <= 2  # the CLI's defaults
+    # issue 49: fit_batch fitted a fleet as plain shared least squares
+    with pytest.raises(ValueError, match="has population parameters .* with tensorid.fit"):
+        ti.fit_batch(pr, "auto", np.array([[1.0], [0.9]]))
     with pytest.raises(ValueError, match="need at least 2 units"):
         ti.Problem(m, exps[:1], p0={"k": 1.0}, x0=[1.0], population={"k": 0.2})
 

@@ -408,6 +408,14 @@ def test_a_simulated_fleet_is_fitted_and_reported():
     assert set(res.units[0]["params"]) == {"ka", "cl", "v"}
     text = str(res)
     assert "typical" in text and "residual SD of cp" in text
+    # what a single fit's result offers (issue 49 item 4), without the units' arrays
+    assert repr(res).startswith("PopulationResult(method='focei'") and len(repr(res)) < 300
+    assert res._repr_html_().startswith("<pre>Population fit (FOCEI)")
+    crit = res.criteria()
+    assert crit["k"] == len(res.names) == 6 and crit["aic"] == res.objective + 12
+    assert np.allclose(np.diag(res.correlation), 1.0) and res.correlation.shape == (6, 6)
+    fits = res.gof()
+    assert len(fits) == 4 and all(0.8 < f <= 1 for f in fits)
 
 
 def theophylline_problem(**kw):

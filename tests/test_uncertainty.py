@@ -125,3 +125,20 @@ def test_a_flat_direction_gives_no_raw_runtime_warning():
     inf = np.inf
     info = Information(["a", "b"], np.array([inf, 0.2]), np.array([inf, 0.1]), inf, 10.0, {})
     assert "observed/expected standard errors 2.00 to 2.00" in info.describe()
+
+
+def test_an_interval_cut_at_both_bounds_is_not_printed_as_an_interval():
+    """issue 51 item 7: a parameter the data do not bound within its box had the box
+    printed as its 95 % interval."""
+    from conftest import decay_model
+
+    t = np.linspace(0, 1, 6)
+    rng = np.random.default_rng(0)
+    y = np.exp(-2 * t)[:, None] + 0.5 * rng.standard_normal((6, 1))
+    pr = ti.Problem(decay_model(), ti.Experiment(t, np.zeros(6), y), p0={"k": 1.0}, x0=[1.0],
+                    bounds={"k": (0.95, 1.05)})  # fmt: skip
+    res = ti.fit(pr)
+    u = res.uncertainty()
+    assert u.cut == {"k": "both"} and list(u.ci95[0]) == [0.95, 1.05]  # (fit.json's, as was)
+    text = str(res.summary())
+    assert "wider than [0.95, 1.05]" in text and "the data do not bound it" in text

@@ -54,13 +54,22 @@ def stderr_text(se: float) -> str:
     return text[:-1] if text.endswith(".") else text
 
 
+def interval_text(u, name: str, ci) -> str:
+    """The 95 % interval as a table prints it; one cut at both bounds is the box
+    itself, not an interval, and says so ("wider than [lo, hi]")."""
+    text = interval(*ci)
+    return f"wider than {text}" if u is not None and u.cut.get(name) == "both" else text
+
+
 def interval_note(u, name: str) -> str:
     """What a reader must know about one interval: an estimate on a bound, an interval
     cut at a bound, or one from the Gauss-Newton form."""
     notes = []
     if name in u.at_bound:
         notes.append(f"on {u.at_bound[name]} bound")
-    elif name in u.cut:
+    if u.cut.get(name) == "both":  # the box, not the data, is what bounds it
+        notes.append("the data do not bound it within its bounds")
+    elif name in u.cut and name not in u.at_bound:
         notes.append(f"cut at {u.cut[name]} bound")
     k = u.names.index(name)
     kind = "hessian" if u.kind == "robust" else u.kind  # a sandwich on the exact Hessian
@@ -276,7 +285,7 @@ def estimates_table(
     rows = []
     for k, name in enumerate(names):
         se = float(u.stderr[k]) if u else math.nan
-        ci = interval(*u.ci95[k]) if u else "–"
+        ci = interval_text(u, name, u.ci95[k]) if u else "–"
         rows.append([name, significant(float(theta[k]), se), stderr_text(se), ci])
         if robust is not None:
             rows[-1].insert(3, stderr_text(float(robust.stderr[k])))

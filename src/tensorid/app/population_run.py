@@ -40,8 +40,11 @@ def population_json(res, recorded: dict) -> dict:
         "objective_nlmixr": res.objective_nlmixr,
         "cost": res.objective,  # as every fit.json calls what the fit minimised
         # −2 log L + 2k and + k log N, k the estimated ψ (typical values, ω, shared, errors)
-        "aic": res.objective + 2 * len(res.names),
-        "bic": res.objective + np.log(max(res.observations, 1)) * len(res.names),
+        "aic": res.criteria()["aic"],
+        "bic": res.criteria()["bic"],
+        # the estimates' correlations, in ψ's order (unknowns' names): null where unmeasured
+        "correlation": res.correlation.tolist(),
+        "correlation_names": list(res.names),
         "observations": res.observations,
         "iterations": res.nit,
         "function_evaluations": res.nfev,

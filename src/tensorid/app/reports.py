@@ -16,6 +16,7 @@ from ..analysis.summary import (
     headline,
     interval,
     interval_note,
+    interval_text,
     metric_notes,
     metric_rows,
     noise_intensities,
@@ -347,7 +348,7 @@ def fit_report(
     for n in res.problem.theta_names:
         se = data.get("stderr", {}).get(n, math.nan)
         ci = data.get("ci95", {}).get(n)
-        ci_text = interval(*ci) if ci else "–"
+        ci_text = interval_text(u, n, ci) if ci else "–"
         note = interval_note(u, n) if u else ""
         rows.append([n, significant(data["estimates"][n], se), stderr_text(se), ci_text, note])
     prov = data.get("provenance")

@@ -226,6 +226,12 @@ def fit_batch(problem: Problem, method: str | Method, thetas, **options) -> list
     best point so far."""
     started = time.perf_counter()
     solver = check_method(problem, method)
+    fleet = [k for k in ("population", "individual") if getattr(problem, k, None)]
+    if fleet:  # its starts would be plain shared least squares, the random effects dropped
+        raise ValueError(
+            f"fit_batch fits one shared parameter set per start, and this problem has "
+            f"{' and '.join(fleet)} parameters (a fleet): fit it with tensorid.fit"
+        )
     if not solver.supports_batch:
         raise ValueError(
             f"batched starts work with {listed('supports_batch', 'and')}, not "

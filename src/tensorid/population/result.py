@@ -328,6 +328,69 @@ class PopulationResult:
     def __str__(self) -> str:
         return self.summary()
 
+    def __repr__(self) -> str:  # (the dataclass's printed every unit's arrays)
+        typical = {n: round(v["typical"], 6) for n, v in self.population.items()}
+        return (
+            f"PopulationResult(method={self.method!r}, status={self.status.name}, "
+            f"objective={self.objective:.6g}, units={len(self.units)}, typical={typical})"
+        )
+
+    def _repr_html_(self) -> str:
+        import html
+
+        return f"<pre>{html.escape(self.summary())}</pre>"
+
+    def criteria(self) -> dict:
+        """AIC and BIC of −2 log L, with n (observations) and k (every estimated
+        entry of ψ: typical values, ω, shared parameters, residual error), and the
+        objective in both conventions: for comparing models of one data set."""
+        k, n = len(self.names), self.observations
+        return {"objective": self.objective, "objective_nlmixr": self.objective_nlmixr,
+                "aic": self.objective + 2 * k, "bic": self.objective + np.log(max(n, 1)) * k,
+                "n": n, "k": k}  # fmt: skip
+
+    @property
+    def correlation(self) -> np.ndarray:
+        """The estimates' correlation matrix, in ψ's order (``names``); NaN where an
+        error bar was not measured."""
+        se = np.sqrt(np.abs(np.diag(self.cov)))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return self.cov / np.outer(se, se)
+
+    def gof(self) -> list:
+        """Goodness of fit of each unit's own predictions (IPRED) on its observations:
+        a float per unit, or an (S,) array for S outputs, as ``FitResult.gof``."""
+        from ..engine.metrics import gof
+
+        obj = self.objective_function
+        own = np.asarray(obj.predict_all(self.x, self.etas))
+        u, out = obj.units, []
+        for i in range(len(u.names)):
+            seen = u.mask[i] > 0
+            v = np.array([gof(u.y[i, seen[:, g], g], own[i, seen[:, g], g])
+                          for g in range(own.shape[-1])])  # fmt: skip
+            out.append(float(v[0]) if v.size == 1 else v)
+        return out
+
+    def plot(self, path=None) -> list:
+        """The fit's figures: every unit's data and fits, observed against predicted,
+        and (random effects) the visual predictive check and the residuals. With
+        ``path`` (a folder) written there as PNG files and their paths returned;
+        without, the matplotlib figures returned."""
+        from pathlib import Path
+
+        from ..analysis.figures import save_png
+        from . import figures as f
+
+        drawn = [("units", f.units_figure), ("observed_predicted", f.observed_predicted_figure)]
+        if self.population and np.isfinite(self.objective):
+            drawn += [("vpc", f.vpc_figure), ("residuals", f.residuals_figure)]
+        figs = [(stem, build(self)) for stem, build in drawn]
+        if path is None:
+            return [fig for _, fig in figs]
+        Path(path).mkdir(parents=True, exist_ok=True)
+        return [save_png(fig, Path(path) / f"{stem}.png") for stem, fig in figs]
+
 
 def _observations(units) -> int:
     """The samples measured, those below their limit (censored) included."""
