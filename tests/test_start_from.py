@@ -5,6 +5,7 @@ earlier fit of another model is refused in one line naming what differs."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -90,3 +91,22 @@ def test_the_command_line_starts_from_a_fit_json(tmp_path, capsys):
     assert cli.main(missing) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "nope.json: cannot read it" in err
+    # issue 51 item 7: a σ_e at its floor (e^-800 = 0) was refused, blamed on the model
+    # file; now that output starts from its noise level in the data, saying so. And an
+    # explicit --measurement-noise was overridden by the file's value without a word.
+    floor = dict(first, params={**first["params"], "log_sigma_e_y": -800.0})
+    (tmp_path / "floor.json").write_text(json.dumps(floor))
+    short = [*base, "--maxiter", "1", "--out", str(tmp_path / "e")]
+    assert cli.main([*short, "--start-from", str(tmp_path / "floor.json")]) in (0, 1)
+    err = capsys.readouterr().err
+    assert "its σ_e(y) = 0 sits at its floor; y's measurement noise starts from" in err
+    began = json.loads((tmp_path / "e" / "fit.json").read_text())["history"][0]["cost"]
+    file_start = ti.Start.read(tmp_path / "a" / "fit.json")
+    lifted = _ekf(d, dataclasses.replace(file_start, measurement={}))  # the data's level
+    assert began == pytest.approx(lifted.cost(lifted.theta0), rel=1e-10)
+    given = [*short, "--start-from", str(tmp_path / "a" / "fit.json"), "--measurement-noise",
+             "y=0.5"]  # fmt: skip
+    assert cli.main(given) in (0, 1)
+    began = json.loads((tmp_path / "e" / "fit.json").read_text())["history"][0]["cost"]
+    given = _ekf(d, dataclasses.replace(file_start, measurement={"y": 0.5}))
+    assert began == pytest.approx(given.cost(given.theta0), rel=1e-10)

@@ -4,7 +4,9 @@ of options that depend on the records. Every mistake is one line (a ValueError).
 
 from __future__ import annotations
 
+import dataclasses
 import re
+import sys
 
 import numpy as np
 
@@ -42,7 +44,9 @@ def discretisation(args, spec: ModelSpec | None = None) -> Discretisation:
 def _problem(spec: ModelSpec, train, args) -> Problem:
     start = None  # --start-from: an earlier fit's values, --fix's in place of its own
     if getattr(args, "start_from", None):
-        start = Start.read(args.start_from).overridden(dict(args.fix), spec.model)
+        given = dict(args.fix) | _noise_given(args)  # what the command line names wins
+        start = Start.read(args.start_from).overridden(given, spec.model)
+        start = _off_the_floor(start, train, spec.model, args.start_from)
     if spec.p0 is None and start is None:
         raise ValueError(
             f"{spec.path} defines no p0: add p0 = {{name: start value}} for "
@@ -210,6 +214,41 @@ def _predictor(spec: ModelSpec, args) -> dict:
                 out[key] = {**(out[key] or {}), name[len(prefix) :]: float(np.exp(value))}
     if not noisy:
         _no_noise_flags(args)
+    return out
+
+
+def _off_the_floor(start: Start, train, model, path) -> Start:
+    """A --start-from file's σ_e at its floor (under 1e-6 of its output's spread, or 0
+    once its log is exponentiated) is no start for a filter (the corner the earlier fit
+    stopped in; at 0 it was refused, blamed on the model file): that output starts from
+    its noise level in the data instead, as one not named does, with a note."""
+    low = {}
+    for o, sigma in start.measurement.items():
+        if o in model.outputs:
+            j = model.outputs.index(o)
+            ys = np.concatenate([np.asarray(e.measured)[:, j] for e in train])
+            if not sigma > 1e-6 * float(np.nanstd(ys)):
+                low[o] = sigma
+    for o, sigma in low.items():
+        print(
+            f"tensorid: note: --start-from {path}: its σ_e({o}) = {sigma:.2g} sits at its "
+            f"floor; {o}'s measurement noise starts from its noise level in the data "
+            f"instead (--measurement-noise {o}=σ to give the start)",
+            file=sys.stderr,
+        )
+    kept = {o: v for o, v in start.measurement.items() if o not in low}
+    return dataclasses.replace(start, measurement=kept) if low else start
+
+
+def _noise_given(args) -> dict:
+    """{log_sigma_<kind>_<name>: log σ} of the noise starts the command line gives
+    (--process-noise, --measurement-noise): they win over a --start-from file's, which
+    set them without a word (and a fit at its σ_e floor then advised the flag given)."""
+    out = {}
+    for kind, prefix in NOISE_PREFIXES.items():
+        flag = f"{kind}_noise"
+        given = given_once(_FLAGS[flag], getattr(args, flag, None) or [])
+        out |= {f"{prefix}{name}": float(np.log(sigma)) for name, sigma in given.items()}
     return out
 
 
