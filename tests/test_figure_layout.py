@@ -131,3 +131,44 @@ def test_the_legend_sits_between_the_title_and_the_data():
         assert legend.y0 >= frame.y1 - 1 and title.y0 >= legend.y1 - 2
         assert title.y1 <= height and legend.x1 <= width and legend.x0 >= 0
         assert not legend.overlaps(title)
+
+
+def test_a_filters_huge_first_innovation_does_not_flatten_the_rest():
+    """issue 51 item 7: an EKF's first innovation of −3e151 drew every other sample as
+    a flat line at 0; the axes are the data's, the samples beyond them named."""
+    from tensorid.analysis.figures import prediction_figure
+
+    t = np.linspace(0, 10, 200)
+    rng = np.random.default_rng(0)
+    z = rng.standard_normal(200)
+    z[0] = -3e151
+    y = np.sin(t)
+    pred = y.copy()
+    pred[0] = -3e151
+    fig = prediction_figure(t, y, y, pred, np.full(200, 0.1), z, title="t", ylabel="y")
+    top, low = fig.axes
+    assert top.get_ylim()[0] > -2 and top.get_ylim()[1] < 2
+    assert 3 < low.get_ylim()[1] < 5
+    (note,) = [x.get_text() for x in low.texts]
+    assert note == "1 beyond the axis (largest -3e+151 at t = 0)"
+
+
+def test_the_residual_tests_legend_covers_no_lag():
+    """issue 51 item 9: the legend sat over the correlations of the largest lags."""
+    from tensorid.analysis.figures import residual_figure
+
+    rng = np.random.default_rng(0)
+    panels = [
+        dict(what="whiteness of y", passed=True, lags=np.arange(26),
+             values=np.r_[1.0, 0.1 * rng.standard_normal(25)], feedback=None),
+        dict(what="y against input u", passed=False, lags=np.arange(26),
+             values=np.full(26, 0.6), feedback=0.6 * np.ones(25)),
+    ]  # fmt: skip
+    fig = residual_figure(0.14, panels)
+    fig.canvas.draw()
+    for ax, c in zip(fig.axes, panels, strict=True):
+        box = ax.get_legend().get_window_extent()
+        x = np.r_[c["lags"], [] if c["feedback"] is None else -np.arange(1, 26)]
+        y = np.r_[c["values"], [] if c["feedback"] is None else c["feedback"]]
+        points = ax.transData.transform(np.column_stack([x, y]))
+        assert not any(box.contains(px, py) for px, py in points), c["what"]

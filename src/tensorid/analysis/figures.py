@@ -249,7 +249,15 @@ def prediction_figure(t, measured, simulated, predicted, sd, innovations, *, tit
     ax.set_ylabel(ylabel)
     titled_with_legend(ax, title)
     ax.grid(alpha=0.3)
+    # the axes are the data's: a filter's first steps (x0 far off) can predict −3e151,
+    # which drew every other sample as a flat line at 0
+    seen = np.concatenate([np.ravel(measured), np.ravel(simulated)])
+    seen = seen[np.isfinite(seen)]
+    if seen.size:
+        span = max(float(np.ptp(seen)), 1e-12 * max(1.0, float(np.abs(seen).max())))
+        ax.set_ylim(seen.min() - 0.25 * span, seen.max() + 0.25 * span)
     axr.plot(t, innovations, color="tab:blue", lw=0.6)
+    _beyond(axr, np.asarray(t), np.asarray(innovations, dtype=float))
     for level in (-2, 2):
         axr.axhline(level, color="k", lw=0.6, ls=":")
     # the dotted lines named here: a legend in so short a panel covered the innovations
@@ -258,6 +266,21 @@ def prediction_figure(t, measured, simulated, predicted, sd, innovations, *, tit
     axr.grid(alpha=0.3)
     fixed_layout(fig, top=_TITLE + _LEGEND)
     return fig
+
+
+def _beyond(ax, t: np.ndarray, z: np.ndarray, limit: float = 8.0) -> None:
+    """Standardised innovations drawn within ±``limit`` (or the largest finite one if
+    smaller), the samples beyond it named in the panel: one huge first innovation
+    made the rest a flat line."""
+    finite = np.isfinite(z)
+    big = ~finite | (np.abs(z) > limit)
+    if not big.any():
+        return
+    top = max(float(np.abs(z[finite & ~big]).max(initial=2.0)), 3.0) * 1.15
+    ax.set_ylim(-top, top)
+    k = int(np.argmax(np.where(finite, np.abs(z), np.inf)))
+    ax.text(0.99, 0.95, f"{int(big.sum())} beyond the axis (largest {z[k]:.2g} at t = {t[k]:g})",
+            transform=ax.transAxes, ha="right", va="top", fontsize=7)  # fmt: skip
 
 
 def _prediction_jobs(res, training: list) -> list:
@@ -387,7 +410,13 @@ def residual_figure(bound: float, panels: list[dict]):
                 label="tested lags" + {True: "", False: " (the test fails)",
                                        None: " (no verdict)"}[c["passed"]])  # fmt: skip
         ax.axhline(0, color="k", lw=0.6)
-        ax.legend(fontsize=7, loc="upper right", framealpha=0.8)
+        # the legend in one row in a band above the correlations, not over the lags
+        shown = np.concatenate([[-bound, bound], c["values"],
+                                [] if c["feedback"] is None else c["feedback"]])  # fmt: skip
+        low, high = float(np.nanmin(shown)), float(np.nanmax(shown))
+        pad = 0.1 * (high - low)
+        ax.set_ylim(low - pad, high + 0.45 * (high - low))
+        ax.legend(fontsize=7, loc="upper right", framealpha=0.8, ncol=3)
         verdict = {True: "passes", False: "fails", None: "cannot be trusted"}[c["passed"]]
         ax.set_title(f"{c['what']}: {verdict}", fontsize=9)
         ax.set_ylabel("r(τ)")
