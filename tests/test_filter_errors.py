@@ -120,3 +120,20 @@ def test_robust_kind_is_accepted_for_a_filter(kind):
     _, pr = ekf_problem("discrete time")
     res = ti.fit(pr)
     assert np.isfinite(res.uncertainty(kind).stderr).all()
+
+
+def test_a_filter_failing_where_sigma_e_underflowed_says_so_not_the_states_region():
+    """issue 51 item 7: the note blamed state estimates leaving their region when the
+    measurement noise's variance had underflowed to 0."""
+    from test_ekf import sde_record
+    from test_start_from import _ekf
+
+    from tensorid.engine.diagnostics import diagnose
+
+    pr = _ekf(sde_record(0, P=60), {"k": 1.5, "c": 0.5, "a": 0.3}, x0=[0, 0])
+    theta = pr.theta0.copy()
+    theta[pr.theta_names.index("log_sigma_w_v")] = -400.0  # the states known exactly
+    theta[pr.theta_names.index("log_sigma_e_y")] = -400.0
+    why = diagnose(pr, theta)
+    assert why is not None and "σ_e(y) = e^-400: its variance underflows to 0" in why, why
+    assert "left the region" not in why

@@ -107,6 +107,31 @@ def _where(problem, e: int) -> str:
     return f"experiment {e}" + (f" ({name})" if name else "")
 
 
+def _noise_lost(problem, theta: np.ndarray, S: np.ndarray) -> str | None:
+    """Why S has no measurement part, where that is why: an output's σ_e² underflows
+    in double precision, or is lost in rounding beside S (the filter then follows the
+    output exactly, and S is the state covariance's alone, singular where the states
+    are known); None otherwise (the states' region is then the likely cause)."""
+    index = getattr(problem.sweeps.predictor, "measurement", ())
+    if not index:
+        return None
+    p = np.asarray(problem.unpack(theta)[0])
+    with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+        scale = np.abs(np.diag(S)) if np.isfinite(S).all() else np.zeros(len(index))
+        for j, i in enumerate(index):
+            o, var = problem.model.outputs[j], float(np.exp(2.0 * p[i]))
+            if var >= np.finfo(float).tiny and not var < 1e-16 * scale[j]:
+                continue
+            how = "underflows to 0" if var == 0 else f"is {var:.2g}, lost in rounding"
+            return (
+                f"σ_e({o}) = e^{p[i]:.4g}: its variance {how} in double precision, so the "
+                f"innovation covariance has no measurement part and the filter follows {o} "
+                f"exactly. Keep it off that floor: fix it at the sensor's noise (--fix "
+                f"log_sigma_e_{o}=log σ), or bound it (--bounds log_sigma_e_{o}=-30,5)"
+            )
+    return None
+
+
 def _filter_failure(problem, theta: np.ndarray) -> str | None:
     """Where the extended Kalman filter's innovation covariance S first stops being
     positive definite (the likelihood's log det S and S⁻¹ then mean nothing), with
@@ -128,6 +153,12 @@ def _filter_failure(problem, theta: np.ndarray) -> str | None:
         if ok.all():
             continue
         h = int(np.argmin(ok))
+        lost = _noise_lost(problem, theta, S[h])
+        if lost:
+            return (
+                f"in {_where(problem, e)}, its innovation covariance is not positive "
+                f"definite at t = {float(t[h]):.6g} (sample {h} of {len(t)}), where {lost}"
+            )
         states = ", ".join(f"{n}={v:.4g}" for n, v in zip(m.states, z[h, : m.N], strict=True))
         return (
             f"in {_where(problem, e)}, its innovation covariance is not positive definite "
