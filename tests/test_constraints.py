@@ -170,3 +170,23 @@ def test_constraints_that_cannot_hold_together_are_said_to_fail():
     assert not res.constraints.converged and res.constraints.outer == 30
     assert any("'a >= 20' is not met to tolerance" in w for w in res.warnings)
     assert res.theta[0] == 10.0  # as close as the bounds allow
+
+
+def test_an_active_constraint_without_a_multiplier_says_why():
+    """issue 51 item 7: "active: yes" with multiplier 0 and no word that a bound had
+    switched the term off."""
+    t = np.arange(200) * 0.05
+    u = np.sin(t) + 0.5 * np.sin(3.1 * t)
+    e = ti.Experiment(t, u, ti.simulate(MODEL, {"a": 1.0, "b": 2.0}, [0.0], ti.Experiment(t, u)).y)
+    cases = [
+        (["b <= 2*a"], None, "the data's own optimum lies on it"),  # noise-free: b = 2a
+        (["a >= 0.8"], {"a": (0.1, 0.8)}, "the bound on a holds the estimate there"),
+    ]
+    for constraints, bounds, why in cases:
+        pr = ti.Problem(MODEL, e, p0={"a": 0.5, "b": 0.5}, x0=[0.0], constraints=constraints,
+                        bounds=bounds)  # fmt: skip
+        res = ti.fit(pr)
+        (item,) = res.constraints.items
+        assert item["active"] and item["multiplier"] == 0.0
+        text = str(res)
+        assert "yes, λ = 0" in text and why in text, text

@@ -28,6 +28,9 @@ class ConstraintReport(Tabular):
     outer: int
     restricted_stderr: dict[str, float] = field(default_factory=dict)
     second_order: bool | None = None  # ∇²L > 0 on the active constraints' tangent space
+    # per constraint met with equality at λ = 0: its unknowns that sit on a box bound
+    # (the bound, not the constraint, holds the estimate there), or [] for none
+    unforced: dict[str, list[str]] = field(default_factory=dict)
 
     @classmethod
     def of(cls, res) -> ConstraintReport:
@@ -37,7 +40,7 @@ class ConstraintReport(Tabular):
         active = np.array([d["active"] for d in out.items], dtype=bool)
         A = res.problem.constraints.evaluate(res.theta)[1][active] if active.any() else None
         held = restricted_stderr(res, A) if out.converged and A is not None else {}
-        return cls(out.items, out.converged, out.outer, held, out.second_order)
+        return cls(out.items, out.converged, out.outer, held, out.second_order, _unforced(res))
 
     def as_dict(self) -> dict:
         return {
@@ -53,7 +56,7 @@ class ConstraintReport(Tabular):
             [
                 d["expr"],
                 f"{d['value']:.6g}",
-                "yes" if d["active"] else "no",
+                ("yes, λ = 0" if d["multiplier"] == 0 else "yes") if d["active"] else "no",
                 f"{d['multiplier']:.6g}",
             ]
             for d in self.items
@@ -66,6 +69,16 @@ class ConstraintReport(Tabular):
     def lines(self) -> list[str]:
         """What the estimates' error bars mean here (the warnings are the result's)."""
         out = []
+        for expr, bounded in self.unforced.items():  # active, yet no multiplier: say why
+            out.append(
+                f"{expr!r} holds with equality but carries no multiplier (λ = 0): "
+                + (
+                    f"the bound on {', '.join(bounded)} holds the estimate there, not the "
+                    "constraint (a bound switched the term off)"
+                    if bounded
+                    else "the data's own optimum lies on it, so it changes nothing"
+                )
+            )
         if self.second_order is not None:
             out.append(
                 "the solution minimises J on the active constraints, not J itself: "
@@ -114,3 +127,18 @@ def restricted_stderr(res, A: np.ndarray) -> dict[str, float]:
     se = np.sqrt(np.clip(np.diag(Ct), 0.0, None))
     names = res.problem.theta_names
     return {n: float(v) for n, v in zip(names, se, strict=True) if math.isfinite(v)}
+
+
+def _unforced(res) -> dict[str, list[str]]:
+    """{constraint: its unknowns on a box bound} for each constraint met with
+    equality whose multiplier is 0."""
+    pr, theta = res.problem, np.asarray(res.theta)
+    rows = pr.constraints.evaluate(theta)[1]
+    span = np.maximum(np.abs(theta), 1e-12)
+    on = (np.abs(theta - pr.lower) <= 1e-9 * span) | (np.abs(theta - pr.upper) <= 1e-9 * span)
+    out = {}
+    for d, row in zip(res.constraints.items, rows, strict=True):
+        if d["active"] and d["multiplier"] == 0:
+            involved = np.abs(row) > 0
+            out[d["expr"]] = [pr.theta_names[k] for k in np.flatnonzero(involved & on)]
+    return out
