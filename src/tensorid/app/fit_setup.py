@@ -244,7 +244,7 @@ def _noise_given(args) -> dict:
     """{log_sigma_<kind>_<name>: log σ} of the noise starts the command line gives
     (--process-noise, --measurement-noise): they win over a --start-from file's, which
     set them without a word (and a fit at its σ_e floor then advised the flag given)."""
-    out = {}
+    out: dict[str, float] = {}
     for kind, prefix in NOISE_PREFIXES.items():
         flag = f"{kind}_noise"
         given = given_once(_FLAGS[flag], getattr(args, flag, None) or [])
