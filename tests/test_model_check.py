@@ -142,3 +142,30 @@ def test_an_odd_records_halves_have_one_length_and_compile_nothing_more():
         for shape, _ in leaves if len(shape) == 1
     }  # fmt: skip
     assert {30, 61} <= lengths and 31 not in lengths
+
+
+def test_halves_of_one_repeated_excitation_cannot_pass_a_wrong_model():
+    """issue 51 item 6: two periods of one multisine carry the same model error, so the
+    halves agree (Q = 0) although the model is wrong; the console said "passes: trust
+    the robust ones" while the input correlation failed. Now it names the limitation,
+    and the failing input test as the model error it is."""
+    from test_constraints import MODEL
+
+    truth = ti.Model(lambda x, p, u: jnp.stack([-p[0] * x[0] - 3.0 * x[0] ** 3 + p[1] * u[0]]),
+                     output=lambda x, p: x[:1], states=["x"], params=["a", "b"],
+                     inputs=["u"], outputs=["y"])  # fmt: skip
+    P, rng = 200, np.random.default_rng(0)
+    t = np.arange(2 * P) * 0.05
+    phases = rng.uniform(0, 2 * np.pi, 8)
+    period = sum(np.cos(2 * np.pi * k * np.arange(P) / P + phases[k - 1]) for k in range(1, 9))
+    u = np.tile(period, 2) / 3
+    y = ti.simulate(truth, {"a": 1.0, "b": 2.0}, [0.0], ti.Experiment(t, u)).y
+    y = y + 0.01 * rng.standard_normal(y.shape)
+    res = ti.fit(ti.Problem(MODEL, ti.Experiment(t, u, y), p0={"a": 0.5, "b": 0.5}, x0=[0.0]))
+    check, tests = res.model_check(), res.residual_tests()
+    assert check.passed and check.repeated and "its parts repeat one excitation" in check.line()
+    assert tests.independence[0].passed is False
+    advice = trust_advice(check, tests)
+    assert advice.startswith("The model-error check cannot see model error here")
+    assert "y against input u FAILS" in advice and "Trust neither" in advice
+    assert "trust the robust ones" not in advice

@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 
+from .model_check import REPEATED
 from .residuals import default_lags
 from .summary import (
     Table,
@@ -120,12 +121,31 @@ def coloured_residuals_line(res, residual=None, check=None, robust=None) -> str:
     return (
         f"{head}; those robust to coloured {'innovations' if filt else 'residuals'} ({how}, "
         f"{robust.lags} lags) are {finite.min():.2g} to {finite.max():.2g} times them: "
-        f"{pairs} (fit.json stderr_robust). {trust_advice(check)}"
+        f"{pairs} (fit.json stderr_robust). {trust_advice(check, residual)}"
     )
 
 
-def trust_advice(check) -> str:
-    """Which error bars to trust, from the model-error check (None: not made)."""
+def trust_advice(check, residual=None) -> str:
+    """Which error bars to trust, from the model-error check (None: not made) and,
+    where its parts repeat one excitation (it cannot see model error then), what the
+    residual tests against the inputs show."""
+    if check is not None and check.passed and check.repeated:
+        failing = [c for c in getattr(residual, "independence", []) if c.passed is False]
+        if failing:
+            c = failing[0]
+            lag = int(c.lags[int(np.argmax(np.abs(c.values)))])
+            return (
+                f"The model-error check cannot see model error here: {REPEATED}. And "
+                f"the residuals' test {c.what} FAILS (Q = {c.statistic:.0f}, largest |r| "
+                f"{c.largest:.2f} at lag {lag}): that is model error, which no error bars "
+                "here cover. Trust neither; try a richer model, the input's intersample "
+                "setting (interpolation), or process noise (--predictor ekf)"
+            )
+        return (
+            f"The model-error check passes, but {REPEATED}: trust the robust ones only as "
+            "far as the model is right; a record with another excitation (as a separate "
+            "record) would test it"
+        )
     if check is None:
         return (
             "They cover coloured noise, not a wrong model: res.model_check() (made by "

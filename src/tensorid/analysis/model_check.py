@@ -62,6 +62,12 @@ from .summary import Table, Tabular, collapsed_outputs, significant, stderr_text
 from .uncertainty import uncertainty
 
 MIN_PART = 20  # samples a part needs (and more than twice its unknowns)
+SAME_INPUT = 0.05  # parts whose inputs differ by less (relative RMS) repeat one excitation
+REPEATED = (
+    "its parts repeat one excitation (the same input in each), so they carry the same "
+    "model error and agreeing shows only that the estimates do not drift, not that the "
+    "model is right"
+)
 
 
 @dataclass(repr=False)
@@ -88,6 +94,9 @@ class ModelCheck(Tabular):
     passed: bool | None = None
     left_out: list[str] = field(default_factory=list)
     not_available: str | None = None
+    # the parts repeat one excitation (periods of one periodic input): they then carry
+    # the same model error, and agreeing says only that the estimates do not drift
+    repeated: bool = False
 
     def spread(self) -> list[tuple[str, float]]:
         """(parameter, largest distance between two parts in robust standard errors of
@@ -115,6 +124,14 @@ class ModelCheck(Tabular):
         )
         if self.left_out:
             out += f"; not compared (a part cannot determine them): {', '.join(self.left_out)}"
+        if not self.passed and self.spread() and self.spread()[0][1] <= 2.0:
+            out += (
+                "; no unknown alone is more than 2 apart: it is their joint difference "
+                "that fails (the parts' estimates move together in a direction their "
+                "correlated error bars do not allow)"
+            )
+        if self.passed and self.repeated:
+            out += f"; but {REPEATED}"
         return out
 
     def advice(self) -> str:
@@ -179,8 +196,9 @@ def model_check(res, level: float = 0.99, maxiter: int = 100) -> ModelCheck:
     p = len(problem.free_params)
     if p == 0:
         return ModelCheck(level, how, not_available="no parameter is estimated")
-    labels, est, covs, ses = [], [], [], []
+    labels, est, covs, ses, inputs = [], [], [], [], []
     for label, part, theta0 in _parts(res):
+        inputs.append(np.asarray(part.experiments[0].u, dtype=float))
         fitted = _fit_part(part, theta0, maxiter)
         if isinstance(fitted, str):
             return ModelCheck(level, how, not_available=f"the fit of {label} {fitted}")
@@ -188,7 +206,20 @@ def model_check(res, level: float = 0.99, maxiter: int = 100) -> ModelCheck:
         est.append(fitted.theta[-p:])
         covs.append(fitted.covariance[-p:, -p:])
         ses.append(fitted.stderr[-p:])
-    return _compare(level, how, labels, list(problem.free_params), est, covs, np.array(ses))
+    check = _compare(level, how, labels, list(problem.free_params), est, covs, np.array(ses))
+    check.repeated = _same_excitation(inputs)
+    return check
+
+
+def _same_excitation(inputs: list[np.ndarray]) -> bool:
+    """Whether every part has (nearly) the input of the first: periods of one
+    periodic excitation, within SAME_INPUT of its spread (relative RMS)."""
+    first = inputs[0]
+    if first.size == 0 or any(u.shape != first.shape for u in inputs):
+        return False
+    spread = np.linalg.norm(first - first.mean(axis=0))
+    return bool(spread > 0 and all(
+        np.linalg.norm(u - first) <= SAME_INPUT * spread for u in inputs[1:]))  # fmt: skip
 
 
 def _compare(level, how, labels, names, est, covs, ses) -> ModelCheck:
