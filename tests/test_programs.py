@@ -519,3 +519,53 @@ def test_jax_s_cache_met_before_an_executable_is_kept_does_not_break_a_fit(tmp_p
         assert run(tmp_path / "jax") == plain
         for f in (tmp_path / "jax" / "programs").glob("*.xla"):
             f.unlink()  # as pruning may leave JAX's cache with the program
+
+
+# a population fit in one process: count the traces of the outer objective's pieces,
+# print the estimates to full precision
+POPULATION = r"""
+import json
+import jax.numpy as jnp
+import numpy as np
+import tensorid as ti
+from tensorid.population.objective import Objective
+
+traced = []
+for name in ("unit_value_grad", "unit_hessian"):
+    fn = getattr(Objective, name)
+    def counting(self, *a, _fn=fn, _name=name, **k):
+        traced.append(_name)
+        return _fn(self, *a, **k)
+    setattr(Objective, name, counting)
+
+m = ti.Model(rhs=lambda x, p, u: -p[0] * x, output=lambda x, p: x / p[1], states=["x"],
+             params=["k", "v"], outputs=["c"])
+rng = np.random.default_rng(0)
+t = np.linspace(0, 4, 9)
+ys = [(5 * np.exp(-k * t))[:, None] + 0.05 * rng.standard_normal((9, 1))
+      for k in rng.lognormal(0, 0.3, 6)]
+units = [ti.Experiment(t, None, y, name=str(i)) for i, y in enumerate(ys)]
+res = ti.fit(ti.Problem(m, units, p0={"k": 1.0, "v": 2.5}, x0=[10.0], population={"k": 0.3}))
+print(json.dumps({"traced": sorted(set(traced)), "x": [v.hex() for v in res.x],
+                  "H": [v.hex() for v in np.ravel(res.hess)]}))
+"""
+
+
+@pytest.mark.slow  # three processes each fitting a population (20-40 s each, cold)
+def test_a_population_fits_programs_are_read_by_the_next_process(tmp_path):
+    """issue 50 item 1: the outer Hessian's trace alone took 10 s of a 17 s theophylline
+    fit whose programs were all in JAX's cache; its programs are now kept as the
+    sweeps' are, and a second process traces none of them, with the same numbers."""
+
+    def run(cache: Path, **env) -> dict:
+        environ = dict(os.environ, TENSORID_CACHE_DIR=str(cache), TENSORID_PROGRAMS="1", **env)
+        out = subprocess.run([sys.executable, "-c", POPULATION], capture_output=True,
+                             text=True, env=environ, check=True)  # fmt: skip
+        return json.loads(out.stdout.strip().splitlines()[-1])
+
+    first = run(tmp_path / "jax")
+    assert first["traced"] == ["unit_hessian", "unit_value_grad"]
+    second = run(tmp_path / "jax")
+    assert second["traced"] == []  # read, not traced
+    plain = run(tmp_path / "off", TENSORID_CACHE="0")
+    assert second["x"] == first["x"] == plain["x"] and second["H"] == plain["H"]

@@ -63,6 +63,13 @@ _WHAT = {
     "_segment_gn": "the segments' first-order sweep",
     "_k_step": "the k-step-ahead predictions",
     "adjoint": "the second-order adjoint",
+    # a population fit's (population/objective.py)
+    "population_steps": "the units' inner Newton steps",
+    "population_value_grad": "the population objective and its gradient",
+    "population_hessian": "the population objective's Hessian",
+    "population_inner_blocks": "the units' inner curvature",
+    "population_inner_hessians": "the units' inner Hessians",
+    "population_predict_all": "the units' predictions",
 }
 
 

@@ -44,6 +44,7 @@ import jax.scipy.special
 import numpy as np
 
 from ..engine.initial import moving
+from ..engine.programs import Program
 from ..engine.sweeps import shared_sweeps
 from .errors import ResidualErrors, positive_observations
 from .inner import solve_units
@@ -328,10 +329,21 @@ class Objective:
     # method): each function reads only that structure from self, the rest from its
     # arguments, so a later Objective of the same structure reuses them
     def _program(self, name: str | tuple, build):
+        """The program ``build()`` makes, kept per structure here and, as the sweeps'
+        are (engine/programs.py), on disk: a later process reads it instead of tracing
+        it again (the outer Hessian's trace alone took 10 s of a 17 s theophylline fit
+        with every compiled program in JAX's cache)."""
         programs = _PROGRAMS.setdefault(self.key, {})
         if name not in programs:
-            programs[name] = build()
+            label = name if isinstance(name, str) else "_".join(map(str, name))
+            entry = f"population_{label} {self._structure_text()}"
+            programs[name] = Program(build(), self.sweeps, entry)
         return programs[name]
+
+    def _structure_text(self) -> str:
+        """What a program traces beyond its sweeps' structure (the random effects, Ω's
+        form, the method, x0's expressions, the error models), as text for its key."""
+        return repr(self.key[1:])
 
     def structure(self) -> Objective:
         """This objective without its units' data or Problem: what a kept program may
