@@ -54,8 +54,9 @@ def _tensorid(cache: Path, out: Path, method: str) -> tuple[float, dict]:
 
 def _method(method: str, repeats: int, work: Path) -> dict:
     cache = work / f"cache-{method}"
-    cold, fit = _tensorid(cache, work / f"cold-{method}", method)
-    warm = [_tensorid(cache, work / f"warm-{method}", method)[0] for _ in range(repeats)]
+    cold, _ = _tensorid(cache, work / f"cold-{method}", method)
+    runs = [_tensorid(cache, work / f"warm-{method}", method) for _ in range(repeats)]
+    warm, fit = [t for t, _ in runs], runs[-1][1]
     return {"cold_s": cold, "warm_s": statistics.median(warm), "warm_runs_s": warm,
             "fit_seconds_warm": fit["seconds"], "objective": fit["objective"],
             "params": fit["params"],
