@@ -1,11 +1,12 @@
 r"""The marginal likelihood of a fleet and its exact derivatives.
 
-ψ = (μ, log ω, s, log a, log b): μ_k = log of the typical value of population
-parameter k, ω_k the standard deviation of its random effect η_k, s the shared free
-parameters (natural units), a_g and b_g output g's additive and proportional residual
-error (each where the output has it). Unit i's parameters are exp(μ + η_i) for the
-population ones, its own values b_i for individual ones (found beside η̂_i, no
-distribution), and s for the rest. The residual variance is σ²_hg = a_g² + b_g² ŷ_hg².
+ψ = (μ, log ω, s, log σ): μ_k = log of the typical value of population parameter k,
+ω_k the standard deviation of its random effect η_k, s the shared free parameters
+(natural units), σ the terms of each output's residual-error model (errors.py: a
+transform h and a variance σ²_hg(ŷ) on h's scale; σ² = a_g² + b_g² ŷ_hg² for a
+combined one). Unit i's parameters are exp(μ + η_i) for the population ones, its own
+values b_i for individual ones (found beside η̂_i, no distribution), and s for the
+rest. Below, y and ŷ stand for h(y) and h(ŷ) where h is not the identity.
 
 Each unit's inner problem (its empirical Bayes estimate η̂_i, with b̂_i) minimises
 
@@ -329,10 +330,9 @@ class Objective:
     # method): each function reads only that structure from self, the rest from its
     # arguments, so a later Objective of the same structure reuses them
     def _program(self, name: str | tuple, build):
-        """The program ``build()`` makes, kept per structure here and, as the sweeps'
-        are (engine/programs.py), on disk: a later process reads it instead of tracing
-        it again (the outer Hessian's trace alone took 10 s of a 17 s theophylline fit
-        with every compiled program in JAX's cache)."""
+        """The program ``build()`` makes, kept per structure here and on disk as the
+        sweeps' are (engine/programs.py): a later process reads it, not traces it (the
+        outer Hessian's trace alone was 10 s of a 17 s theophylline fit, cache warm)."""
         programs = _PROGRAMS.setdefault(self.key, {})
         if name not in programs:
             label = name if isinstance(name, str) else "_".join(map(str, name))
