@@ -551,7 +551,7 @@ print(json.dumps({"traced": sorted(set(traced)), "x": [v.hex() for v in res.x],
 """
 
 
-@pytest.mark.slow  # three processes each fitting a population (20-40 s each, cold)
+@pytest.mark.slow  # two processes each fitting a population (20-40 s the first, cold)
 def test_a_population_fits_programs_are_read_by_the_next_process(tmp_path):
     """issue 50 item 1: the outer Hessian's trace alone took 10 s of a 17 s theophylline
     fit whose programs were all in JAX's cache; its programs are now kept as the
@@ -567,5 +567,6 @@ def test_a_population_fits_programs_are_read_by_the_next_process(tmp_path):
     assert first["traced"] == ["unit_hessian", "unit_value_grad"]
     second = run(tmp_path / "jax")
     assert second["traced"] == []  # read, not traced
-    plain = run(tmp_path / "off", TENSORID_CACHE="0")
-    assert second["x"] == first["x"] == plain["x"] and second["H"] == plain["H"]
+    # (a kept program's numbers against a process that keeps nothing: the sweeps' test
+    # above; the fingerprint script's 986 arrays are bit-identical with them kept)
+    assert second["x"] == first["x"] and second["H"] == first["H"]
