@@ -214,3 +214,27 @@ def test_the_table_is_written_as_csv_and_drawn_without_a_fit(tmp_path):
     assert float(rows[0]["CWRES"]) == pytest.approx(tab["CWRES"][0], rel=1e-9)
     fig = residuals_figure(res)
     assert [a.get_ylabel() for a in fig.axes] == ["CWRES", "CWRES", "IWRES", "residual"]
+
+
+def test_a_censored_sample_predicted_at_zero_has_probability_one_on_the_log_scale():
+    """Beal's M3 with an exponential error: before the dose arrives (ŷ = 0) a sample
+    below its limit has P(y < limit) = 1, so it adds nothing (it made ℓ = +∞)."""
+    m = ti.Model(rhs=lambda x, p, u: jnp.stack([-p[0] * x[0], p[0] * x[0] - p[1] * x[1]]),
+                 output=lambda x, p: x[1:] / 10.0, states=["depot", "center"],
+                 params=["ka", "ke"], outputs=["cp"])  # fmt: skip
+    t = np.array([0.0, 0.5, 1, 2, 4, 8])
+    y = np.array([[0.1], [2.0], [3.0], [3.5], [2.5], [0.1]])
+    cens = np.zeros((6, 1), bool)
+    cens[[0, -1]] = True
+    exps = [ti.Experiment(t, None, y * (1 + 0.1 * i), name=str(i), censored=cens)
+            for i in range(3)]  # fmt: skip
+    pr = ti.Problem(m, exps, p0={"ka": 1.0, "ke": 0.2}, x0=[100.0, 0.0], population={"ka": 0.3},
+                    residual_error="exponential")  # fmt: skip
+    obj = Objective(pr, "laplace")
+    psi = jnp.asarray([0.0, np.log(0.3), 0.2, np.log(0.2)])
+    unit = tuple(a[0] for a in obj.data)
+    eta = jnp.zeros(1)
+    value, grad = jax.value_and_grad(obj.ell, argnums=1)(eta, psi, unit)
+    assert np.isfinite(float(value)) and np.isfinite(np.asarray(grad)).all()
+    f = np.asarray(obj.predict(psi, eta, unit))[:6, 0]  # the censored t = 0 sample: ŷ = 0
+    assert f[0] == 0.0

@@ -206,6 +206,17 @@ class ResidualErrors:
         bad = jnp.any((seen[..., g] > 0) & (f[..., g] <= 0))
         return (self.scaled(y, seen) - self.scaled(f, seen)) * seen, bad
 
+    def censored_z(self, y, f, c, V):
+        """(h(limit) − h(ŷ)) / σ of the censored samples ``c`` (y holding the limit);
+        where a log-scale output predicts ≤ 0 every value of it lies below the limit
+        (P = 1: z = 40, whose log Φ is 0)."""
+        r, _ = self.residuals(y, f, c)
+        z = jnp.where(c > 0, r / jnp.sqrt(V), 0.0)
+        if not self.logs:
+            return z
+        g = jnp.asarray(self.logs)
+        return z.at[..., g].set(jnp.where(f[..., g] <= 0, 40.0, z[..., g]))
+
     def jacobian(self, y, mask):
         """−2 Σ log|h'(y)| over the observations: what makes the objective that of y
         (0 where every h is the identity)."""

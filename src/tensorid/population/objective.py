@@ -230,10 +230,8 @@ class Objective:
         if self.censored:  # −log P(y < limit) = −log Φ((limit − ŷ)/σ), y holding the limit
             c = unit[6]
             Vc = jnp.where(c > 0, self.variance(noise, f), 1.0)  # (σ² = 0 where ŷ = 0)
-            rc, below = self.error.residuals(y, f, c)
-            z = jnp.where(c > 0, rc / jnp.sqrt(Vc), 0.0)
+            z = self.error.censored_z(y, f, c, Vc)
             out = out - jnp.sum(jnp.where(c > 0, jax.scipy.special.log_ndtr(z), 0.0))
-            bad = bad | below
         return jnp.where(bad, jnp.inf, out)
 
     def curvature(self, eta, psi, unit):
