@@ -134,6 +134,21 @@ def central_differences(obj: Objective, psi, etas, h: float = 1e-5) -> np.ndarra
     return g
 
 
+def assert_central_differences(obj: Objective, psi, etas) -> None:
+    """The outer gradient against central differences of the objective."""
+    g = obj.value_grad(psi, etas)[1].sum(0)
+    np.testing.assert_allclose(g, central_differences(obj, psi, etas), rtol=1e-6, atol=1e-6)
+
+
+def assert_plain(obj: Objective, psi, etas, plain) -> None:
+    """The objective and its gradient against ``plain``'s (a plainly written one,
+    differentiated by JAX)."""
+    O, g = obj.value_grad(psi, etas)
+    value, gp = _value_and_grad(plain, psi)
+    assert O.sum() == pytest.approx(value, rel=1e-12)
+    np.testing.assert_allclose(g.sum(0), gp, rtol=1e-8, atol=1e-8 * np.abs(gp).max())
+
+
 def _fleet_point(n_units=4, method="focei"):  # (4: the programs of the 4-unit fits)
     obj = Objective(fleet_problem(n_units), method)
     psi = np.array([np.log(1.3), np.log(2.2), np.log(0.5), np.log(0.35), 26.0, np.log(0.4)])
@@ -146,28 +161,19 @@ def test_the_outer_gradient_is_that_of_central_differences():
     """The implicit-function gradient through every unit's η̂, against central
     differences of the objective (the same programs as the fit below)."""
     obj, psi, etas = _fleet_point()
-    g = obj.value_grad(psi, etas)[1].sum(0)
-    np.testing.assert_allclose(g, central_differences(obj, psi, etas), rtol=1e-6, atol=1e-6)
+    assert_central_differences(obj, psi, etas)
 
 
 @pytest.mark.slow  # its plainly written reference compiles for 20-25 s
 def test_the_outer_gradient_is_that_of_the_plain_objective():
     obj, psi, etas = _fleet_point()
-    O, g = obj.value_grad(psi, etas)
-    plain = _plain_objective(obj, etas, newton_steps=1)
-    value, gp = _value_and_grad(plain, psi)
-    assert O.sum() == pytest.approx(value, rel=1e-12)
-    np.testing.assert_allclose(g.sum(0), gp, rtol=1e-8, atol=1e-8 * np.abs(gp).max())
+    assert_plain(obj, psi, etas, _plain_objective(obj, etas, newton_steps=1))
 
 
 @pytest.mark.slow  # the Laplace determinant needs a third order: a minute of compiling
 def test_the_laplace_gradient_is_that_of_the_plain_objective():
     obj, psi, etas = _fleet_point(2, "laplace")
-    O, g = obj.value_grad(psi, etas)
-    plain = _plain_objective(obj, etas, newton_steps=1, laplace=True)
-    value, gp = _value_and_grad(plain, psi)
-    assert O.sum() == pytest.approx(value, rel=1e-12)
-    np.testing.assert_allclose(g.sum(0), gp, rtol=1e-8, atol=1e-8 * np.abs(gp).max())
+    assert_plain(obj, psi, etas, _plain_objective(obj, etas, newton_steps=1, laplace=True))
 
 
 @pytest.mark.slow  # jax.hessian through the plain objective compiles for minutes
@@ -237,19 +243,14 @@ def test_combined_error_and_individual_values_beside_random_effects_gradient():
     """The outer gradient (implicit-function theorem through (η̂, cl̂)) against
     central differences of the objective."""
     obj, psi, etas = _combined_point()
-    g = obj.value_grad(psi, etas)[1].sum(0)
-    np.testing.assert_allclose(g, central_differences(obj, psi, etas), rtol=1e-6, atol=1e-6)
+    assert_central_differences(obj, psi, etas)
 
 
 @pytest.mark.slow  # its plainly written reference compiles for 25-30 s
 def test_combined_error_and_individual_values_beside_random_effects_exact_gradient():
     """The outer objective and its gradient are those of the plainly written one."""
     obj, psi, etas = _combined_point()
-    O, g = obj.value_grad(psi, etas)
-    plain = _plain_combined(obj, etas)
-    value, gp = _value_and_grad(plain, psi)
-    assert O.sum() == pytest.approx(value, rel=1e-12)
-    np.testing.assert_allclose(g.sum(0), gp, rtol=1e-8, atol=1e-8 * np.abs(gp).max())
+    assert_plain(obj, psi, etas, _plain_combined(obj, etas))
 
 
 @pytest.mark.slow  # its plain reference compiles for 20-30 s; the diagonal Ω's stays fast

@@ -48,10 +48,11 @@ print(json.dumps({"traced": traced, "J": J.hex(), "g": [v.hex() for v in g],
 """
 
 
-def _run(cache: Path, k: float = 2.0, **env) -> dict:
+def _run(cache: Path, k: float = 2.0, script: str = SCRIPT, **env) -> dict:
+    """``script``'s JSON line, run in a process of its own on the cache ``cache``."""
     environ = dict(os.environ, TENSORID_CACHE_DIR=str(cache), TENSORID_PROGRAMS="1", **env)
     out = subprocess.run(
-        [sys.executable, "-c", SCRIPT, str(k)],
+        [sys.executable, "-c", script, str(k)],
         capture_output=True,
         text=True,
         env=environ,
@@ -556,16 +557,9 @@ def test_a_population_fits_programs_are_read_by_the_next_process(tmp_path):
     """issue 50 item 1: the outer Hessian's trace alone took 10 s of a 17 s theophylline
     fit whose programs were all in JAX's cache; its programs are now kept as the
     sweeps' are, and a second process traces none of them, with the same numbers."""
-
-    def run(cache: Path, **env) -> dict:
-        environ = dict(os.environ, TENSORID_CACHE_DIR=str(cache), TENSORID_PROGRAMS="1", **env)
-        out = subprocess.run([sys.executable, "-c", POPULATION], capture_output=True,
-                             text=True, env=environ, check=True)  # fmt: skip
-        return json.loads(out.stdout.strip().splitlines()[-1])
-
-    first = run(tmp_path / "jax")
+    first = _run(tmp_path / "jax", script=POPULATION)
     assert first["traced"] == ["unit_hessian", "unit_value_grad"]
-    second = run(tmp_path / "jax")
+    second = _run(tmp_path / "jax", script=POPULATION)
     assert second["traced"] == []  # read, not traced
     # (a kept program's numbers against a process that keeps nothing: the sweeps' test
     # above; the fingerprint script's 986 arrays are bit-identical with them kept)

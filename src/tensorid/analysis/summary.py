@@ -341,6 +341,10 @@ def collapsed_noise(res) -> list[str]:
     return out
 
 
+# a filter's σ_e below this share of its output's spread sits at its floor
+SIGMA_E_FLOOR = 1e-6
+
+
 def collapsed_outputs(res, spread: bool = False) -> dict:
     """{output: σ_e} (with ``spread``: {output: (σ_e, the output's spread)}) for each
     estimated measurement noise of a filter fit that sits at its floor: below 1e-6 of
@@ -355,7 +359,7 @@ def collapsed_outputs(res, spread: bool = False) -> dict:
         j = model.outputs.index(o)
         ys = np.concatenate([np.asarray(x.measured)[:, j] for x in exps])
         sd = float(np.nanstd(ys))
-        if e["fixed"] or not sd > 0 or e["sigma"] >= 1e-6 * sd:
+        if e["fixed"] or not sd > 0 or e["sigma"] >= SIGMA_E_FLOOR * sd:
             continue
         q = _resolution(ys)
         if q > 0 and e["sigma"] >= 0.5 * q / np.sqrt(12):

@@ -11,6 +11,7 @@ import sys
 import numpy as np
 
 from ..analysis.residuals import lag_limit
+from ..analysis.summary import SIGMA_E_FLOOR
 from ..analysis.validation import check_init_window
 from ..engine.discretisation import Discretisation
 from ..engine.hessians import get_hessian
@@ -227,7 +228,7 @@ def _off_the_floor(start: Start, train, model, path) -> Start:
         if o in model.outputs:
             j = model.outputs.index(o)
             ys = np.concatenate([np.asarray(e.measured)[:, j] for e in train])
-            if not sigma > 1e-6 * float(np.nanstd(ys)):
+            if not sigma > SIGMA_E_FLOOR * float(np.nanstd(ys)):
                 low[o] = sigma
     for o, sigma in low.items():
         print(

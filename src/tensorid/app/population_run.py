@@ -16,12 +16,7 @@ import numpy as np
 
 from .._config import __version__
 from ..analysis.figures import save_png
-from ..population.figures import (
-    observed_predicted_figure,
-    residuals_figure,
-    units_figure,
-    vpc_figure,
-)
+from ..population.figures import drawn
 from .fleet_report import fleet_json, fleet_lines
 from .keeping import _replace_quietly
 from .output import write_atomic, write_kept, write_text
@@ -108,14 +103,12 @@ def report_population(res, out: Path, old: set[Path], recorded: dict) -> int:
         return 1
     failures: list[str] = []
     written, figures = [path], []
-    drawn = [("units", units_figure), ("observed_predicted", observed_predicted_figure)]
-    if res.population and np.isfinite(res.objective):  # simulated fleets need an Ω
-        drawn += [("vpc", vpc_figure), ("residuals", residuals_figure)]
+    if res.population and np.isfinite(res.objective):  # (as its figures: an Ω, a fit)
         try:
             written.append(write_atomic(out / "observations.csv", partial(_table_csv, res)))
         except Exception as e:  # the table is not worth the fit: say so, go on
             failures.append(f"could not write {out / 'observations.csv'}: {_reason(e)}")
-    for stem, build in drawn:
+    for stem, build in drawn(res):
         try:
             fig = build(res)
         except Exception as e:  # a figure is not worth the report: say so, go on

@@ -67,23 +67,26 @@ class ErrorModel:
         raise NotImplementedError
 
 
+def _rms(r, seen) -> float:
+    """The RMS of ``r`` over the samples ``seen``."""
+    return float(np.sqrt(np.sum(np.where(seen, r, 0.0) ** 2) / max(int(seen.sum()), 1)))
+
+
 def _log_rms(r, seen, floor) -> float:
     """log of the RMS of ``r`` over ``seen``; ``floor`` where it is ~0 or not finite."""
-    rms = np.sqrt(np.sum(np.where(seen, r, 0.0) ** 2) / max(int(seen.sum()), 1))
+    rms = _rms(r, seen)
     return float(np.log(rms)) if np.isfinite(rms) and rms > 1e-8 else floor
 
 
 def _additive(y, yhat, seen) -> float:
-    scale = np.sqrt(np.sum(np.where(seen, y, 0.0) ** 2) / max(int(seen.sum()), 1))
-    rms = np.sqrt(np.sum(np.where(seen, y - yhat, 0.0) ** 2) / max(int(seen.sum()), 1))
+    scale, rms = _rms(y, seen), _rms(y - yhat, seen)
     if np.isfinite(rms) and rms > 1e-8 * scale:
         return float(np.log(rms))
     return float(np.log(max(0.1 * scale, 1e-12)))
 
 
 def _relative(y, yhat, seen) -> float:
-    scale = np.sqrt(np.sum(np.where(seen, y, 0.0) ** 2) / max(int(seen.sum()), 1))
-    seen = seen & (np.abs(yhat) > 1e-12 * max(scale, 1e-300))
+    seen = seen & (np.abs(yhat) > 1e-12 * max(_rms(y, seen), 1e-300))
     return _log_rms((y - yhat) / np.where(seen, yhat, 1.0), seen, _FALLBACK)
 
 
@@ -179,6 +182,11 @@ class ResidualErrors:
             ],
             dtype=int,
         )
+
+    def constant_sd(self, noise) -> np.ndarray:
+        """Each output's σ on its scale (S,) where every σ is constant (``constant``):
+        its one term's."""
+        return np.exp(np.asarray(noise)[self.first])
 
     def variance(self, noise, yhat):
         """σ²_hg on each output's scale (…, S) at the predictions ``yhat`` (…, S)."""

@@ -269,9 +269,15 @@ def _sd(obj: Objective, res: PopulationResult) -> np.ndarray:
     model's scale (log y for an exponential one)."""
     if obj.joint:
         return np.array(list(res.residual_sd.values()))
-    if obj.plain:  # each output's one term
-        return np.exp(res.x[obj.first_shared + obj.ns + obj.error.first])
-    return obj.residual_sd(res.x, res.etas)
+    return _sd_at(obj, res.x, res.etas)
+
+
+def _sd_at(obj: Objective, psi, etas) -> np.ndarray:
+    """The residual SD at (ψ, η) of a fit with a residual-error model: per output
+    where constant, else per sample."""
+    if obj.plain:
+        return obj.error.constant_sd(obj.split(psi)[3])
+    return obj.residual_sd(psi, etas)
 
 
 def _interrupted(obj: Objective, state: dict, began: float) -> PopulationResult:
@@ -385,12 +391,7 @@ def _presized(obj: Objective) -> tuple[Objective, list[str]]:
         for side in (0.0, 2.0, -2.0):
             probe = etas.copy()
             probe[:, : obj.qp] = side * omega
-            sigma = (
-                np.exp(psi[obj.first_shared + obj.ns + obj.error.first])
-                if obj.plain  # each output's one σ, on its scale
-                else obj.residual_sd(psi, probe)
-            )
-            moves.append(_moved(obj, psi, probe, sigma) or 0.0)
+            moves.append(_moved(obj, psi, probe, _sd_at(obj, psi, probe)) or 0.0)
         worst = max(moves) or None
         if worst is None:
             break

@@ -150,8 +150,18 @@ def vpc(res, replicates: int = 200, seed: int = 0, bins: int = 8, output: int = 
 def _noise_sd(res, obj, etas, shape, output: int) -> np.ndarray:
     """The residual SD of each simulated sample of ``output``."""
     if obj.plain:  # the output's one term: σ on its scale
-        return np.full(shape, np.exp(res.x[obj.first_shared + obj.ns + obj.error.first[output]]))
+        return np.full(shape, obj.error.constant_sd(obj.split(res.x)[3])[output])
     return obj.residual_sd(res.x, etas)[..., output]
+
+
+def drawn(res) -> list[tuple]:
+    """(file stem, figure builder) of each figure a population fit draws: the units and
+    observed against predicted, and where there is an Ω to simulate from and a
+    finite fit, the visual predictive check and the residuals."""
+    out = [("units", units_figure), ("observed_predicted", observed_predicted_figure)]
+    if res.population and np.isfinite(res.objective):
+        out += [("vpc", vpc_figure), ("residuals", residuals_figure)]
+    return out
 
 
 def vpc_figure(res, output: int = 0):

@@ -382,10 +382,7 @@ class PopulationResult:
         from ..analysis.figures import save_png
         from . import figures as f
 
-        drawn = [("units", f.units_figure), ("observed_predicted", f.observed_predicted_figure)]
-        if self.population and np.isfinite(self.objective):
-            drawn += [("vpc", f.vpc_figure), ("residuals", f.residuals_figure)]
-        figs = [(stem, build(self)) for stem, build in drawn]
+        figs = [(stem, build(self)) for stem, build in f.drawn(self)]
         if path is None:
             return [fig for _, fig in figs]
         Path(path).mkdir(parents=True, exist_ok=True)
