@@ -419,6 +419,37 @@ def test_a_simulated_fleet_is_fitted_and_reported():
     assert len(fits) == 4 and all(0.8 < f <= 1 for f in fits)
 
 
+def test_a_fleets_profiles_held_out_units_and_unit_influence():
+    """Issue 49 item 2 on the 4-unit fleet (its programs already compiled here): the
+    profile of a typical value starts at the fit's −2 log L and its interval is near
+    the Wald one; the fleet's own units as held-out units get the fit's η̂ and GOF
+    back; every unit gets a finite Cook's distance and shift."""
+    res = ti.fit(fleet_problem(4))
+    prof = ti.profile(res, ["ka", "omega_cl", "v"])
+    assert set(prof) == {"ka", "omega_cl", "v"}
+    for name, log in (("ka", True), ("omega_cl", True), ("v", False)):
+        p = prof[name]
+        i = res.names.index(f"log_{name}" if log else name)
+        se = np.sqrt(res.cov[i, i])
+        wald = np.exp(res.x[i] + np.array([-1, 1]) * 1.96 * se) if log else (
+            res.x[i] + np.array([-1, 1]) * 1.96 * se)  # fmt: skip
+        assert p.ends == {"lower": "crossed", "upper": "crossed"}
+        assert p.costs.min() == pytest.approx(res.objective, abs=1e-6)
+        width = wald[1] - wald[0]
+        assert abs(p.interval[0] - wald[0]) < 0.35 * width, (name, p.interval, wald)
+        assert abs(p.interval[1] - wald[1]) < 0.35 * width, (name, p.interval, wald)
+    again = res.validate(res.problem)
+    assert [a["id"] for a in again] == [u["id"] for u in res.units]
+    for a, u, g in zip(again, res.units, res.gof(), strict=True):
+        assert a["gof"] == pytest.approx(g, abs=1e-6)
+        assert a["eta"] == pytest.approx(u["eta"], abs=1e-5)
+        assert a["gof_pred"] < a["gof"]  # the typical unit predicts worse than its own
+    moved = res.unit_influence(refits=0)
+    assert sorted(d["id"] for d in moved) == ["u0", "u1", "u2", "u3"]
+    assert all(np.isfinite(d["cook"]) and d["cook"] >= 0 for d in moved)
+    assert [d["cook"] for d in moved] == sorted((d["cook"] for d in moved), reverse=True)
+
+
 def theophylline_problem(**kw):
     rows = list(csv.DictReader(THEOPH.open()))
     ids = list(dict.fromkeys(r["ID"] for r in rows))

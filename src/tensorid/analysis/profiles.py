@@ -297,6 +297,8 @@ def profile(
     Returns:
       {name: :class:`Profile`}.
     """
+    if getattr(res, "profiles_itself", False):  # a population fit: −2 log L over ψ
+        return res.profile(names, level, method=method, max_steps=max_steps)
     problem = res.problem
     if not 0 < level < 1:
         raise ValueError(f"level must be between 0 and 1, got {level!r}")

@@ -105,6 +105,12 @@ def _profiles(res, args) -> dict | None:
     if not res.has_uncertainty:
         print(f"tensorid: no profiles: the fit ended as {res.status}", file=sys.stderr)
         return None
+    return printed_profiles(res, args)
+
+
+def printed_profiles(res, args) -> dict:
+    """``res.profile`` of --profile's names at --profile-level, each described in a
+    line with its notes (a single fit's and a population's alike)."""
     profiles = res.profile(args.profile or None, level=args.profile_level)
     for p in profiles.values():
         print(p.describe())

@@ -22,6 +22,7 @@ from ..engine.status import Status
 from ..fitting.methods import fit
 from ..fitting.results import FitInterrupted
 from ..population import PopulationResult
+from ..population.profiles import profile_names
 from . import fleets
 from .after_fit import _after_fit, _gof_lines, _profile_figures
 from .cluster import _workers
@@ -40,6 +41,7 @@ from .fit_setup import (  # _problem and _data_entries are also patched and read
     no_repeats,
     predictor_origin,
 )
+from .fleet_flags import check_fleet_flags
 from .keeping import (
     _keep,
     _no_interrupt,
@@ -172,7 +174,7 @@ def _fit_command(args, renderer: Renderer) -> int:
     val_maps = _maps(
         args.validate_columns or _one(args.columns), args.validate, "--validate-columns"
     )
-    val = _validation_data(args, m, val_maps)
+    val = _validation_data(args, m, val_maps, spec)
     _check_options(args, train, val)
     for e in val:  # a discrete-time model at another rate: refused before the fit
         same_step(m, e, step(train[0]), f"the validation record {e.name!r}")
@@ -180,7 +182,13 @@ def _fit_command(args, renderer: Renderer) -> int:
     fix, bounds = given_once("--fix", args.fix), given_once("--bounds", args.bounds)
     spec, args.overrides = overridden(spec, fix, args.free, bounds)
     spec = fleets.from_command_line(spec, args)  # --individual, --population
+    if spec.population or spec.individual:  # before the Problem: the flag is named
+        check_fleet_flags(args)
     problem = _problem(spec, train, args)
+    held = None  # a fleet's --validate: held-out units (population/validation.py)
+    is_fleet = bool(problem.population or problem.individual)
+    if is_fleet:
+        held = _problem(spec, val, args, held_out=True) if val else None
     if problem.loss.likelihood and args.data_sensitivity:
         raise ValueError(
             f"--data-sensitivity is for output error, not a filter fit "
@@ -194,11 +202,10 @@ def _fit_command(args, renderer: Renderer) -> int:
         )
     # a method that cannot serve it: refused before the folder is touched
     checked_method(problem, args.method, predictor_origin(spec, args))
-    unknown = [n for n in args.profile or [] if n not in problem.theta_names]
+    known = profile_names(problem) if is_fleet else problem.theta_names
+    unknown = [n for n in args.profile or [] if n not in known]
     if unknown:
-        raise ValueError(
-            f"--profile: unknown names {unknown}; the unknowns are {problem.theta_names}"
-        )
+        raise ValueError(f"--profile: unknown names {unknown}; the unknowns are {known}")
     out = Path(args.out)
     watch = CompileWatch(console, enabled=not args.no_progress)  # what XLA compiles
     with _workers(args) as (executor, timeout), claimed(out), watch:
@@ -211,7 +218,7 @@ def _fit_command(args, renderer: Renderer) -> int:
                     return save_interrupted(stop.result, out, old, _recorded(args))
                 return _save_interrupted(stop.result, out, old, _recorded(args))
         if isinstance(res, PopulationResult):  # a fleet's population fit
-            return report_population(res, out, old, _recorded(args))
+            return report_population(res, out, old, _recorded(args), args, held)
         kept: dict = {}  # where the complete fit.json went, once it is written
         try:
             return _report(res, val, args, out, old, kept, renderer)

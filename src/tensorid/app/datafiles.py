@@ -366,11 +366,11 @@ def load_data(
         )
     if ts is not None and not 0 < ts < np.inf:
         raise ValueError(f"the sampling time ts must be positive and finite, got {ts}")
-    if records is not None and samples is not None:
-        raise ValueError(
-            "samples (--samples) cut one record, and records (--records) reads many units "
-            "of differing lengths: drop samples"
-        )
+    if records is not None and (samples is not None or ts is not None):  # (ts was dropped)
+        what = ("samples (--samples) cut one record", "samples")
+        what = ("ts (--ts) puts one record's samples at k·ts", "ts") if samples is None else what
+        raise ValueError(f"{what[0]}, and records (--records) reads many units of differing "
+                         f"lengths, each with its own time stamps: drop {what[1]}")  # fmt: skip
     paths = list(paths)
     maps = _maps(columns, len(paths))
     if len(paths) > 1 and not isinstance(columns, list):

@@ -42,7 +42,9 @@ def discretisation(args, spec: ModelSpec | None = None) -> Discretisation:
         raise ValueError(tolerances_as_flags(str(e))) from None
 
 
-def _problem(spec: ModelSpec, train, args) -> Problem:
+def _problem(spec: ModelSpec, train, args, held_out: bool = False) -> Problem:
+    """The Problem of ``train`` as the model file and flags set it; ``held_out``: a
+    fleet's held-out units (--validate), which may be one unit."""
     start = None  # --start-from: an earlier fit's values, --fix's in place of its own
     if getattr(args, "start_from", None):
         given = dict(args.fix) | _noise_given(args)  # what the command line names wins
@@ -63,7 +65,8 @@ def _problem(spec: ModelSpec, train, args) -> Problem:
             f"discrete-time model, not --scheme {disc.scheme.name}: drop --hessian or "
             "give --hessian tensors"
         )
-    fleets.several_units(spec, train, args)
+    if not held_out:
+        fleets.several_units(spec, train, args)
     try:  # the segments are the command line's, not the model file's
         resolve_segments(train, args.segments, args.segment_length)
     except ValueError as e:
@@ -102,7 +105,8 @@ _UNSET: tuple = (None, [], {}, "auto")  # a flag left at its default
 
 # settings a refusal may name, and the flag that gives each on the command line
 _SETTING_FLAGS = {"constraints": ("constraint", "--constraint"), "priors": ("prior", "--prior"),
-                  "noise": ("noise", "--noise"), "weights": ("weights", "--weights")}  # fmt: skip
+                  "noise": ("noise", "--noise"), "weights": ("weights", "--weights"),
+                  "free_x0": ("free", "--free")}  # fmt: skip
 
 
 def _origin(message: str, spec: ModelSpec, args) -> str:
@@ -286,9 +290,10 @@ def _no_noise_flags(args) -> None:
         )
 
 
-def _validation_data(args, model, columns) -> list:
+def _validation_data(args, model, columns, spec=None) -> list:
     """The --validate records, read with their column maps (--validate-columns,
-    default: --columns where it is one map for all files)."""
+    default: --columns where it is one map for all files), covariates and events as
+    the training files'."""
     if not args.validate:
         return []
     try:
@@ -299,8 +304,12 @@ def _validation_data(args, model, columns) -> list:
             samples=args.validate_samples,
             columns=columns,
             records=getattr(args, "records", None),  # fleets (issue 42)
+            covariates=getattr(spec, "covariates", None),
+            events=getattr(args, "events", None),
         )
     except ValueError as e:
+        if "(--samples)" in str(e):  # the validation files' own flag
+            raise ValueError(str(e).replace("(--samples)", "(--validate-samples)")) from None
         if "column" not in str(e) or args.validate_columns:
             raise
         hint = "--columns applies to them too" if args.columns else "they are read by name"

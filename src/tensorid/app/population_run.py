@@ -2,8 +2,11 @@
 fit.json (the population keys of app/fleet_report.py with the run's settings and
 provenance), report.md, observations.csv (one row per observation: PRED, IPRED,
 IWRES, CWRES, NPDE, ...) and the figures (every unit's data and fits, observed against
-predicted, the visual predictive check, the residuals). Validation records, profiles
-and the single-system statistics do not apply to it and are not run."""
+predicted, the visual predictive check, the residuals), and what the command line
+asked for beside the fit: --profile (typical values, ω, shared parameters),
+--validate (held-out units, their η by empirical Bayes) and --data-sensitivity (which
+unit moves the estimates). Those run after the estimates are printed; Ctrl-C or a
+failure in them keeps the fit."""
 
 from __future__ import annotations
 
@@ -15,12 +18,17 @@ from pathlib import Path
 import numpy as np
 
 from .._config import __version__
-from ..analysis.figures import save_png
+from ..analysis.figures import profile_figure, save_png
 from ..population.figures import drawn
+from ..population.influence import influence_lines, unit_influence
+from ..population.profiles import names_of
+from ..population.validation import held_out, held_out_lines
+from .after_fit import printed_profiles
 from .fleet_report import fleet_json, fleet_lines
 from .keeping import _replace_quietly
 from .output import write_atomic, write_kept, write_text
 from .provenance import markdown as provenance_lines
+from .reports import _profile_json
 
 
 def population_json(res, recorded: dict) -> dict:
@@ -88,15 +96,128 @@ def population_report(res, data: dict, figures: list[Path]) -> str:
         lines += ["Shared parameters: " + ", ".join(
             f"{n} = {v['value']:.5g} ± {v['stderr']:.3g}" for n, v in res.shared.items()
         ) + ".", ""]  # fmt: skip
+    lines += _analyses_lines(data)
     lines += [f"![{p.stem}]({p.name})" for p in figures] + [""]
     prov = data.get("provenance")
     return "\n".join(lines + (provenance_lines(prov) if prov else []))
 
 
-def report_population(res, out: Path, old: set[Path], recorded: dict) -> int:
-    """Print, then write; every failing write is named, none loses the estimates."""
+def analyses(res, args, held) -> tuple[dict, list[str], bool]:
+    """What the command line asked for beside the fit: ({"profiles", "held_out",
+    "unit_influence"} where asked, notes, whether Ctrl-C stopped them). Each prints its
+    lines as it ends; a failing one is a note, the fit is kept either way."""
+    out: dict = {}
+    notes: list[str] = []
+    if not np.isfinite(res.objective):
+        return out, notes, False
+    jobs = [("profiles", args is not None and args.profile is not None, printed_profiles),
+            ("held_out", held is not None, lambda r, a: _held(r, held)),
+            ("unit_influence", bool(getattr(args, "data_sensitivity", False)), _units)]  # fmt: skip
+    for key, asked, run in jobs:
+        if not asked:
+            continue
+        try:
+            out[key] = run(res, args)
+        except KeyboardInterrupt:
+            notes.append(f"interrupted during the {key.replace('_', ' ')}; the fit is kept")
+            return out, notes, True
+        except (ValueError, np.linalg.LinAlgError) as e:
+            notes.append(f"no {key.replace('_', ' ')}: {e}")
+    return out, notes, False
+
+
+def _held(res, problem) -> list[dict]:
+    scores = held_out(res, problem)
+    for line in held_out_lines(scores, res.problem.model.outputs):
+        print(line)
+    return scores
+
+
+def _units(res, args) -> list[dict]:
+    influence = unit_influence(res)
+    for line in influence_lines(influence):
+        print(line)
+    return influence
+
+
+def _analyses_json(extras: dict) -> dict:
+    """fit.json's keys of the analyses: profiles as a single fit's (ci95_profile, ...),
+    ``held_out`` and ``unit_influence``."""
+    d = _profile_json(extras.get("profiles"))
+    for key in ("held_out", "unit_influence"):
+        if key in extras:
+            d[key] = extras[key]
+    return d
+
+
+def _profile_figures(res, profiles: dict | None) -> list:
+    """(stem, builder) of each profile's figure: −2 log L's rise against the value,
+    beside the Wald parabola of its standard error on that scale."""
+    if not profiles:
+        return []
+    known = names_of(res)
+    out = []
+    for name, p in profiles.items():
+        i, log = known[name]
+        se = float(np.sqrt(res.cov[i, i])) * (p.estimate if log else 1.0)
+        out.append((f"profile_{name}", partial(_one_profile, p, se)))
+    return out
+
+
+def _one_profile(p, se, res):
+    return profile_figure(p, 1.0, se)
+
+
+def _analyses_lines(data: dict) -> list[str]:
+    """report.md's sections of the profiles, held-out units and unit influence."""
+    lines: list[str] = []
+    if data.get("ci95_profile"):
+        level = data["profile_level"]
+        lines += [f"## Profile likelihood ({level:.0%})", "",
+                  "| unknown | interval | not crossed |", "|---|---|---|"]  # fmt: skip
+        for n, (lo, hi) in data["ci95_profile"].items():
+            ends = ", ".join(f"{s}: {e}" for s, e in data["profile_ends"][n].items()
+                             if e != "crossed")  # fmt: skip
+            lines.append(f"| {n} | [{_g(lo)}, {_g(hi)}] | {ends or '–'} |")
+        lines.append("")
+    if data.get("held_out"):
+        lines += ["## Held-out units", "", "Fit % of each new unit's individual prediction "
+                  "(η̂ from its data) and of the population prediction (the typical unit).",
+                  "", "| unit | IPRED % | PRED % |", "|---|---|---|"]  # fmt: skip
+        for s in data["held_out"]:
+            lines.append(f"| {s['id']} | {_percent(s['gof'])} | {_percent(s['gof_pred'])} |")
+        lines.append("")
+    if data.get("unit_influence"):
+        lines += ["## Units that move the estimates most", "",
+                  "| unit | Cook's D | moves most | by (SE) | how |",
+                  "|---|---|---|---|---|"]  # fmt: skip
+        for d in data["unit_influence"][:10]:
+            n = d["largest"]
+            how = "refit" if d["refitted"] else "Newton step"
+            lines.append(f"| {d['id']} | {_g(d['cook'])} | {n} | {_g(d['shift'][n])} | {how} |")
+        lines.append("")
+    return lines
+
+
+def _g(v) -> str:
+    return "–" if v is None else f"{v:.4g}"
+
+
+def _percent(v) -> str:
+    if v is None:
+        return "–"
+    return ", ".join(f"{100 * x:.1f}" if x is not None else "–" for x in np.atleast_1d(v))
+
+
+def report_population(res, out: Path, old: set[Path], recorded: dict, args=None,
+                      held=None) -> int:  # fmt: skip
+    """Print, then write; every failing write is named, none loses the estimates.
+    ``args``: the command line (its --profile, --data-sensitivity); ``held``: the
+    held-out units' Problem (--validate)."""
     print(res.summary())
-    data = population_json(res, recorded)
+    extras, notes, stopped = analyses(res, args, held)
+    data = population_json(res, recorded) | _analyses_json(extras)
+    data["notes"] = data["notes"] + notes
     path, failure = write_kept(out / "fit.json", json.dumps(data, indent=2, allow_nan=False))
     if failure:  # the folder cannot be written: the estimates went elsewhere
         print(f"tensorid: {failure}; fit.json written to {path}")
@@ -108,7 +229,7 @@ def report_population(res, out: Path, old: set[Path], recorded: dict) -> int:
             written.append(write_atomic(out / "observations.csv", partial(_table_csv, res)))
         except Exception as e:  # the table is not worth the fit: say so, go on
             failures.append(f"could not write {out / 'observations.csv'}: {_reason(e)}")
-    for stem, build in drawn(res):
+    for stem, build in [*drawn(res), *_profile_figures(res, extras.get("profiles"))]:
         try:
             fig = build(res)
         except Exception as e:  # a figure is not worth the report: say so, go on
@@ -123,9 +244,11 @@ def report_population(res, out: Path, old: set[Path], recorded: dict) -> int:
     except OSError as e:
         failures.append(f"could not write {out / 'report.md'}: {e.strerror or e}")
     _replace_quietly(out, old, written + figures, failures)
-    for f in failures:
+    for f in [*notes, *failures]:
         print(f"tensorid: {f}")
     print(f"results in {out}/")
+    if stopped:
+        return 130
     return 0 if res.success and not failures else 1
 
 

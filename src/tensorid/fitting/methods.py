@@ -139,7 +139,10 @@ def check_fleet_method(problem, method) -> str:
 # fit's options that a fleet's fit does not take yet: one given other than its default
 # (fit's signature) is refused in one line (they were dropped without a word)
 _NOT_FOR_FLEETS = ("theta0", "starts", "spread", "sampling", "seed", "batch", "x_scale",
-                   "gtol", "ftol", "xtol", "options", "polish")  # fmt: skip
+                   "options", "polish")  # fmt: skip
+# the outer trust region's limits, passed on where given (left at fit's defaults, the
+# population's own apply: fit_population's)
+_FLEET_LIMITS = ("gtol", "ftol", "xtol")
 
 
 def _fleet_options(given: dict) -> None:
@@ -157,15 +160,19 @@ def _fleet_options(given: dict) -> None:
         if not same:
             raise ValueError(
                 f"{name}={value!r} is not taken by a fit with population or individual "
-                "parameters yet (it would be dropped): leave it out; maxiter, callback, "
-                "executor, workers and timeout apply"
+                "parameters yet (it would be dropped): leave it out; maxiter, gtol, ftol, "
+                "xtol, callback, executor, workers and timeout apply"
             )
 
 
 def _fleet(problem, method, maxiter, callback, executor, workers, timeout, given) -> FitResult:
+    import inspect
+
     _fleet_options(given)
     kind = check_fleet_method(problem, method)
     where = dict(executor=executor, workers=workers, timeout=timeout)
+    defaults = inspect.signature(fit).parameters
+    where |= {k: given[k] for k in _FLEET_LIMITS if given[k] != defaults[k].default}
     # typed as FitResult for the many callers of ordinary problems: method "auto" or
     # "focei", or "laplace"; maxiter and callback apply; a PopulationResult comes back
     return cast(

@@ -17,6 +17,22 @@ import numpy as np
 OMEGA_FLOOR = 1e-3
 
 
+def bounds(obj) -> tuple[np.ndarray, np.ndarray]:
+    """ψ's bounds: a shared parameter's own, a typical value's on the log scale (its
+    parameter's where positive), none on ω and the residual error."""
+    pr = obj.problem
+    lo, hi = np.full(obj.size, -np.inf), np.full(obj.size, np.inf)
+    first = obj.first_shared
+    for j, n in enumerate(obj.shared):
+        i = pr.theta_names.index(n)
+        lo[first + j], hi[first + j] = pr.lower[i], pr.upper[i]
+    for k, n in enumerate(obj.pop[: obj.qp]):
+        i = pr.theta_names.index(n)
+        lo[k] = np.log(pr.lower[i]) if pr.lower[i] > 0 else -np.inf
+        hi[k] = np.log(pr.upper[i]) if np.isfinite(pr.upper[i]) and pr.upper[i] > 0 else np.inf
+    return lo, hi
+
+
 class Collapsed(Exception):  # noqa: N818 (an outcome of the fit, not an error)
     """Raised by the outer loop's evaluation: the random effects ``names`` collapse to
     0 at ψ ``psi`` (η̂ ``etas``), the objective ``value`` there."""

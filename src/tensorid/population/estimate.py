@@ -22,7 +22,15 @@ from ..engine.sweeps import shared_sweeps
 from ..solve.minimize import interrupted, minimize_trust_region
 from ..solve.solution import FitInterrupted
 from ..solve.trust_region import TRResult
-from .boundary import Collapsed, collapse_note, collapsing, flat_directions, no_effect_note, without
+from .boundary import (
+    Collapsed,
+    bounds,
+    collapse_note,
+    collapsing,
+    flat_directions,
+    no_effect_note,
+    without,
+)
 from .distributed import UnitMap, evaluate_chunk
 from .objective import Objective
 from .result import PopulationResult
@@ -68,20 +76,6 @@ def _zero_predictions(obj: Objective, yhat: np.ndarray) -> None:
                 f"{'an' if e.name[0] in 'aeiou' else 'a'} {e.name} error has {what}; "
                 f"use 'combined' (σ² = a² + b²ŷ²) for {outs[g]}"
             )
-
-
-def _bounds(obj: Objective) -> tuple[np.ndarray, np.ndarray]:
-    pr = obj.problem
-    lo, hi = np.full(obj.size, -np.inf), np.full(obj.size, np.inf)
-    first = obj.first_shared
-    for j, n in enumerate(obj.shared):
-        i = pr.theta_names.index(n)
-        lo[first + j], hi[first + j] = pr.lower[i], pr.upper[i]
-    for k, n in enumerate(obj.pop[: obj.qp]):
-        i = pr.theta_names.index(n)
-        lo[k] = np.log(pr.lower[i]) if pr.lower[i] > 0 else -np.inf
-        hi[k] = np.log(pr.upper[i]) if np.isfinite(pr.upper[i]) and pr.upper[i] > 0 else np.inf
-    return lo, hi
 
 
 def _a_fleet(problem, executor):
@@ -301,7 +295,7 @@ def _outer(obj: Objective, units: UnitMap | None, state: dict, start=None, **opt
     point evaluated, for an interrupt; ``start``: (ψ, η̂) to start from (default: p0's
     and the given ω's, η = 0)."""
     psi0, etas0 = (_start(obj), obj.start_etas()) if start is None else start
-    lo, hi = _bounds(obj)
+    lo, hi = bounds(obj)
     state.update(etas=etas0, best=np.inf, n=0)
 
     def fun(psi):

@@ -433,11 +433,10 @@ class Objective:
                              units=(1, 2))  # fmt: skip
         return np.asarray(O), np.asarray(g)
 
-    def hessian(self, psi, etas) -> np.ndarray:
-        """Σ_i d²O_i/dψ² at η̂."""
-        return np.asarray(
-            self._blocked("hessian", jnp.asarray(psi), jnp.asarray(etas), self.data, units=(1, 2))
-        ).sum(0)
+    def hessian(self, psi, etas, per_unit: bool = False) -> np.ndarray:
+        """Σ_i d²O_i/dψ² at η̂ (each unit's, (E, ψ, ψ), with ``per_unit``)."""
+        H = self._blocked("hessian", jnp.asarray(psi), jnp.asarray(etas), self.data, units=(1, 2))
+        return np.asarray(H) if per_unit else np.asarray(H).sum(0)
 
     def inner_hessians(self, psi, etas) -> np.ndarray:
         """∇²ℓ_i(η̂_i) (E, q, q): the inverse is each unit's η covariance."""

@@ -6,7 +6,7 @@ with their own error bars."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -131,6 +131,8 @@ class PopulationResult:
     # full Ω: {"cl,v": {"value": correlation of η_cl and η_v, "stderr": ...}}
     omega_correlation: dict = field(default_factory=dict)
     _table: dict | None = field(default=None, init=False, repr=False, compare=False)
+    # a capability: ti.profile(res) hands the work to res.profile (profiles.py)
+    profiles_itself: ClassVar[bool] = True
 
     @property
     def success(self) -> bool:
@@ -371,6 +373,26 @@ class PopulationResult:
                           for g in range(own.shape[-1])])  # fmt: skip
             out.append(float(v[0]) if v.size == 1 else v)
         return out
+
+    def profile(self, names=None, level: float = 0.95, **options) -> dict:
+        """Profile likelihood of typical values, ω and shared parameters (each named,
+        or all) with their likelihood-ratio intervals: population/profiles.py."""
+        from .profiles import profile
+
+        return profile(self, names, level, **options)
+
+    def validate(self, problem) -> list[dict]:
+        """Held-out units (a Problem over them, built as the fitted one): each one's η̂
+        by empirical Bayes and its IPRED and PRED scores: population/validation.py."""
+        from .validation import held_out
+
+        return held_out(self, problem)
+
+    def unit_influence(self, refits: int = 5) -> list[dict]:
+        """Which unit moves the estimates most if left out: population/influence.py."""
+        from .influence import unit_influence
+
+        return unit_influence(self, refits)
 
     def plot(self, path=None) -> list:
         """The fit's figures: every unit's data and fits, observed against predicted,

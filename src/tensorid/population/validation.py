@@ -1,0 +1,95 @@
+"""Held-out units: a fitted population predicting units it was not fitted to.
+
+Each new unit gets its empirical Bayes estimate η̂ (the mode of its η given its own
+data and the fitted ψ: the inner problem of objective.py with ψ held) and two
+predictions scored against its observations: the individual one (IPRED, at η̂: how
+well the model follows the unit once its own data have spoken) and the population one
+(PRED, at η = 0: the typical unit, what the fit predicts before any of the unit's
+data). Scores are goodness of fit (MATLAB's FitPercent / 100) and RMS per output, on
+the observed samples alone.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..engine.metrics import gof
+from .objective import Objective
+
+
+def held_out(res, problem) -> list[dict]:
+    """Score the fitted population ``res`` on the units of ``problem``.
+
+    Arguments:
+        res (PopulationResult): the fit.
+        problem: a :class:`tensorid.Problem` over the held-out units with the fit's
+            model, parameter kinds (population, individual, shared, fixed values) and
+            residual-error models (build it as the fitted one, with other records).
+
+    Returns:
+        per unit {"id", "eta" (random effects), "params" (its values at η̂), "gof"
+        and "rmse" of IPRED, "gof_pred" and "rmse_pred" of PRED (per output, or one
+        number for one output; PRED is None where there are individual parameters,
+        which have no typical value), "observations", "converged"}.
+    """
+    fitted = res.objective_function
+    obj = Objective(problem, fitted.method)
+    if list(obj.names) != list(fitted.names) or obj.pop != fitted.pop:
+        raise ValueError(
+            "the held-out units' problem does not have the fit's unknowns "
+            f"({list(obj.names)} against {list(fitted.names)}): build it with the same "
+            "model, population, individual, fixed and residual_error settings"
+        )
+    psi = np.asarray(res.x)
+    etas, _ = obj.solve_inner(psi, obj.start_etas())
+    own = np.asarray(obj.predict_all(psi, etas))
+    typical = None
+    if obj.q == obj.qp:  # random effects alone: η = 0 is the typical unit
+        typical = np.asarray(obj.predict_all(psi, np.zeros_like(etas)))
+    u, out = obj.units, []
+    lost = set(obj.unconverged) | set(obj.unfinite)
+    for i, uid in enumerate(u.names):
+        eta = {n: float(etas[i, k]) for k, n in enumerate(obj.pop[: obj.qp])}
+        params = {
+            n: float(np.exp(psi[k] + etas[i, k]) if k < obj.qp else etas[i, k])
+            for k, n in enumerate(obj.pop)
+        }
+        entry = {"id": uid, "eta": eta, "params": params, "converged": uid not in lost,
+                 "observations": int(u.mask[i].sum())}  # fmt: skip
+        entry.update(_scores(u, i, own, ""))
+        entry.update(_scores(u, i, typical, "_pred"))
+        out.append(entry)
+    return out
+
+
+def _scores(u, i: int, yhat, suffix: str) -> dict:
+    """{"gof" + suffix, "rmse" + suffix} of unit i's observed samples (per output)."""
+    if yhat is None:
+        return {f"gof{suffix}": None, f"rmse{suffix}": None}
+    g, r = [], []
+    for s in range(yhat.shape[-1]):
+        seen = u.mask[i, :, s] > 0
+        y, f = u.y[i, seen, s], yhat[i, seen, s]
+        g.append(float(gof(y, f)) if seen.sum() >= 2 else float("nan"))
+        r.append(float(np.sqrt(np.mean((y - f) ** 2))) if seen.any() else float("nan"))
+    one = len(g) == 1
+    return {f"gof{suffix}": g[0] if one else g, f"rmse{suffix}": r[0] if one else r}
+
+
+def held_out_lines(scores: list[dict], outputs) -> list[str]:
+    """The console's table of held-out units: each unit's fit % of IPRED and PRED."""
+    if not scores:
+        return []
+    lines = [
+        f"Held-out units ({len(scores)}): fit % of the individual prediction (IPRED, η̂ "
+        "from the unit's data) and of the population one (PRED, the typical unit)"
+    ]
+    lines.append(f"  {'unit':<12} {'output':<8} {'IPRED %':>9} {'PRED %':>9} {'RMS':>10}")
+    for s in scores:
+        for k, name in enumerate(outputs):
+            pick = lambda v, k=k: v if np.ndim(v) == 0 else v[k]  # noqa: E731
+            ip, pr = pick(s["gof"]), s["gof_pred"]
+            pr_text = "" if pr is None else f"{100 * pick(pr):9.1f}"
+            lines.append(f"  {str(s['id']):<12} {name:<8} {100 * ip:9.1f} {pr_text:>9} "
+                         f"{pick(s['rmse']):10.4g}")  # fmt: skip
+    return lines
