@@ -781,3 +781,52 @@ def test_a_dask_cluster_losing_all_workers_ends_within_the_timeout(problem):
     assert "no start finished for 5 s" in res.message and "of 2000 starts finished" in res.message
     assert took < 6 + 5 + 10
     assert np.isfinite(res.cost) or not res.starts
+
+
+@pytest.mark.slow
+def test_a_fleet_on_a_cluster_says_what_it_does_when_its_workers_go():
+    """Issue 51 item 2: a worker compiling its first call for longer than the timeout is
+    busy, not lost; with every worker lost, the fit says so and goes on here (it had
+    re-sent one chunk every timeout for minutes, silently)."""
+    import threading
+    import warnings
+
+    distributed = pytest.importorskip("distributed")
+    from test_population import fleet_problem
+
+    from tensorid.population.distributed import UnitMap
+    from tensorid.population.objective import Objective
+
+    obj = Objective(fleet_problem(4))
+    psi = np.array([np.log(1.2), np.log(2.0), np.log(0.4), np.log(0.4), 25.0, np.log(0.3)])
+    here = UnitMap(obj, None, 1, chunks=1)
+    expected = here(psi, obj.start_etas())
+    here.close()
+    with (
+        distributed.LocalCluster(
+            n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None
+        ) as cluster,
+        distributed.Client(cluster) as client,
+        warnings.catch_warnings(record=True) as said,
+    ):
+        warnings.simplefilter("always")
+        units = UnitMap(obj, client.get_executor(), None, timeout=1.0, chunks=2)
+        first = units(psi, obj.start_etas())  # each worker compiles for many seconds
+        assert units.lost == 0 and not said, [str(w.message) for w in said]
+        assert first[2] == pytest.approx(expected[2], rel=1e-12)
+
+        def kill_all():
+            for w in list(cluster.workers.values()):
+                os.kill(w.pid, signal.SIGKILL)
+            cluster.scale(0)
+
+        threading.Thread(target=kill_all, daemon=True).start()
+        time.sleep(0.5)
+        started = time.monotonic()
+        after = units(psi, first[0])
+        took = time.monotonic() - started
+    lines = [str(w.message) for w in said]
+    assert units.here and after[2] == pytest.approx(expected[2], rel=1e-9)
+    assert any("sent again" in line for line in lines), lines
+    assert any("computed here, as every chunk is from now on" in line for line in lines), lines
+    assert took < 30

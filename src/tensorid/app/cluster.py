@@ -23,8 +23,13 @@ def _connect(address: str, timeout: float):
             socket.create_connection((host, port), timeout=min(timeout, 10)).close()
         except (OSError, ValueError) as e:
             raise ValueError(f"--scheduler {address}: cannot connect ({e}); {fix}") from None
+    import logging
+
     from distributed import Client
 
+    # the client's own log lines ("Failed to reconnect to scheduler ...") are not the
+    # command's: the fit says in its own lines what a lost scheduler or worker changes
+    logging.getLogger("distributed.client").setLevel(logging.CRITICAL)
     try:
         return Client(address, timeout=min(timeout, 30), set_as_default=False)
     except (OSError, ValueError, TimeoutError) as e:
