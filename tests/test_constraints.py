@@ -190,3 +190,27 @@ def test_an_active_constraint_without_a_multiplier_says_why():
         assert item["active"] and item["multiplier"] == 0.0
         text = str(res)
         assert "yes, λ = 0" in text and why in text, text
+
+
+def test_a_constraint_along_a_flat_direction_says_so_and_leaves_it_unbounded():
+    """Issue 51 item 7: with a + b pinned by an active constraint and only a + b in the
+    data, a - b is flat on the constraint's tangent space. The report said "curves
+    downward ... try other starts" (rounding's sign) and printed the restricted
+    standard errors of a and b as 0.0 (the covariance had dropped the flat direction),
+    beside a warning that a and b are not identifiable."""
+    m = ti.Model(
+        rhs=lambda x, p, u: jnp.stack([-(p[0] + p[1]) * x[0] + u[0], -p[2] * x[1] + x[0]]),
+        output=lambda x, p: x[1:], states=["x", "z"], params=["a", "b", "c"],
+        inputs=["u"], outputs=["y"],
+    )  # fmt: skip
+    t = np.linspace(0, 10, 201)
+    u = np.sin(t)[:, None] + 1
+    sim = ti.simulate(m, {"a": 0.3, "b": 0.5, "c": 0.7}, [0.0, 0.0], ti.Experiment(t, u))
+    y = sim.y + 0.001 * np.random.default_rng(0).standard_normal(sim.y.shape)
+    pr = ti.Problem(m, [ti.Experiment(t, u, y)], p0={"a": 0.5, "b": 0.4, "c": 0.5},
+                    x0=[0, 0], constraints=["a + b <= 0.5"])  # fmt: skip
+    res = ti.fit(pr)
+    text = res.summary()
+    assert "curves downward" not in text
+    assert "flat on their tangent space along a direction that moves a, b" in text
+    assert "the standard errors are a inf, b inf, c 0.00" in text

@@ -9,7 +9,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..solve.curvature import jacobi_scale
 from .summary import Table, Tabular, stderr_text
+from .uncertainty import FLAT
 
 
 @dataclass(repr=False)
@@ -31,6 +33,8 @@ class ConstraintReport(Tabular):
     # per constraint met with equality at λ = 0: its unknowns that sit on a box bound
     # (the bound, not the constraint, holds the estimate there), or [] for none
     unforced: dict[str, list[str]] = field(default_factory=dict)
+    # directions of the tangent space along which J is flat: the unknowns each moves
+    flat: list[list[str]] = field(default_factory=list)
 
     @classmethod
     def of(cls, res) -> ConstraintReport:
@@ -40,7 +44,9 @@ class ConstraintReport(Tabular):
         active = np.array([d["active"] for d in out.items], dtype=bool)
         A = res.problem.constraints.evaluate(res.theta)[1][active] if active.any() else None
         held = restricted_stderr(res, A) if out.converged and A is not None else {}
-        return cls(out.items, out.converged, out.outer, held, out.second_order, _unforced(res))
+        flat = (tangent_flat(res, A) or []) if A is not None else []
+        return cls(out.items, out.converged, out.outer, held, out.second_order, _unforced(res),
+                   flat)  # fmt: skip
 
     def as_dict(self) -> dict:
         return {
@@ -79,7 +85,15 @@ class ConstraintReport(Tabular):
                     else "the data's own optimum lies on it, so it changes nothing"
                 )
             )
-        if self.second_order is not None:
+        if self.flat:  # flat, not curving down: rounding decides the sign there
+            moved = "; ".join(", ".join(f) for f in self.flat)
+            out.append(
+                "the solution minimises J on the active constraints, not J itself, and J is "
+                f"flat on their tangent space along a direction that moves {moved}: the "
+                "constraints do not make those unknowns identifiable (any point along it "
+                "fits as well; their error bars with the constraints held are unbounded)"
+            )
+        elif self.second_order is not None:
             out.append(
                 "the solution minimises J on the active constraints, not J itself: "
                 + (
@@ -113,20 +127,56 @@ class ConstraintReport(Tabular):
 
 def restricted_stderr(res, A: np.ndarray) -> dict[str, float]:
     """Each unknown's standard error with the rows of A (active constraints' ∇c) held
-    as equalities: C − C Aᵀ (A C Aᵀ)⁻¹ A C, the restricted estimator's covariance."""
-    if not len(A) or not res.success:
+    as equalities: 2σ² Z (Zᵀ H Z)⁻¹ Zᵀ with Z the null space of A (their tangent
+    space), which is C − C Aᵀ (A C Aᵀ)⁻¹ A C where H is invertible. A direction of the
+    tangent space along which J is flat (as the error bars judge flat) leaves its
+    unknowns unbounded (inf): C alone has dropped such directions, and gave them 0."""
+    flat = tangent_flat(res, A)
+    if not len(A) or not res.success or flat is None:
         return {}
-    try:
-        C = res.uncertainty().covariance
-    except ValueError:
-        return {}
-    if not np.isfinite(C).all():
-        return {}
-    S = A @ C @ A.T
-    Ct = C - C @ A.T @ np.linalg.pinv(S) @ A @ C
-    se = np.sqrt(np.clip(np.diag(Ct), 0.0, None))
+    sigma2 = res.uncertainty().sigma2
+    D, Z, lam, V, keep = _tangent(res, A)
+    inv = Z @ ((V[:, keep] / lam[keep]) @ V[:, keep].T) @ Z.T
+    var = np.diag(2.0 * sigma2 * inv) * D**2
     names = res.problem.theta_names
-    return {n: float(v) for n, v in zip(names, se, strict=True) if math.isfinite(v)}
+    for involved in flat:
+        for name in involved:
+            var[names.index(name)] = np.inf
+    se = np.sqrt(np.clip(var, 0.0, None))
+    return {n: float(v) for n, v in zip(names, se, strict=True) if not math.isnan(v)}
+
+
+def _tangent(res, A: np.ndarray):
+    """J's exact Hessian on the tangent space of the rows of A, in the Jacobi-scaled
+    unknowns of the whole Hessian (θ = D φ; scaled on the tangent space instead, a
+    flat direction's own tiny diagonal would be scaled up to 1): (D, Z an orthonormal
+    basis of the null space of A D, the eigenvalues and vectors of Zᵀ (D H D) Z, and
+    which of them the error bars keep: relative curvature above FLAT)."""
+    H = np.asarray(res.hess)
+    D = jacobi_scale(H)
+    _, sv, Vt = np.linalg.svd(A * D)
+    rank = int((sv > 1e-12 * max(sv.max(), 1e-300)).sum())
+    Z = Vt[rank:].T
+    Hz = Z.T @ (0.5 * (H + H.T) * np.outer(D, D)) @ Z
+    lam, V = np.linalg.eigh(Hz)
+    keep = lam > FLAT * max(np.abs(lam).max() if lam.size else 0.0, np.finfo(float).tiny)
+    return D, Z, lam, V, keep
+
+
+def tangent_flat(res, A: np.ndarray) -> list[list[str]] | None:
+    """The directions of the active constraints' tangent space along which J is flat
+    (as uncertainty.flat_directions judges flat), each as the unknowns it moves; None
+    where J's Hessian is not finite."""
+    if not np.isfinite(res.hess).all():
+        return None
+    D, Z, lam, V, keep = _tangent(res, A)
+    top = max(np.abs(lam).max() if lam.size else 0.0, np.finfo(float).tiny)
+    out = []
+    for k in np.flatnonzero(np.abs(lam) <= FLAT * top):
+        w = D * (Z @ V[:, k])  # the direction in the unknowns
+        w = w / np.abs(w).max()
+        out.append([n for n, c in zip(res.problem.theta_names, w, strict=True) if abs(c) > 0.1])
+    return out
 
 
 def _unforced(res) -> dict[str, list[str]]:
