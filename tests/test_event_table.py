@@ -150,8 +150,9 @@ def test_a_fleet_fit_refuses_what_it_would_drop_and_a_population_of_one_unit():
     exps = [ti.Experiment(t, None, np.exp(-k * t)[:, None], name=str(i))
             for i, k in enumerate((0.9, 1.1, 1.0))]  # fmt: skip
     pr = ti.Problem(m, exps, p0={"k": 1.0}, x0=[1.0], population={"k": 0.2})
-    # (gtol, ftol and xtol are the outer trust region's now: tests/test_fleet_flags.py)
-    for option in ({"starts": 3}, {"spread": 0.5}, {"theta0": [1.0]}, {"polish": False}):
+    # (gtol, ftol, xtol, starts, spread and seed are the fleet's own now:
+    # tests/test_fleet_flags.py)
+    for option in ({"batch": 2}, {"x_scale": [1.0]}, {"theta0": [1.0]}, {"polish": False}):
         with pytest.raises(ValueError, match=f"{next(iter(option))}=.* is not taken by a fit"):
             ti.fit(pr, **option)
     assert ti.fit(pr, starts=1, seed=0, polish=True, maxiter=2).nit <= 2  # the CLI's defaults

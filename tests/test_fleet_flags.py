@@ -56,6 +56,7 @@ def _seen(problem, args, executor, timeout) -> str:
             "individual": problem.individual, "error": problem.residual_error,
             "omega": problem.omega, "method": args.method, "maxiter": args.maxiter,
             "tol": (args.gtol, args.ftol, args.xtol), "workers": args.workers,
+            "starts": (args.starts, args.spread, args.seed),
             "executor": executor is not None, "timeout": timeout, "out": args.out,
             "progress": args.no_progress, "profile": (args.profile, args.profile_level),
             "sensitivity": args.data_sensitivity, "validate": args.validate,
@@ -89,7 +90,7 @@ VALUES = {
 # (--free central: a fleet's units start from x0, free_x0 is not taken; --free of a
 # parameter the model file fixes is honoured, as for any fit)
 # (--samples, --validate-samples, --ts: --records keeps each unit's own time stamps)
-REFUSED_ELSEWHERE = {"--starts", "--prior", "--noise", "--weights", "--constraint",
+REFUSED_ELSEWHERE = {"--prior", "--noise", "--weights", "--constraint",
                      "--samples", "--validate-samples", "--ts", "--free"}  # fmt: skip
 # the base command's own (without them the fleet is not read as one)
 BASE = {"--columns", "--records"}
@@ -207,12 +208,12 @@ def test_every_fit_parameter_is_honoured_or_refused_for_a_fleet(tmp_path, monkey
     monkeypatch.setattr(methods, "fit_population", reached)
     pool = ThreadPoolExecutor(1)
     values = {"method": "laplace", "theta0": [0.006, 1.1], "starts": 3, "spread": 0.5,
-              "sampling": "random", "seed": 3, "executor": pool, "workers": 2, "batch": 2,
+              "sampling": "uniform", "seed": 3, "executor": pool, "workers": 2, "batch": 2,
               "x_scale": [1.0, 1.0], "maxiter": 7, "gtol": 1e-5, "ftol": 1e-6, "xtol": 1e-7,
               "callback": print, "options": ti.FitOptions(), "timeout": 30.0,
               "polish": False}  # fmt: skip
     honoured = {"method", "executor", "workers", "maxiter", "gtol", "ftol", "xtol", "callback",
-                "timeout"}  # fmt: skip
+                "timeout", "starts", "spread", "sampling", "seed"}  # fmt: skip
     params = [n for n in inspect.signature(ti.fit).parameters if n != "problem"]
     assert set(params) == set(values), "a new keyword of ti.fit: add it to the walk"
     wrong = []

@@ -450,6 +450,24 @@ def test_a_fleets_profiles_held_out_units_and_unit_influence():
     assert [d["cook"] for d in moved] == sorted((d["cook"] for d in moved), reverse=True)
 
 
+def test_a_fleet_fitted_from_several_starts_keeps_the_best():
+    """Issue 49 item 2: starts of the typical values, shared parameters and ω (they
+    were refused); each start's ending kept, best first, the best one's fit returned."""
+    from tensorid.population.objective import Objective
+    from tensorid.population.start import drawn_starts
+
+    pr = fleet_problem(4)
+    psis = drawn_starts(Objective(pr), 3, spread=0.5, seed=1)
+    assert len(psis) == 3 and np.all(np.ptp(np.array(psis)[:, :5], axis=0) > 0)
+    one = ti.fit(pr)
+    res = ti.fit(pr, starts=3, spread=0.5, seed=1)
+    assert [s["start"] for s in res.starts] != [] and len(res.starts) == 3
+    J = [s["objective"] for s in res.starts]
+    assert J == sorted(J) and res.objective == pytest.approx(J[0], abs=1e-9)
+    assert res.objective <= one.objective + 1e-6
+    assert "best of 3 starts" in res.summary()
+
+
 def theophylline_problem(**kw):
     rows = list(csv.DictReader(THEOPH.open()))
     ids = list(dict.fromkeys(r["ID"] for r in rows))
@@ -626,17 +644,19 @@ def test_units_on_a_local_pool_give_the_fit_made_here():
     np.testing.assert_allclose(pooled.x, here.x, rtol=1e-9, atol=1e-12)
 
 
-def test_starts_with_a_fleet_fit_is_refused_before_any_work(tmp_path, capsys):
+def test_batches_of_starts_with_a_fleet_fit_are_refused_before_any_work(tmp_path, capsys):
+    """(--starts itself is a fleet's now: test_a_fleet_fitted_from_several_starts...)"""
     from tensorid import cli
     from tensorid.datasets import theophylline_csv
 
     example = Path(__file__).resolve().parents[1] / "examples" / "theophylline" / "model.py"
     argv = ["fit", str(example), str(theophylline_csv()), "--records", "ID", "--columns",
-            "t=Time,cp=conc", "--starts", "3", "--out", str(tmp_path / "o")]  # fmt: skip
+            "t=Time,cp=conc", "--starts", "3", "--batch", "2",
+            "--out", str(tmp_path / "o")]  # fmt: skip
     assert cli.main(argv) == 2
     err = capsys.readouterr().err.strip()
-    assert "--starts: a fit with individual or population" in err and len(err.splitlines()) == 1
-    assert not (tmp_path / "o").exists()
+    assert err.startswith("tensorid: error: --batch: a fleet's starts run one after another")
+    assert len(err.splitlines()) == 1 and not (tmp_path / "o").exists()
 
 
 def test_a_fit_that_did_not_converge_gives_no_error_bars_and_a_whole_fit_json():

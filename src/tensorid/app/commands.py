@@ -75,7 +75,11 @@ def _run(problem: Problem, args, console: Console, executor, timeout, watch: Com
     rows: list[dict] = []
     if args.no_progress:
         return fit(problem, args.method, **options)
-    if args.starts > 1:  # the starts' own iterations run in the workers, unseen here
+    fleet = bool(problem.population or problem.individual)
+    if args.starts > 1 and fleet:  # one after another here, each one's iterations below
+        console.print(f"running {args.starts} starts one after another; each one's "
+                      "iterations below", soft_wrap=True, highlight=False)  # fmt: skip
+    elif args.starts > 1:  # the starts' own iterations run in the workers, unseen here
         where = "on " + args.scheduler if args.scheduler else "locally"
         console.print(
             f"running {args.starts} starts {where}; the best is then refined here, its "

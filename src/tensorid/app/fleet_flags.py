@@ -3,9 +3,10 @@ parameters) honours, and the one line that refuses each of the others before any
 (they were accepted and dropped without a word). Honoured besides the data's and the
 model's: --validate (held-out units: population/validation.py), --profile (typical
 values, ω, shared parameters: population/profiles.py), --data-sensitivity (which unit
-moves the estimates: population/influence.py), the integration and iteration limits,
---method focei/laplace, --workers and --scheduler. tests/test_fleet_flags.py walks
-every flag of the parser against this table."""
+moves the estimates: population/influence.py), --starts, --spread and --seed (starts
+of the typical values, shared parameters and ω: population/start.py), the integration
+and iteration limits, --method focei/laplace, --workers and --scheduler.
+tests/test_fleet_flags.py walks every flag of the parser against this table."""
 
 from __future__ import annotations
 
@@ -43,9 +44,9 @@ REFUSED: dict[str, tuple[str, tuple, str]] = {
     "--no-model-check": ("no_model_check", (False,),
         "a fleet's fit makes no model-error check (its check of the substeps stays; "
         "--substeps chooses them)"),
-    "--spread": ("spread", (None,), "it applies to --starts, which a fleet's fit does not run"),
-    "--seed": ("seed", (0,), "it applies to --starts, which a fleet's fit does not run"),
-    "--batch": ("batch", (None,), "it applies to --starts, which a fleet's fit does not run"),
+    "--batch": ("batch", (None,),
+        "a fleet's starts run one after another, each spreading its units over the "
+        "workers (--workers, --scheduler), not in lock-step batches"),
 }  # fmt: skip
 
 

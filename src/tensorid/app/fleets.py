@@ -210,12 +210,6 @@ def from_command_line(spec, args):
     err = spec.residual_error
     if given_e is not None:
         err = residual_error(given_e, m, "--residual-error")
-    if (ind or pop) and getattr(args, "starts", 1) > 1:
-        raise ValueError(
-            "--starts: a fit with individual or population parameters starts every unit "
-            "from the model file's p0 and is not run from several starts; drop --starts "
-            "(--workers and --scheduler spread its units instead)"
-        )
     return replace(spec, individual=list(ind), population=dict(pop), residual_error=err, omega=om)
 
 

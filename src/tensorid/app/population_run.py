@@ -58,6 +58,7 @@ def population_json(res, recorded: dict) -> dict:
         "model": res.problem.model.name,
         "tensorid_version": __version__,
         "notes": list(res.notes),
+        "starts": res.starts,  # several starts: each one's objective and ending, best first
     }
     d.update(fleet_json(res))
     for u, entry in zip(d["units"], res.units, strict=True):

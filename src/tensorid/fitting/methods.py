@@ -138,11 +138,10 @@ def check_fleet_method(problem, method) -> str:
 
 # fit's options that a fleet's fit does not take yet: one given other than its default
 # (fit's signature) is refused in one line (they were dropped without a word)
-_NOT_FOR_FLEETS = ("theta0", "starts", "spread", "sampling", "seed", "batch", "x_scale",
-                   "options", "polish")  # fmt: skip
+_NOT_FOR_FLEETS = ("theta0", "batch", "x_scale", "options", "polish")
 # the outer trust region's limits, passed on where given (left at fit's defaults, the
-# population's own apply: fit_population's)
-_FLEET_LIMITS = ("gtol", "ftol", "xtol")
+# population's own apply: fit_population's), and the starts (population/start.py)
+_FLEET_LIMITS = ("gtol", "ftol", "xtol", "starts", "spread", "sampling", "seed")
 
 
 def _fleet_options(given: dict) -> None:
@@ -152,8 +151,6 @@ def _fleet_options(given: dict) -> None:
     defaults = inspect.signature(fit).parameters
     for name in _NOT_FOR_FLEETS:
         value, default = given[name], defaults[name].default
-        if name == "starts" and value == 1:  # one start: what a fleet's fit does
-            continue
         same = value is default or (
             value is not None and default is not None and np.ndim(value) == 0 and value == default
         )
@@ -161,7 +158,8 @@ def _fleet_options(given: dict) -> None:
             raise ValueError(
                 f"{name}={value!r} is not taken by a fit with population or individual "
                 "parameters yet (it would be dropped): leave it out; maxiter, gtol, ftol, "
-                "xtol, callback, executor, workers and timeout apply"
+                "xtol, starts, spread, sampling, seed, callback, executor, workers and "
+                "timeout apply"
             )
 
 
@@ -170,6 +168,9 @@ def _fleet(problem, method, maxiter, callback, executor, workers, timeout, given
 
     _fleet_options(given)
     kind = check_fleet_method(problem, method)
+    if given["starts"] is not None:
+        _check_count("starts", given["starts"])
+    _check_multistart(given["spread"], given["sampling"], workers, timeout, given["seed"], executor)
     where = dict(executor=executor, workers=workers, timeout=timeout)
     defaults = inspect.signature(fit).parameters
     where |= {k: given[k] for k in _FLEET_LIMITS if given[k] != defaults[k].default}

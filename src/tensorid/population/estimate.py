@@ -34,48 +34,8 @@ from .boundary import (
 from .distributed import UnitMap, evaluate_chunk
 from .objective import Objective
 from .result import PopulationResult
+from .start import drawn_starts, start_point
 from .units import blocked
-
-
-def _start(obj: Objective) -> np.ndarray:
-    """ψ0: the typical values from p0, ω as given, the shared parameters from p0, and
-    each output's residual error from the residuals of the typical unit (each error
-    model's own start: errors.py)."""
-    pr, m = obj.problem, obj.problem.model
-    if obj.joint:  # the shared parameters alone
-        return np.array([pr.p0[m.params.index(n)] for n in obj.shared], dtype=float)
-    random = obj.pop[: obj.qp]
-    mu = [np.log(pr.p0[m.params.index(n)]) for n in random]
-    logw = [np.log(pr.population[n]) for n in random] + [0.0] * (obj.n_omega - obj.qp)
-    s = [pr.p0[m.params.index(n)] for n in obj.shared]
-    noise = len(obj.error.terms)
-    psi = np.array(mu + logw + s + [0.0] * noise, dtype=float)
-    u = obj.units
-    yhat = np.asarray(obj.predict_all(psi, obj.start_etas()))
-    _zero_predictions(obj, yhat)
-    psi[obj.first_shared + obj.ns :] = obj.error.log_start(u.y, yhat, u.mask)
-    return psi
-
-
-def _zero_predictions(obj: Objective, yhat: np.ndarray) -> None:
-    """A proportional error alone has no variance where the prediction is 0 (a
-    concentration before the dose arrives), an exponential one no logarithm: one line
-    naming the first such sample."""
-    u, outs = obj.units, obj.problem.model.outputs
-    for g, e in enumerate(obj.error.models):
-        if not e.positive:
-            continue
-        low = yhat[..., g] <= 0 if e.log_scale else yhat[..., g] == 0
-        zero = (u.mask[..., g] > 0) & low
-        if zero.any():
-            i, h = np.argwhere(zero)[0]
-            what = "no logarithm" if e.log_scale else "no variance"
-            raise ValueError(
-                f"residual_error {e.name!r} for {outs[g]}: unit {u.names[i]}'s "
-                f"prediction at t = {u.t[i, h]:g} is {yhat[i, h, g]:g}, where "
-                f"{'an' if e.name[0] in 'aeiou' else 'a'} {e.name} error has {what}; "
-                f"use 'combined' (σ² = a² + b²ŷ²) for {outs[g]}"
-            )
 
 
 def _a_fleet(problem, executor):
@@ -146,6 +106,10 @@ def fit_population(
     executor=None,
     workers: int | None = None,
     timeout: float | None = None,
+    starts: int = 1,
+    spread: float | None = None,
+    sampling: str = "lhs",
+    seed: int = 0,
 ) -> PopulationResult:
     """Estimate a fleet's population (see :mod:`tensorid.population`).
 
@@ -165,6 +129,9 @@ def fit_population(
             pool of ``workers`` processes (distributed.py); default: here, one
             vectorised call. ``timeout``: seconds before a chunk's worker counts as
             lost (its chunk is sent again once, then computed here).
+        starts, spread, sampling, seed: fits from ``starts`` points (the first p0's
+            and the given ω; the others drawn around them: start.py), the lowest −2 log
+            L kept; ``result.starts`` says how each ended.
 
     Returns:
         :class:`PopulationResult`.
@@ -175,8 +142,10 @@ def fit_population(
                maxiter=maxiter, gtol=gtol, ftol=ftol, xtol=xtol, callback=callback)  # fmt: skip
     collapsed: list[tuple[list[str], float]] = []
     obj, raised = _presized(obj)
-    obj, res, etas = _dropping(obj, fit, collapsed)
+    obj, res, etas = _best_start(obj, fit, collapsed, (starts, spread, sampling, seed))
+    ran = res.starts
     obj, res, etas, notes = _refined(obj, res, etas, fit, collapsed)
+    res = replace(res, starts=ran)  # (a refinement's refit from the best keeps them)
     notes = raised + notes
     notes = [collapse_note(n, v, res.objective) for n, v in collapsed] + notes
     notes += _near_singular(res)
@@ -211,6 +180,32 @@ def _dropping(obj: Objective, fit: dict, collapsed: list, start=None):
         except Collapsed as gone:
             collapsed.append((gone.names, gone.value))
             obj, start = Objective(without(obj, gone.names, gone.psi), obj.method), None
+
+
+def _best_start(obj: Objective, fit: dict, collapsed: list, draw: tuple):
+    """``_dropping`` from each start ``draw`` = (n, spread, sampling, seed) asks for
+    (start.py), the lowest −2 log L kept with its drops, each start's ending in its
+    ``starts``; Ctrl-C in a later start keeps the best finished one."""
+    if draw[0] <= 1:
+        return _dropping(obj, fit, collapsed)
+    best, ran = None, []
+    for k, psi0 in enumerate(drawn_starts(obj, *draw)):
+        drops: list = []
+        try:
+            o, r, e = _dropping(obj, fit, drops, start=(psi0, obj.start_etas()))
+        except FitInterrupted:
+            if best is None:
+                raise
+            why = f"interrupted in start {k + 1} of {draw[0]}: the best of the {k} finished"
+            raise FitInterrupted(replace(best[1], notes=[why], starts=ran)) from None  # type: ignore[arg-type]
+        ran.append({"start": k, "objective": r.objective, "status": r.status.name.lower(),
+                    "nit": r.nit})  # fmt: skip
+        if best is None or r.objective < best[1].objective:
+            best = (o, r, e, drops)
+    assert best is not None
+    collapsed += best[3]
+    ran.sort(key=lambda d: d["objective"])
+    return best[0], replace(best[1], starts=ran), best[2]
 
 
 def _refined(obj: Objective, res: PopulationResult, etas, fit: dict, collapsed: list):
@@ -281,7 +276,7 @@ def _interrupted(obj: Objective, state: dict, began: float) -> PopulationResult:
     state.setdefault("best", np.inf)
     state.setdefault("n", 0)
     if "x" not in state:  # nothing evaluated yet
-        psi0 = _start(obj)
+        psi0 = start_point(obj)
         state.update(x=psi0, g=np.full(obj.size, np.nan), H=np.full((obj.size,) * 2, np.nan))
     r = TRResult(state["x"], state["best"], state["g"], state["H"], nit=state["n"],
                  nfev=state["n"], status=Status.INTERRUPTED)  # fmt: skip
@@ -294,7 +289,7 @@ def _outer(obj: Objective, units: UnitMap | None, state: dict, start=None, **opt
     problem from the best point's η̂; (its TRResult, that η̂). ``state`` keeps the best
     point evaluated, for an interrupt; ``start``: (ψ, η̂) to start from (default: p0's
     and the given ω's, η = 0)."""
-    psi0, etas0 = (_start(obj), obj.start_etas()) if start is None else start
+    psi0, etas0 = (start_point(obj), obj.start_etas()) if start is None else start
     lo, hi = bounds(obj)
     state.update(etas=etas0, best=np.inf, n=0)
 
@@ -379,7 +374,7 @@ def _presized(obj: Objective) -> tuple[Objective, list[str]]:
         d = obj.problem.discretisation
         if d.substeps >= MAX_SUBSTEPS:
             break
-        psi, etas = _start(obj), obj.start_etas()
+        psi, etas = start_point(obj), obj.start_etas()
         omega = np.exp(psi[obj.qp : 2 * obj.qp]) if not obj.full else 0.0  # (full: typical)
         moves = []
         for side in (0.0, 2.0, -2.0):

@@ -130,6 +130,8 @@ class PopulationResult:
     residual_error: dict = field(default_factory=dict)
     # full Ω: {"cl,v": {"value": correlation of η_cl and η_v, "stderr": ...}}
     omega_correlation: dict = field(default_factory=dict)
+    # several starts: each one's {"start", "objective", "status", "nit"}, best first
+    starts: list = field(default_factory=list)
     _table: dict | None = field(default=None, init=False, repr=False, compare=False)
     # a capability: ti.profile(res) hands the work to res.profile (profiles.py)
     profiles_itself: ClassVar[bool] = True
@@ -297,7 +299,16 @@ class PopulationResult:
                 for what in ERROR_MODELS[e["model"]].terms
             ]
             lines.append(f"  residual error of {o} ({e['model']}): {', '.join(parts)}")
+        lines += self._starts_lines()
         return "\n".join(lines + [f"  note: {n}" for n in self.notes])
+
+    def _starts_lines(self) -> list[str]:
+        if not self.starts:
+            return []
+        J = np.array([s["objective"] for s in self.starts], dtype=float)
+        near = int(np.sum(np.abs(J - J.min()) <= 0.01))
+        return [f"  best of {len(J)} starts: -2 log L from {J.min():.4f} to {J.max():.4f}; "
+                f"{near} within 0.01 of the best"]  # fmt: skip
 
     def _own_lines(self) -> list[str]:
         """The individual parameters' spread over the units (each unit's in .units)."""
