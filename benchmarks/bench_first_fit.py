@@ -18,7 +18,14 @@ substeps), each repeat runs, each in its own process:
   two left it (issue 43, item 3: an edit must cost no more than the first fit);
 - plain JAX, no tensorid imported and no cache: the same RK4 cost written plainly,
   the compile time (trace, lower, compile) of ``jax.jit(jax.value_and_grad(cost))``
-  and of ``jax.jit(jax.hessian(cost))``.
+  and of ``jax.jit(jax.hessian(cost))``, the substeps unrolled (four RK4 steps per
+  sample interval written out) and rolled (``lax.fori_loop``: one step in the
+  program, which compiles in a fraction of the time).
+
+Models: the bundled two-tank record, a cascaded-tanks-like model (``cascade``), and
+the same tanks with smooth switches (``switches``, issue 50 item 2: a sigmoid overflow
+gate from the upper tank, a softplus dead-zone pump, power-law outflows with a free
+exponent; 10 parameters, 1,024 samples, RK4 with 4 substeps).
 
 Medians over the repeats, range in brackets; the load average is printed with them.
 """
@@ -61,8 +68,26 @@ p0 = %r
 x0 = {"h1": 4.0, "h2": 4.0}
 free_x0 = ["h1", "h2"]
 """
+# issue 50 item 2: cascaded tanks with smooth switches, as users write them: a sigmoid
+# overflow gate from the upper tank (level hmax), a smooth dead-zone pump (softplus
+# above u0), power-law outflows with a free exponent a
+SWITCHES = """
+rhs = {
+    "h1": "-k1*(h1 + 1e-6)**a + k4*0.1*log(1 + exp((u - u0)/0.1))"
+          " - q*h1/(1 + exp(-(h1 - hmax)/0.05))",
+    "h2": "k2*(h1 + 1e-6)**a - k3*(h2 + 1e-6)**a + c*q*h1/(1 + exp(-(h1 - hmax)/0.05))",
+}
+output = {"y": "h2 + y0"}
+inputs = ["u"]
+params = ["k1", "k2", "k3", "k4", "a", "hmax", "u0", "q", "c", "y0"]
+p0 = %r
+x0 = {"h1": 4.0, "h2": 4.0}
+"""
+SWITCHES_TRUE = dict(k1=0.05, k2=0.05, k3=0.04, k4=0.05, a=0.5, hmax=6.0, u0=0.5, q=0.2)
+SWITCHES_TRUE.update(c=0.5, y0=0.1)
 # one equation edited as a user would (the first square root regularised)
-EDITS = {"two-tank": ("sqrt(x1)", "sqrt(x1 + 1e-9)"), "cascade": ("sqrt(h1)", "sqrt(h1 + 1e-9)")}
+EDITS = {"two-tank": ("sqrt(x1)", "sqrt(x1 + 1e-9)"), "cascade": ("sqrt(h1)", "sqrt(h1 + 1e-9)"),
+         "switches": ("(h1 + 1e-6)**a + k4", "(h1 + 1e-7)**a + k4")}  # fmt: skip
 CASCADE_TRUE = dict(k1=0.05, k2=0.05, k3=0.04, k4=0.04, q1=0.002, q2=0.003, o1=0.01, o2=0.005)
 CASCADE_TRUE.update(c=0.01, y0=0.1)
 CASCADE_TS, CASCADE_SAMPLES = 4.0, 1024
@@ -82,6 +107,12 @@ def f(x, p, u):
     if kind == "two-tank":
         s1, s2 = jnp.sqrt(x[0]), jnp.sqrt(x[1])
         return jnp.stack([-p[0] * s1 + p[1] * u, -p[2] * s2 + p[3] * s1])
+    if kind == "switches":
+        k1, k2, k3, k4, a, hmax, u0, q, c = p[:9]
+        gate = q * x[0] / (1 + jnp.exp(-(x[0] - hmax) / 0.05))
+        pump = k4 * 0.1 * jnp.log(1 + jnp.exp((u - u0) / 0.1))
+        o1, o2 = (x[0] + 1e-6) ** a, (x[1] + 1e-6) ** a
+        return jnp.stack([-k1 * o1 + pump - gate, k2 * o1 - k3 * o2 + c * gate])
     k1, k2, k3, k4, q1, q2, o1, o2, c = p[:9]
     s1, s2 = jnp.sqrt(x[0]), jnp.sqrt(x[1])
     h2 = k2 * s1 - k3 * s2 - q2 * x[1] + o2 + c * u
@@ -90,22 +121,30 @@ def f(x, p, u):
 def out(x, p):
     return x[1] if kind == "two-tank" else x[1] + p[9]
 
-def cost(theta):
-    x0, p = (jnp.asarray(d["x0"]), theta) if kind == "two-tank" else (theta[:2], theta[2:])
+def rk4(x, p, ua, ub, i):
+    um, ue = ua + (ub - ua) * (i + 0.5) / 4, ua + (ub - ua) * (i + 1) / 4
+    k1 = f(x, p, ua + (ub - ua) * i / 4); k2 = f(x + step / 2 * k1, p, um)
+    k3 = f(x + step / 2 * k2, p, um); k4 = f(x + step * k3, p, ue)
+    return x + step / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+def cost(theta, rolled=False):
+    x0, p = (jnp.asarray(d["x0"]), theta) if kind != "cascade" else (theta[:2], theta[2:])
     def interval(x, uu):
         ua, ub = uu
-        for i in range(4):
-            um, ue = ua + (ub - ua) * (i + 0.5) / 4, ua + (ub - ua) * (i + 1) / 4
-            k1 = f(x, p, ua + (ub - ua) * i / 4); k2 = f(x + step / 2 * k1, p, um)
-            k3 = f(x + step / 2 * k2, p, um); k4 = f(x + step * k3, p, ue)
-            x = x + step / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        if rolled:  # the substeps as a loop: one RK4 step in the program, not four
+            x = jax.lax.fori_loop(0, 4, lambda i, x: rk4(x, p, ua, ub, i), x)
+        else:
+            for i in range(4):
+                x = rk4(x, p, ua, ub, i)
         return x, out(x, p)
     _, yh = jax.lax.scan(interval, x0, (u[:-1], u[1:]))
     r = jnp.concatenate([jnp.atleast_1d(out(x0, p)), yh]) - y
     return 0.5 * jnp.sum(r * r)
 
 res = {}
-for name, fn in (("value_and_grad", jax.value_and_grad(cost)), ("hessian", jax.hessian(cost))):
+rolled = lambda theta: cost(theta, True)
+for name, fn in (("value_and_grad", jax.value_and_grad(cost)), ("hessian", jax.hessian(cost)),
+                 ("hessian_rolled", jax.hessian(rolled))):
     t0 = time.perf_counter()
     compiled = jax.jit(fn).lower(theta).compile()
     res[name] = time.perf_counter() - t0
@@ -170,6 +209,26 @@ def _cascade(folder: Path) -> tuple[Path, Path, dict]:
     return model, data, dict(kind="cascade", t=t, u=u, y=y, x0=np.zeros(2), theta=theta)
 
 
+def _switches(folder: Path) -> tuple[Path, Path, dict]:
+    import tensorid as ti
+
+    rng = np.random.default_rng(50)
+    t = np.arange(CASCADE_SAMPLES) * CASCADE_TS
+    u = np.repeat(rng.uniform(1.0, 6.0, CASCADE_SAMPLES // 32 + 1), 32)[:CASCADE_SAMPLES]
+    guess = {k: v * (1.1 if i % 2 else 0.9) for i, (k, v) in enumerate(SWITCHES_TRUE.items())}
+    model = folder / "switches.py"
+    model.write_text(SWITCHES % guess)
+    m = ti.load_model(model).model
+    e = ti.Experiment(t, u, np.zeros(CASCADE_SAMPLES))
+    x = ti.simulate(m, list(SWITCHES_TRUE.values()), [4.0, 4.0], e).y[:, 0]
+    y = x + 0.02 * rng.standard_normal(CASCADE_SAMPLES)
+    data = folder / "switches.csv"
+    np.savetxt(data, np.c_[t, u, y], delimiter=",", header="t,u,y", comments="")
+    theta = np.array(list(guess.values()))
+    plain = dict(kind="switches", t=t, u=u, y=y, x0=np.array([4.0, 4.0]), theta=theta)
+    return model, data, plain
+
+
 def _cli(model: Path, data: Path, cache: Path, folder: Path, mpl: str) -> dict:
     env = {k: v for k, v in os.environ.items() if k != "TENSORID_CACHE"}
     env.update(PYTHONPATH=str(SRC), TENSORID_CACHE_DIR=str(cache), MPLCONFIGDIR=mpl)
@@ -219,7 +278,7 @@ def _med(values) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--models", default="two-tank,cascade")
+    parser.add_argument("--models", default="two-tank,cascade,switches")
     args = parser.parse_args()
     sys.path.insert(0, str(SRC))
     os.environ["TENSORID_CACHE"] = "0"  # this process only makes the data: no cache
@@ -229,7 +288,7 @@ def main() -> None:
     mpl = str(work / "matplotlib")
     prime = "import matplotlib; matplotlib.use('Agg'); import matplotlib.pyplot"
     subprocess.run([sys.executable, "-c", prime], env={**os.environ, "MPLCONFIGDIR": mpl})
-    makers = {"two-tank": _two_tank, "cascade": _cascade}
+    makers = {"two-tank": _two_tank, "cascade": _cascade, "switches": _switches}
     cases = {name: makers[name](work) for name in args.models.split(",")}
     rows: dict = {name: [] for name in cases}
     load = [os.getloadavg()[0]]
@@ -253,9 +312,9 @@ def main() -> None:
         "| model | first fit, wall | first iteration printed | compile (JAX) | XLA programs "
         "compiled | second fit, wall | its compile (loading included) | its XLA compilations "
         "(cache hits) | after an edit, wall (XLA programs compiled) | plain value_and_grad "
-        "compile | plain hessian compile |"
+        "compile | plain hessian compile | plain hessian, substeps rolled |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name, runs in rows.items():
         c, w, e, p = ([x[k] for x in runs] for k in ("cold", "warm", "edit", "plain"))
         print(
@@ -265,7 +324,7 @@ def main() -> None:
             f" | {_med([x['xla'] - x['hits'] for x in w])} ({_med([x['hits'] for x in w])})"
             f" | {_med([x['wall'] for x in e])} ({_med([x['xla'] - x['hits'] for x in e])})"
             f" | {_med([x['value_and_grad'] for x in p])}"
-            f" | {_med([x['hessian'] for x in p])} |"
+            f" | {_med([x['hessian'] for x in p])} | {_med([x['hessian_rolled'] for x in p])} |"
         )
     for name, runs in rows.items():
         print(f"\n{name}, the first fit's compile lines (last repeat):")

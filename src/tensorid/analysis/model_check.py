@@ -48,6 +48,7 @@ check ("not made", with the reason).
 from __future__ import annotations
 
 import copy
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -97,6 +98,9 @@ class ModelCheck(Tabular):
     # the parts repeat one excitation (periods of one periodic input): they then carry
     # the same model error, and agreeing says only that the estimates do not drift
     repeated: bool = False
+    # the check's wall time (its parts' fits and error bars): beside the fit's own
+    # seconds in fit.json (it can double a command's time and had been counted nowhere)
+    seconds: float = 0.0
 
     def spread(self) -> list[tuple[str, float]]:
         """(parameter, largest distance between two parts in robust standard errors of
@@ -175,6 +179,7 @@ class ModelCheck(Tabular):
             "left_out": self.left_out,
             "not_available": self.not_available,
             "text": self.line(),
+            "seconds": self.seconds,
         }
 
     def __repr__(self) -> str:
@@ -184,7 +189,15 @@ class ModelCheck(Tabular):
 def model_check(res, level: float = 0.99, maxiter: int = 100) -> ModelCheck:
     """The model-error check of a fit (see the module's docstring): each part fitted
     from ``res``'s estimate (at most ``maxiter`` iterations), its robust covariance,
-    and the homogeneity statistic Q against its χ² quantile at ``level``."""
+    and the homogeneity statistic Q against its χ² quantile at ``level``; ``seconds``
+    it took."""
+    started = time.perf_counter()
+    check = _model_check(res, level, maxiter)
+    check.seconds = time.perf_counter() - started
+    return check
+
+
+def _model_check(res, level: float, maxiter: int) -> ModelCheck:
     if not 0 < level < 1:
         raise ValueError(f"level must be between 0 and 1, got {level!r}")
     problem = res.problem

@@ -218,7 +218,9 @@ def _verdicts(res, residual) -> dict:
     """The residual tests and the model-error check (made after the fit where the
     residuals are not white; null otherwise)."""
     check = res.cached_model_check()
-    d = {"model_check": check.as_dict() if check is not None else None}
+    d = {"model_check": check.as_dict() if check is not None else None,
+         # (fit.json's "seconds" is the fit's own; the check's fits come after it)
+         "model_check_seconds": check.seconds if check is not None else None}  # fmt: skip
     return d | ({"residual_tests": residual.as_dict()} if residual is not None else {})
 
 
