@@ -24,6 +24,7 @@ from ..engine.compilation import compile_clock
 from ..engine.problem import Problem
 from ..engine.status import Status
 from ..population import fit_population
+from ..population.approximations import APPROXIMATIONS
 from ..population.estimate import check_executor
 from ..solve.multistart import SAMPLINGS, draw_starts
 from ..solve.options import FitOptions
@@ -119,7 +120,7 @@ def fit(
     return res
 
 
-FLEET_METHODS = ("focei", "laplace")  # a population fit's approximations (population/)
+FLEET_METHODS = tuple(APPROXIMATIONS)  # a population fit's (population/approximations.py)
 
 
 def check_fleet_method(problem, method) -> str:

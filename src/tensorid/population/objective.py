@@ -47,11 +47,12 @@ import numpy as np
 from ..engine.initial import moving
 from ..engine.programs import Program
 from ..engine.sweeps import shared_sweeps
+from .approximations import APPROXIMATIONS
 from .errors import ResidualErrors, positive_observations
 from .inner import solve_units
 from .units import Units, blocked, outputs
 
-METHODS = ("focei", "laplace")
+METHODS = tuple(APPROXIMATIONS)  # (approximations.py)
 _PROGRAMS: dict = {}  # compiled programs per structure (Objective.key)
 LOG_2PI = float(np.log(2 * np.pi))
 
@@ -67,6 +68,7 @@ class Objective:
             )
         m = problem.model
         self.problem, self.method = problem, method
+        self.approximation = APPROXIMATIONS[method]
         # individual parameters alone (no distribution): the joint least-squares problem,
         # reduced to the shared ones (variable projection; see fit_population). Beside
         # random effects they are each unit's own fixed effects, found with its η̂
@@ -104,7 +106,7 @@ class Objective:
         # samples below their limit (Beal's M3): P(y < limit) in ℓ, which moves with σ
         self.censored = self.units.cens is not None
         self.plain = self.error.constant and not self.censored  # σ constant in η
-        if self.censored and method != "laplace":
+        if self.censored and not self.approximation.censored:
             raise ValueError(
                 "records with samples below their quantification limit (CENS, Beal's M3) "
                 f"are fitted by method='laplace' (as NONMEM's M3), not {method!r}: "
@@ -239,7 +241,7 @@ class Objective:
         approximation adds (individual values are the unit's own optimum, not
         integrated over)."""
         qp = self.qp
-        if self.method == "laplace":
+        if self.approximation.exact_curvature:
             return jax.hessian(self.ell)(eta, psi, unit)[:qp, :qp]
         _, logw, _, noise = self.split(psi)
         fitted = lambda e: self.error.scaled(self.predict(psi, e, unit), unit[3])  # noqa: E731
