@@ -12,8 +12,10 @@ refit), so the ``refits`` units ranked first are then refitted without their dat
 ψ̂ (the trust region on the exact derivatives, a few iterations), and their shifts are
 the refits'.
 Reported per unit as each estimate's shift in its standard errors and as Cook's
-distance D_i = Δψᵀ cov⁻¹ Δψ / k (cov = 2 H⁻¹: D_i = Δψᵀ H Δψ / 2k), the squared
-shift of all estimates together (about 1 or more: a unit the estimates lean on).
+distance D_i = Δψᵀ cov⁻¹ Δψ / k, the squared shift of all estimates together in the
+metric of their covariance (about 1 or more: a unit the estimates lean on). A fit of
+individual parameters alone gets the steps, not the refits (a unit without data has
+no value of its own parameters to fit).
 """
 
 from __future__ import annotations
@@ -45,26 +47,29 @@ def unit_influence(res, refits: int = 5) -> list[dict]:
     _, g = obj.value_grad(psi, etas)
     H = obj.hessian(psi, etas, per_unit=True)
     G, Htot = g.sum(0), H.sum(0)
-    se = np.sqrt(np.abs(np.diag(res.cov)))
+    cov = np.where(np.isfinite(res.cov), res.cov, 0.0)  # (NaN: a direction not measured)
+    se, info = np.sqrt(np.abs(np.diag(cov))), np.linalg.pinv(cov, hermitian=True)
     out = []
     for i, uid in enumerate(obj.units.names):
         step = -np.linalg.lstsq(Htot - H[i], G - g[i], rcond=1e-12)[0]
-        out.append(_entry(res, uid, step, se, Htot, False) | {"index": i})
+        out.append(_entry(res, uid, step, se, info, False) | {"index": i})
     out.sort(key=lambda d: -d["cook"])
-    for d in out[:refits] if len(out) > 2 else []:
+    for d in out[:refits] if len(out) > 2 and not obj.joint else []:
         moved = _refit(obj, psi, etas, d["index"])
         if moved is not None:
-            d.update(_entry(res, d["id"], moved, se, Htot, True))
+            d.update(_entry(res, d["id"], moved, se, info, True))
     for d in out:
         del d["index"]
     return sorted(out, key=lambda d: -d["cook"])
 
 
-def _entry(res, uid, step, se, H, refitted: bool) -> dict:
+def _entry(res, uid, step, se, info, refitted: bool) -> dict:
+    """One unit's record: its shift ``step`` of ψ in SEs and as Cook's distance
+    (``info``: the pseudo-inverse of the estimates' covariance)."""
     with np.errstate(invalid="ignore", divide="ignore"):
         shift = np.where(se > 0, step / se, np.nan)
     measured = np.where(np.isfinite(shift), np.abs(shift), -1.0)
-    return {"id": uid, "cook": float(step @ H @ step / (2 * len(step))),
+    return {"id": uid, "cook": float(step @ info @ step / len(step)),
             "shift": {n: float(v) for n, v in zip(res.names, shift, strict=True)},
             "largest": res.names[int(np.argmax(measured))], "refitted": refitted}  # fmt: skip
 

@@ -133,8 +133,8 @@ def profile(
         raise ValueError(f"method must be 'integrate' or 'refit', got {method!r}")
     if res.method == "joint":
         raise ValueError(
-            "profiles of a fit with individual parameters alone are not made: its −2 log "
-            "L is profiled over every unit's own values already; use the error bars"
+            "profiles of a fit with individual parameters alone (least squares over every "
+            "unit's own values) are not made yet: use its error bars"
         )
     if not np.isfinite(res.objective):
         raise ValueError(f"profiles need a fit with a finite objective; this one {res.message}")
