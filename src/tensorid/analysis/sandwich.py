@@ -30,8 +30,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..engine.compiled import on_device
-from ..engine.losses import robust_sd
+from ..engine.compiling.compiled import on_device
+from ..engine.sweeping.losses import robust_sd
 from .residuals import skipped_samples
 
 

@@ -23,8 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..engine.data import Experiment
-from ..engine.events import Events, state_index
+from ..engine.modelling.data import Experiment
+from ..engine.modelling.events import Events, state_index
 from .readers import Said, _Columns
 from .records import _at
 

@@ -28,8 +28,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..engine.losses import robust_sd
-from ..engine.status import Status
+from ..engine.schemes.status import Status
+from ..engine.sweeping.losses import robust_sd
 
 RESCALE = 1.5  # a factor: closer than this, the scale is left as it is
 ROUNDS = 3

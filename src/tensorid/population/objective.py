@@ -44,9 +44,9 @@ import jax.scipy.linalg
 import jax.scipy.special
 import numpy as np
 
-from ..engine.initial import moving
-from ..engine.programs import Program
-from ..engine.sweeps import shared_sweeps
+from ..engine.compiling.programs import Program
+from ..engine.modelling.initial import moving
+from ..engine.sweeping.sweeps import shared_sweeps
 from .errors import ResidualErrors, positive_observations
 from .inner import solve_units
 from .units import Units, blocked, outputs

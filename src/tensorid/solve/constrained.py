@@ -31,7 +31,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..engine.status import Status
+from ..engine.schemes.status import Status
 from .solution import Solution
 
 MAX_OUTER = 30

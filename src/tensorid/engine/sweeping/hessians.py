@@ -17,8 +17,8 @@ from __future__ import annotations
 import functools
 from typing import ClassVar, TypeVar
 
+from ..modelling.checks import from_registry
 from .adjoint import MARGIN, predicted_seconds, supports, threads
-from .checks import from_registry
 
 # the paths by name: the one place a path's name is looked up (``get_hessian``);
 # tensorid/names.py spells the command line's --hessian choices out

@@ -16,8 +16,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _config  # noqa: F401  (float64)
-from ..functions import ArgumentError
+from ... import _config  # noqa: F401  (float64)
+from ...functions import ArgumentError
 
 Array = jax.Array
 
