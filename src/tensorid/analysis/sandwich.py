@@ -2,7 +2,7 @@
 
 At an optimum θ̂ of J = Σ_h ℓ_h + priors, θ̂ − θ ≈ −H⁻¹ ∇J, and ∇J's data part is the
 sum of the per-sample scores s_h = D_hᵀ ℓ_ŷ,h (D_h = ∂ŷ_h/∂θ, ℓ_ŷ the loss's output
-gradient, see engine/losses.py). So
+gradient, see engine/sweeping/losses.py). So
 
     cov(θ̂) = H⁻¹ B H⁻¹,      B = var(Σ_h s_h)
 

@@ -2,7 +2,7 @@
 observation or dose, with the columns EVID, AMT, CMT, RATE, II, ADDL, SS, MDV and DVID
 recognised by name (``events={"AMT": "DOSE"}``, ``--events AMT=DOSE`` for other
 names). A file with an AMT or an EVID column is read this way, each unit (``--records
-ID``) as one Experiment with its events (engine/events.py):
+ID``) as one Experiment with its events (engine/modelling/events.py):
 
 - EVID 0: an observation (unless MDV = 1 or the output's cell is empty or "."),
   1: a dose, 2: a time with nothing observed, 3: every state reset to 0, 4: reset,

@@ -64,7 +64,8 @@ class ModelSpec:
     path: Path | None = None
     weights: dict | list | tuple | np.ndarray | str | None = None
     priors: dict = field(default_factory=dict)
-    constraints: list = field(default_factory=list)  # "Fs >= Fc", ... (engine/constraints.py)
+    # "Fs >= Fc", ... (engine/assembly/constraints.py)
+    constraints: list = field(default_factory=list)
     loss: str | None = None
     loss_scale: float | dict | None = None
     noise: float | None = None

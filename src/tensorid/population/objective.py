@@ -329,7 +329,7 @@ class Objective:
     # arguments, so a later Objective of the same structure reuses them
     def _program(self, name: str | tuple, build):
         """The program ``build()`` makes, kept per structure here and on disk as the
-        sweeps' are (engine/programs.py): a later process reads it, not traces it (the
+        sweeps' are (engine/compiling/programs.py): a later process reads it, not traces it (the
         outer Hessian's trace alone was 10 s of a 17 s theophylline fit, cache warm)."""
         programs = _PROGRAMS.setdefault(self.key, {})
         if name not in programs:

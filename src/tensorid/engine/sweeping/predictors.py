@@ -146,7 +146,7 @@ SIMULATION = OutputError()
 
 
 def __getattr__(name: str):
-    if name == "Simulation":  # the name before issue 39: a simulation is engine/simulate's
+    if name == "Simulation":  # the name before issue 39: a simulation is engine/assembly/simulate's
         warnings.warn(
             "tensorid.engine.predictors.Simulation is deprecated: it is OutputError",
             DeprecationWarning,
