@@ -6,10 +6,10 @@ adjoints, jax.hessian and CasADi, and what hessian="auto" picks.
 One (J, ∇J, ∇²J) of one experiment, times after compilation, each row in its own
 process (the paths of a row side by side in it), on problems from the paper's
 sizes (Silverbox, two-tank: N = 2, K = 4-5) to a chain of 32 masses (N = 64,
-K = 65); the cost model of hessian="auto" (engine/adjoint.py) is fitted to them:
+K = 65); the cost model of hessian="auto" (engine/sweeping/adjoint.py) is fitted to them:
 
 - tensors: the paper's forward transition tensors (Problem(hessian="tensors"));
-- adjoint: second-order adjoints (engine/adjoint.py), with every core this
+- adjoint: second-order adjoints (engine/sweeping/adjoint.py), with every core this
   process may use and with one thread (TENSORID_THREADS=1);
 - jax.hessian: forward-over-reverse automatic differentiation of the same simulator;
 - auto: the path Problem(hessian="auto") picks, and how many times faster it is

@@ -103,7 +103,8 @@ def main() -> None:
     warm = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
     # the commands' caches as a user has them after one run of this version: a fresh
     # folder, filled by the warm-up (a folder that JAX's cache filled under an earlier
-    # version holds compiled code under which no executable is kept: engine/executables.py)
+    # version holds compiled code under which no executable is kept:
+    # engine/compiling/executables.py)
     own = {} if args.user_cache else {"TENSORID_CACHE_DIR": str(out / "cache" / "jax")}
     warm.update(own)
     commands = dict(os.environ, **own)

@@ -49,15 +49,26 @@ def _modules() -> dict[str, Path]:
 MODULES = _modules()
 
 
+# the packages that keep old module paths as aliases (a MOVED literal in their
+# __init__.py, old name -> new home), and where those homes are
+ALIASING = {"fitting": "tensorid", "engine": "tensorid.engine"}
+
+
 def _moved() -> dict[str, str]:
-    """fitting/__init__.py's MOVED: the old paths tensorid.fitting.X that stay importable
-    as aliases of the modules that moved to solve/ and analysis/, old -> new."""
-    tree = ast.parse((SRC / "fitting" / "__init__.py").read_text())
-    for node in tree.body:
-        if isinstance(node, ast.Assign) and getattr(node.targets[0], "id", None) == "MOVED":
-            moved = ast.literal_eval(node.value)
-            return {f"tensorid.fitting.{k}": f"tensorid.{v}.{k}" for k, v in moved.items()}
-    raise AssertionError("fitting/__init__.py has no MOVED")
+    """The MOVED literals of fitting/__init__.py (the modules that moved to solve/ and
+    analysis/) and engine/__init__.py (the engine's modules, moved into its
+    subpackages): the old paths that stay importable as aliases, old -> new."""
+    out = {}
+    for package, homes in ALIASING.items():
+        tree = ast.parse((SRC / package / "__init__.py").read_text())
+        literals = [
+            ast.literal_eval(node.value)
+            for node in tree.body
+            if isinstance(node, ast.Assign) and getattr(node.targets[0], "id", None) == "MOVED"
+        ]
+        assert literals, f"{package}/__init__.py has no MOVED"
+        out |= {f"tensorid.{package}.{k}": f"{homes}.{v}.{k}" for k, v in literals[0].items()}
+    return out
 
 
 MOVED = _moved()
@@ -122,7 +133,8 @@ def test_src_uses_the_new_paths():
     """The old paths (tensorid.fitting.trust_region, ...) are for users' code; the
     package itself imports the modules where they are."""
     old = {m: sorted(_named(m, p) & set(MOVED)) for m, p in MODULES.items()}
-    old = {m: o for m, o in old.items() if o and m != "tensorid.fitting"}
+    aliasing = {f"tensorid.{package}" for package in ALIASING}
+    old = {m: o for m, o in old.items() if o and m not in aliasing}
     assert not old, old
 
 
@@ -132,6 +144,40 @@ def test_the_solver_layer_imports_no_statistics():
     bad = {m: sorted(n for n in deps if _layer(n) > _layer("tensorid.solve"))
            for m, deps in GRAPH.items() if m.startswith("tensorid.solve")}  # fmt: skip
     assert not {m: b for m, b in bad.items() if b}, bad
+
+
+# the engine's subpackages, lowest first (engine/__init__.py and docs/architecture.md
+# say what each holds): a module of the engine imports its own subpackage or a lower one
+ENGINE = {"compiling": 0, "modelling": 1, "schemes": 2, "sweeping": 3, "assembly": 4}
+
+
+def _engine_level(module: str) -> int | None:
+    """A module's place in ENGINE; the engine's own __init__ (which gathers them all)
+    above every one; None outside the engine."""
+    parts = module.split(".")
+    if parts[:2] != ["tensorid", "engine"]:
+        return None
+    return ENGINE[parts[2]] if len(parts) > 2 else len(ENGINE)
+
+
+def test_every_engine_module_sits_in_a_subpackage_with_a_place():
+    folders = {p.parent.name for p in (SRC / "engine").glob("*/__init__.py")}
+    assert folders == set(ENGINE), f"engine/'s subpackages {sorted(folders)}, ENGINE {ENGINE}"
+    loose = [p.name for p in (SRC / "engine").glob("*.py") if p.name != "__init__.py"]
+    assert not loose, f"engine/ holds {loose} outside its subpackages"
+
+
+def test_the_engines_subpackages_import_only_downward():
+    """compiling < modelling < schemes < sweeping < assembly, inside functions too; an
+    old path (tensorid.engine.X) counts as the module it names."""
+    upward = [
+        f"{m} ({_engine_level(m)}) imports {n} ({_engine_level(n)})"
+        for m, deps in GRAPH.items()
+        if m != "tensorid.engine" and _engine_level(m) is not None
+        for n in deps
+        if _engine_level(n) is not None and _engine_level(n) > _engine_level(m)
+    ]
+    assert not upward, "\n".join(upward)
 
 
 @pytest.mark.parametrize("old", sorted(MOVED))
@@ -191,6 +237,14 @@ def test_the_fitting_layers_folders_hold_at_most_20_modules():
     for folder in ("solve", "analysis", "fitting"):
         n = len(list((SRC / folder).glob("*.py")))
         assert n <= 20, f"{folder}/ holds {n} modules"
+
+
+def test_the_engines_folders_hold_at_most_20_modules():
+    # issue 49 item 5: engine/ had grown to 39 modules; it splits along its seams (the
+    # compiled programs, the model and its records, the schemes, the sweeps, the Problem)
+    for folder in ENGINE:
+        n = len(list((SRC / "engine" / folder).glob("*.py")))
+        assert n <= 20, f"engine/{folder}/ holds {n} modules"
 
 
 def test_global_statements_only_in_the_configuration():

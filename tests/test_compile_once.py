@@ -37,7 +37,7 @@ def test_every_layout_of_a_model_shares_one_simulation_program():
     """A simulation depends on the model and the discretisation only: a fit's problem,
     its validation's initial-state problem and a plain simulation run one program
     (a command-line fit read it three times), while another discretisation has its own."""
-    from tensorid.engine.simulate import run_simulation
+    from tensorid.engine.assembly.simulate import run_simulation
 
     model, data = silverbox_model(), silverbox_data(P=64, seed=10)
     a = _problem(model, data)._sweeps

@@ -17,7 +17,7 @@ import pytest
 from rich.console import Console
 
 from tensorid.app.compile_progress import CompileWatch
-from tensorid.engine.compilation import BEGIN, END, announced, describe
+from tensorid.engine.compiling.compilation import BEGIN, END, announced, describe
 
 
 def test_describe_names_the_sweeps():
@@ -68,7 +68,7 @@ def test_on_a_terminal_without_a_table_the_watch_shows_its_own_line():
 
 
 def test_a_programs_first_call_is_announced_once():
-    from tensorid.engine.programs import Program
+    from tensorid.engine.compiling.programs import Program
 
     seen = []
 

@@ -93,8 +93,8 @@ def test_a_discrete_model_refuses_an_integration_scheme_and_uneven_samples():
     with pytest.raises(ValueError, match="not uniform"):
         ti.Problem(hammerstein(), ti.Experiment(t, data.u, data.y), p0=TRUE)
     continuous = ti.Model(rhs=lambda x, p, u: -p[0] * x, states=["x"], params=["k"])
-    from tensorid.engine.discretisation import Discretisation
-    from tensorid.engine.integrators import DISCRETE
+    from tensorid.engine.schemes.discretisation import Discretisation
+    from tensorid.engine.schemes.integrators import DISCRETE
 
     with pytest.raises(ValueError, match="discrete=True"):
         ti.Problem(continuous, ti.Experiment(data.t, None, data.y), p0=[1.0],

@@ -560,7 +560,7 @@ def test_ekf_problems_of_one_model_share_their_compiled_sweeps():
 
 def test_a_filter_problem_at_its_rounding_floor_is_not_a_collapse():
     """A likelihood's J is negative: the trust region's rounding-floor test uses |J|."""
-    from tensorid.engine.status import Status
+    from tensorid.engine.schemes.status import Status
     from tensorid.solve.trust_region import _collapsed
 
     assert _collapsed(-1.0, 1e-20, 1e-12, 1e-10) is Status.MACHINE_PRECISION
@@ -568,7 +568,7 @@ def test_a_filter_problem_at_its_rounding_floor_is_not_a_collapse():
 
 
 def test_a_filters_model_without_measured_outputs_needs_every_sigma_e_given():
-    from tensorid.engine.predictors import make_predictor
+    from tensorid.engine.sweeping.predictors import make_predictor
 
     m = duffing()
     model, filt, starts = make_predictor(m, "ekf", {"v": 0.1}, {"y": 0.02}, [None])

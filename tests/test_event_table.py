@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import tensorid as ti
-from tensorid.engine.events import EventNote
+from tensorid.engine.modelling.events import EventNote
 
 MODEL = """
 rhs = {"depot": "-ka * depot", "central": "ka * depot - cl / v * central"}

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import tensorid as ti
-from tensorid.engine.events import Events
+from tensorid.engine.modelling.events import Events
 
 PARAMS = ["ka", "ke", "v", "F"]
 

@@ -128,7 +128,7 @@ def test_a_filter_failing_where_sigma_e_underflowed_says_so_not_the_states_regio
     from test_ekf import sde_record
     from test_start_from import _ekf
 
-    from tensorid.engine.diagnostics import diagnose
+    from tensorid.engine.assembly.diagnostics import diagnose
 
     pr = _ekf(sde_record(0, P=60), {"k": 1.5, "c": 0.5, "a": 0.3}, x0=[0, 0])
     theta = pr.theta0.copy()

@@ -182,7 +182,7 @@ def test_a_wrong_tableau_is_refused_when_the_scheme_is_built(kwargs, match):
 
 
 def test_a_users_own_scheme_that_follows_the_protocol_runs():
-    from tensorid.engine.integrators import RK4, RungeKuttaScheme
+    from tensorid.engine.schemes.integrators import RK4, RungeKuttaScheme
 
     class Halved:  # RK4 with twice the substeps: a scheme the package does not know
         name, order = "rk4-halved", 4

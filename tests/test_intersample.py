@@ -12,7 +12,7 @@ import pytest
 
 import tensorid as ti
 from tensorid.engine import intersample
-from tensorid.engine.discretisation import Discretisation, input_at
+from tensorid.engine.schemes.discretisation import Discretisation, input_at
 
 TS = 0.01
 
@@ -223,7 +223,7 @@ def test_the_command_line_offers_every_interpolation():
     import argparse
 
     from tensorid.app.options import integration_options
-    from tensorid.engine.discretisation import INTERPOLATIONS
+    from tensorid.engine.schemes.discretisation import INTERPOLATIONS
 
     p = argparse.ArgumentParser()
     integration_options(p)

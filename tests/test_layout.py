@@ -10,7 +10,7 @@ import pytest
 
 from tensorid import benchmarks
 from tensorid.engine import second_order
-from tensorid.engine.sweeps import Sweeps
+from tensorid.engine.sweeping.sweeps import Sweeps
 
 
 def _fresh(sw) -> Sweeps:

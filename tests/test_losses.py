@@ -12,7 +12,7 @@ import pytest
 from conftest import SILVERBOX_P, oscillator_model, silverbox_data, silverbox_model
 
 import tensorid as ti
-from tensorid.engine.losses import robust_noise
+from tensorid.engine.sweeping.losses import robust_noise
 
 
 def _plain(name, e, c):

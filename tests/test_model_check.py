@@ -131,7 +131,7 @@ def test_a_filter_fit_at_its_sigma_e_floor_is_not_checked():
 def test_an_odd_records_halves_have_one_length_and_compile_nothing_more():
     """61 samples: halves 0-29 and 31-60 (the middle one in neither), so the check's
     fits run the programs of one record length (30), not of two (30 and 31)."""
-    from tensorid.engine.programs import Program
+    from tensorid.engine.compiling.programs import Program
 
     res = ti.fit(ti.Problem(LINEAR, record(5).window(0, 61), p0={"k": 3.0, "c": 0.5, "g": 1}))
     check = res.model_check()

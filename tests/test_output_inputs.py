@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import tensorid as ti
-from tensorid.engine.events import Events
+from tensorid.engine.modelling.events import Events
 
 T = np.array([0.5, 1.0, 2.0, 4.0, 7.5, 12.0, 12.5, 14.0, 20.0])
 DOSES = Events.doses(0.0, "depot", 100.0) + Events.doses(12.0, "depot", 80.0)

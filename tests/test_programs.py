@@ -22,7 +22,7 @@ SCRIPT = r"""
 import json, sys
 import numpy as np
 import tensorid as ti
-from tensorid.engine.sweeps import Sweeps
+from tensorid.engine.sweeping.sweeps import Sweeps
 
 traced = []
 for name in ("_second_order", "_first_order", "_simulate"):
@@ -198,7 +198,7 @@ def test_constants_of_a_jitted_helper_are_in_the_key():
 
 
 def test_a_users_scheme_object_is_not_kept():
-    from tensorid.engine.integrators import SCHEMES
+    from tensorid.engine.schemes.integrators import SCHEMES
 
     class MyRK4(type(SCHEMES["rk4"])):  # a user's scheme: only its repr would be keyed
         pass
@@ -310,7 +310,7 @@ ADJOINT_SCRIPT = r"""
 import json
 import numpy as np
 import tensorid as ti
-from tensorid.engine.adjoint import SecondOrderAdjoint
+from tensorid.engine.sweeping.adjoint import SecondOrderAdjoint
 
 traced = []
 for name in ("_backward", "_stretch"):

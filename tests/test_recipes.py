@@ -19,7 +19,7 @@ from conftest import oscillator_model
 import tensorid as ti
 from tensorid import names
 from tensorid.engine import hessians, integrators, losses, predictors
-from tensorid.engine.integrators import ExplicitRungeKutta
+from tensorid.engine.schemes.integrators import ExplicitRungeKutta
 from tensorid.fitting.methods import FLEET_METHODS
 from tensorid.solve import registry
 from tensorid.solve.solvers import Sweep, TrustRegion

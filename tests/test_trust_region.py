@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from scipy.optimize import rosen, rosen_der, rosen_hess
 
-from tensorid.engine.status import Status
+from tensorid.engine.schemes.status import Status
 from tensorid.solve.minimize import minimize_trust_region
 from tensorid.solve.projected import projected_cauchy
 from tensorid.solve.trust_region import (

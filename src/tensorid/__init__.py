@@ -17,22 +17,22 @@ from .analysis.profiles import Profile, profile
 from .analysis.uncertainty import Uncertainty
 from .analysis.validation import Score
 from .app.files import ModelSpec, load_data, load_model
-from .engine.data import Experiment
-from .engine.discretisation import Discretisation
-from .engine.equations import model_from_equations
-from .engine.events import Events
-from .engine.integrators import (
+from .engine.assembly.problem import Problem
+from .engine.assembly.simulate import Simulation, simulate
+from .engine.assembly.start import Start
+from .engine.modelling.data import Experiment
+from .engine.modelling.equations import model_from_equations
+from .engine.modelling.events import Events
+from .engine.modelling.metrics import gof, nrmse, rmse
+from .engine.modelling.model import Model
+from .engine.schemes.discretisation import Discretisation
+from .engine.schemes.integrators import (
     SCHEMES,
     AdaptiveRungeKutta,
     DiagonallyImplicitRungeKutta,
     ExplicitRungeKutta,
 )
-from .engine.metrics import gof, nrmse, rmse
-from .engine.model import Model
-from .engine.problem import Problem
-from .engine.simulate import Simulation, simulate
-from .engine.start import Start
-from .engine.status import Status
+from .engine.schemes.status import Status
 from .fitting.design import InputDesign, design_input
 from .fitting.methods import METHODS, fit, fit_batch
 from .fitting.results import FitInterrupted, FitResult

@@ -19,13 +19,13 @@ class State:
         self.renderer: tuple[int, Any] | None = None
         self.collector_paused = False
         self.importing = False  # Ctrl-C said in one line until the command starts
-        # engine/compilation.py: its compile-time listener registered with JAX
+        # engine/compiling/compilation.py: its compile-time listener registered with JAX
         self.compile_listener = False
-        # engine/executables.py: the processor, XLA_FLAGS and devices, as digested;
+        # engine/compiling/executables.py: the processor, XLA_FLAGS and devices, as digested;
         # the compilation cache's hit listener registered
         self.machine: str | None = None
         self.hit_listener = False
-        # engine/programs.py: the package source's digest; the folder pruned
+        # engine/compiling/programs.py: the package source's digest; the folder pruned
         self.source_digest: str | None = None
         self.pruned = False
         # solve/multistart.py: this process is a worker of process_pool

@@ -53,8 +53,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..engine.compiled import on_device
-from ..engine.status import Status
+from ..engine.compiling.compiled import on_device
+from ..engine.schemes.status import Status
 from ..solve.minimize import interrupted, minimize_trust_region
 from ..solve.scaling import Tracker
 from . import quantiles

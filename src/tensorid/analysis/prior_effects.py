@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..engine.status import Status
+from ..engine.schemes.status import Status
 from ..solve.endings import Outcome, OwnRun, run_alone
 from .summary import Table, Tabular, significant
 from .uncertainty import FLAT, _directions, _variances, negative_directions

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..engine.status import Status
+from ..engine.schemes.status import Status
 from ..solve.minimize import interrupted, minimize_trust_region
 from . import quantiles
 from .summary import Table, Tabular, interval, significant

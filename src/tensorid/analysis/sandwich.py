@@ -2,7 +2,7 @@
 
 At an optimum θ̂ of J = Σ_h ℓ_h + priors, θ̂ − θ ≈ −H⁻¹ ∇J, and ∇J's data part is the
 sum of the per-sample scores s_h = D_hᵀ ℓ_ŷ,h (D_h = ∂ŷ_h/∂θ, ℓ_ŷ the loss's output
-gradient, see engine/losses.py). So
+gradient, see engine/sweeping/losses.py). So
 
     cov(θ̂) = H⁻¹ B H⁻¹,      B = var(Σ_h s_h)
 
@@ -30,8 +30,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..engine.compiled import on_device
-from ..engine.losses import robust_sd
+from ..engine.compiling.compiled import on_device
+from ..engine.sweeping.losses import robust_sd
 from .residuals import skipped_samples
 
 

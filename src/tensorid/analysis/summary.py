@@ -304,7 +304,7 @@ def noise_intensities(res, u=None) -> dict | None:
     interval's ends, exponentiated), "fixed"}; None for output error."""
     if not res.problem.loss.likelihood:
         return None
-    from ..engine.predictors import NOISE_PREFIXES
+    from ..engine.sweeping.predictors import NOISE_PREFIXES
 
     names = res.problem.theta_names
     out: dict = {"process": {}, "measurement": {}}

@@ -9,16 +9,16 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..engine.checks import same_step, step
-from ..engine.compiled import on_device
-from ..engine.data import Experiment
-from ..engine.dosing import dosing_of
-from ..engine.metrics import gof, nrmse, r2, rmse
-from ..engine.predictors import check_horizon
-from ..engine.problem import Problem
-from ..engine.simulate import Simulation, run_simulation
-from ..engine.status import Status
-from ..engine.sweeps import shared_sweeps
+from ..engine.assembly.problem import Problem
+from ..engine.assembly.simulate import Simulation, run_simulation
+from ..engine.compiling.compiled import on_device
+from ..engine.modelling.checks import same_step, step
+from ..engine.modelling.data import Experiment
+from ..engine.modelling.metrics import gof, nrmse, r2, rmse
+from ..engine.schemes.status import Status
+from ..engine.sweeping.dosing import dosing_of
+from ..engine.sweeping.predictors import check_horizon
+from ..engine.sweeping.sweeps import shared_sweeps
 from ..solve.minimize import interrupted, minimize_trust_region
 from ..solve.scaling import Tracker
 from .summary import Table, Tabular, metric_rows, score_notes

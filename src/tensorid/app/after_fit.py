@@ -12,8 +12,8 @@ from ..analysis.figures import file_name, profile_figure
 from ..analysis.residuals import default_lags
 from ..analysis.summary import gof_text
 from ..analysis.validation import Score
-from ..engine.diagnostics import describe_failure
-from ..engine.status import Status
+from ..engine.assembly.diagnostics import describe_failure
+from ..engine.schemes.status import Status
 
 
 def _gof_lines(scores: list[Score]) -> list[str]:

@@ -67,7 +67,7 @@ def _nearest_choice(message: str) -> str:
     'sdirk3'?" after it (Python 3.14's argparse suggests; those before do not)."""
     import re
 
-    from ..engine.checks import nearest
+    from ..engine.modelling.checks import nearest
 
     taken = re.match(r"argument (--[\w-]+)(?:/[\w-]+)?: expected one argument$", message)
     if taken:  # "--rtol -1e-6": argparse reads -1e-6 as an option (not -1 or -0.5)
@@ -395,7 +395,7 @@ def _unrecognized(parser: argparse.ArgumentParser, args, extra: list[str]) -> No
     """Arguments no option takes, refused by the command's own parser ("tensorid
     simulate: error: ... (see tensorid simulate --help)", where argparse's top parser
     sent the user to tensorid --help), with the option nearest to a misspelt one."""
-    from ..engine.checks import nearest
+    from ..engine.modelling.checks import nearest
 
     command = parser
     for action in parser._actions:  # the subcommand's parser, where there is one

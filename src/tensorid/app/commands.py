@@ -16,9 +16,9 @@ from rich.live import Live
 from ..analysis.display import summary_table
 from ..analysis.figures import figure_jobs, save_png
 from ..analysis.validation import Score, training_scores
-from ..engine.checks import same_step, step
-from ..engine.problem import Problem
-from ..engine.status import Status
+from ..engine.assembly.problem import Problem
+from ..engine.modelling.checks import same_step, step
+from ..engine.schemes.status import Status
 from ..fitting.methods import fit
 from ..fitting.results import FitInterrupted
 from ..population import PopulationResult

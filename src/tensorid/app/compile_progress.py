@@ -20,7 +20,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.text import Text
 
-from ..engine.compilation import BEGIN, END
+from ..engine.compiling.compilation import BEGIN, END
 
 SHOW_AFTER = 1.0  # seconds before a terminal shows the live line
 LOG_AFTER = 2.0  # seconds before a log is told, and the least that ends with a line

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..engine.data import Experiment
-from ..engine.model import Model
+from ..engine.modelling.data import Experiment
+from ..engine.modelling.model import Model
 from . import event_table
 from .readers import _TS, _Columns, _read, _real, input_is_output
 from .records import (
@@ -289,7 +289,7 @@ def _event_records(label, cols, model, require_outputs, records, covariates) -> 
     out with a note, the events after a unit's last row with one note for all."""
     import warnings
 
-    from ..engine.events import warn_late
+    from ..engine.modelling.events import warn_late
 
     if "t" not in cols.values:
         raise ValueError(

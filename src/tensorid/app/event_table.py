@@ -2,7 +2,7 @@
 observation or dose, with the columns EVID, AMT, CMT, RATE, II, ADDL, SS, MDV and DVID
 recognised by name (``events={"AMT": "DOSE"}``, ``--events AMT=DOSE`` for other
 names). A file with an AMT or an EVID column is read this way, each unit (``--records
-ID``) as one Experiment with its events (engine/events.py):
+ID``) as one Experiment with its events (engine/modelling/events.py):
 
 - EVID 0: an observation (unless MDV = 1 or the output's cell is empty or "."),
   1: a dose, 2: a time with nothing observed, 3: every state reset to 0, 4: reset,
@@ -23,8 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..engine.data import Experiment
-from ..engine.events import Events, state_index
+from ..engine.modelling.data import Experiment
+from ..engine.modelling.events import Events, state_index
 from .readers import Said, _Columns
 from .records import _at
 

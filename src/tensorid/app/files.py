@@ -40,11 +40,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..engine.checks import did_you_mean
-from ..engine.equations import model_from_equations
-from ..engine.losses import REGISTRY as LOSSES
-from ..engine.model import Model
-from ..engine.predictors import REGISTRY as PREDICTORS
+from ..engine.modelling.checks import did_you_mean
+from ..engine.modelling.equations import model_from_equations
+from ..engine.modelling.model import Model
+from ..engine.sweeping.losses import REGISTRY as LOSSES
+from ..engine.sweeping.predictors import REGISTRY as PREDICTORS
 from . import fleets
 from .datafiles import load_data
 
@@ -64,7 +64,8 @@ class ModelSpec:
     path: Path | None = None
     weights: dict | list | tuple | np.ndarray | str | None = None
     priors: dict = field(default_factory=dict)
-    constraints: list = field(default_factory=list)  # "Fs >= Fc", ... (engine/constraints.py)
+    # "Fs >= Fc", ... (engine/assembly/constraints.py)
+    constraints: list = field(default_factory=list)
     loss: str | None = None
     loss_scale: float | dict | None = None
     noise: float | None = None
@@ -332,7 +333,7 @@ def _doses(value, model, key: str = "doses") -> dict:
     """``doses = {"depot": "F * amt"}``: what a record's dose puts into a state (an
     expression of amt, the parameters and the inputs); ``lags = {"depot": "tlag"}``:
     how long after its time a dose takes effect; checked before any work."""
-    from ..engine.dosing import dosing_of
+    from ..engine.sweeping.dosing import dosing_of
 
     if not isinstance(value, dict):
         raise TypeError(
@@ -346,7 +347,7 @@ def _doses(value, model, key: str = "doses") -> dict:
 def _interpolation(value) -> str | None:
     """The file's ``interpolation`` (how its records' inputs behave between samples),
     checked; ``--interpolation`` overrides it."""
-    from ..engine.discretisation import INTERPOLATIONS
+    from ..engine.schemes.discretisation import INTERPOLATIONS
 
     if value is not None and value not in INTERPOLATIONS:
         raise ValueError(
@@ -369,8 +370,8 @@ def _not_a_choice(name: str, value) -> tuple[str, str]:
     """(", and 'sdrik3' is no scheme (...)", the value to suggest) where a scheme
     set in a model file is no valid one: the flag the refusal suggests
     would be refused in turn. ("", value) otherwise."""
-    from ..engine.checks import nearest
-    from ..engine.integrators import SCHEMES
+    from ..engine.modelling.checks import nearest
+    from ..engine.schemes.integrators import SCHEMES
 
     choices = {"scheme": sorted(SCHEMES)}.get(name)
     if choices is None or value in choices:

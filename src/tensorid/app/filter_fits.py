@@ -20,7 +20,7 @@ def filter_of(spec: ModelSpec, fitted: dict | None, record) -> tuple[ModelSpec, 
     never a silent simulation."""
     if fitted is None or fitted.get("predictor") is None:
         return spec, None
-    from ..engine.predictors import get_predictor, make_predictor
+    from ..engine.sweeping.predictors import get_predictor, make_predictor
 
     kind = get_predictor(fitted["predictor"])  # (its markers answer, not its name)
     if not kind.filters:
@@ -32,7 +32,7 @@ def filter_of(spec: ModelSpec, fitted: dict | None, record) -> tuple[ModelSpec, 
 
 def _fitted_loss(fitted: dict):
     """The loss a fit.json names (the squared loss where it names none)."""
-    from ..engine.losses import get_loss
+    from ..engine.sweeping.losses import get_loss
 
     return get_loss(fitted.get("loss") or "squared")
 

@@ -13,14 +13,14 @@ import numpy as np
 from ..analysis.residuals import lag_limit
 from ..analysis.summary import SIGMA_E_FLOOR
 from ..analysis.validation import check_init_window
-from ..engine.discretisation import Discretisation
-from ..engine.hessians import get_hessian
-from ..engine.integrators import SCHEMES
-from ..engine.losses import get_loss
-from ..engine.predictors import NOISE_PREFIXES, SIMULATION, get_predictor
-from ..engine.problem import Problem
-from ..engine.shooting import resolve_segments
-from ..engine.start import Start
+from ..engine.assembly.problem import Problem
+from ..engine.assembly.start import Start
+from ..engine.schemes.discretisation import Discretisation
+from ..engine.schemes.integrators import SCHEMES
+from ..engine.sweeping.hessians import get_hessian
+from ..engine.sweeping.losses import get_loss
+from ..engine.sweeping.predictors import NOISE_PREFIXES, SIMULATION, get_predictor
+from ..engine.sweeping.shooting import resolve_segments
 from ..fitting.methods import check_fleet_method, check_method
 from ..solve.registry import exact_derivatives
 from . import fleets

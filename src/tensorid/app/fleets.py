@@ -16,8 +16,8 @@ from __future__ import annotations
 import ast
 import math
 
-from ..engine.equations import _FUNCTIONS
-from ..engine.model import Model
+from ..engine.modelling.equations import _FUNCTIONS
+from ..engine.modelling.model import Model
 
 
 def did_you_mean(name, choices) -> str:
@@ -127,7 +127,7 @@ def residual_error(value, model: Model, key: str = "residual_error") -> str | di
 
 def omega(value, key: str = "omega") -> str:
     """``omega = "full"``: the random effects correlated (Ω estimated whole)."""
-    from ..engine.fleet import OMEGAS
+    from ..engine.modelling.fleet import OMEGAS
 
     if value not in OMEGAS:
         raise ValueError(f"{key} = {value!r}: give one of {list(OMEGAS)}")

@@ -8,7 +8,7 @@ from __future__ import annotations
 import warnings
 from dataclasses import replace
 
-from ..engine.predictors import noise_names as predictor_noise_names
+from ..engine.sweeping.predictors import noise_names as predictor_noise_names
 from .files import ModelSpec
 
 

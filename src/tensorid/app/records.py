@@ -16,8 +16,8 @@ import warnings
 
 import numpy as np
 
-from ..engine.data import Experiment
-from ..engine.model import Model
+from ..engine.modelling.data import Experiment
+from ..engine.modelling.model import Model
 from .fleets import did_you_mean
 from .readers import Said, _Columns
 from .timebase import DataNote

@@ -27,7 +27,7 @@ from ..analysis.summary import (
     stderr_text,
 )
 from ..analysis.validation import Score, training_scores
-from ..engine.checks import step
+from ..engine.modelling.checks import step
 from ..solve.starts import fit_counts
 from .fleet_report import fleet_json, fleet_lines
 from .output import write_text

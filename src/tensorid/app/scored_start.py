@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..engine import initial
-from ..engine.discretisation import Discretisation
+from ..engine.modelling import initial
+from ..engine.schemes.discretisation import Discretisation
 from .argtypes import tolerances_as_flags
 from .files import ModelSpec
 

@@ -14,10 +14,10 @@ import numpy as np
 from ..analysis.figures import file_name
 from ..analysis.summary import gof_text, metric_notes, score_notes, undefined_gof
 from ..analysis.validation import Score, check_init_window, score_record
-from ..engine.checks import same_step
-from ..engine.diagnostics import describe_failure
-from ..engine.discretisation import Discretisation
-from ..engine.status import Status
+from ..engine.assembly.diagnostics import describe_failure
+from ..engine.modelling.checks import same_step
+from ..engine.schemes.discretisation import Discretisation
+from ..engine.schemes.status import Status
 from .after_fit import SIMULATED_HORIZON
 from .files import ModelSpec, load_data, load_model
 from .filter_fits import NOT_SCORED, filter_of, noise_levels, scores_finite

@@ -8,7 +8,7 @@ from importlib import resources
 
 import numpy as np
 
-from ..engine.data import Experiment
+from ..engine.modelling.data import Experiment
 
 SILVERBOX_TS = 2**14 / 1e7  # s; fs = 10^7 / 2^14 ≈ 610.35 Hz
 SILVERBOX_TRAIN = (10584, 11608)  # the paper's points 10585..11608 (1-based), one period

@@ -28,10 +28,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..analysis.summary import Table, Tabular
-from ..engine.data import Experiment
-from ..engine.problem import Problem
-from ..engine.simulate import simulate
-from ..engine.status import Status
+from ..engine.assembly.problem import Problem
+from ..engine.assembly.simulate import simulate
+from ..engine.modelling.data import Experiment
+from ..engine.schemes.status import Status
 from ..solve.endings import Outcome, OwnRun, Run, iterate
 
 CRITERIA = ("D", "max-variance")

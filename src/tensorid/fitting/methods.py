@@ -19,10 +19,10 @@ from typing import cast
 
 import numpy as np
 
-from ..engine.checks import did_you_mean
-from ..engine.compilation import compile_clock
-from ..engine.problem import Problem
-from ..engine.status import Status
+from ..engine.assembly.problem import Problem
+from ..engine.compiling.compilation import compile_clock
+from ..engine.modelling.checks import did_you_mean
+from ..engine.schemes.status import Status
 from ..population import fit_population
 from ..population.approximations import APPROXIMATIONS
 from ..population.estimate import check_executor

@@ -35,7 +35,7 @@ from ..analysis.prior_effects import (
     prior_moves,
 )
 from ..analysis.residuals import residual_count, too_few
-from ..engine.status import Status
+from ..engine.schemes.status import Status
 from .robust import residual_noise
 
 # NoiseCheck, prior_moves, data_only and move_lines read a result (analysis/

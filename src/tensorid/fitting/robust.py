@@ -1,7 +1,7 @@
 """Fitting with a robust loss: from the least-squares estimate, with a scale that the
 fit's own residuals check.
 
-A robust loss treats residuals beyond its scale c as outliers (see engine/losses.py),
+A robust loss treats residuals beyond its scale c as outliers (see engine/sweeping/losses.py),
 and its cost is not convex there: far from the optimum, where most residuals are
 beyond c, Cauchy's and Student-t's gradients fade and a trust-region method can
 crawl into a wrong basin. So, as robust regression usually is (IRLS starts from
@@ -28,8 +28,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..engine.losses import robust_sd
-from ..engine.status import Status
+from ..engine.schemes.status import Status
+from ..engine.sweeping.losses import robust_sd
 
 RESCALE = 1.5  # a factor: closer than this, the scale is left as it is
 ROUNDS = 3

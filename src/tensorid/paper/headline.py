@@ -10,10 +10,10 @@ import numpy as np
 
 from .. import datasets
 from ..analysis.figures import compare_plot
-from ..engine.data import Experiment
-from ..engine.metrics import gof
-from ..engine.problem import Problem
-from ..engine.simulate import simulate
+from ..engine.assembly.problem import Problem
+from ..engine.assembly.simulate import simulate
+from ..engine.modelling.data import Experiment
+from ..engine.modelling.metrics import gof
 from ..fitting.methods import fit
 from . import problems as benchmarks
 from .levels import level_options

@@ -4,7 +4,7 @@ turned into Problem/simulate options here."""
 
 from __future__ import annotations
 
-from ..engine.integrators import RTOL_FLOOR
+from ..engine.schemes.integrators import RTOL_FLOOR
 
 # the accuracy levels of the robustness study: RK4 with 4, 16 and 64 substeps per
 # sample (a smooth simulator, "rk4x4" ...), and the paper's own levels, the adaptive

@@ -11,8 +11,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import datasets
-from ..engine.model import Model
-from ..engine.problem import Problem
+from ..engine.assembly.problem import Problem
+from ..engine.modelling.model import Model
 from ..functions import safe_sqrt
 
 # the paper's initial guesses and reported estimates
@@ -152,8 +152,8 @@ def lotka_volterra_problem(
     """A synthetic Lotka–Volterra record: t ∈ [0, 60] (about nine periods), both
     populations measured with ``noise`` relative Gaussian noise (seeded), the initial
     populations free; positive parameters (bounded below by 1e-3)."""
-    from ..engine.data import Experiment
-    from ..engine.simulate import simulate
+    from ..engine.assembly.simulate import simulate
+    from ..engine.modelling.data import Experiment
 
     t = np.linspace(0.0, 60.0, samples)
     u = np.zeros((samples, 0))
@@ -212,8 +212,8 @@ def mass_chain_problem(
     (Ts = 0.05 s), every position measured with Gaussian noise of ``noise`` times its
     RMS (seeded), starting at rest (x0 known); positive parameters (bounded below by
     1e-3)."""
-    from ..engine.data import Experiment
-    from ..engine.simulate import simulate
+    from ..engine.assembly.simulate import simulate
+    from ..engine.modelling.data import Experiment
 
     model = mass_chain_model(n)
     t = np.arange(samples) * 0.05

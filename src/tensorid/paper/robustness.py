@@ -12,7 +12,7 @@ import numpy as np
 
 from .. import datasets
 from ..app.reports import bar_plot
-from ..engine.simulate import simulate
+from ..engine.assembly.simulate import simulate
 from ..fitting.methods import fit
 from ..solve.multistart import process_pool
 from . import problems as benchmarks

@@ -15,10 +15,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..engine.implicit import DiagonallyImplicitRungeKutta
-from ..engine.integrators import ExplicitRungeKutta
-from ..engine.status import Status
-from ..engine.sweeps import shared_sweeps
+from ..engine.schemes.implicit import DiagonallyImplicitRungeKutta
+from ..engine.schemes.integrators import ExplicitRungeKutta
+from ..engine.schemes.status import Status
+from ..engine.sweeping.sweeps import shared_sweeps
 from ..solve.minimize import interrupted, minimize_trust_region
 from ..solve.solution import FitInterrupted
 from ..solve.trust_region import TRResult

@@ -33,8 +33,8 @@ def _densely(obj):
     """``obj`` on its units' records with DENSE unobserved times more each."""
     import copy
 
-    from ..engine.data import Experiment
-    from ..engine.events import regrid
+    from ..engine.modelling.data import Experiment
+    from ..engine.modelling.events import regrid
     from .units import Units
 
     records = []

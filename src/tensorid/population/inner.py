@@ -9,7 +9,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from ..engine.status import Status
+from ..engine.schemes.status import Status
 from ..solve.endings import Outcome, OwnRun, run_alone
 
 

@@ -44,9 +44,9 @@ import jax.scipy.linalg
 import jax.scipy.special
 import numpy as np
 
-from ..engine.initial import moving
-from ..engine.programs import Program
-from ..engine.sweeps import shared_sweeps
+from ..engine.compiling.programs import Program
+from ..engine.modelling.initial import moving
+from ..engine.sweeping.sweeps import shared_sweeps
 from .approximations import APPROXIMATIONS
 from .errors import ResidualErrors, positive_observations
 from .inner import solve_units
@@ -331,7 +331,7 @@ class Objective:
     # arguments, so a later Objective of the same structure reuses them
     def _program(self, name: str | tuple, build):
         """The program ``build()`` makes, kept per structure here and on disk as the
-        sweeps' are (engine/programs.py): a later process reads it, not traces it (the
+        sweeps' are (engine/compiling/programs.py): a later process reads it, not traces it (the
         outer Hessian's trace alone was 10 s of a 17 s theophylline fit, cache warm)."""
         programs = _PROGRAMS.setdefault(self.key, {})
         if name not in programs:

@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..engine.status import Status
+from ..engine.schemes.status import Status
 from .errors import ERROR_MODELS
 
 
@@ -373,7 +373,7 @@ class PopulationResult:
     def gof(self) -> list:
         """Goodness of fit of each unit's own predictions (IPRED) on its observations:
         a float per unit, or an (S,) array for S outputs, as ``FitResult.gof``."""
-        from ..engine.metrics import gof
+        from ..engine.modelling.metrics import gof
 
         obj = self.objective_function
         own = np.asarray(obj.predict_all(self.x, self.etas))

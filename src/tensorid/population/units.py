@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..engine.second_order import output_tensors
+from ..engine.sweeping.second_order import output_tensors
 
 # units per compiled call: a larger fleet runs in blocks of this size (the last padded
 # with copies of its last unit), so one program serves every fleet size, and no call

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..engine.metrics import gof
+from ..engine.modelling.metrics import gof
 from .objective import Objective
 
 

@@ -10,7 +10,7 @@ import warnings
 
 import numpy as np
 
-from ..engine.status import Status
+from ..engine.schemes.status import Status
 from .endings import Outcome
 from .options import FitOptions
 from .scaling import Tracker

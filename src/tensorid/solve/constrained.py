@@ -3,7 +3,7 @@ trust-region methods: an augmented Lagrangian (the method of multipliers, as in
 LANCELOT, Conn, Gould and Toint) around the ordinary fit.
 
 Each outer iteration fits the cost plus the Powell-Hestenes-Rockafellar terms of
-engine/constraints.py (multiplier estimates λ, penalties μ) with the method the user
+engine/assembly/constraints.py (multiplier estimates λ, penalties μ) with the method the user
 chose, from the last solution, with the exact ∇ and ∇² of the penalised cost: its
 Hessian is the Lagrangian's, ∇²J − Σ λ̂ ∇²c, plus μ ∇c ∇cᵀ on the constraints that
 bind, so each solve converges as fast as an unconstrained one. Then λ ← max(0, λ − μc),
@@ -31,7 +31,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..engine.status import Status
+from ..engine.schemes.status import Status
 from .solution import Solution
 
 MAX_OUTER = 30

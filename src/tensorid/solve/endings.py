@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ..engine.status import Status
+from ..engine.schemes.status import Status
 from .solution import Solution
 from .stats import Stats
 

@@ -37,7 +37,7 @@ by ``Hybrid`` goes in two modes:
   path computes it. A quadratically converging run crosses from 1e-3 to ftol in two
   or three iterations and never gets there. The cost model is fixed, not timed, so
   that a fit is the same fit on every machine and every run (to rounding: the Hessian
-  path, which engine/adjoint.py also picks by the cores, moves the last digits only).
+  path, which engine/sweeping/adjoint.py also picks by the cores, moves the last digits only).
   (Mispredicted steps far from the
   optimum, where the cost still falls fast, are no such sign: switching on them made
   fits of the mass chain twice as slow for no fewer iterations.)

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from ..engine.status import Status
+from ..engine.schemes.status import Status
 from .endings import Outcome, OwnRun, run_alone
 from .trust_region import TRResult, trust_region_steps
 

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from .._state import state
-from ..engine.status import Status
+from ..engine.schemes.status import Status
 
 SAMPLINGS = ("lhs", "uniform")
 SAME_COST = 1e-9  # relative: starts whose costs agree this closely reached one minimum

@@ -5,7 +5,7 @@ tensorid/names.py spells the command line's --method choices out."""
 
 from __future__ import annotations
 
-from ..engine.checks import did_you_mean
+from ..engine.modelling.checks import did_you_mean
 from .baselines import FdBfgs, FdLsq
 from .solvers import Auto, GaussNewton, Method, Newton, NewtonCG
 

@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..engine.problem import Problem
+from ..engine.assembly.problem import Problem
 
 
 def auto_scale(

@@ -23,7 +23,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..engine.status import Status
+from ..engine.schemes.status import Status
 from .arrow import ArrowSolver
 from .driver import fit_many
 from .endings import Outcome, OwnRun, failed, run_alone, segments_result

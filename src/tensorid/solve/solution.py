@@ -15,9 +15,9 @@ from typing import Any, Self
 
 import numpy as np
 
-from ..engine.metrics import gof
-from ..engine.problem import Problem
-from ..engine.status import Status
+from ..engine.assembly.problem import Problem
+from ..engine.modelling.metrics import gof
+from ..engine.schemes.status import Status
 from .stats import Stats
 
 

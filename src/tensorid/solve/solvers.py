@@ -31,7 +31,7 @@ from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
-from ..engine.status import Status
+from ..engine.schemes.status import Status
 from .curvature import negative_curvature
 from .endings import Outcome
 from .hybrid import Hybrid

@@ -11,7 +11,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..engine.status import Status
+from ..engine.schemes.status import Status
 from .constrained import keep_constraints
 from .driver import fit_many
 from .endings import failed, not_run, stopped

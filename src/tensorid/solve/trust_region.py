@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..engine.status import Status
+from ..engine.schemes.status import Status
 from .curvature import negative_curvature
 from .projected import held_newton_steps, projected_cauchy, subspace_steps
 

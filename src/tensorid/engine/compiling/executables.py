@@ -43,7 +43,7 @@ from pathlib import Path
 
 import jax
 
-from .._state import state
+from ..._state import state
 
 SUFFIX = ".xla"
 

@@ -6,7 +6,7 @@ A path is a :class:`HessianPath`: its ``name`` (``Problem(hessian=...)``,
 Gauss-Newton part) and the letters of its parts (see ``Problem._assemble``).
 :class:`TransitionTensors` (the paper's, forward in time) and
 :class:`SecondOrderAdjoints` (parallel in time, explicit schemes only,
-engine/adjoint.py) are the two; :class:`AutoHessian` chooses between them by the
+engine/sweeping/adjoint.py) are the two; :class:`AutoHessian` chooses between them by the
 measured cost model (:func:`tensorid.engine.adjoint.predicted_seconds`). A new path
 is one class registered with :func:`register_hessian` (or passed as an object); the
 checks ask its markers, never its name.
@@ -17,8 +17,8 @@ from __future__ import annotations
 import functools
 from typing import ClassVar, TypeVar
 
+from ..modelling.checks import from_registry
 from .adjoint import MARGIN, predicted_seconds, supports, threads
-from .checks import from_registry
 
 # the paths by name: the one place a path's name is looked up (``get_hessian``);
 # tensorid/names.py spells the command line's --hessian choices out
@@ -107,7 +107,7 @@ class TransitionTensors(HessianPath):
 @register_hessian
 class SecondOrderAdjoints(HessianPath):
     """Second-order adjoints, parallel in time over stretches of the record
-    (engine/adjoint.py): explicit Runge-Kutta schemes and discrete-time models."""
+    (engine/sweeping/adjoint.py): explicit Runge-Kutta schemes and discrete-time models."""
 
     name: ClassVar[str] = "adjoint"
     supports_predictors: ClassVar[bool] = False

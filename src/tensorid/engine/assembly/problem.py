@@ -12,8 +12,9 @@ from collections.abc import Mapping, Sequence
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _config  # noqa: F401
-from .checks import (
+from ... import _config  # noqa: F401
+from ..compiling.compiled import on_device, on_host
+from ..modelling.checks import (
     check_bounds,
     check_data,
     check_p0,
@@ -22,25 +23,24 @@ from .checks import (
     check_x0,
     name_list,
 )
-from .compiled import on_device, on_host
+from ..modelling.data import Experiment
+from ..modelling.fleet import check_fleet
+from ..modelling.model import Model
+from ..schemes.discretisation import Discretisation, DiscretisationSettings
+from ..schemes.integrators import Scheme
+from ..sweeping.dosing import Dosing, check_events, measured
+from ..sweeping.hessians import HessianPath, choose_hessian
+from ..sweeping.losses import Loss, make_loss
+from ..sweeping.packing import unpack_symmetric
+from ..sweeping.predictors import Predictor, make_predictor
+from ..sweeping.shooting import Shooting, resolve_segments
+from ..sweeping.sweeps import Sweeps, shared_sweeps
 from .constraints import add_penalty_terms, check_constraints, penalty_jax
-from .data import Experiment
-from .discretisation import Discretisation, DiscretisationSettings
-from .dosing import Dosing, check_events, measured
-from .fleet import check_fleet
-from .hessians import HessianPath, choose_hessian
-from .integrators import Scheme
 from .layout import ThetaLayout
-from .losses import Loss, make_loss
-from .model import Model
-from .packing import unpack_symmetric
-from .predictors import Predictor, make_predictor
 from .priors import PriorTerms
 from .problem_loss import LossSettings, checked_predictor, observed_rows
-from .shooting import Shooting, resolve_segments
 from .simulate import Simulation, run_simulation
 from .start import Start, resolve_start
-from .sweeps import Sweeps, shared_sweeps
 
 
 class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
@@ -421,7 +421,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         covariances and standardised innovations (see
         :class:`tensorid.engine.predictors.Prediction`). For output error every
         horizon gives the simulation."""
-        from .predictors import predictions
+        from ..sweeping.predictors import predictions
 
         return predictions(self, theta, horizon)
 

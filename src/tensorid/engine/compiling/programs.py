@@ -48,7 +48,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from .._state import state
+from ..._state import state
 from .compilation import announced, describe
 
 _NOT_KEPT = ("custom_jvp", "custom_vjp", "custom_vmap", "callback", "debug", "<function", "0x")
@@ -63,7 +63,7 @@ _SETTINGS = (
 def _sources() -> dict[Path, tuple[int, int]]:
     """(mtime, size) of each source file of tensorid (regular files, no editor's
     dotfiles)."""
-    root = Path(__file__).resolve().parent.parent
+    root = Path(__file__).resolve().parents[2]  # tensorid/, above engine/compiling/
     out = {}
     for path in sorted(root.rglob("*.py")):
         if path.name.startswith(".") or not path.is_file():
@@ -103,10 +103,10 @@ def _package_digest() -> str | None:
     if _IMPORTED is None or not _IMPORTED or _sources() != _IMPORTED:
         return None
     if state.source_digest is None:
-        from .. import _config
+        from ... import _config
 
         h = hashlib.sha256(_config.__version__.encode())
-        root = Path(__file__).resolve().parent.parent
+        root = Path(__file__).resolve().parents[2]  # tensorid/, above engine/compiling/
         for path in _IMPORTED:
             h.update(str(path.relative_to(root)).encode())
             h.update(path.read_bytes())
@@ -349,7 +349,7 @@ def _prune_programs(where: Path, current: str) -> None:
 
 def _prune_own_compiled() -> None:
     """:func:`_prune_compiled` on the cache folder tensorid chose, if it is on."""
-    from .. import _config
+    from ... import _config
 
     settings = jax.config.values
     if settings.get("jax_enable_compilation_cache") and (

@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .integrators import AdaptiveRungeKutta
+from ..schemes.integrators import AdaptiveRungeKutta
+from ..schemes.status import Status
 from .simulate import Simulation
-from .status import Status
 
 _DOMAIN = (
     "a state or parameter outside the model's domain (square root or log of a "

@@ -37,9 +37,9 @@ from typing import Protocol, runtime_checkable
 import jax
 import jax.numpy as jnp
 
-from .. import _config  # noqa: F401
+from ... import _config  # noqa: F401
+from ..modelling.checks import did_you_mean
 from .adaptive import AdaptiveRungeKutta, StepSizeController
-from .checks import did_you_mean
 from .implicit import DiagonallyImplicitRungeKutta, NewtonStageSolver
 from .tableau import Field, _axpy, _check_tableau, _explicit_stages, _n_levels, _x
 

@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .events import state_index, stopped
+from ..modelling.events import state_index, stopped
 
 
 def node_arrays(dosing, e, u) -> tuple[np.ndarray, np.ndarray]:

@@ -11,7 +11,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from ..names import RESIDUAL_ERRORS  # (population/errors.py holds the models)
+from ...names import RESIDUAL_ERRORS  # (population/errors.py holds the models)
 from .checks import did_you_mean
 
 

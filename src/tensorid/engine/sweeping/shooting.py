@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _config  # noqa: F401
+from ... import _config  # noqa: F401
 from .packing import unpack_symmetric
 from .sweeps import shared_sweeps
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 
-from .integrators import DiscreteMap, ExplicitRungeKutta
+from ..schemes.integrators import DiscreteMap, ExplicitRungeKutta
 from .packing import pair_indices, quadratic_packed
 
 

@@ -49,10 +49,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _config
-from .discretisation import Discretisation, input_at
-from .integrators import DiscreteMap, ExplicitRungeKutta
-from .programs import Program
+from ... import _config
+from ..compiling.programs import Program
+from ..schemes.discretisation import Discretisation, input_at
+from ..schemes.integrators import DiscreteMap, ExplicitRungeKutta
 
 # at most this many stretches: each is its own scan in the compiled first phase, and
 # the threads were measured on 2 cores only

@@ -37,9 +37,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _config  # noqa: F401
-from .checks import from_registry
-from .compiled import on_device
+from ... import _config  # noqa: F401
+from ..compiling.compiled import on_device
+from ..modelling.checks import from_registry
 from .losses import GAUSSIAN, robust_noise
 
 # a filter's noise parameters: these prefixes and the state's or output's name
@@ -146,7 +146,7 @@ SIMULATION = OutputError()
 
 
 def __getattr__(name: str):
-    if name == "Simulation":  # the name before issue 39: a simulation is engine/simulate's
+    if name == "Simulation":  # the name before issue 39: a simulation is engine/assembly/simulate's
         warnings.warn(
             "tensorid.engine.predictors.Simulation is deprecated: it is OutputError",
             DeprecationWarning,
@@ -258,7 +258,7 @@ class ExtendedKalman(Predictor):
         started at log of the given σ; an output without a given measurement noise
         starts from its noise level in the data (second differences,
         :func:`tensorid.engine.losses.robust_noise`)."""
-        from .model import Model
+        from ..modelling.model import Model
 
         q = _intensities("process_noise", process_noise, model.states, "state")
         r = _intensities("measurement_noise", measurement_noise, model.outputs, "output")

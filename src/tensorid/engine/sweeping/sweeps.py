@@ -40,19 +40,19 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _config  # noqa: F401
+from ... import _config  # noqa: F401
+from ..compiling.compiled import Compiled
+from ..compiling.programs import Program
+from ..modelling.model import Model
+from ..schemes.discretisation import Discretisation, march
 from .adjoint import SecondOrderAdjoint
-from .compiled import Compiled
-from .discretisation import Discretisation, march
 from .dosing import Dosing, jump_hook, maps, rhs
 from .losses import SQUARED, Loss
-from .model import Model
 from .moving import march_moving
 from .output_sensitivity import output_jacobian
 from .packing import quadratic_full
 from .packing import unpack_symmetric as unpack_symmetric  # its old home, re-exported
 from .predictors import SIMULATION, Predictor
-from .programs import Program
 from .second_order import _weighted, layout, second_order
 from .steady import settle_map
 

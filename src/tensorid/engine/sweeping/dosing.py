@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import jax.numpy as jnp
 import numpy as np
 
-from .compiled import on_device
-from .events import state_index, stopped
+from ..compiling.compiled import on_device
+from ..modelling.events import state_index, stopped
 
 
 @dataclass(frozen=True)
@@ -126,7 +126,7 @@ class Dosing:
         expression, its ``amt`` unused); None where the target has none."""
         import sympy as sp  # here: sympy costs 0.2-0.5 s to import
 
-        from .equations import _parse
+        from ..modelling.equations import _parse
 
         names = ["amt", *self.input_names, *self.params]
         symbols = {n: sp.Symbol(n) for n in names}
@@ -308,7 +308,7 @@ def check_events(
     if (segments not in (None, 1)) or segment_length is not None:
         raise ValueError(f"{what} are fitted by single shooting: drop segments")
     if problem.dosing is not None and (problem.dosing.moving or problem.dosing.steady):
-        from .integrators import ExplicitRungeKutta
+        from ..schemes.integrators import ExplicitRungeKutta
 
         if not isinstance(problem.discretisation.scheme, ExplicitRungeKutta):
             raise ValueError(

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from .losses import Loss
+    from ..sweeping.losses import Loss
 
 
 def check_priors(problem, priors, noise) -> tuple[dict, float]:

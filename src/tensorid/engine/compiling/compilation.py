@@ -10,7 +10,7 @@ from contextlib import contextmanager
 
 import jax
 
-from .._state import state
+from ..._state import state
 
 _EVENTS = "/jax/core/compile/"
 _local = threading.local()

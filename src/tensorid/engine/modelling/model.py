@@ -16,8 +16,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _config  # noqa: F401  (float64)
-from ..functions import ArgumentError
+from ... import _config  # noqa: F401  (float64)
+from ...functions import ArgumentError
 
 Array = jax.Array
 
@@ -220,7 +220,7 @@ class Model:
     def compiled_sweeps(self) -> dict:
         """This model's compiled sweeps by (θ layout, discretisation), see
         tensorid.engine.sweeps.shared_sweeps, and its filter models by set of noisy
-        states (engine/predictors.make_predictor). Per process: not pickled."""
+        states (engine/sweeping/predictors.make_predictor). Per process: not pickled."""
         cache = self.__dict__.get("_compiled_sweeps")
         if cache is None:
             cache = {}

@@ -46,7 +46,7 @@ import jax.numpy as jnp
 import jax.scipy.linalg
 import numpy as np
 
-from .checks import from_registry
+from ..modelling.checks import from_registry
 
 # the scale c as a multiple of the noise's standard deviation σ when c is estimated
 # (``Loss.tuning``): Huber's 1.345 and Cauchy's 2.385 give 95 % efficiency under

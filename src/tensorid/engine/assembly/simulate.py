@@ -7,15 +7,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import _config  # noqa: F401
-from .compiled import on_device
-from .data import Experiment
-from .discretisation import Discretisation
-from .dosing import covering, dosing_of
-from .integrators import Scheme
-from .model import Model
-from .status import Status
-from .sweeps import Sweeps, shared_sweeps
+from ... import _config  # noqa: F401
+from ..compiling.compiled import on_device
+from ..modelling.data import Experiment
+from ..modelling.model import Model
+from ..schemes.discretisation import Discretisation
+from ..schemes.integrators import Scheme
+from ..schemes.status import Status
+from ..sweeping.dosing import covering, dosing_of
+from ..sweeping.sweeps import Sweeps, shared_sweeps
 
 
 @dataclass(frozen=True, eq=False)

@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from .data import Experiment
-    from .model import Model
+    from ..modelling.data import Experiment
+    from ..modelling.model import Model
 
 
 class ThetaLayout:

@@ -18,8 +18,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _config  # noqa: F401
-from .checks import did_you_mean
+from ... import _config  # noqa: F401
+from ..modelling.checks import did_you_mean
 from .integrators import DISCRETE, DiscreteMap, RungeKuttaScheme, Scheme, _x, get_scheme
 from .intersample import SMOOTH, chebyshev_at, track
 from .status import Status

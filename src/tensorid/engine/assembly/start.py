@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .predictors import NOISE_PREFIXES
+from ..sweeping.predictors import NOISE_PREFIXES
 
 
 @dataclass(frozen=True)

@@ -15,13 +15,13 @@ from typing import Any
 
 import numpy as np
 
-from .checks import check_filter_options, check_threads, no_noise_without_filter
-from .hessians import get_hessian
-from .losses import Loss, get_loss, make_loss
-from .model import Model
-from .predictors import Predictor, get_predictor
-from .shooting import Shooting
-from .sweeps import shared_sweeps
+from ..modelling.checks import check_filter_options, check_threads, no_noise_without_filter
+from ..modelling.model import Model
+from ..sweeping.hessians import get_hessian
+from ..sweeping.losses import Loss, get_loss, make_loss
+from ..sweeping.predictors import Predictor, get_predictor
+from ..sweeping.shooting import Shooting
+from ..sweeping.sweeps import shared_sweeps
 
 
 class LossSettings:

@@ -25,8 +25,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .checks import did_you_mean
-from .equations import _ARITY, _FUNCTIONS, _OPERATORS, _ToJax
+from ..modelling.checks import did_you_mean
+from ..modelling.equations import _ARITY, _FUNCTIONS, _OPERATORS, _ToJax
 
 _SENSES = {ast.GtE: ">=", ast.Gt: ">=", ast.LtE: "<=", ast.Lt: "<="}
 EXAMPLE = "write an inequality of parameter names such as 'Fs >= Fc' or 'k <= 2*m'"
