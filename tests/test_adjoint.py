@@ -190,7 +190,10 @@ def test_a_short_record_and_a_blow_up():
 def test_auto_picks_the_tensors_at_paper_sizes_and_the_adjoint_for_large_models():
     assert silverbox_problem().hessian == "tensors"
     assert two_tank_problem().hessian == "tensors"
-    assert mass_chain_problem(5, samples=200).hessian == "adjoint"
+    # (at 200 samples the chain's adjoint saves less per call than its longer compile:
+    # issue 50 item 2; at 2,000, 0.16 s a call)
+    assert mass_chain_problem(5, samples=200).hessian == "tensors"
+    assert mass_chain_problem(5, samples=2000).hessian == "adjoint"
     # schemes that reverse mode cannot differentiate keep the tensors
     assert mass_chain_problem(5, samples=200, scheme="dopri5").hessian == "tensors"
     assert mass_chain_problem(5, samples=200, scheme="sdirk2").hessian == "tensors"
@@ -202,6 +205,25 @@ def test_auto_picks_the_tensors_at_paper_sizes_and_the_adjoint_for_large_models(
     t = [adjoint.predicted_seconds(n, n + 1, 1000, 2) for n in (2, 8, 32)]
     ratios = [p["tensors"] / p["adjoint"] for p in t]
     assert ratios == sorted(ratios) and ratios[0] < 1 < ratios[-1]
+
+
+def test_auto_weighs_the_adjoints_longer_compile_as_the_docs_say():
+    """Issue 50 item 2: the picks that README.md and docs/benchmarks.md state."""
+    from pathlib import Path
+
+    from tensorid.engine.sweeping.adjoint import adjoint_pays
+
+    def pays(N, K, P):
+        return adjoint_pays(adjoint.predicted_seconds(N, K, P, 2))
+
+    crossover = [next(K for K in range(1, 100) if pays(N, K, 1024)) for N in (2, 4, 8)]
+    assert crossover == [29, 20, 14]
+    readme = " ".join((Path(__file__).resolve().parents[1] / "README.md").read_text().split())
+    assert "the adjoint from about K = 29 at N = 2, K = 20 at N = 4 and K = 14 at N = 8" in readme
+    adjoint_rows = [(10, 11, 2000), (16, 17, 400), (32, 33, 400), (64, 65, 400)]
+    tensor_rows = [(2, 10, 1024), (2, 16, 1024), (4, 5, 2000), (6, 7, 2000), (8, 5, 1024),
+                   (32, 5, 1024), (2, 5, 1024), (2, 4, 501)]  # fmt: skip
+    assert all(pays(*r) for r in adjoint_rows) and not any(pays(*r) for r in tensor_rows)
 
 
 def test_a_problem_pickles_after_its_adjoint_ran():

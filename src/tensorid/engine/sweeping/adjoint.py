@@ -74,6 +74,18 @@ def supports(discretisation: Discretisation) -> bool:
 # fixed cost per call). With one thread the adjoint takes SINGLE_THREAD times longer.
 # MARGIN keeps the tensors near the crossover, where the two are within the model's
 # error.
+#
+# A first fit compiles the chosen path's program, and the adjoint's compiles several
+# times longer than the tensors' (issue 50 item 2, 2-core machine, no cache: the
+# smooth-switch tanks of bench_first_fit.py, N = 2, K = 10, 1,024 samples, 8.7 s
+# against 1.3 s, while the model put the adjoint 1.5x ahead and it ran 1.3x behind,
+# 17.6 against 13.5 ms; the cascade, K = 12, 2.7 s against 0.6 s, 9.9 against 5.9
+# ms), whereas a fit calls the exact Hessian a few times (Gauss-Newton steps first;
+# the error bars, the model-error check's fits). So the adjoint is taken only where
+# its predicted saving over EXPECTED_HESSIANS calls exceeds ADJOINT_COMPILE seconds:
+# large models, where it saves seconds per call.
+EXPECTED_HESSIANS = 20
+ADJOINT_COMPILE = 2.0
 TENSOR_SECONDS = 5.3e-8
 TENSOR_POWER = 1.14
 RATIO = 0.211
@@ -92,6 +104,15 @@ def predicted_seconds(N: int, K: int, samples, n_threads: int | None = None) -> 
     if (threads() if n_threads is None else n_threads) < 2:
         ratio /= SINGLE_THREAD
     return {"tensors": tensors, "adjoint": len(samples) * ADJOINT_CALL + tensors / ratio}
+
+
+def adjoint_pays(predicted: dict) -> bool:
+    """Whether the adjoint is the better path by ``predicted`` (:func:`predicted_seconds`):
+    MARGIN times faster per call, and saving more than its extra compile time over a
+    fit's calls."""
+    saving = predicted["tensors"] - predicted["adjoint"]
+    fast = MARGIN * predicted["adjoint"] < predicted["tensors"]
+    return fast and saving * EXPECTED_HESSIANS > ADJOINT_COMPILE
 
 
 def threads(cap: int | None = None) -> int:

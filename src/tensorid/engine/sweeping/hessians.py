@@ -18,7 +18,7 @@ import functools
 from typing import ClassVar, TypeVar
 
 from ..modelling.checks import from_registry
-from .adjoint import MARGIN, predicted_seconds, supports, threads
+from .adjoint import adjoint_pays, predicted_seconds, supports, threads
 
 # the paths by name: the one place a path's name is looked up (``get_hessian``);
 # tensorid/names.py spells the command line's --hessian choices out
@@ -81,7 +81,8 @@ def get_hessian(hessian) -> HessianPath:
 @register_hessian
 class AutoHessian(HessianPath):
     """The faster of the tensors and the adjoint by the cost model (the adjoint where
-    it is predicted MARGIN times faster and the scheme and the predictor allow it; a
+    it is predicted MARGIN times faster and to save more than its longer compile over
+    a fit's calls, and the scheme and the predictor allow it: adjoint.adjoint_pays; a
     filter's is the tensors'). Resolved by :func:`choose_hessian`, never swept."""
 
     name: ClassVar[str] = "auto"
@@ -90,8 +91,7 @@ class AutoHessian(HessianPath):
         if not adjoint or not supports(discretisation):
             return TransitionTensors()
         t = predicted_seconds(N, K, samples, threads(cap))
-        faster = MARGIN * t["adjoint"] < t["tensors"]
-        return SecondOrderAdjoints() if faster else TransitionTensors()
+        return SecondOrderAdjoints() if adjoint_pays(t) else TransitionTensors()
 
 
 @register_hessian
