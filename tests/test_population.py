@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import functools
+import warnings
 from pathlib import Path
 
 import jax
@@ -629,8 +630,12 @@ def test_lost_workers_cost_time_not_the_fit():
     pr = fleet_problem(4)  # (4 units: the programs of the other 4-unit fits)
     here = ti.fit(pr)
     lost = _LostWorkers()
-    with pytest.warns(UserWarning, match="computed here, as every chunk is from now on"):
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
         there = ti.fit(pr, executor=lost)
+    said = [str(w.message) for w in said]
+    assert any(s.endswith("sent again") for s in said), said
+    assert any(s.endswith("computed here, as every chunk is from now on") for s in said), said
     # the first evaluation's two chunks, the first lost one sent again once; then every
     # chunk here for good (issue 51 item 2: it had re-sent every chunk each evaluation)
     assert lost.submitted == 3
