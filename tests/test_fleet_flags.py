@@ -1,7 +1,7 @@
 """Issue 49 (one pipeline) and 51 item 3: every flag of ``tensorid fit`` against a
 fleet's problem is honoured (its effect reaches the fit) or refused in one line that
 names it; none is dropped. The walk stops each command where the fit would start
-(``commands._run``) and compares what reached it with the plain command's; a slow
+(``tensorid.fit``) and compares what reached it with the plain command's; a slow
 test then runs the flags that act after the fit (--profile, --validate,
 --data-sensitivity) on a real fit."""
 
@@ -41,28 +41,33 @@ def _records(tmp_path: Path, first: int, last: int, name: str) -> Path:
     return path
 
 
-def _seen(problem, args, executor, timeout) -> str:
-    """What a fit would be given: the problem's data and settings, the fit's options,
-    and the after-fit requests (checked on a real fit by the slow test below)."""
+def _problem_seen(problem) -> dict:
+    """A Problem's data and settings, as text-comparable values."""
     e = problem.experiments
-    return repr(
-        {
-            "t": [x.t.tolist() for x in e], "y": [np.asarray(x.y).tolist() for x in e],
-            "u": [np.asarray(problem.grid(x)[1]).tolist() for x in e],
-            "p0": np.asarray(problem.p0).tolist(), "fixed": problem.fixed,
-            "free_x0": problem.free_x0,
-            "lower": problem.lower.tolist(), "upper": problem.upper.tolist(),
-            "disc": repr(problem.discretisation), "population": problem.population,
-            "individual": problem.individual, "error": problem.residual_error,
-            "omega": problem.omega, "method": args.method, "maxiter": args.maxiter,
-            "tol": (args.gtol, args.ftol, args.xtol), "workers": args.workers,
-            "starts": (args.starts, args.spread, args.seed),
-            "executor": executor is not None, "timeout": timeout, "out": args.out,
-            "progress": args.no_progress, "profile": (args.profile, args.profile_level),
-            "sensitivity": args.data_sensitivity, "validate": args.validate,
-            "validate_columns": args.validate_columns, "samples": args.validate_samples,
-        }
-    )  # fmt: skip
+    return {
+        "t": [x.t.tolist() for x in e], "y": [np.asarray(x.y).tolist() for x in e],
+        "u": [np.asarray(problem.grid(x)[1]).tolist() for x in e],
+        "p0": np.asarray(problem.p0).tolist(), "fixed": problem.fixed,
+        "free_x0": problem.free_x0,
+        "lower": problem.lower.tolist(), "upper": problem.upper.tolist(),
+        "disc": repr(problem.discretisation), "population": problem.population,
+        "individual": problem.individual, "error": problem.residual_error,
+        "omega": problem.omega,
+    }  # fmt: skip
+
+
+def _options_seen(method, options) -> dict:
+    """The fit's keywords as ``fit`` receives them (an executor or a callback: given
+    or not)."""
+    kept = {k: v for k, v in options.items() if k not in ("executor", "callback")}
+    return {"method": method, **kept, "executor": options.get("executor") is not None,
+            "callback": options.get("callback") is not None}  # fmt: skip
+
+
+# flags that act after the fit (its analyses and files): what reaches the fit cannot
+# show them; the slow test below runs --profile, --data-sensitivity and --out on a
+# real fit (--validate reaches the walk as the held-out units' Problem)
+AFTER_THE_FIT = {"--profile", "--profile-level", "--data-sensitivity", "--out"}
 
 
 # a value for every flag (the fleet: units 1-4 of phenobarbital, cl and v log-normal)
@@ -125,20 +130,30 @@ def walk(tmp_path_factory):
 
 
 def _reach(monkeypatch, capsys, argv) -> tuple[int | None, str, str]:
-    """(exit code or None where the fit was reached, what reached it, stderr)."""
-    got = {}
+    """(exit code or None where the fit was reached, what reached it: every Problem
+    the command built (the training units', the held-out units') and the keywords
+    ``fit`` was called with, stderr)."""
+    got: dict = {"problems": []}
+    build = commands._problem
 
-    def stop(problem, args, console, executor, timeout, watch):
-        got["seen"] = _seen(problem, args, executor, timeout)
+    def built(*a, **k):
+        problem = build(*a, **k)
+        got["problems"].append(_problem_seen(problem))
+        return problem
+
+    def stop(problem, method, **options):
+        got["fit"] = _options_seen(method, options)
         raise _Reached
 
-    monkeypatch.setattr(commands, "_run", stop)
+    monkeypatch.setattr(commands, "_problem", built)
+    monkeypatch.setattr(commands, "fit", stop)
     monkeypatch.setattr(commands, "_workers", _no_workers)
     try:
         code = cli.main(argv)
     except _Reached:
         code = None
-    return code, got.get("seen", ""), capsys.readouterr().err
+    seen = repr(got) if "fit" in got else ""
+    return code, seen, capsys.readouterr().err
 
 
 class _no_workers:
@@ -162,7 +177,7 @@ def test_every_fit_flag_is_honoured_or_refused_for_a_fleet(walk, monkeypatch, ca
     missing = [f for f in _flags() if f not in VALUES]
     assert not missing, f"flags the walk has no value for: {missing}"
     dropped, unnamed = [], []
-    for flag in [f for f in _flags() if f not in BASE]:
+    for flag in [f for f in _flags() if f not in BASE | AFTER_THE_FIT]:
         extra = [flag, *(subs.get(v, v) for v in VALUES[flag])]
         extra += [subs.get(v, v) for v in WITH.get(flag, [])]
         code, seen, err = _reach(monkeypatch, capsys, base + extra)

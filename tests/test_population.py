@@ -460,6 +460,8 @@ def test_a_fleet_fitted_from_several_starts_keeps_the_best():
     pr = fleet_problem(4)
     psis = drawn_starts(Objective(pr), 3, spread=0.5, seed=1)
     assert len(psis) == 3 and np.all(np.ptp(np.array(psis)[:, :5], axis=0) > 0)
+    # a wide spread draws the typical values log-uniformly (linearly, some were < 0)
+    assert np.isfinite(drawn_starts(Objective(pr), 8, spread=1.5, seed=0)).all()
     one = ti.fit(pr)
     res = ti.fit(pr, starts=3, spread=0.5, seed=1)
     assert [s["start"] for s in res.starts] != [] and len(res.starts) == 3
@@ -467,6 +469,41 @@ def test_a_fleet_fitted_from_several_starts_keeps_the_best():
     assert J == sorted(J) and res.objective == pytest.approx(J[0], abs=1e-9)
     assert res.objective <= one.objective + 1e-6
     assert "best of 3 starts" in res.summary()
+
+
+def test_a_fleets_fit_json_survives_what_its_analyses_cannot_measure(tmp_path, capsys):
+    """Review of issue 49's analyses: a held-out unit of one observation has no GOF
+    (NaN), which made fit.json unwritable and lost every file; a fit that did not
+    converge gets a note, not profiles from a point that is no optimum."""
+    import json
+    from types import SimpleNamespace
+
+    from tensorid.app.population_run import report_population
+
+    pr = fleet_problem(4)
+    res = ti.fit(pr)
+    m, units = simulated_fleet(6, seed=3)
+    one = units[4]
+    seen = np.zeros_like(one.y, dtype=bool)
+    seen[3] = True  # one observation
+    held_units = [units[5], ti.Experiment(one.t, one.u, one.y, name="one", observed=seen)]
+    held = ti.Problem(m, held_units, p0={"ka": 1.2, "cl": 2.0, "v": 25.0},
+                      x0={"depot": "Dose", "center": 0.0}, substeps=20,
+                      population={"ka": 0.4, "cl": 0.4})  # fmt: skip
+    args = SimpleNamespace(profile=None, profile_level=0.95, data_sensitivity=False)
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    assert report_population(res, tmp_path / "a", set(), {}, args, held) == 0
+    fit = json.loads((tmp_path / "a" / "fit.json").read_text())
+    assert [h["id"] for h in fit["held_out"]] == ["u5", "one"]
+    assert fit["held_out"][1]["gof"] is None and fit["held_out"][1]["observations"] == 1
+    bad = ti.fit(pr, maxiter=1)
+    args = SimpleNamespace(profile=[], profile_level=0.95, data_sensitivity=True)
+    assert report_population(bad, tmp_path / "b", set(), {}, args, None) == 1
+    fit = json.loads((tmp_path / "b" / "fit.json").read_text())
+    assert "ci95_profile" not in fit and "unit_influence" not in fit
+    assert any(n.startswith("no profiles, held-out units or unit influence") for n in fit["notes"])
+    capsys.readouterr()
 
 
 def theophylline_problem(**kw):

@@ -128,16 +128,26 @@ class ConstraintReport(Tabular):
 def restricted_stderr(res, A: np.ndarray) -> dict[str, float]:
     """Each unknown's standard error with the rows of A (active constraints' ∇c) held
     as equalities: 2σ² Z (Zᵀ H Z)⁻¹ Zᵀ with Z the null space of A (their tangent
-    space), which is C − C Aᵀ (A C Aᵀ)⁻¹ A C where H is invertible. A direction of the
+    space), which is C − C Aᵀ (A C Aᵀ)⁻¹ A C where H is invertible (a robust loss's
+    sandwich C is restricted by that formula itself). A direction of the
     tangent space along which J is flat (as the error bars judge flat) leaves its
     unknowns unbounded (inf): C alone has dropped such directions, and gave them 0."""
     flat = tangent_flat(res, A)
     if not len(A) or not res.success or flat is None:
         return {}
-    sigma2 = res.uncertainty().sigma2
-    D, Z, lam, V, keep = _tangent(res, A)
-    inv = Z @ ((V[:, keep] / lam[keep]) @ V[:, keep].T) @ Z.T
-    var = np.diag(2.0 * sigma2 * inv) * D**2
+    try:
+        u = res.uncertainty()
+    except ValueError:
+        return {}
+    if res.problem.loss.robust:  # the sandwich's covariance, restricted as it stands
+        C = u.covariance
+        if not np.isfinite(C).all():
+            return {}
+        var = np.diag(C - C @ A.T @ np.linalg.pinv(A @ C @ A.T) @ A @ C).copy()
+    else:
+        D, Z, lam, V, keep = _tangent(res, A)
+        inv = Z @ ((V[:, keep] / lam[keep]) @ V[:, keep].T) @ Z.T
+        var = np.diag(2.0 * u.sigma2 * inv) * D**2
     names = res.problem.theta_names
     for involved in flat:
         for name in involved:

@@ -207,6 +207,11 @@ def _fit_command(args, renderer: Renderer) -> int:
     # a method that cannot serve it: refused before the folder is touched
     checked_method(problem, args.method, predictor_origin(spec, args))
     known = profile_names(problem) if is_fleet else problem.theta_names
+    if is_fleet and args.profile is not None and not known:
+        raise ValueError(
+            "--profile: a fit with individual parameters alone (least squares over every "
+            "unit's own values) is not profiled yet; drop --profile and read its error bars"
+        )
     unknown = [n for n in args.profile or [] if n not in known]
     if unknown:
         raise ValueError(f"--profile: unknown names {unknown}; the unknowns are {known}")

@@ -14,6 +14,7 @@ import csv
 import json
 from functools import partial
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -109,9 +110,12 @@ def analyses(res, args, held) -> tuple[dict, list[str], bool]:
     lines as it ends; a failing one is a note, the fit is kept either way."""
     out: dict = {}
     notes: list[str] = []
-    if not np.isfinite(res.objective):
+    asked = args is not None and (args.profile is not None or args.data_sensitivity)
+    if not res.success or not np.isfinite(res.objective):  # (no optimum to start from)
+        if asked or held is not None:
+            notes.append(f"no profiles, held-out units or unit influence: the fit {res.message}")
         return out, notes, False
-    jobs = [("profiles", args is not None and args.profile is not None, printed_profiles),
+    jobs = [("profiles", args is not None and args.profile is not None, _profiles),
             ("held_out", held is not None, lambda r, a: _held(r, held)),
             ("unit_influence", bool(getattr(args, "data_sensitivity", False)), _units)]  # fmt: skip
     for key, asked, run in jobs:
@@ -125,6 +129,20 @@ def analyses(res, args, held) -> tuple[dict, list[str], bool]:
         except (ValueError, np.linalg.LinAlgError) as e:
             notes.append(f"no {key.replace('_', ' ')}: {e}")
     return out, notes, False
+
+
+def _profiles(res, args) -> dict:
+    """--profile's names that the fit still has (a random effect that collapsed to 0 was
+    made shared: its ω is gone, said in a note, and the others are profiled)."""
+    known = names_of(res)
+    gone = [n for n in args.profile or [] if n not in known]
+    if gone:
+        print(f"tensorid: note: no profile of {', '.join(gone)}: the fit has no such "
+              f"estimate (a random effect that collapsed to 0 was made shared)")  # fmt: skip
+    asked = [n for n in args.profile or [] if n in known]
+    if args.profile and not asked:
+        return {}
+    return printed_profiles(res, SimpleNamespace(profile=asked, profile_level=args.profile_level))
 
 
 def _held(res, problem) -> list[dict]:
@@ -217,7 +235,7 @@ def report_population(res, out: Path, old: set[Path], recorded: dict, args=None,
     held-out units' Problem (--validate)."""
     print(res.summary())
     extras, notes, stopped = analyses(res, args, held)
-    data = population_json(res, recorded) | _analyses_json(extras)
+    data = _finite(population_json(res, recorded) | _analyses_json(extras))
     data["notes"] = data["notes"] + notes
     path, failure = write_kept(out / "fit.json", json.dumps(data, indent=2, allow_nan=False))
     if failure:  # the folder cannot be written: the estimates went elsewhere

@@ -197,7 +197,8 @@ def _best_start(obj: Objective, fit: dict, collapsed: list, draw: tuple):
             if best is None:
                 raise
             why = f"interrupted in start {k + 1} of {draw[0]}: the best of the {k} finished"
-            raise FitInterrupted(replace(best[1], notes=[why], starts=ran)) from None  # type: ignore[arg-type]
+            kept = replace(best[1], notes=[*best[1].notes, why], starts=ran)
+            raise FitInterrupted(kept) from None  # type: ignore[arg-type]
         ran.append({"start": k, "objective": r.objective, "status": r.status.name.lower(),
                     "nit": r.nit})  # fmt: skip
         if best is None or r.objective < best[1].objective:

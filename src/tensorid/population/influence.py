@@ -13,8 +13,8 @@ refit), so the ``refits`` units ranked first are then refitted without their dat
 the refits'.
 Reported per unit as each estimate's shift in its standard errors and as Cook's
 distance D_i = Δψᵀ cov⁻¹ Δψ / k, the squared shift of all estimates together in the
-metric of their covariance (about 1 or more: a unit the estimates lean on). A fit of
-individual parameters alone gets the steps, not the refits (a unit without data has
+metric of their covariance (about 1 or more: a unit the estimates lean on). A fit
+with individual parameters gets the steps, not the refits (a unit without data has
 no value of its own parameters to fit).
 """
 
@@ -43,6 +43,8 @@ def unit_influence(res, refits: int = 5) -> list[dict]:
         "refitted" (whether by a refit, else by the step)}].
     """
     obj = res.objective_function
+    if not res.success:
+        raise ValueError(f"unit influence needs a fit that converged; this one {res.message}")
     psi, etas = np.asarray(res.x), np.asarray(res.etas)
     _, g = obj.value_grad(psi, etas)
     H = obj.hessian(psi, etas, per_unit=True)
@@ -54,7 +56,7 @@ def unit_influence(res, refits: int = 5) -> list[dict]:
         step = -np.linalg.lstsq(Htot - H[i], G - g[i], rcond=1e-12)[0]
         out.append(_entry(res, uid, step, se, info, False) | {"index": i})
     out.sort(key=lambda d: -d["cook"])
-    for d in out[:refits] if len(out) > 2 and not obj.joint else []:
+    for d in out[:refits] if len(out) > 2 and obj.q == obj.qp else []:
         moved = _refit(obj, psi, etas, d["index"])
         if moved is not None:
             d.update(_entry(res, d["id"], moved, se, info, True))

@@ -86,13 +86,16 @@ def profile_names(problem) -> list[str]:
     pop, ind = list(problem.population), list(problem.individual)
     shared = [n for n in problem.free_params if n not in pop + ind]
     if not pop:
-        return shared
+        return []  # (individual parameters alone: profile() refuses them)
     kinds = problem.residual_error or {}
     outputs = problem.model.outputs
     kinds = {o: kinds for o in outputs} if isinstance(kinds, str) else kinds
     errors = ResidualErrors([kinds.get(o, "additive") for o in outputs], outputs)
     full = problem.omega == "full" and len(pop) > 1
-    omegas = [] if full else [f"omega_{n}" for n in pop]
+    rows, cols = np.tril_indices(len(pop), -1)
+    omegas = [f"log_omega_{n}" for n in pop] + [
+        f"omega_chol_{pop[i]}_{pop[j]}" for i, j in zip(rows, cols, strict=True)
+    ] if full else [f"omega_{n}" for n in pop]  # fmt: skip
     return pop + omegas + shared + [n.removeprefix("log_") for n in errors.names]
 
 
@@ -136,8 +139,8 @@ def profile(
             "profiles of a fit with individual parameters alone (least squares over every "
             "unit's own values) are not made yet: use its error bars"
         )
-    if not np.isfinite(res.objective):
-        raise ValueError(f"profiles need a fit with a finite objective; this one {res.message}")
+    if not (res.success and np.isfinite(res.objective)):
+        raise ValueError(f"profiles need a fit that converged; this one {res.message}")
     known = names_of(res)
     names = default_names(res) if names is None else [names] if isinstance(names, str) else names
     unknown = [n for n in names if n not in known]
@@ -152,6 +155,7 @@ def profile(
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         for name in names:
             i, log = known[name]
+            problem.etas = np.asarray(res.etas)  # (each profile from the fit's own η̂)
             traced = _one(at, i, dJ, level, se[i], method, max_steps)
             out[name] = _own_scale(traced, name, log)
     return out

@@ -61,8 +61,11 @@ def drawn_starts(obj, n: int, spread=None, sampling: str = "lhs", seed: int = 0)
     names = [*obj.pop[: obj.qp], *obj.shared]
     theta0 = np.array([pr.p0[m.params.index(k)] for k in names], dtype=float)
     at = [pr.theta_names.index(k) for k in names]
-    drawn = draw_starts(theta0, pr.lower[at], pr.upper[at], n, spread=spread,
-                        sampling=sampling, seed=seed)  # fmt: skip
+    lower = pr.lower[at].copy()
+    typical = np.arange(len(names)) < obj.qp  # > 0 (ψ holds their logarithm): drawn
+    lower[typical] = np.maximum(lower[typical], 1e-6 * theta0[typical])  # log-uniformly
+    drawn = draw_starts(theta0, lower, pr.upper[at], n, spread=spread, sampling=sampling,
+                        seed=seed)  # fmt: skip
     factor = np.exp(np.random.default_rng(seed + 1).uniform(-np.log(2), np.log(2),
                                                             (n, obj.qp)))  # fmt: skip
     out = [start_point(obj)]

@@ -11,6 +11,8 @@ the observed samples alone.
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 from ..engine.modelling.metrics import gof
@@ -33,7 +35,9 @@ def held_out(res, problem) -> list[dict]:
         which have no typical value), "observations", "converged"}.
     """
     fitted = res.objective_function
-    obj = Objective(problem, fitted.method)
+    obj = Objective(_as_fitted(problem, fitted), fitted.method)
+    if not res.success:
+        raise ValueError(f"held-out units need a fit that converged; this one {res.message}")
     if list(obj.names) != list(fitted.names) or obj.pop != fitted.pop:
         raise ValueError(
             "the held-out units' problem does not have the fit's unknowns "
@@ -60,6 +64,20 @@ def held_out(res, problem) -> list[dict]:
         entry.update(_scores(u, i, typical, "_pred"))
         out.append(entry)
     return out
+
+
+def _as_fitted(problem, fitted):
+    """``problem`` as the fit ended: the random effects it dropped (collapsed to 0,
+    made shared: boundary.py) dropped here too, and the default substeps raised as
+    the fit raised them (a user's own are kept)."""
+    dropped = [n for n in problem.population if n not in fitted.pop]
+    if dropped:
+        problem = copy.copy(problem)
+        problem.population = {n: w for n, w in problem.population.items() if n not in dropped}
+    d, fit = problem.discretisation, fitted.problem.discretisation
+    if not d.chosen and d.substeps != fit.substeps:
+        problem = problem.with_substeps(fit.substeps)
+    return problem
 
 
 def _scores(u, i: int, yhat, suffix: str) -> dict:
