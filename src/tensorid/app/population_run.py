@@ -118,8 +118,8 @@ def analyses(res, args, held) -> tuple[dict, list[str], bool]:
     jobs = [("profiles", args is not None and args.profile is not None, _profiles),
             ("held_out", held is not None, lambda r, a: _held(r, held)),
             ("unit_influence", bool(getattr(args, "data_sensitivity", False)), _units)]  # fmt: skip
-    for key, asked, run in jobs:
-        if not asked:
+    for key, wanted, run in jobs:
+        if not wanted:
             continue
         try:
             out[key] = run(res, args)
