@@ -189,43 +189,38 @@ def _two_tank(folder: Path) -> tuple[Path, Path, dict]:
     return model, data, plain
 
 
-def _cascade(folder: Path) -> tuple[Path, Path, dict]:
+def _tanks(folder: Path, name: str, text: str, truth: dict, guess: dict, seed: int):
+    """(model file, data file, the plain cost's record) of a synthetic tanks record:
+    the model file ``text`` with p0 = ``guess``, simulated at ``truth`` from levels
+    (4, 4) over 1,024 samples at 4 s, the input a staircase of 32-sample steps in
+    [1, 6], noise SD 0.02 on the lower level."""
     import tensorid as ti
 
-    rng = np.random.default_rng(43)
+    rng = np.random.default_rng(seed)
     t = np.arange(CASCADE_SAMPLES) * CASCADE_TS
-    u = np.clip(np.repeat(rng.uniform(1.0, 6.0, CASCADE_SAMPLES // 32 + 1), 32), 0, None)
-    u = u[:CASCADE_SAMPLES]
-    guess = {k: v * (1.2 if i % 2 else 0.85) for i, (k, v) in enumerate(CASCADE_TRUE.items())}
-    model = folder / "cascade.py"
-    model.write_text(CASCADE % guess)
+    u = np.repeat(rng.uniform(1.0, 6.0, CASCADE_SAMPLES // 32 + 1), 32)[:CASCADE_SAMPLES]
+    model = folder / f"{name}.py"
+    model.write_text(text % guess)
     m = ti.load_model(model).model
     e = ti.Experiment(t, u, np.zeros(CASCADE_SAMPLES))
-    x = ti.simulate(m, list(CASCADE_TRUE.values()), [4.0, 4.0], e).y[:, 0]
+    x = ti.simulate(m, list(truth.values()), [4.0, 4.0], e).y[:, 0]
     y = x + 0.02 * rng.standard_normal(CASCADE_SAMPLES)
-    data = folder / "cascade.csv"
+    data = folder / f"{name}.csv"
     np.savetxt(data, np.c_[t, u, y], delimiter=",", header="t,u,y", comments="")
-    theta = np.r_[4.0, 4.0, list(guess.values())]
-    return model, data, dict(kind="cascade", t=t, u=u, y=y, x0=np.zeros(2), theta=theta)
+    return model, data, dict(kind=name, t=t, u=u, y=y)
+
+
+def _cascade(folder: Path) -> tuple[Path, Path, dict]:
+    guess = {k: v * (1.2 if i % 2 else 0.85) for i, (k, v) in enumerate(CASCADE_TRUE.items())}
+    model, data, plain = _tanks(folder, "cascade", CASCADE, CASCADE_TRUE, guess, 43)
+    plain.update(x0=np.zeros(2), theta=np.r_[4.0, 4.0, list(guess.values())])  # (x0 free)
+    return model, data, plain
 
 
 def _switches(folder: Path) -> tuple[Path, Path, dict]:
-    import tensorid as ti
-
-    rng = np.random.default_rng(50)
-    t = np.arange(CASCADE_SAMPLES) * CASCADE_TS
-    u = np.repeat(rng.uniform(1.0, 6.0, CASCADE_SAMPLES // 32 + 1), 32)[:CASCADE_SAMPLES]
     guess = {k: v * (1.1 if i % 2 else 0.9) for i, (k, v) in enumerate(SWITCHES_TRUE.items())}
-    model = folder / "switches.py"
-    model.write_text(SWITCHES % guess)
-    m = ti.load_model(model).model
-    e = ti.Experiment(t, u, np.zeros(CASCADE_SAMPLES))
-    x = ti.simulate(m, list(SWITCHES_TRUE.values()), [4.0, 4.0], e).y[:, 0]
-    y = x + 0.02 * rng.standard_normal(CASCADE_SAMPLES)
-    data = folder / "switches.csv"
-    np.savetxt(data, np.c_[t, u, y], delimiter=",", header="t,u,y", comments="")
-    theta = np.array(list(guess.values()))
-    plain = dict(kind="switches", t=t, u=u, y=y, x0=np.array([4.0, 4.0]), theta=theta)
+    model, data, plain = _tanks(folder, "switches", SWITCHES, SWITCHES_TRUE, guess, 50)
+    plain.update(x0=np.array([4.0, 4.0]), theta=np.array(list(guess.values())))
     return model, data, plain
 
 

@@ -43,8 +43,12 @@ class ConstraintReport(Tabular):
         out = res.constraints
         active = np.array([d["active"] for d in out.items], dtype=bool)
         A = res.problem.constraints.evaluate(res.theta)[1][active] if active.any() else None
-        held = restricted_stderr(res, A) if out.converged and A is not None else {}
-        flat = (tangent_flat(res, A) or []) if A is not None else []
+        tangent, flat, held = None, None, {}
+        if A is not None and np.isfinite(res.hess).all():  # J on the tangent space, once
+            tangent = _tangent(res, A)
+            flat = tangent_flat(res, A, tangent)
+            held = restricted_stderr(res, A, tangent, flat) if out.converged else {}
+        flat = flat or []
         return cls(out.items, out.converged, out.outer, held, out.second_order, _unforced(res),
                    flat)  # fmt: skip
 
@@ -125,14 +129,18 @@ class ConstraintReport(Tabular):
         ]
 
 
-def restricted_stderr(res, A: np.ndarray) -> dict[str, float]:
+def restricted_stderr(res, A: np.ndarray, tangent=None, flat=None) -> dict[str, float]:
     """Each unknown's standard error with the rows of A (active constraints' ∇c) held
     as equalities: 2σ² Z (Zᵀ H Z)⁻¹ Zᵀ with Z the null space of A (their tangent
     space), which is C − C Aᵀ (A C Aᵀ)⁻¹ A C where H is invertible (a robust loss's
     sandwich C is restricted by that formula itself). A direction of the
     tangent space along which J is flat (as the error bars judge flat) leaves its
-    unknowns unbounded (inf): C alone has dropped such directions, and gave them 0."""
-    flat = tangent_flat(res, A)
+    unknowns unbounded (inf): C alone has dropped such directions, and gave them 0.
+    ``tangent`` (:func:`_tangent`) and ``flat`` (:func:`tangent_flat`): where already
+    computed."""
+    if tangent is None and np.isfinite(res.hess).all():
+        tangent = _tangent(res, A)
+    flat = tangent_flat(res, A, tangent) if flat is None and tangent is not None else flat
     if not len(A) or not res.success or flat is None:
         return {}
     try:
@@ -145,7 +153,7 @@ def restricted_stderr(res, A: np.ndarray) -> dict[str, float]:
             return {}
         var = np.diag(C - C @ A.T @ np.linalg.pinv(A @ C @ A.T) @ A @ C).copy()
     else:
-        D, Z, lam, V, keep = _tangent(res, A)
+        D, Z, lam, V, keep = tangent
         inv = Z @ ((V[:, keep] / lam[keep]) @ V[:, keep].T) @ Z.T
         var = np.diag(2.0 * u.sigma2 * inv) * D**2
     names = res.problem.theta_names
@@ -173,13 +181,13 @@ def _tangent(res, A: np.ndarray):
     return D, Z, lam, V, keep
 
 
-def tangent_flat(res, A: np.ndarray) -> list[list[str]] | None:
+def tangent_flat(res, A: np.ndarray, tangent=None) -> list[list[str]] | None:
     """The directions of the active constraints' tangent space along which J is flat
     (as uncertainty.flat_directions judges flat), each as the unknowns it moves; None
-    where J's Hessian is not finite."""
+    where J's Hessian is not finite. ``tangent``: :func:`_tangent`'s, where computed."""
     if not np.isfinite(res.hess).all():
         return None
-    D, Z, lam, V, keep = _tangent(res, A)
+    D, Z, lam, V, keep = _tangent(res, A) if tangent is None else tangent
     top = max(np.abs(lam).max() if lam.size else 0.0, np.finfo(float).tiny)
     out = []
     for k in np.flatnonzero(np.abs(lam) <= FLAT * top):

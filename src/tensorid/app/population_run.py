@@ -282,10 +282,7 @@ def _table_csv(res, path: Path) -> None:
         w = csv.writer(f)
         w.writerow(tab)
         for row in zip(*tab.values(), strict=True):
-            w.writerow(
-                v if isinstance(v, str) else ("" if not np.isfinite(v) else f"{v:.10g}")
-                for v in row
-            )
+            w.writerow(_cell(v) for v in row)
 
 
 def _cell(v) -> str:

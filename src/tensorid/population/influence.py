@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..solve.minimize import interrupted, minimize_trust_region
-from .profiles import _Marginal
+from .profiles import Marginal
 
 
 def unit_influence(res, refits: int = 5) -> list[dict]:
@@ -79,7 +79,7 @@ def _entry(res, uid, step, se, info, refitted: bool) -> dict:
 def _refit(obj, psi, etas, i: int):
     """ψ̂ without unit i less ψ̂, by the fit's own outer loop from ψ̂; None where that
     refit does not converge (the step stands)."""
-    held = _Marginal(without_data(obj, i), etas)
+    held = Marginal(without_data(obj, i), etas)
     r = minimize_trust_region(held.cost_grad_hess, psi, held.lower, held.upper, radius=1.0,
                               fatol=-np.inf, maxiter=50)  # fmt: skip
     return np.asarray(r.x) - psi if interrupted(r).status.success else None

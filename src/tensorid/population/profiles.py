@@ -25,7 +25,7 @@ from .boundary import bounds
 from .distributed import evaluate_chunk
 
 
-class _Marginal:
+class Marginal:
     """−2 log L(ψ) of a fitted population as analysis/profiles.py's problem: its K,
     bounds, names, cost and cost_grad_hess (each evaluation's inner solves start from
     the last finite one's η̂)."""
@@ -55,32 +55,25 @@ class _Marginal:
 
 
 def names_of(res) -> dict[str, tuple[int, bool]]:
-    """{the user's name: (its index in ψ, whether ψ holds its logarithm)}: a typical
-    value by its parameter's name ("ka"), a diagonal Ω's ω as "omega_ka", a shared
-    parameter by its name, a residual-error term as "sigma_cp" (ψ's "log_sigma_cp"); a
-    full Ω's parameters (its Cholesky factor) by their names in ψ."""
+    """{the user's name (:func:`profile_names`, which follow ψ's order): (its index in
+    ψ, whether ψ holds its logarithm)}: the typical values, a diagonal Ω's ω and the
+    residual-error terms are logarithms in ψ; shared parameters and a full Ω's
+    Cholesky entries are as they are."""
     obj = res.objective_function
-    out: dict[str, tuple[int, bool]] = {}
     if obj.joint:
         return {n: (j, False) for j, n in enumerate(obj.shared)}
-    for k, n in enumerate(obj.pop[: obj.qp]):
-        out[n] = (k, True)
-    for j, n in enumerate(res.names[obj.qp : obj.first_shared]):
-        if obj.full:
-            out[n] = (obj.qp + j, False)
-        else:
-            out[f"omega_{obj.pop[j]}"] = (obj.qp + j, True)
-    for j, n in enumerate(obj.shared):
-        out[n] = (obj.first_shared + j, False)
-    first = obj.first_shared + obj.ns
-    for j, n in enumerate(obj.error.names):
-        out[n.removeprefix("log_")] = (first + j, True)
-    return out
+    names = profile_names(obj.problem)  # (the fitted problem: a collapsed ω is gone)
+    on_log = [k < obj.qp or (k < obj.first_shared and not obj.full)
+              or k >= obj.first_shared + obj.ns for k in range(obj.size)]  # fmt: skip
+    return {n: (k, on_log[k]) for k, n in enumerate(names)}
 
 
 def profile_names(problem) -> list[str]:
-    """The names :func:`profile` takes for a fit of ``problem`` (before the fit: for
-    the command line's check of --profile)."""
+    """The names :func:`profile` takes for a fit of ``problem``, in ψ's order (also
+    before the fit: the command line's check of --profile): a typical value by its
+    parameter's name ("ka"), a diagonal Ω's ω as "omega_ka", a full Ω's Cholesky
+    entries by their names in ψ, a shared parameter by its name, a residual-error term
+    as "sigma_cp" (ψ's "log_sigma_cp")."""
     from .errors import ResidualErrors
 
     pop, ind = list(problem.population), list(problem.individual)
@@ -146,7 +139,7 @@ def profile(
     unknown = [n for n in names if n not in known]
     if unknown:
         raise ValueError(f"profile: unknown names {unknown}; a population fit's are {list(known)}")
-    problem = _Marginal(res.objective_function, res.etas)
+    problem = Marginal(res.objective_function, res.etas)
     at = types.SimpleNamespace(problem=problem, theta=np.asarray(res.x), cost=res.objective,
                                scale=np.ones(problem.K))  # fmt: skip
     dJ = quantiles.chi2(1, level)
