@@ -487,3 +487,29 @@ def test_compare_scores_a_population_fit_whose_x0_is_an_expression(tmp_path, cap
     assert "the population's typical values" in out
     scored = json.loads((tmp_path / "c" / "compare.json").read_text())
     assert scored["outputs"]["cp"]["gof"] > 0.5
+
+
+def test_ipred_is_refused_in_one_line_where_it_cannot_estimate_a_units_own_values(tmp_path, capsys):
+    """issue 49: --ipred (a unit's η̂ by empirical Bayes) needs a population fit's
+    fit.json and the unit's own data, and estimates from the fit's values alone."""
+    root = Path(__file__).resolve().parents[1]
+    theo = root / "src/tensorid/datasets/theophylline.csv"
+    model = root / "examples/theophylline/model.py"
+    typical = {"ka": 1.5902, "cl": 2.7515, "v": 31.809}
+    single, fleet = tmp_path / "single.json", tmp_path / "fleet.json"
+    single.write_text(json.dumps({"params": typical}))
+    fleet.write_text(json.dumps({"params": typical, "population": {"ka": {"omega": 0.63}}}))
+    base = [str(model), str(theo), "--records", "ID", "--unit", "3", "--ipred",
+            "--out", str(tmp_path / "c")]  # fmt: skip
+    cases = [
+        (["compare", *base, "--columns", "t=Time,cp=conc", "--params", str(single)],
+         "is not a population fit's fit.json"),
+        (["simulate", *base, "--columns", "t=Time,cp=conc", "--params", str(fleet), "ka=2"],
+         "drop the NAME=VALUE pairs"),
+        (["simulate", *base, "--columns", "t=Time", "--params", str(fleet)],
+         "no measured outputs"),
+    ]  # fmt: skip
+    for argv, expect in cases:
+        assert cli.main(argv) == 2
+        err = capsys.readouterr().err
+        assert expect in err and "--ipred" in err and len(err.strip().splitlines()) == 1, err

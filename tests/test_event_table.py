@@ -159,8 +159,9 @@ def test_a_fleet_fit_refuses_what_it_would_drop_and_a_population_of_one_unit():
     # issue 49: fit_batch fitted a fleet as plain shared least squares
     with pytest.raises(ValueError, match="has population parameters .* with tensorid.fit"):
         ti.fit_batch(pr, "auto", np.array([[1.0], [0.9]]))
-    with pytest.raises(ValueError, match="need at least 2 units"):
-        ti.Problem(m, exps[:1], p0={"k": 1.0}, x0=[1.0], population={"k": 0.2})
+    one = ti.Problem(m, exps[:1], p0={"k": 1.0}, x0=[1.0], population={"k": 0.2})
+    with pytest.raises(ValueError, match="need at least 2 units"):  # a new unit's, not a fit's
+        ti.fit(one)
 
 
 def test_a_repeated_residual_error_is_refused_before_any_work(capsys):

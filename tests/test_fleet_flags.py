@@ -294,6 +294,22 @@ def test_profile_validate_and_data_sensitivity_of_theophylline_from_the_command_
     influence = fit["unit_influence"]
     assert len(influence) == 9 and influence[0]["refitted"]
     assert "## Held-out units" in (out / "report.md").read_text()
+    # compare of a held-out unit: IPRED (--ipred, η̂ by empirical Bayes) and PRED, as
+    # --validate scored it; at the substeps the fit raised to (fit.json integration)
+    assert fit["integration"]["substeps"] == 16 and fit["individual"] == []
+    held_11 = next(h for h in fit["held_out"] if h["id"] == "11")
+    for flag, key in (["--ipred"], "gof"), ([], "gof_pred"):
+        cmp = tmp_path / f"cmp{key}"
+        argv = ["compare", str(model), str(held), "--records", "ID", "--unit", "11",
+                "--columns", "t=Time,cp=conc", "--params", str(out / "fit.json"),
+                "--out", str(cmp), *flag]  # fmt: skip
+        assert cli.main(argv) == 0
+        scored = json.loads((cmp / "compare.json").read_text())
+        assert scored["outputs"]["cp"]["gof"] == pytest.approx(held_11[key], abs=1e-9)
+        if flag:
+            assert scored["eta"] == pytest.approx(held_11["eta"], abs=1e-9)
+            assert scored["params"] == pytest.approx(held_11["params"], abs=1e-9)
+    assert "this unit's own (ka=" in capsys.readouterr().out
     # the top unit's refit (its data masked) against a fit of the other eight
     spec = ti.load_model(model)
     exps = ti.load_data(train, spec.model, records="ID", columns={"t": "Time", "cp": "conc"},

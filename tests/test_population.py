@@ -15,6 +15,7 @@ import pytest
 
 import tensorid as ti
 from tensorid.population.objective import Objective
+from tensorid.population.validation import empirical_bayes
 
 THEOPH = Path(ti.__file__).parent / "datasets" / "theophylline.csv"  # bundled copy
 
@@ -445,6 +446,15 @@ def test_a_fleets_profiles_held_out_units_and_unit_influence():
         assert a["gof"] == pytest.approx(g, abs=1e-6)
         assert a["eta"] == pytest.approx(u["eta"], abs=1e-5)
         assert a["gof_pred"] < a["gof"]  # the typical unit predicts worse than its own
+    # one new unit alone (compare --ipred's Problem): a fit refuses it, η̂ does not
+    m, units = simulated_fleet(4)
+    one = ti.Problem(m, units[2:3], p0=res.params, x0={"depot": "Dose", "center": 0.0},
+                     substeps=20, population={"ka": 0.4, "cl": 0.4})  # fmt: skip
+    [alone] = empirical_bayes(one, dict(zip(res.names, res.x, strict=True)))
+    assert alone["id"] == "u2" and alone["eta"] == pytest.approx(res.units[2]["eta"], abs=1e-6)
+    assert res.validate(one)[0]["gof"] == pytest.approx(res.gof()[2], abs=1e-6)
+    with pytest.raises(ValueError, match="unknowns .* are not those of this model"):
+        empirical_bayes(one, {"log_ka": 0.0})
     moved = res.unit_influence(refits=0)
     assert sorted(d["id"] for d in moved) == ["u0", "u1", "u2", "u3"]
     assert all(np.isfinite(d["cook"]) and d["cook"] >= 0 for d in moved)

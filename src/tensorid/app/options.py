@@ -53,6 +53,13 @@ def record_options(p: argparse.ArgumentParser) -> None:
         "--unit", default=None, metavar="ID", help="with --records: the unit of DATA to use"
     )
     p.add_argument(
+        "--ipred",
+        action="store_true",
+        help="a population fit's fit.json: the unit's own parameters (IPRED), its random "
+        "effects η̂ by empirical Bayes from its data with the fitted population held, as "
+        "fit --validate scores held-out units; without it the typical unit (PRED)",
+    )
+    p.add_argument(
         "--events",
         type=_mapping,
         default=None,

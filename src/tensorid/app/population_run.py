@@ -34,6 +34,7 @@ from .reports import _profile_json
 
 def population_json(res, recorded: dict) -> dict:
     """fit.json of a population fit (a contract: keys added, never renamed)."""
+    ended = getattr(res.objective_function, "problem", None) or res.problem  # as it ended
     d = {
         "kind": "population",
         "method": res.method,
@@ -60,6 +61,12 @@ def population_json(res, recorded: dict) -> dict:
         "tensorid_version": __version__,
         "notes": list(res.notes),
         "starts": res.starts,  # several starts: each one's objective and ending, best first
+        # what compare/simulate --ipred rebuild the fit from (its units' η̂ on a new unit):
+        # the integration as the fit ended (substeps it raised), Ω's structure and the
+        # parameters each unit has its own value of without a distribution
+        "integration": ended.discretisation.as_dict(),
+        "omega_structure": ended.omega,
+        "individual": list(ended.individual),
     }
     d.update(fleet_json(res))
     for u, entry in zip(d["units"], res.units, strict=True):

@@ -219,3 +219,55 @@ def start_of(spec: ModelSpec, args, e, fitted, params) -> tuple[np.ndarray, list
     if rest and parts:
         parts.append(f"{', '.join(rest)} from {base}")
     return m.states_array(x0), free, "; ".join(parts) or base
+
+
+def unit_estimate(spec: ModelSpec, fitted: dict, e, disc, params: dict, path: str):
+    """--ipred: (the unit's own parameter values, its η̂, the line saying so): the
+    mode of its random effects given its own data, with the fitted population (typical
+    values, Ω, shared values, residual error) held: the empirical Bayes estimate of
+    ``fit --validate``'s held-out units, on this one record."""
+    from dataclasses import replace
+
+    from ..engine.assembly.problem import Problem
+    from ..population.objective import METHODS
+    from ..population.validation import empirical_bayes
+    from .fleets import problem_keywords
+
+    m = spec.model
+    if not fitted.get("population") and not fitted.get("individual"):
+        raise ValueError(
+            f"--ipred: --params {path} is not a population fit's fit.json (a unit's own "
+            "values come from its random effects): drop --ipred"
+        )
+    if e.y is None:
+        raise ValueError(
+            f"--ipred: {e.name or 'the record'} has no measured outputs, and a unit's η̂ is "
+            f"estimated from them: give a record with {list(m.outputs)}, or drop --ipred "
+            "for the typical unit"
+        )
+    pop = {n: float(v["omega"]) for n, v in fitted["population"].items()}
+    shared = set(fitted.get("shared") or {})
+    own = fitted.get("individual")
+    if own is None:  # a fit.json before the key: the values that differ over its units
+        units = fitted.get("units") or []
+        own = [n for n in m.params if n not in pop and n not in shared
+               and len({u["params"].get(n) for u in units}) > 1]  # fmt: skip
+    kinds = replace(
+        spec, population=pop, individual=list(own), omega=fitted.get("omega_structure") or
+        ("full" if fitted.get("omega_correlation") else "diagonal"),
+        residual_error={o: v["model"] for o, v in (fitted.get("residual_error") or {}).items()},
+    )  # fmt: skip
+    fixed = [n for n in m.params if n not in pop and n not in own and n not in shared]
+    problem = Problem(m, [e], p0=params, x0=spec.x0_given(), fixed=fixed, discretisation=disc,
+                      **problem_keywords(kinds, Problem))  # fmt: skip
+    method = str(fitted["method"]) if fitted.get("method") in METHODS else "focei"
+    try:
+        (unit,) = empirical_bayes(problem, fitted.get("unknowns") or {}, method)
+    except ValueError as err:
+        raise ValueError(f"--ipred: --params {path}: {err}") from None
+    values = ", ".join(f"{n}={v:.6g}" for n, v in unit["params"].items())
+    note = (f"parameters: this unit's own ({values}; η̂ by empirical Bayes from its data, "
+            "the fitted population held)")  # fmt: skip
+    if not unit["converged"]:
+        note += "; its η̂ did not converge: read these scores with care"
+    return {**params, **unit["params"]}, unit["eta"], note

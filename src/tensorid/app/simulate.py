@@ -33,7 +33,14 @@ from .provenance import data_entries, other_model, provenance
 from .records import one_unit
 from .renderer import draw_files
 from .reports import write_json
-from .scored_start import assignments, fit_json, integration, parameters, start_of
+from .scored_start import (
+    assignments,
+    fit_json,
+    integration,
+    parameters,
+    start_of,
+    unit_estimate,
+)
 
 
 def _scored_provenance(args, m) -> dict:
@@ -98,20 +105,33 @@ def _score(args, require_outputs: bool):
     if predictor is not None:  # (a filter's fit.json)
         noise_levels(params, assignments(args.params[1:], "--params"), args.params[0])
     disc = integration(args, fitted, spec)
+    eta = None  # --ipred: the unit's own values, η̂ by empirical Bayes from its data
+    if getattr(args, "ipred", False):
+        if len(args.params) > 1:
+            raise ValueError(
+                "--ipred estimates the unit's own values from the fit's population: drop "
+                f"the NAME=VALUE pairs after {args.params[0]}"
+            )
+        params, eta, defaults = unit_estimate(spec, fitted or {}, e, disc, params,
+                                              args.params[0])  # fmt: skip
+    elif fitted is not None and fitted.get("population") and "integration" not in fitted:
+        print(f"note: --params {args.params[0]} does not record the fit's integration (a "
+              f"fit.json before 2026-12-07): integrated at {disc.substeps} substeps; give "
+              "--substeps as the fit's", file=sys.stderr)  # fmt: skip
     x0, free, source = start_of(spec, args, e, fitted, params)
     horizon = getattr(args, "horizon", None)
     if horizon is not None and predictor is None:
         print(SIMULATED_HORIZON.format(horizon=horizon), file=sys.stderr)
     score = score_record(spec.model, params, x0, free, e, disc, args.init_window, horizon=horizon,
                          predictor=predictor, events=spec.events())  # fmt: skip
-    return spec, params, score, source, disc.for_model(spec.model), defaults
+    return spec, params, score, source, disc.for_model(spec.model), defaults, eta
 
 
 def run_simulate(args) -> int:
     out = Path(args.out)
     table_only = out.suffix.lower() == ".csv"
     check_destination(out.parent if table_only else out)
-    spec, _, score, source, disc, defaults = _score(args, require_outputs=False)
+    spec, _, score, source, disc, defaults, _ = _score(args, require_outputs=False)
     m, e, sim = spec.model, score.experiment, score.simulation
     header, table = _simulation_table(m, e, sim, table_only)
     target = out if table_only else out / "simulation.csv"
@@ -195,7 +215,7 @@ def run_compare(args) -> int:
         raise ValueError(f"--params {args.params}: give the fit.json of a fit")
     out = check_destination(args.out)
     args.params = [args.params]
-    spec, params, score, source, disc, defaults = _score(args, require_outputs=True)
+    spec, params, score, source, disc, defaults, eta = _score(args, require_outputs=True)
     m, sim = spec.model, score.simulation
     data = {
         "record": score.experiment.name,
@@ -211,6 +231,8 @@ def run_compare(args) -> int:
         "x0_source": source,
         "x0_fit_status": score.x0_fit,  # how the initial states' fit ended
         "params": {n: float(params[n]) for n in m.params},
+        # --ipred: the unit's random effects by empirical Bayes (params are at them)
+        "eta": eta,
         "integration": disc.as_dict(),
         "status": str(sim.status) if scores_finite(score) else NOT_SCORED,
         # why a gof is null although the simulation is finite (a constant output)

@@ -46,6 +46,13 @@ def _a_fleet(problem, executor):
             "fit_population needs a Problem with population= or individual= parameters; "
             "this one has neither: fit it with ti.fit"
         )
+    if problem.population and len(problem.experiments) < 2:  # (a Problem of one unit
+        # describes a new unit to estimate η̂ of: validation.py; a fit needs a fleet)
+        raise ValueError(
+            "population parameters need at least 2 units (one experiment each): with one, "
+            "its variation from unit to unit cannot be told from its own value; fit it "
+            "without population (its parameters shared), or give more units"
+        )
     check_executor(executor)
     return problem
 

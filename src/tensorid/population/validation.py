@@ -12,6 +12,7 @@ the observed samples alone.
 from __future__ import annotations
 
 import copy
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -45,11 +46,46 @@ def held_out(res, problem) -> list[dict]:
             "model, population, individual, fixed and residual_error settings"
         )
     psi = np.asarray(res.x)
-    etas, _ = obj.solve_inner(psi, obj.start_etas())
+    out, etas = _estimates(obj, psi)
     own = np.asarray(obj.predict_all(psi, etas))
     typical = None
     if obj.q == obj.qp:  # random effects alone: η = 0 is the typical unit
         typical = np.asarray(obj.predict_all(psi, np.zeros_like(etas)))
+    for i, entry in enumerate(out):
+        entry.update(_scores(obj.units, i, own, ""))
+        entry.update(_scores(obj.units, i, typical, "_pred"))
+    return out
+
+
+def empirical_bayes(problem, unknowns: Mapping[str, float], method: str = "focei") -> list[dict]:
+    """Each unit's empirical Bayes estimate with the population ψ held: the mode of its
+    η given its own data, and its parameter values there (IPRED's parameters).
+
+    Arguments:
+        problem: a :class:`tensorid.Problem` over the units, with the fit's model and
+            parameter kinds (population, individual, shared, fixed values), residual-
+            error models and discretisation.
+        unknowns: the fit's ψ by name (a fit.json's ``unknowns``); they must be the
+            unknowns of ``problem``'s population objective, in its order.
+        method: the fit's approximation ("focei", "laplace"): the inner problem is the
+            same for both.
+
+    Returns:
+        per unit {"id", "eta", "params" (the population and individual parameters at
+        η̂), "converged", "observations"}.
+    """
+    obj = Objective(problem, method)
+    if list(unknowns) != list(obj.names):
+        raise ValueError(
+            f"the fit's unknowns {list(unknowns)} are not those of this model and these "
+            f"settings {list(obj.names)}: give the model file it was fitted with"
+        )
+    return _estimates(obj, np.asarray(list(unknowns.values()), dtype=float))[0]
+
+
+def _estimates(obj, psi) -> tuple[list[dict], np.ndarray]:
+    """(per unit {"id", "eta", "params", "converged", "observations"}, η̂ (E, q))."""
+    etas, _ = obj.solve_inner(psi, obj.start_etas())
     u, out = obj.units, []
     lost = set(obj.unconverged) | set(obj.unfinite)
     for i, uid in enumerate(u.names):
@@ -58,12 +94,9 @@ def held_out(res, problem) -> list[dict]:
             n: float(np.exp(psi[k] + etas[i, k]) if k < obj.qp else etas[i, k])
             for k, n in enumerate(obj.pop)
         }
-        entry = {"id": uid, "eta": eta, "params": params, "converged": uid not in lost,
-                 "observations": int(u.mask[i].sum())}  # fmt: skip
-        entry.update(_scores(u, i, own, ""))
-        entry.update(_scores(u, i, typical, "_pred"))
-        out.append(entry)
-    return out
+        out.append({"id": uid, "eta": eta, "params": params, "converged": uid not in lost,
+                    "observations": int(u.mask[i].sum())})  # fmt: skip
+    return out, np.asarray(etas)
 
 
 def _as_fitted(problem, fitted):

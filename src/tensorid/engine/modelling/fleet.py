@@ -25,13 +25,8 @@ def check_population(problem, population, segments) -> dict[str, float]:
             "population must be a dict {parameter: ω} (the start of each random effect's "
             f"standard deviation, e.g. {{'ka': 0.5}}), got {population!r}"
         )
-    m = problem.model
-    if len(problem.experiments) < 2:
-        raise ValueError(
-            "population parameters need at least 2 units (one experiment each): with one, "
-            "its variation from unit to unit cannot be told from its own value; fit it "
-            "without population (its parameters shared), or give more units"
-        )
+    m = problem.model  # (a fit of one unit is refused by the fit: one unit is a new
+    # unit to estimate η̂ of, population/validation.py)
     out: dict[str, float] = {}
     for name, omega in population.items():
         if name not in m.params or str(name).startswith("log_sigma_"):
