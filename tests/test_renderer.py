@@ -54,6 +54,36 @@ JOBS = [
             ],
         ),
     ),
+    (  # a population fit's kinds (analysis/fleet_figures.py, loaded by path there too)
+        "units",
+        "units",
+        dict(
+            units=[
+                dict(
+                    name=str(i),
+                    t=T,
+                    t_seen=T[::40],
+                    y_seen=np.exp(-T[::40] * i),
+                    own=np.exp(-T * i),
+                    typical=np.exp(-T),
+                )
+                for i in (1, 2, 3)
+            ],
+            output="cp",
+            more="",
+        ),
+    ),  # fmt: skip
+    (
+        "residuals",
+        "population_residuals",
+        dict(
+            columns={
+                k: np.sin(np.arange(30.0) * (j + 1))
+                for j, k in enumerate(("TIME", "PRED", "IPRED", "CWRES", "IWRES", "NPDE"))
+            },
+            output="cp",
+        ),
+    ),  # fmt: skip
 ]
 
 

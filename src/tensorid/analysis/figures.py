@@ -373,7 +373,26 @@ def draw(kind: str, arguments: dict):
         "residual": residual_figure,
         "prediction": prediction_figure,
     }
+    if kind not in makers:  # a population fit's (fleet_figures.py)
+        makers = _fleet_makers()
     return makers[kind](**arguments)
+
+
+def _fleet_makers() -> dict[str, Callable]:
+    """fleet_figures.py's kinds, that file loaded by path as the renderer loads this one
+    (so it works in both: a relative import needs the package)."""
+    import importlib.util
+    import sys
+
+    name = "_tensorid_fleet_figures"
+    if name not in sys.modules:
+        where = Path(__file__).with_name("fleet_figures.py")
+        spec = importlib.util.spec_from_file_location(name, where)
+        assert spec is not None and spec.loader is not None  # a .py file by path
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        sys.modules[name] = module
+    return sys.modules[name].MAKERS
 
 
 def fit_figures(res, out=None, validation=None, named: bool = False) -> list:

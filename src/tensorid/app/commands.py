@@ -227,7 +227,7 @@ def _fit_command(args, renderer: Renderer) -> int:
                     return save_interrupted(stop.result, out, old, _recorded(args))
                 return _save_interrupted(stop.result, out, old, _recorded(args))
         if isinstance(res, PopulationResult):  # a fleet's population fit
-            return report_population(res, out, old, _recorded(args), args, held)
+            return report_population(res, out, old, _recorded(args), args, held, renderer)
         kept: dict = {}  # where the complete fit.json went, once it is written
         try:
             return _report(res, val, args, out, old, kept, renderer)

@@ -19,8 +19,8 @@ from types import SimpleNamespace
 import numpy as np
 
 from .._config import __version__
-from ..analysis.figures import profile_figure, save_png
-from ..population.figures import drawn
+from ..analysis.figures import draw, profile_figure, save_png
+from ..population.figures import figure_jobs
 from ..population.influence import influence_lines, unit_influence
 from ..population.profiles import names_of
 from ..population.validation import held_out, held_out_lines
@@ -236,10 +236,11 @@ def _percent(v) -> str:
 
 
 def report_population(res, out: Path, old: set[Path], recorded: dict, args=None,
-                      held=None) -> int:  # fmt: skip
+                      held=None, renderer=None) -> int:  # fmt: skip
     """Print, then write; every failing write is named, none loses the estimates.
     ``args``: the command line (its --profile, --data-sensitivity); ``held``: the
-    held-out units' Problem (--validate)."""
+    held-out units' Problem (--validate); ``renderer``: the command's (app/renderer.py),
+    which draws the figures while this process writes."""
     print(res.summary())
     extras, notes, stopped = analyses(res, args, held)
     data = _finite(population_json(res, recorded) | _analyses_json(extras))
@@ -249,22 +250,13 @@ def report_population(res, out: Path, old: set[Path], recorded: dict, args=None,
         print(f"tensorid: {failure}; fit.json written to {path}")
         return 1
     failures: list[str] = []
-    written, figures = [path], []
+    written = [path]
     if res.population and np.isfinite(res.objective):  # (as its figures: an Ω, a fit)
         try:
             written.append(write_atomic(out / "observations.csv", partial(_table_csv, res)))
         except Exception as e:  # the table is not worth the fit: say so, go on
             failures.append(f"could not write {out / 'observations.csv'}: {_reason(e)}")
-    for stem, build in [*drawn(res), *_profile_figures(res, extras.get("profiles"))]:
-        try:
-            fig = build(res)
-        except Exception as e:  # a figure is not worth the report: say so, go on
-            failures.append(f"could not draw {stem}.png: {e}")
-            continue
-        try:
-            figures.append(write_atomic(out / f"{stem}.png", partial(save_png, fig)))
-        except OSError as e:
-            failures.append(f"could not write {out / (stem + '.png')}: {e.strerror or e}")
+    figures = _figures(res, out, extras.get("profiles"), renderer, failures)
     try:
         written.append(write_text(out / "report.md", population_report(res, data, figures)))
     except OSError as e:
@@ -276,6 +268,37 @@ def report_population(res, out: Path, old: set[Path], recorded: dict, args=None,
     if stopped:
         return 130
     return 0 if res.success and not failures else 1
+
+
+def _figures(res, out: Path, profiles, renderer, failures: list[str]) -> list[Path]:
+    """The fit's figures written to ``out``, in the report's order; each one's arrays
+    computed here and handed to the ``renderer`` at once, so that it draws while the
+    next are computed (drawn here where there is none). A figure that fails is named in
+    ``failures``: it is not worth the report."""
+    jobs: list[tuple] = []  # (stem, kind, arguments) or (stem, None, figure builder)
+    for stem, kind, build in figure_jobs(res):
+        try:
+            arguments = build(res)
+        except Exception as e:
+            failures.append(f"could not draw {stem}.png: {e}")
+            continue
+        if renderer is not None:
+            renderer.submit(out, [(stem, kind, arguments)])
+        jobs.append((stem, kind, arguments))
+    jobs += [(stem, None, build) for stem, build in _profile_figures(res, profiles)]
+    written = []
+    for stem, kind, arguments in jobs:
+        try:
+            if kind is not None and renderer is not None:
+                written.append(renderer.collect(stem))
+                continue
+            fig = draw(kind, arguments) if kind is not None else arguments(res)
+            written.append(write_atomic(out / f"{stem}.png", partial(save_png, fig)))
+        except OSError as e:
+            failures.append(f"could not write {out / (stem + '.png')}: {e.strerror or e}")
+        except Exception as e:
+            failures.append(f"could not draw {stem}.png: {e}")
+    return written
 
 
 def _reason(e: Exception) -> str:

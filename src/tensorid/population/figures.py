@@ -49,56 +49,29 @@ def _densely(obj):
     return out
 
 
-def units_figure(res, output: int = 0):
-    """Each unit's observations, its own prediction (η̂) and the typical unit's (η = 0)."""
-    import matplotlib.pyplot as plt
-
+def units_arguments(res, output: int = 0) -> dict:
+    """The units figure's arrays: each unit's observations, its own prediction (η̂)
+    and the typical unit's (η = 0), the first GRID_MAX units."""
     units, typical, own = _predictions(res, dense=True)
     n = min(len(units.names), GRID_MAX)
-    cols = int(np.ceil(np.sqrt(n)))
-    rows = int(np.ceil(n / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(2.4 * cols, 1.9 * rows), squeeze=False,
-                             sharex=True, sharey=True)  # fmt: skip
-    name = res.problem.model.outputs[output]
-    for i, ax in enumerate(axes.flat):
-        if i >= n:
-            ax.set_visible(False)
-            continue
+    panels = []
+    for i in range(n):
         k = int(units.samples[i])
         t = units.t[i, :k]
         seen = units.mask[i, :k, output] > 0  # rows of a dose alone are not observations
-        ax.plot(t[seen], units.y[i, :k, output][seen], "o", ms=3, color="k", label="observed")
-        ax.plot(t, own[i, :k, output], "-", color="C0", label="individual")
-        ax.plot(t, typical[i, :k, output], "--", color="C1", label="population")
-        ax.set_title(f"unit {units.names[i]}", fontsize=8)
-        ax.tick_params(labelsize=7)
-    axes.flat[0].legend(fontsize=6)
+        panels.append({"name": str(units.names[i]), "t": t, "t_seen": t[seen],
+                       "y_seen": units.y[i, :k, output][seen], "own": own[i, :k, output],
+                       "typical": typical[i, :k, output]})  # fmt: skip
     more = "" if len(units.names) <= n else f" (first {n} of {len(units.names)} units)"
-    fig.suptitle(f"{name}: data and fits{more}", fontsize=10)
-    fig.supxlabel("time", fontsize=9)
-    fig.tight_layout()
-    return fig
+    return {"units": panels, "output": res.problem.model.outputs[output], "more": more}
 
 
-def observed_predicted_figure(res, output: int = 0):
+def observed_predicted_arguments(res, output: int = 0) -> dict:
     """Observed against population (η = 0) and individual (η̂) predictions."""
-    import matplotlib.pyplot as plt
-
     units, typical, own = _predictions(res)
     seen = units.mask[..., output] > 0
-    y = units.y[..., output][seen]
-    fig, axes = plt.subplots(1, 2, figsize=(8, 3.8))
-    for ax, pred, what in ((axes[0], typical, "population"), (axes[1], own, "individual")):
-        p = pred[..., output][seen]
-        ax.plot(p, y, "o", ms=3, alpha=0.7)
-        lo, hi = float(min(p.min(), y.min())), float(max(p.max(), y.max()))
-        ax.plot([lo, hi], [lo, hi], "k-", lw=0.8, label="observed = predicted")
-        ax.set_xlabel(f"{what} prediction")
-        ax.set_ylabel("observed")
-        ax.set_title(f"{what} (η {'= 0' if what == 'population' else '= η̂'})")
-        ax.legend(fontsize=7)
-    fig.tight_layout()
-    return fig
+    return {"observed": units.y[..., output][seen], "population": typical[..., output][seen],
+            "individual": own[..., output][seen]}  # fmt: skip
 
 
 def vpc(res, replicates: int = 200, seed: int = 0, bins: int = 8, output: int = 0):
@@ -154,68 +127,44 @@ def _noise_sd(res, obj, etas, shape, output: int) -> np.ndarray:
     return obj.residual_sd(res.x, etas)[..., output]
 
 
-def drawn(res) -> list[tuple]:
-    """(file stem, figure builder) of each figure a population fit draws: the units and
-    observed against predicted, and where there is an Ω to simulate from and a
-    finite fit, the visual predictive check and the residuals."""
-    out = [("units", units_figure), ("observed_predicted", observed_predicted_figure)]
+def figure_jobs(res) -> list[tuple]:
+    """(file stem, kind, arguments builder) of each figure a population fit draws: the
+    units and observed against predicted, and where there is an Ω to simulate from and
+    a finite fit, the visual predictive check and the residuals. The builder computes
+    the arrays (here, with JAX); the kind draws them (analysis/fleet_figures.py: in
+    the command's renderer, while the command goes on)."""
+    out = [("units", "units", units_arguments),
+           ("observed_predicted", "observed_predicted", observed_predicted_arguments)]  # fmt: skip
     if res.population and np.isfinite(res.objective):
-        out += [("vpc", vpc_figure), ("residuals", residuals_figure)]
+        out += [("vpc", "vpc", vpc_arguments), ("residuals", "population_residuals",
+                                                residuals_arguments)]  # fmt: skip
     return out
 
 
-def vpc_figure(res, output: int = 0):
-    import matplotlib.pyplot as plt
-
-    v = vpc(res, output=output)
-    fig, ax = plt.subplots(figsize=(6.5, 4))
-    c = v["centre"]
-    for j, (level, colour) in enumerate(((5, "C0"), (50, "C3"), (95, "C0"))):
-        band = v["simulated"][:, j]
-        ax.fill_between(c, band[:, 0], band[:, 2], color=colour, alpha=0.2,
-                        label=f"simulated {level} % (90 % range)")  # fmt: skip
-        ax.plot(c, v["observed"][:, j], "-o", color=colour, ms=3, label=f"observed {level} %")
-    name = res.problem.model.outputs[output]
-    ax.set_xlabel("time (bin mean)")
-    ax.set_ylabel(name)
-    ax.set_title("visual predictive check (200 simulated fleets)")
-    ax.legend(fontsize=6, ncol=2)
-    fig.tight_layout()
-    return fig
+def vpc_arguments(res, output: int = 0, replicates: int = 200) -> dict:
+    v = vpc(res, replicates=replicates, output=output)
+    return {**v, "output": res.problem.model.outputs[output], "replicates": replicates}
 
 
-def residuals_figure(res, output: int = 0):
-    """The population modeller's four residual panels of ``output``: CWRES against
-    time and against PRED, IWRES against IPRED, and CWRES and NPDE against the normal
-    quantiles (each should scatter evenly about 0, within ±2, without a trend)."""
-    import matplotlib.pyplot as plt
-
-    from ..analysis.quantiles import normal
-
+def residuals_arguments(res, output: int = 0) -> dict:
+    """The table's columns of ``output`` the residual panels plot."""
     tab = res.table()
     name = res.problem.model.outputs[output]
     keep = tab["OUTPUT"] == name
-    col = {k: np.asarray(v[keep], dtype=float) for k, v in tab.items() if k not in ("ID", "OUTPUT")}
-    fig, axes = plt.subplots(2, 2, figsize=(8, 6.4))
-    panels = (("TIME", "CWRES", "time"), ("PRED", "CWRES", "population prediction"),
-              ("IPRED", "IWRES", "individual prediction"))  # fmt: skip
-    for ax, (x, y, label) in zip(axes.flat, panels, strict=False):
-        ax.plot(col[x], col[y], "o", ms=3, alpha=0.6)
-        for level, style in ((0.0, "-"), (2.0, ":"), (-2.0, ":")):
-            ax.axhline(level, color="k", lw=0.8, ls=style)
-        ax.set_xlabel(label)
-        ax.set_ylabel(y)
-    ax = axes.flat[3]
-    for what, colour in (("CWRES", "C0"), ("NPDE", "C3")):
-        v = np.sort(col[what][np.isfinite(col[what])])
-        if v.size:
-            q = [normal((k + 0.5) / v.size) for k in range(v.size)]
-            ax.plot(q, v, "o", ms=3, color=colour, alpha=0.6, label=what)
-    lim = 3.5
-    ax.plot([-lim, lim], [-lim, lim], "k-", lw=0.8)
-    ax.set_xlabel("normal quantile")
-    ax.set_ylabel("residual")
-    ax.legend(fontsize=7, loc="upper left")
-    fig.suptitle(f"{name}: residuals ({int(keep.sum())} observations)", fontsize=10)
-    fig.tight_layout()
-    return fig
+    wanted = ("TIME", "PRED", "IPRED", "CWRES", "IWRES", "NPDE")
+    return {"columns": {k: np.asarray(tab[k][keep], dtype=float) for k in wanted},
+            "output": name}  # fmt: skip
+
+
+def figure(res, kind: str, output: int = 0):
+    """One of :func:`figure_jobs`' kinds of figure of ``res``, drawn here."""
+    from ..analysis.figures import draw
+
+    build = {"units": units_arguments, "observed_predicted": observed_predicted_arguments,
+             "vpc": vpc_arguments, "population_residuals": residuals_arguments}  # fmt: skip
+    return draw(kind, build[kind](res, output))
+
+
+def residuals_figure(res, output: int = 0):
+    """CWRES against time and PRED, IWRES against IPRED, and the QQ panel."""
+    return figure(res, "population_residuals", output)

@@ -415,7 +415,7 @@ class PopulationResult:
         from ..analysis.figures import save_png
         from . import figures as f
 
-        figs = [(stem, build(self)) for stem, build in f.drawn(self)]
+        figs = [(stem, f.figure(self, kind)) for stem, kind, _ in f.figure_jobs(self)]
         if path is None:
             return [fig for _, fig in figs]
         Path(path).mkdir(parents=True, exist_ok=True)
