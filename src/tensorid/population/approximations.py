@@ -20,19 +20,27 @@ from typing import ClassVar
 
 class Approximation:
     """A population fit's approximation. Markers: ``exact_curvature`` (M_i is the
-    exact ∇²_ηη ℓ_i, else its first-order part), ``censored`` (takes Beal's M3)."""
+    exact ∇²_ηη ℓ_i, else its first-order part), ``censored`` (takes Beal's M3);
+    ``gradient_order`` and ``hessian_order``: the highest derivative of ŷ that the
+    outer gradient and Hessian of O_i take (M_i's order in ŷ, plus one for the
+    gradient through η̂(ψ) and one more for the Hessian; units.taylor expands ŷ that
+    far)."""
 
     name: ClassVar[str]
     exact_curvature: ClassVar[bool]
     censored: ClassVar[bool]
+    gradient_order: ClassVar[int]
+    hessian_order: ClassVar[int]
 
 
 class FOCEI(Approximation):
     name, exact_curvature, censored = "focei", False, False
+    gradient_order, hessian_order = 2, 3  # M_i of ∂ŷ/∂η (and ∇²ℓ for η̂'s derivative)
 
 
 class Laplace(Approximation):
     name, exact_curvature, censored = "laplace", True, True
+    gradient_order, hessian_order = 3, 4  # M_i = ∇²_ηη ℓ_i: of ∂²ŷ/∂η²
 
 
 # the one place an approximation's name is looked up (names.FLEET_METHODS spells it

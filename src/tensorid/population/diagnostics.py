@@ -93,7 +93,7 @@ def _jacobians(obj, psi, etas) -> np.ndarray:
 
 
 def _omega(obj, psi) -> np.ndarray:
-    L = np.asarray(obj.cholesky(jnp.asarray(psi[obj.qp : obj.first_shared])))
+    L = np.asarray(obj.effects.cholesky(jnp.asarray(psi[obj.qp : obj.first_shared])))
     return L @ L.T
 
 

@@ -84,7 +84,7 @@ def vpc(res, replicates: int = 200, seed: int = 0, bins: int = 8, output: int = 
     units = obj.units
     rng = np.random.default_rng(seed)
     omega = np.array([v["omega"] for v in res.population.values()])
-    L = np.asarray(obj.cholesky(res.x[obj.qp : obj.first_shared])) if obj.full else None
+    L = np.asarray(obj.effects.cholesky(res.x[obj.qp : obj.first_shared])) if obj.full else None
     qp, E = obj.qp, len(res.etas)
     seen = units.mask[..., output] > 0
     t = units.t[seen]

@@ -30,7 +30,9 @@ The outer gradient is exact through the inner optimum (implicit-function theorem
 dO/dψ = ∂O/∂ψ + ∂O/∂η · dη̂/dψ with dη̂/dψ = −(∇²_ηη ℓ)⁻¹ ∇²_ηψ ℓ. The outer Hessian is
 the derivative of that gradient along η = η̂(ψ): forward mode over it at one Newton
 step from η̂ (whose derivative in ψ is exactly dη̂/dψ where ∇_η ℓ = 0). Every model
-derivative comes from the sweeps (units.py), none from finite differences.
+derivative comes from the sweeps (units.py), none from finite differences; the
+gradient and Hessian programs take them through ŷ's Taylor polynomial about (ψ, η̂)
+(units.taylor: the sweeps run once per order, not once per derivative and call site).
 """
 
 from __future__ import annotations
@@ -50,7 +52,8 @@ from ..engine.sweeping.sweeps import shared_sweeps
 from .approximations import APPROXIMATIONS
 from .errors import ResidualErrors, positive_observations
 from .inner import solve_units
-from .units import Units, blocked, outputs
+from .random_effects import RandomEffects
+from .units import Units, blocked, outputs, taylor
 
 METHODS = tuple(APPROXIMATIONS)  # (approximations.py)
 _PROGRAMS: dict = {}  # compiled programs per structure (Objective.key)
@@ -79,7 +82,8 @@ class Objective:
         # Ω diagonal (log ω per random effect) or full: Ω = L Lᵀ, L lower triangular
         # with log diagonal (log ω where uncorrelated) and the entries below it
         self.full = getattr(problem, "omega", "diagonal") == "full" and self.qp > 1
-        self.n_omega = self.qp * (self.qp + 1) // 2 if self.full else self.qp
+        self.effects = RandomEffects(self.pop[: self.qp], self.full)  # Ω (random_effects.py)
+        self.n_omega = self.effects.size
         self.first_shared = self.qp + self.n_omega
         self.shared = [n for n in problem.free_params if n not in self.pop]
         free = [m.params.index(n) for n in problem.free_params]
@@ -131,7 +135,7 @@ class Objective:
             else (
                 [f"log_{n}" for n in self.pop[: self.qp]]
                 + [f"log_omega_{n}" for n in self.pop[: self.qp]]
-                + [f"omega_chol_{a}_{b}" for a, b in self.lower_pairs()]
+                + [f"omega_chol_{a}_{b}" for a, b in self.effects.lower_pairs()]
                 + self.shared
                 + self.error.names
             )
@@ -160,35 +164,6 @@ class Objective:
         qp, f = self.qp, self.first_shared
         return psi[:qp], psi[qp:f], psi[f : f + self.ns], psi[f + self.ns :]
 
-    def lower_pairs(self) -> list[tuple[str, str]]:
-        """The (row, column) names of L's entries below the diagonal (full Ω)."""
-        if not self.full:
-            return []
-        rows, cols = np.tril_indices(self.qp, -1)
-        return [(self.pop[i], self.pop[j]) for i, j in zip(rows, cols, strict=True)]
-
-    def cholesky(self, lpar):
-        """L with Ω = L Lᵀ from its parameters (log diagonal, then below it)."""
-        qp = self.qp
-        L = jnp.diag(jnp.exp(lpar[:qp]))
-        if not self.full:
-            return L
-        rows, cols = np.tril_indices(qp, -1)
-        return L.at[rows, cols].set(lpar[qp:])
-
-    def prior(self, eta, lpar):
-        """ηᵀ Ω⁻¹ η of the random effects."""
-        if not self.full:
-            return jnp.sum((eta * jnp.exp(-lpar)) ** 2)
-        z = jax.scipy.linalg.solve_triangular(self.cholesky(lpar), eta, lower=True)
-        return jnp.sum(z**2)
-
-    def omega_inverse(self, lpar):
-        if not self.full:
-            return jnp.diag(jnp.exp(-2 * lpar))
-        Li = jax.scipy.linalg.solve_triangular(self.cholesky(lpar), jnp.eye(self.qp), lower=True)
-        return Li.T @ Li
-
     def theta(self, psi, eta):
         """The unit's free parameters (natural units, model order)."""
         mu, _, s, _ = self.split(psi)
@@ -209,10 +184,22 @@ class Objective:
 
     def predict(self, psi, eta, unit):
         t, u, _, _, x0, p = unit[:6]
+        return self.Y(self._argument(psi, eta, unit), x0, p, t, u)
+
+    def _argument(self, psi, eta, unit):
+        """Y's argument: θ, after the initial states where x0's expressions move."""
         theta = self.theta(psi, eta)
         if self.moving is None:
-            return self.Y(theta, x0, p, t, u)
-        return self.Y(jnp.concatenate([self.start(theta, unit)[0], theta]), x0, p, t, u)
+            return theta
+        return jnp.concatenate([self.start(theta, unit)[0], theta])
+
+    def local(self, psi, eta, unit, order: int) -> Objective:
+        """This objective with the unit's ŷ its Taylor polynomial of ``order`` about
+        (ψ, η) (units.taylor): the same value and derivatives there, cheaper to trace."""
+        new = copy.copy(self)
+        a0 = jax.lax.stop_gradient(self._argument(psi, eta, unit))
+        new.Y = taylor(self.Y, a0, tuple(unit[i] for i in (4, 5, 0, 1)), order)
+        return new
 
     def ell(self, eta, psi, unit):
         """ℓ_i(η): half the unit's weighted squared residuals plus half its prior (and,
@@ -223,7 +210,7 @@ class Objective:
         if self.joint:  # least squares, J_i / 2 with the Problem's weights
             return 0.5 * jnp.sum(((y - f) * mask) ** 2 * jnp.asarray(self.weights))
         r, bad = self.error.residuals(y, f, mask)  # on each error model's scale
-        prior = self.prior(eta[: self.qp], logw)
+        prior = self.effects.prior(eta[: self.qp], logw)
         if self.plain:
             out = 0.5 * (jnp.sum(r**2 * jnp.exp(-2 * noise[self.error.first])) + prior)
             return jnp.where(bad, jnp.inf, out)
@@ -252,7 +239,7 @@ class Objective:
             f = self.predict(psi, eta, unit)
             V = jnp.where(unit[3] > 0, self.variance(noise, f), 1.0)
             Aw = A * jnp.sqrt(unit[3] / V)[..., None]
-        return jnp.einsum("psj,psk->jk", Aw, Aw) + self.omega_inverse(logw)
+        return jnp.einsum("psj,psk->jk", Aw, Aw) + self.effects.inverse(logw)
 
     def unit_objective(self, psi, eta, unit):
         """O_i: −2 log of the unit's approximate marginal likelihood (for individual
@@ -275,20 +262,22 @@ class Objective:
         O = O + self.error.jacobian(unit[2], unit[3])  # the objective of y, not of h(y)
         return jnp.where(sign > 0, O, jnp.inf)
 
-    def unit_value_grad(self, psi, eta, unit):
+    def unit_value_grad(self, psi, eta, unit, local: bool = True):
         """(O_i, dO_i/dψ) with η = η̂_i(ψ) (the implicit-function theorem)."""
-        O, (O_psi, O_eta) = jax.value_and_grad(self.unit_objective, argnums=(0, 1))(psi, eta, unit)
-        H = jax.hessian(self.ell)(eta, psi, unit)
-        L = jax.jacfwd(jax.grad(self.ell), argnums=1)(eta, psi, unit)  # (q, ψ)
+        me = self.local(psi, eta, unit, self.approximation.gradient_order) if local else self
+        O, (O_psi, O_eta) = jax.value_and_grad(me.unit_objective, argnums=(0, 1))(psi, eta, unit)
+        H = jax.hessian(me.ell)(eta, psi, unit)
+        L = jax.jacfwd(jax.grad(me.ell), argnums=1)(eta, psi, unit)  # (q, ψ)
         return O, O_psi - O_eta @ jnp.linalg.solve(H, L)
 
     def unit_hessian(self, psi, eta, unit):
-        """d²O_i/dψ² along η = η̂_i(ψ)."""
+        """d²O_i/dψ² along η = η̂_i(ψ) (η̂'s derivative: a Newton step's, at η̂)."""
+        me = self.local(psi, eta, unit, self.approximation.hessian_order)
 
         def grad_along(psi_):
-            g = jax.grad(self.ell)(eta, psi_, unit)
-            H = jax.hessian(self.ell)(eta, psi_, unit)
-            return self.unit_value_grad(psi_, eta - jnp.linalg.solve(H, g), unit)[1]
+            g = jax.grad(me.ell)(eta, psi_, unit)
+            H = jax.hessian(me.ell)(eta, psi_, unit)
+            return me.unit_value_grad(psi_, eta - jnp.linalg.solve(H, g), unit, False)[1]
 
         return jax.jacfwd(grad_along)(psi)
 

@@ -67,11 +67,11 @@ def _omega(obj, x, cov, se) -> tuple[np.ndarray, np.ndarray, dict]:
     if not obj.full:
         om = np.exp(lpar)
         return om, om * se[qp : obj.first_shared], {}
-    pairs = obj.lower_pairs()
+    pairs = obj.effects.lower_pairs()
     rows, cols = np.tril_indices(qp, -1)
 
     def stats(lp):
-        L = obj.cholesky(lp)
+        L = obj.effects.cholesky(lp)
         Om = L @ L.T
         w = jnp.sqrt(jnp.diag(Om))
         return jnp.concatenate([w, Om[rows, cols] / (w[rows] * w[cols])])
