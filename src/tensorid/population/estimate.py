@@ -300,6 +300,8 @@ def _outer(obj: Objective, units: UnitMap | None, state: dict, start=None, **opt
     psi0, etas0 = (start_point(obj), obj.start_etas()) if start is None else start
     lo, hi = bounds(obj)
     state.update(etas=etas0, best=np.inf, n=0)
+    if units is None and obj.size:  # (spread: the workers compile their own)
+        obj.compile_ahead(np.asarray(psi0, dtype=float), np.asarray(etas0, dtype=float))
 
     def fun(psi):
         if units is None:

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import threading
 
 import jax
 import jax.numpy as jnp
@@ -57,6 +58,7 @@ from .units import Units, blocked, outputs, taylor
 
 METHODS = tuple(APPROXIMATIONS)  # (approximations.py)
 _PROGRAMS: dict = {}  # compiled programs per structure (Objective.key)
+_LOCK = threading.Lock()
 LOG_2PI = float(np.log(2 * np.pi))
 
 
@@ -322,12 +324,28 @@ class Objective:
         """The program ``build()`` makes, kept per structure here and on disk as the
         sweeps' are (engine/compiling/programs.py): a later process reads it, not traces it (the
         outer Hessian's trace alone was 10 s of a 17 s theophylline fit, cache warm)."""
-        programs = _PROGRAMS.setdefault(self.key, {})
-        if name not in programs:
-            label = name if isinstance(name, str) else "_".join(map(str, name))
-            entry = f"population_{label} {self._structure_text()}"
-            programs[name] = Program(build(), self.sweeps, entry)
-        return programs[name]
+        with _LOCK:  # (one Program per name, also where compile_ahead's thread asks)
+            programs = _PROGRAMS.setdefault(self.key, {})
+            if name not in programs:
+                label = name if isinstance(name, str) else "_".join(map(str, name))
+                entry = f"population_{label} {self._structure_text()}"
+                programs[name] = Program(build(), self.sweeps, entry)
+            return programs[name]
+
+    def compile_ahead(self, psi, etas) -> None:
+        """The outer and inner Hessians' programs compiled (or read) in a second thread
+        while this one solves the inner problems and takes the gradient, XLA compiling
+        without the GIL: on two cores a cold fit waits for the longest compile rather
+        than their sum. A later call of either waits for it (the Program's lock)."""
+
+        def run() -> None:
+            try:
+                self.hessian(psi, etas)
+                self.inner_hessians(psi, etas)
+            except Exception:  # the fit's own call meets it, and says so
+                pass
+
+        threading.Thread(target=run, name="tensorid-compile-ahead", daemon=True).start()
 
     def _structure_text(self) -> str:
         """What a program traces beyond its sweeps' structure (the random effects, Ω's
