@@ -862,3 +862,51 @@ def test_a_random_effect_collapsing_to_0_is_dropped_and_the_fit_repeated():
     assert res.objective == pytest.approx(ref.objective, rel=1e-7)
     np.testing.assert_allclose(res.params["ka"], ref.params["ka"], rtol=1e-4)
     assert np.isfinite(res.shared["ka"]["stderr"])
+
+
+# FitResult's names that are a single fit's machinery, not what a user reads
+_MACHINERY = {"at", "of", "attached", "detached", "history_then", "followed_by", "blocks",
+              "cached_model_check"}  # fmt: skip
+
+
+def test_a_population_result_answers_every_name_a_fit_result_has():
+    """Issue 49 item 1: code written for a fit reads a fleet's result. Every public name
+    of FitResult (fields, properties, methods) has its population meaning on a
+    PopulationResult, or says in one line what to use instead; error bars of ψ by the
+    exact Hessian (2 H⁻¹, as ``cov``) and by the sandwich over the units (NONMEM's
+    R⁻¹SR⁻¹), which equals H⁻¹ Σ g_i g_iᵀ H⁻¹ from the units' own gradients."""
+    import dataclasses
+    import inspect
+
+    res = ti.fit(fleet_problem(4))
+    names = {n for n in dir(ti.FitResult) if not n.startswith("_")}
+    names |= {f.name for f in dataclasses.fields(ti.FitResult) if not f.name.startswith("_")}
+    refused, values = {}, {}
+    given = {"validate": (res.problem,), "profile": (["ka"],)}  # (what they need)
+    for name in sorted(names - _MACHINERY):
+        try:
+            value = getattr(res, name)
+            if callable(value) and not inspect.isclass(value):
+                value = value(*given.get(name, ()))
+        except (ValueError, AttributeError) as e:
+            refused[name] = str(e)
+            continue
+        assert value is None or not isinstance(value, float) or np.isfinite(value), name
+        values[name] = value
+    assert set(refused) == {"x0", "scale", "residual_tests", "model_check", "information",
+                            "simulate"}, refused  # fmt: skip
+    for name, why in refused.items():  # one line, naming itself and what to use
+        assert name in why and "\n" not in why and "res." in why, (name, why)
+    assert res.fun == res.objective and np.array_equal(res.theta, res.x)
+    assert res.compile_seconds >= 0 and res.stats["nit"] == res.nit and res.warnings == []
+    h, r = res.uncertainty(), res.uncertainty("robust")
+    assert np.allclose(h.stderr, np.sqrt(np.diag(res.cov))) and h.names == res.names
+    _, g = res.objective_function.value_grad(res.x, res.etas)
+    Hi = np.linalg.inv(res.hess)
+    assert np.allclose(r.covariance, Hi @ (g.T @ g) @ Hi, rtol=1e-8)
+    assert np.all(np.isfinite(r.stderr)) and np.all(r.stderr > 0)
+    assert "sandwich R⁻¹SR⁻¹ over the units" in str(r)
+    with pytest.raises(ValueError, match="no Gauss-Newton form"):
+        res.uncertainty("gauss-newton")
+    assert sorted(d["id"] for d in values["data_sensitivity"]) == ["u0", "u1", "u2", "u3"]
+    assert values["validate"][0]["id"] == "u0" and set(values["profile"]) == {"ka"}

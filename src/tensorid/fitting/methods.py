@@ -177,9 +177,9 @@ def _fleet(problem, method, maxiter, callback, executor, workers, timeout, given
     where |= {k: given[k] for k in _FLEET_LIMITS if given[k] != defaults[k].default}
     # typed as FitResult for the many callers of ordinary problems: method "auto" or
     # "focei", or "laplace"; maxiter and callback apply; a PopulationResult comes back
-    return cast(
-        FitResult, fit_population(problem, kind, maxiter=maxiter, callback=callback, **where)
-    )
+    with compile_clock() as clock:  # this process's compilations, as a single fit's
+        res = fit_population(problem, kind, maxiter=maxiter, callback=callback, **where)
+    return cast(FitResult, replace(res, compile_seconds=clock[0]))
 
 
 def _check_enough_data(problem) -> None:

@@ -6,6 +6,7 @@ shrinkage."""
 
 from __future__ import annotations
 
+import threading
 import time
 import warnings
 from dataclasses import replace
@@ -292,6 +293,22 @@ def _interrupted(obj: Objective, state: dict, began: float) -> PopulationResult:
                                   time.perf_counter() - began)  # fmt: skip
 
 
+def _compile_ahead(obj: Objective, psi, etas) -> None:
+    """The outer and inner Hessians' programs compiled (or read) in a second thread
+    while this one solves the inner problems and takes the gradient, XLA compiling
+    without the GIL: on two cores a cold fit waits for the longest compile rather
+    than their sum. A later call of either waits for it (the Program's lock)."""
+
+    def run() -> None:
+        try:
+            obj.hessian(psi, etas)
+            obj.inner_hessians(psi, etas)
+        except Exception:  # the fit's own call meets it, and says so
+            pass
+
+    threading.Thread(target=run, name="tensorid-compile-ahead", daemon=True).start()
+
+
 def _outer(obj: Objective, units: UnitMap | None, state: dict, start=None, **options):
     """The outer trust region over ψ, each evaluation starting every unit's inner
     problem from the best point's η̂; (its TRResult, that η̂). ``state`` keeps the best
@@ -301,7 +318,7 @@ def _outer(obj: Objective, units: UnitMap | None, state: dict, start=None, **opt
     lo, hi = bounds(obj)
     state.update(etas=etas0, best=np.inf, n=0)
     if units is None and obj.size:  # (spread: the workers compile their own)
-        obj.compile_ahead(np.asarray(psi0, dtype=float), np.asarray(etas0, dtype=float))
+        _compile_ahead(obj, np.asarray(psi0, dtype=float), np.asarray(etas0, dtype=float))
 
     def fun(psi):
         if units is None:

@@ -324,28 +324,13 @@ class Objective:
         """The program ``build()`` makes, kept per structure here and on disk as the
         sweeps' are (engine/compiling/programs.py): a later process reads it, not traces it (the
         outer Hessian's trace alone was 10 s of a 17 s theophylline fit, cache warm)."""
-        with _LOCK:  # (one Program per name, also where compile_ahead's thread asks)
+        with _LOCK:  # (one Program per name, also where estimate._compile_ahead asks)
             programs = _PROGRAMS.setdefault(self.key, {})
             if name not in programs:
                 label = name if isinstance(name, str) else "_".join(map(str, name))
                 entry = f"population_{label} {self._structure_text()}"
                 programs[name] = Program(build(), self.sweeps, entry)
             return programs[name]
-
-    def compile_ahead(self, psi, etas) -> None:
-        """The outer and inner Hessians' programs compiled (or read) in a second thread
-        while this one solves the inner problems and takes the gradient, XLA compiling
-        without the GIL: on two cores a cold fit waits for the longest compile rather
-        than their sum. A later call of either waits for it (the Program's lock)."""
-
-        def run() -> None:
-            try:
-                self.hessian(psi, etas)
-                self.inner_hessians(psi, etas)
-            except Exception:  # the fit's own call meets it, and says so
-                pass
-
-        threading.Thread(target=run, name="tensorid-compile-ahead", daemon=True).start()
 
     def _structure_text(self) -> str:
         """What a program traces beyond its sweeps' structure (the random effects, Ω's

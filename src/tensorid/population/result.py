@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..engine.schemes.status import Status
+from .as_fit import AsFit
 from .errors import ERROR_MODELS
 
 
@@ -89,7 +90,7 @@ def _omega(obj, x, cov, se) -> tuple[np.ndarray, np.ndarray, dict]:
 
 
 @dataclass(frozen=True)
-class PopulationResult:
+class PopulationResult(AsFit):
     """The outcome of :func:`tensorid.population.fit_population` (``tensorid.fit`` of a
     Problem with ``population``).
 
@@ -132,6 +133,7 @@ class PopulationResult:
     omega_correlation: dict = field(default_factory=dict)
     # several starts: each one's {"start", "objective", "status", "nit"}, best first
     starts: list = field(default_factory=list)
+    compile_seconds: float = 0.0  # this process's compiling (loading a kept program too)
     _table: dict | None = field(default=None, init=False, repr=False, compare=False)
     # a capability: ti.profile(res) hands the work to res.profile (profiles.py)
     profiles_itself: ClassVar[bool] = True

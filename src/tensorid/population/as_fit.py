@@ -1,0 +1,197 @@
+"""A population fit's result in a single fit's vocabulary (``tensorid.FitResult``):
+each of its names with the population meaning, or one line saying what to use
+instead, so that code written for a fit reads a fleet's without a traceback from deep
+inside (tests/test_population.py walks every public name of FitResult).
+
+The error bars are of ψ, the unknowns in ``res.names`` (log typical values, log ω,
+shared values, log residual-error terms): "hessian" is 2 H⁻¹ with H the exact Hessian
+of −2 log L (NONMEM's R⁻¹ form), "robust" the sandwich H⁻¹ (Σ_i g_i g_iᵀ) H⁻¹ over the
+units' gradients g_i of their share of −2 log L (NONMEM's default R⁻¹SR⁻¹), which
+holds where the random effects or the residual error are not as the model says.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..analysis.uncertainty import Uncertainty
+
+
+class PopulationUncertainty(Uncertainty):
+    """:class:`tensorid.analysis.uncertainty.Uncertainty` of ψ, said as a population
+    fit's (no residual variance: −2 log L carries its own)."""
+
+    def blocks(self) -> list:
+        out = super().blocks()
+        how = {"hessian": "exact Hessian of −2 log L, R⁻¹",
+               "robust": "sandwich R⁻¹SR⁻¹ over the units"}[self.kind]  # fmt: skip
+        head = self.not_available or f"standard errors of ψ ({how}), {self.dof} units"
+        return [head, *out[1:]]
+
+
+class AsFit:
+    """FitResult's names for :class:`PopulationResult` (a mixin: it reads the fields
+    declared below, which the result has)."""
+
+    if TYPE_CHECKING:  # (the result's own fields; not fields of this class)
+        x: np.ndarray
+        names: list[str]
+        objective: float
+        jac: np.ndarray
+        hess: np.ndarray
+        cov: np.ndarray
+        etas: np.ndarray
+        units: list
+        nit: int
+        nfev: int
+        status: Any
+        notes: list
+        starts: list
+        objective_function: Any
+
+        @property
+        def success(self) -> bool: ...
+
+        @property
+        def message(self) -> str: ...
+
+        def unit_influence(self, refits: int = 5) -> list[dict]: ...
+
+    @property
+    def theta(self) -> np.ndarray:
+        """ψ, the estimated unknowns in the order of ``names`` (``x``)."""
+        return self.x
+
+    @property
+    def fun(self) -> float:
+        """−2 log L at the estimate (``objective``, ``cost``)."""
+        return self.objective
+
+    @property
+    def grad_norm(self) -> float:
+        return float(np.max(np.abs(self.jac), initial=0.0))
+
+    @property
+    def derivatives(self) -> bool:
+        """Whether the exact gradient and Hessian at the estimate were measured."""
+        return bool(np.isfinite(self.hess).all())
+
+    @property
+    def has_uncertainty(self) -> bool:
+        return bool(np.isfinite(self.objective)) and self.derivatives
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """Covariance of ψ: 2 H⁻¹ (``cov``; NaN where a direction is not measured)."""
+        return self.cov
+
+    @property
+    def nit_total(self) -> int:
+        """Every start's iterations (``nit`` is the best one's)."""
+        return int(sum(s.get("nit", 0) for s in self.starts) or self.nit)
+
+    @property
+    def nfev_best(self) -> int:
+        return self.nfev
+
+    nhev = 0  # (Hessian-vector products: the outer Hessian is taken whole)
+
+    @property
+    def stats(self):
+        """The counters as a single fit's (:class:`tensorid.Stats`)."""
+        from ..solve.stats import Stats
+
+        return Stats(nit=self.nit, nfev=self.nfev, nit_total=self.nit_total)
+
+    @property
+    def x0(self):
+        raise AttributeError(
+            "x0: a fleet's units each start from their own initial state (x0's expressions "
+            "evaluated on each record): res.problem.x0 is what was given"
+        )
+
+    @property
+    def scale(self):
+        raise AttributeError("scale: a population fit steps ψ on its own (log) scale: res.x")
+
+    shooting = hybrid = noise_check = constraints = None  # (a fleet's fit has none)
+
+    @property
+    def convergence_warnings(self) -> list[str]:
+        if self.success:
+            return []
+        return [f"the fit did not converge: {self.message}"]
+
+    @property
+    def warnings(self) -> list[str]:
+        """How the fit ended, where it did not converge, and its notes."""
+        return [*self.convergence_warnings, *self.notes]
+
+    def prior_moves(self) -> list[dict]:
+        return []  # a fleet's fit takes no priors
+
+    def uncertainty(self, kind: str = "hessian") -> PopulationUncertainty:
+        """Standard errors, 95 % intervals (on ψ's scale: log for typical values and ω)
+        and correlations of ψ; ``kind`` "hessian" (2 H⁻¹, as ``cov``) or "robust"
+        (the sandwich over the units, NONMEM's default; see the module docstring)."""
+        if kind not in ("hessian", "robust"):
+            raise ValueError(
+                f"kind={kind!r}: a population fit's error bars are 'hessian' (R⁻¹) or "
+                "'robust' (R⁻¹SR⁻¹); −2 log L has no Gauss-Newton form"
+            )
+        if not self.has_uncertainty:
+            raise ValueError(
+                f"no error bars for a fit that ended as {self.status}: its Hessian was not "
+                "measured; fit again from its estimate to get them"
+            )
+        cov = self.cov if kind == "hessian" else self._sandwich()
+        d = np.diag(cov)
+        se = np.sqrt(np.where(d < 0, np.inf, d))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            corr = cov / np.outer(se, se)
+        x, names = np.asarray(self.x, float), list(self.names)
+        return PopulationUncertainty(
+            names=names, theta=x, covariance=cov, stderr=se,
+            ci95=np.column_stack([x - 1.959963984540054 * se, x + 1.959963984540054 * se]),
+            correlation=corr, sigma2=1.0, dof=len(self.units), kind=kind,
+            warnings=list(self.notes), forms=[kind] * len(names),
+            lags=0 if kind == "robust" else None,  # (the units: independent)
+        )  # fmt: skip
+
+    def _sandwich(self) -> np.ndarray:
+        """H⁻¹ (Σ_i g_i g_iᵀ) H⁻¹ at the estimate, g_i unit i's gradient of its share."""
+        obj = self.objective_function
+        _, g = obj.value_grad(np.asarray(self.x), np.asarray(self.etas))
+        Hi = self.cov / 2.0  # H⁻¹, NaN where not measured
+        return Hi @ (g.T @ g) @ Hi
+
+    def data_sensitivity(self) -> list[dict]:
+        """For a fleet, which unit moves the estimates: ``unit_influence()``."""
+        return self.unit_influence()
+
+    def residual_tests(self, *args, **kwargs):
+        raise ValueError(
+            "residual_tests() tests one record's residuals for whiteness; a population "
+            "fit's residuals are read as CWRES and NPDE: res.table(), res.plot()"
+        )
+
+    def model_check(self, *args, **kwargs):
+        raise ValueError(
+            "model_check() splits one record in parts; for a fleet, res.validate(held-out "
+            "units) and res.unit_influence() say whether the population holds"
+        )
+
+    def information(self):
+        raise ValueError(
+            "information() compares the exact and Gauss-Newton Hessians of a least-squares "
+            "cost; for −2 log L use res.uncertainty('hessian') and res.uncertainty('robust')"
+        )
+
+    def simulate(self):
+        raise ValueError(
+            "simulate(): a fleet's units each have their own values; res.table() holds "
+            "every unit's IPRED and PRED at its samples, res.plot() draws them through "
+            "dense times, and tensorid simulate --ipred one unit"
+        )
