@@ -747,6 +747,62 @@ def test_ctrl_c_keeps_the_best_point_so_far(tmp_path):
     assert data["status"] == "interrupted" and data["population"]["ka"]["typical"] > 0
 
 
+def test_a_fleets_files_go_through_the_one_writer(tmp_path, monkeypatch, capsys):
+    """Issue 49 item 1, one writer (app/keeping.write_folder) for a single fit's folder
+    and a fleet's: a Ctrl-C while a fleet's figures were drawn ended in a traceback
+    (fit.json was kept, the command said nothing); a folder where nothing can be
+    written raised, where a single fit's JSON goes to the console; a figure that
+    cannot be drawn is one line, the other files written."""
+    import json
+    from types import SimpleNamespace
+
+    from tensorid.app import keeping, population_run
+    from tensorid.app.population_run import report_population, save_interrupted
+
+    res = ti.fit(fleet_problem(4))
+    args = SimpleNamespace(profile=None, profile_level=0.95, data_sensitivity=False)
+    real = population_run._figures
+
+    def one_fails(res, out, profiles, renderer, failures):
+        makers = real(res, out, profiles, renderer, failures)
+        return [(stem, (lambda: 1 / 0) if stem == "vpc" else make) for stem, make in makers]
+
+    monkeypatch.setattr(population_run, "_figures", one_fails)
+    out = tmp_path / "a"
+    out.mkdir()
+    assert report_population(res, out, set(), {}, args) == 1
+    printed = capsys.readouterr().out
+    assert "could not draw vpc.png: division by zero" in printed
+    assert {p.name for p in out.iterdir()} >= {"fit.json", "report.md", "units.png",
+                                               "observations.csv", "residuals.png"}  # fmt: skip
+
+    def pressed(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(population_run, "_figures", pressed)  # (before fit.json is written)
+    kept: dict = {}
+    (tmp_path / "b").mkdir()
+    (tmp_path / "c").mkdir()
+    with pytest.raises(KeyboardInterrupt):
+        report_population(res, tmp_path / "b", set(), {}, args, kept=kept)
+    assert save_interrupted(res, tmp_path / "b", set(), {}, kept, after=True) == 130
+    data = json.loads((tmp_path / "b" / "fit.json").read_text())
+    assert data["population"]["ka"]["typical"] == pytest.approx(res.population["ka"]["typical"])
+    assert "the estimates are in" in capsys.readouterr().out
+
+    def nowhere(path, text):
+        raise OSError("no room anywhere")
+
+    monkeypatch.setattr(keeping, "write_kept", nowhere)
+    monkeypatch.setattr(population_run, "_figures", real)
+    assert report_population(res, tmp_path / "c", set(), {}, args) == 1
+    shown = capsys.readouterr().out
+    start = shown.index("{")
+    printed_json = json.loads(shown[start : shown.index("\n}\n", start) + 3])
+    assert printed_json["objective"] == pytest.approx(res.objective)  # on the console
+    assert "fit.json is printed above" in shown
+
+
 def test_methods_of_a_fleet_and_of_one_system_are_told_apart():
     m, units = simulated_fleet(2)
     p0 = {"ka": 1, "cl": 2, "v": 30}
@@ -870,9 +926,9 @@ _MACHINERY = {"at", "of", "attached", "detached", "history_then", "followed_by",
 
 
 def test_a_population_result_answers_every_name_a_fit_result_has():
-    """Issue 49 item 1: code written for a fit reads a fleet's result. Every public name
-    of FitResult (fields, properties, methods) has its population meaning on a
-    PopulationResult, or says in one line what to use instead; error bars of ψ by the
+    """Issue 49 item 1: a fleet's result is a FitResult with the population's part, and
+    every public name of FitResult (fields, properties, methods) has its population
+    meaning there, or says in one line what to use instead; error bars of ψ by the
     exact Hessian (2 H⁻¹, as ``cov``) and by the sandwich over the units (NONMEM's
     R⁻¹SR⁻¹), which equals H⁻¹ Σ g_i g_iᵀ H⁻¹ from the units' own gradients."""
     import dataclasses
@@ -893,8 +949,8 @@ def test_a_population_result_answers_every_name_a_fit_result_has():
             continue
         assert value is None or not isinstance(value, float) or np.isfinite(value), name
         values[name] = value
-    assert set(refused) == {"x0", "scale", "residual_tests", "model_check", "information",
-                            "simulate"}, refused  # fmt: skip
+    assert isinstance(res, ti.FitResult)  # the one record, with the population's part
+    assert set(refused) == {"residual_tests", "model_check", "information", "simulate"}, refused
     for name, why in refused.items():  # one line, naming itself and what to use
         assert name in why and "\n" not in why and "res." in why, (name, why)
     assert res.fun == res.objective and np.array_equal(res.theta, res.x)

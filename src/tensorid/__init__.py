@@ -14,6 +14,7 @@ statistics composed), ``app`` (files, command line, reports, progress) and ``pap
 from . import _early  # noqa: F401
 from ._config import __version__, disable_compilation_cache, enable_compilation_cache
 from .analysis.profiles import Profile, profile
+from .analysis.results import FitInterrupted, FitResult
 from .analysis.uncertainty import Uncertainty
 from .analysis.validation import Score
 from .app.files import ModelSpec, load_data, load_model
@@ -35,7 +36,6 @@ from .engine.schemes.integrators import (
 from .engine.schemes.status import Status
 from .fitting.design import InputDesign, design_input
 from .fitting.methods import METHODS, fit, fit_batch
-from .fitting.results import FitInterrupted, FitResult
 from .functions import (
     coulomb_friction,
     dead_zone,

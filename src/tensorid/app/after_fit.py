@@ -5,6 +5,7 @@ failure or Ctrl-C in one of them does not lose the fit."""
 from __future__ import annotations
 
 import sys
+from functools import partial
 
 import numpy as np
 
@@ -136,8 +137,8 @@ def _influence(res, args):
 def _profile_figures(res, profiles) -> list:
     if not profiles:
         return []
-    u = res.uncertainty()
+    u = res.uncertainty()  # (stem, builder): each drawn when it is written
     return [
-        (f"profile_{file_name(name)}", profile_figure(p, u.sigma2, u.stderr[p.index]))
+        (f"profile_{file_name(name)}", partial(profile_figure, p, u.sigma2, u.stderr[p.index]))
         for name, p in profiles.items()
     ]

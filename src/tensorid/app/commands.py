@@ -15,12 +15,12 @@ from rich.live import Live
 
 from ..analysis.display import summary_table
 from ..analysis.figures import figure_jobs, save_png
+from ..analysis.results import FitInterrupted
 from ..analysis.validation import Score, training_scores
 from ..engine.assembly.problem import Problem
 from ..engine.modelling.checks import same_step, step
 from ..engine.schemes.status import Status
 from ..fitting.methods import fit
-from ..fitting.results import FitInterrupted
 from ..population import PopulationResult
 from ..population.profiles import profile_names
 from . import fleets
@@ -43,13 +43,12 @@ from .fit_setup import (  # _problem and _data_entries are also patched and read
 )
 from .fleet_flags import check_fleet_flags
 from .keeping import (
-    _keep,
     _no_interrupt,
-    _replace_quietly,
     _save_after_interrupt,
     _save_interrupted,
+    write_folder,
 )
-from .output import check_destination, claimed, previous_outputs, write_atomic, write_text
+from .output import check_destination, claimed, previous_outputs, write_atomic
 from .overrides import given_once, overridden
 from .population_run import report_population, save_interrupted
 from .progress import _log_line, _progress_table
@@ -109,43 +108,31 @@ def _run(problem: Problem, args, console: Console, executor, timeout, watch: Com
 
 
 def _write_results(res, out: Path, scores: list[Score], old, extras, kept: dict, drawn):
-    """fit.json first (the estimates are what matters), then the figures and
-    report.md, each atomically; what an earlier run wrote and this one did not is
-    removed. ``drawn`` is (renderer, the stems of the figures it was given, in their
-    order). Returns (figures written, failures as one line each). A failing figure,
-    report or folder does not lose fit.json (see _keep)."""
+    """fit.json, the figures and report.md by the one writer (keeping.write_folder).
+    ``drawn`` is (renderer, the stems of the figures it was given, in their order).
+    Returns (figures written, failures as one line each)."""
     profiles, influence = extras.get("profiles"), extras.get("influence")
     residual = extras.get("residual")
     data = fit_json(res, scores, profiles, influence, residual)
     recorded = ("provenance", "overrides", "samples", "validate_samples")  # _recorded's
     data.update({k: extras[k] for k in recorded if k in extras})
-    failures = _keep(out, data, kept)
-    if kept.get("fit.json") != out / "fit.json":
-        return [], failures  # the folder cannot be written: the rest would fail as well
     renderer, stems = drawn
-    written, figures = [kept["fit.json"]], []
+
+    def here(stem: str, build) -> tuple:  # a figure drawn in this process, when due
+        return stem, lambda: write_atomic(out / f"{stem}.png", partial(save_png, build()))
+
     # in the report's order: the fit's figures, profiles, residual tests, sensitivity
-    order = [(stem, None) for stem in stems if stem != "residual_tests"]
-    order += _profile_figures(res, profiles)
-    order += [(stem, None) for stem in stems if stem == "residual_tests"]
+    figures = [(s, partial(renderer.collect, s)) for s in stems if s != "residual_tests"]
+    figures += [here(stem, build) for stem, build in _profile_figures(res, profiles)]
+    figures += [(s, partial(renderer.collect, s)) for s in stems if s == "residual_tests"]
     if influence is not None:
-        order.append(("data_sensitivity", influence.figure()))
-    for stem, fig in order:
-        try:
-            if fig is None:  # drawn by the renderer (or here, where it could not)
-                figures.append(renderer.collect(stem))
-            else:
-                figures.append(write_atomic(out / f"{stem}.png", partial(save_png, fig)))
-        except OSError as e:
-            failures.append(f"could not write {out / (stem + '.png')}: {e.strerror or e}")
+        figures.append(here("data_sensitivity", influence.figure))
     everything = training_scores(res) + scores
-    try:
-        report = fit_report(res, data, everything, figures, profiles, residual)
-        written.append(write_text(out / "report.md", report))
-    except OSError as e:
-        failures.append(f"could not write {out / 'report.md'}: {e.strerror or e}")
-    _replace_quietly(out, old, written + figures, failures)
-    return figures, failures
+
+    def report(made: list[Path]) -> str:
+        return fit_report(res, data, everything, made, profiles, residual)
+
+    return write_folder(out, old, data, kept, figures, report)
 
 
 def run_fit(args) -> int:
@@ -226,13 +213,17 @@ def _fit_command(args, renderer: Renderer) -> int:
                 if isinstance(stop.result, PopulationResult):
                     return save_interrupted(stop.result, out, old, _recorded(args))
                 return _save_interrupted(stop.result, out, old, _recorded(args))
-        if isinstance(res, PopulationResult):  # a fleet's population fit
-            return report_population(res, out, old, _recorded(args), args, held, renderer)
         kept: dict = {}  # where the complete fit.json went, once it is written
+        fleet = isinstance(res, PopulationResult)  # a fleet's population fit
         try:
+            if fleet:
+                return report_population(res, out, old, _recorded(args), args, held, renderer,
+                                         kept)  # fmt: skip
             return _report(res, val, args, out, old, kept, renderer)
         except KeyboardInterrupt:  # Ctrl-C after the fit: the estimates are kept
             with _no_interrupt():
+                if fleet:
+                    return save_interrupted(res, out, old, _recorded(args), kept, after=True)
                 return _save_after_interrupt(res, out, old, kept, _recorded(args))
 
 

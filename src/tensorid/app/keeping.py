@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..analysis.display import summary_table
-from .output import replace_outputs, write_kept
+from .output import replace_outputs, write_atomic, write_kept, write_text
 from .reports import fit_json, json_text
 
 
@@ -106,3 +106,42 @@ def _save_interrupted(res, out: Path, old: set[Path], extras=None) -> int:
         file=sys.stderr,
     )
     return 130
+
+
+def write_folder(out: Path, old: set[Path], data: dict, kept: dict, figures: list, report,
+                 tables: tuple | list = ()) -> tuple[list[Path], list[str]]:  # fmt: skip
+    """The one writer of a fit's folder, a single record's fit's and a fleet's alike:
+    fit.json first (the estimates are what matters: kept elsewhere, or printed, where
+    the folder cannot be written; its path goes to kept["fit.json"]), then ``tables``
+    ((file name, writer of a path)), ``figures`` ((stem, maker that writes it and returns
+    its path)) in the report's order, and report.md (``report(figures written)``), each
+    atomically; what an earlier run wrote and this one did not is removed. A table or
+    figure that fails is one line of the failures, not the end of the others. Returns
+    (the figures written, the failures)."""
+    failures = _keep(out, data, kept)
+    if kept.get("fit.json") != out / "fit.json":
+        return [], failures  # the folder cannot be written: the rest would fail as well
+    written: list[Path] = [kept["fit.json"]]
+    for name, write in tables:
+        try:
+            written.append(write_atomic(out / name, write))
+        except Exception as e:  # a table is not worth the fit: say so, go on
+            failures.append(f"could not write {out / name}: {_reason(e)}")
+    made: list[Path] = []
+    for stem, make in figures:
+        try:
+            made.append(make())
+        except OSError as e:
+            failures.append(f"could not write {out / (stem + '.png')}: {e.strerror or e}")
+        except Exception as e:  # a figure is not worth the report: say so, go on
+            failures.append(f"could not draw {stem}.png: {e}")
+    try:
+        written.append(write_text(out / "report.md", report(made)))
+    except OSError as e:
+        failures.append(f"could not write {out / 'report.md'}: {e.strerror or e}")
+    _replace_quietly(out, old, written + made, failures)
+    return made, failures
+
+
+def _reason(e: Exception) -> str:
+    return (e.strerror if isinstance(e, OSError) else None) or str(e)

@@ -11,7 +11,6 @@ failure in them keeps the fit."""
 from __future__ import annotations
 
 import csv
-import json
 from functools import partial
 from pathlib import Path
 from types import SimpleNamespace
@@ -26,8 +25,8 @@ from ..population.profiles import names_of
 from ..population.validation import held_out, held_out_lines
 from .after_fit import printed_profiles
 from .fleet_report import fleet_json, fleet_lines
-from .keeping import _replace_quietly
-from .output import write_atomic, write_kept, write_text
+from .keeping import _save_now, _tidy, write_folder
+from .output import write_atomic
 from .provenance import markdown as provenance_lines
 from .reports import _profile_json
 
@@ -236,46 +235,40 @@ def _percent(v) -> str:
 
 
 def report_population(res, out: Path, old: set[Path], recorded: dict, args=None,
-                      held=None, renderer=None) -> int:  # fmt: skip
-    """Print, then write; every failing write is named, none loses the estimates.
-    ``args``: the command line (its --profile, --data-sensitivity); ``held``: the
-    held-out units' Problem (--validate); ``renderer``: the command's (app/renderer.py),
-    which draws the figures while this process writes."""
+                      held=None, renderer=None, kept: dict | None = None) -> int:  # fmt: skip
+    """Print, then write by the one writer (keeping.write_folder); every failing write
+    is named, none loses the estimates. ``args``: the command line (its --profile,
+    --data-sensitivity); ``held``: the held-out units' Problem (--validate);
+    ``renderer``: the command's (app/renderer.py), which draws the figures while this
+    process writes; ``kept``: where fit.json went, once written (for a Ctrl-C)."""
+    kept = {} if kept is None else kept
     print(res.summary())
     extras, notes, stopped = analyses(res, args, held)
     data = _finite(population_json(res, recorded) | _analyses_json(extras))
     data["notes"] = data["notes"] + notes
-    path, failure = write_kept(out / "fit.json", json.dumps(data, indent=2, allow_nan=False))
-    if failure:  # the folder cannot be written: the estimates went elsewhere
-        print(f"tensorid: {failure}; fit.json written to {path}")
-        return 1
-    failures: list[str] = []
-    written = [path]
+    tables = []
     if res.population and np.isfinite(res.objective):  # (as its figures: an Ω, a fit)
-        try:
-            written.append(write_atomic(out / "observations.csv", partial(_table_csv, res)))
-        except Exception as e:  # the table is not worth the fit: say so, go on
-            failures.append(f"could not write {out / 'observations.csv'}: {_reason(e)}")
+        tables.append(("observations.csv", partial(_table_csv, res)))
+    failures: list[str] = []
     figures = _figures(res, out, extras.get("profiles"), renderer, failures)
-    try:
-        written.append(write_text(out / "report.md", population_report(res, data, figures)))
-    except OSError as e:
-        failures.append(f"could not write {out / 'report.md'}: {e.strerror or e}")
-    _replace_quietly(out, old, written + figures, failures)
-    for f in [*notes, *failures]:
+    _, lost = write_folder(out, old, data, kept, figures,
+                           lambda made: population_report(res, data, made), tables)  # fmt: skip
+    for f in [*notes, *failures, *lost]:
         print(f"tensorid: {f}")
+    if kept.get("fit.json") != out / "fit.json":
+        return 1
     print(f"results in {out}/")
     if stopped:
         return 130
-    return 0 if res.success and not failures else 1
+    return 0 if res.success and not failures and not lost else 1
 
 
-def _figures(res, out: Path, profiles, renderer, failures: list[str]) -> list[Path]:
-    """The fit's figures written to ``out``, in the report's order; each one's arrays
+def _figures(res, out: Path, profiles, renderer, failures: list[str]) -> list[tuple]:
+    """(stem, maker) of the fit's figures, in the report's order; each one's arrays
     computed here and handed to the ``renderer`` at once, so that it draws while the
-    next are computed (drawn here where there is none). A figure that fails is named in
-    ``failures``: it is not worth the report."""
-    jobs: list[tuple] = []  # (stem, kind, arguments) or (stem, None, figure builder)
+    next are computed and the files are written (drawn here where there is none). One
+    whose arrays fail is named in ``failures``: it is not worth the report."""
+    makers: list[tuple] = []
     for stem, kind, build in figure_jobs(res):
         try:
             arguments = build(res)
@@ -284,21 +277,16 @@ def _figures(res, out: Path, profiles, renderer, failures: list[str]) -> list[Pa
             continue
         if renderer is not None:
             renderer.submit(out, [(stem, kind, arguments)])
-        jobs.append((stem, kind, arguments))
-    jobs += [(stem, None, build) for stem, build in _profile_figures(res, profiles)]
-    written = []
-    for stem, kind, arguments in jobs:
-        try:
-            if kind is not None and renderer is not None:
-                written.append(renderer.collect(stem))
-                continue
-            fig = draw(kind, arguments) if kind is not None else arguments(res)
-            written.append(write_atomic(out / f"{stem}.png", partial(save_png, fig)))
-        except OSError as e:
-            failures.append(f"could not write {out / (stem + '.png')}: {e.strerror or e}")
-        except Exception as e:
-            failures.append(f"could not draw {stem}.png: {e}")
-    return written
+            makers.append((stem, partial(renderer.collect, stem)))
+        else:
+            makers.append((stem, _drawn_here(out / f"{stem}.png", partial(draw, kind, arguments))))
+    for stem, build in _profile_figures(res, profiles):
+        makers.append((stem, _drawn_here(out / f"{stem}.png", partial(build, res))))
+    return makers
+
+
+def _drawn_here(path: Path, build):
+    return lambda: write_atomic(path, partial(save_png, build()))
 
 
 def _reason(e: Exception) -> str:
@@ -322,16 +310,20 @@ def _cell(v) -> str:
     return f"{v:.10g}" if np.isfinite(v) else ""
 
 
-def save_interrupted(res, out: Path, old: set[Path], recorded: dict) -> int:
-    """Ctrl-C during a population fit: the best point so far to fit.json (status
-    "interrupted", no error bars), no figures (the user is waiting); exit 130."""
-    print(res.summary())
-    data = population_json(res, recorded)
-    path, failure = write_kept(out / "fit.json", json.dumps(data, indent=2, allow_nan=False))
-    failures = [failure] if failure else []
-    if not failure:
-        _replace_quietly(out, old, [path], failures)
-    for f in failures:
-        print(f"tensorid: {f}")
-    print(f"tensorid: interrupted; the best point so far is in {path}")
+def save_interrupted(res, out: Path, old: set[Path], recorded: dict, kept: dict | None = None,
+                     after: bool = False) -> int:  # fmt: skip
+    """Ctrl-C during a population fit (or, ``after``, while its statistics and files were
+    made): the estimates to fit.json (status "interrupted" during the fit, no error
+    bars) where a complete one is not written yet, no figures (the user is waiting);
+    exit 130."""
+    kept = {} if kept is None else kept
+    if kept.get("fit.json"):
+        _tidy(out, old, kept, [])
+        print(f"tensorid: interrupted; {kept['fit.json']} was written")
+        return 130
+    if not after:
+        print(res.summary())
+    where = _save_now(out, old, lambda: _finite(population_json(res, recorded)))
+    what = "the estimates" if after else "the best point so far"
+    print(f"tensorid: interrupted; {what} {'are' if after else 'is'} in {where}")
     return 130

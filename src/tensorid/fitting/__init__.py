@@ -42,6 +42,7 @@ MOVED = {
     "summary": "analysis",
     "uncertainty": "analysis",
     "validation": "analysis",
+    "results": "analysis",
 }
 
 for _name, _home in MOVED.items():
@@ -50,11 +51,11 @@ for _name, _home in MOVED.items():
     globals()[_name] = _module
 
 from ..analysis.profiles import Profile, profile  # noqa: E402
+from ..analysis.results import FitInterrupted, FitResult  # noqa: E402
 from ..analysis.uncertainty import Uncertainty  # noqa: E402
 from ..analysis.validation import Score  # noqa: E402
 from ..solve.options import FitOptions  # noqa: E402
 from .methods import LOCKSTEP, METHODS, fit, fit_batch  # noqa: E402
-from .results import FitInterrupted, FitResult  # noqa: E402
 
 __all__ = [
     "LOCKSTEP",

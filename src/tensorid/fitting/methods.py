@@ -15,10 +15,10 @@ from __future__ import annotations
 import os
 import time
 from dataclasses import replace
-from typing import cast
 
 import numpy as np
 
+from ..analysis.results import FitInterrupted, FitResult
 from ..engine.assembly.problem import Problem
 from ..engine.compiling.compilation import compile_clock
 from ..engine.modelling.checks import did_you_mean
@@ -32,7 +32,6 @@ from ..solve.registry import LOCKSTEP, METHODS, listed, resolve
 from ..solve.solvers import Method, TrustRegion
 from ..solve.starts import fit_task, fits, many_starts
 from .priors import weigh_priors, weighed
-from .results import FitInterrupted, FitResult
 from .robust import fit_robust
 
 __all__ = ["LOCKSTEP", "METHODS", "fit", "fit_batch", "fit_task"]
@@ -175,11 +174,10 @@ def _fleet(problem, method, maxiter, callback, executor, workers, timeout, given
     where = dict(executor=executor, workers=workers, timeout=timeout)
     defaults = inspect.signature(fit).parameters
     where |= {k: given[k] for k in _FLEET_LIMITS if given[k] != defaults[k].default}
-    # typed as FitResult for the many callers of ordinary problems: method "auto" or
-    # "focei", or "laplace"; maxiter and callback apply; a PopulationResult comes back
+    # a PopulationResult: a FitResult with the population's part (population/result.py)
     with compile_clock() as clock:  # this process's compilations, as a single fit's
         res = fit_population(problem, kind, maxiter=maxiter, callback=callback, **where)
-    return cast(FitResult, replace(res, compile_seconds=clock[0]))
+    return replace(res, compile_seconds=clock[0])
 
 
 def _check_enough_data(problem) -> None:

@@ -18,6 +18,11 @@ import numpy as np
 
 from ..analysis.uncertainty import Uncertainty
 
+if TYPE_CHECKING:  # what the mixin reads is FitResult's (it precedes it in the bases)
+    from ..analysis.results import FitResult as _Base
+else:
+    _Base = object
+
 
 class PopulationUncertainty(Uncertainty):
     """:class:`tensorid.analysis.uncertainty.Uncertainty` of ψ, said as a population
@@ -31,98 +36,24 @@ class PopulationUncertainty(Uncertainty):
         return [head, *out[1:]]
 
 
-class AsFit:
-    """FitResult's names for :class:`PopulationResult` (a mixin: it reads the fields
-    declared below, which the result has)."""
+class AsFit(_Base):
+    """FitResult's methods with their population meaning, for :class:`PopulationResult`
+    (a mixin before FitResult in its bases: it reads the result's own fields)."""
 
-    if TYPE_CHECKING:  # (the result's own fields; not fields of this class)
-        x: np.ndarray
+    if TYPE_CHECKING:  # (PopulationResult's fields; not fields of this class)
         names: list[str]
         objective: float
-        jac: np.ndarray
-        hess: np.ndarray
         cov: np.ndarray
         etas: np.ndarray
         units: list
-        nit: int
-        nfev: int
-        status: Any
-        notes: list
-        starts: list
         objective_function: Any
 
-        @property
-        def success(self) -> bool: ...
-
-        @property
-        def message(self) -> str: ...
-
         def unit_influence(self, refits: int = 5) -> list[dict]: ...
-
-    @property
-    def theta(self) -> np.ndarray:
-        """ψ, the estimated unknowns in the order of ``names`` (``x``)."""
-        return self.x
-
-    @property
-    def fun(self) -> float:
-        """−2 log L at the estimate (``objective``, ``cost``)."""
-        return self.objective
-
-    @property
-    def grad_norm(self) -> float:
-        return float(np.max(np.abs(self.jac), initial=0.0))
-
-    @property
-    def derivatives(self) -> bool:
-        """Whether the exact gradient and Hessian at the estimate were measured."""
-        return bool(np.isfinite(self.hess).all())
-
-    @property
-    def has_uncertainty(self) -> bool:
-        return bool(np.isfinite(self.objective)) and self.derivatives
 
     @property
     def covariance(self) -> np.ndarray:
         """Covariance of ψ: 2 H⁻¹ (``cov``; NaN where a direction is not measured)."""
         return self.cov
-
-    @property
-    def nit_total(self) -> int:
-        """Every start's iterations (``nit`` is the best one's)."""
-        return int(sum(s.get("nit", 0) for s in self.starts) or self.nit)
-
-    @property
-    def nfev_best(self) -> int:
-        return self.nfev
-
-    nhev = 0  # (Hessian-vector products: the outer Hessian is taken whole)
-
-    @property
-    def stats(self):
-        """The counters as a single fit's (:class:`tensorid.Stats`)."""
-        from ..solve.stats import Stats
-
-        return Stats(nit=self.nit, nfev=self.nfev, nit_total=self.nit_total)
-
-    @property
-    def x0(self):
-        raise AttributeError(
-            "x0: a fleet's units each start from their own initial state (x0's expressions "
-            "evaluated on each record): res.problem.x0 is what was given"
-        )
-
-    @property
-    def scale(self):
-        raise AttributeError("scale: a population fit steps ψ on its own (log) scale: res.x")
-
-    shooting = hybrid = noise_check = constraints = None  # (a fleet's fit has none)
-
-    @property
-    def convergence_warnings(self) -> list[str]:
-        if self.success:
-            return []
-        return [f"the fit did not converge: {self.message}"]
 
     @property
     def warnings(self) -> list[str]:

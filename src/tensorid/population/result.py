@@ -12,7 +12,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..engine.schemes.status import Status
+from ..analysis.results import FitResult
+from ..solve.stats import Stats
 from .as_fit import AsFit
 from .errors import ERROR_MODELS
 
@@ -89,10 +90,28 @@ def _omega(obj, x, cov, se) -> tuple[np.ndarray, np.ndarray, dict]:
     return value[:qp], err[:qp], corr
 
 
-@dataclass(frozen=True)
-class PopulationResult(AsFit):
+def _record(obj, r, H, status, seconds, method: str, population, shared) -> dict:
+    """The fields every fit's result has (``tensorid.FitResult``'s), of ψ."""
+    x = np.asarray(r.x, dtype=float)
+    params = {n: v["typical"] for n, v in population.items()}  # typical values, shared
+    params.update({n: v["value"] for n, v in shared.items()})
+    jac = np.asarray(r.jac, dtype=float)
+    return dict(
+        problem=obj.problem, method=method, theta=x, params=params,
+        x0=np.asarray(obj.problem.x0, dtype=float), cost=float(r.fun), jac=jac, hess=H,
+        grad_norm=float(np.max(np.abs(jac), initial=0.0)), status=status,
+        message=status.describe(), seconds=seconds, scale=np.ones_like(x),
+        history=list(getattr(r, "history", [])), stats=Stats(nit=r.nit, nfev=r.nfev),
+        derivatives=bool(np.isfinite(H).all()),
+    )  # fmt: skip
+
+
+@dataclass(frozen=True, repr=False, kw_only=True)
+class PopulationResult(AsFit, FitResult):
     """The outcome of :func:`tensorid.population.fit_population` (``tensorid.fit`` of a
-    Problem with ``population``).
+    Problem with ``population``): a :class:`tensorid.FitResult` (its ``theta``, alias
+    ``x``, is ψ, the unknowns in ``names``; ``cost`` is ``objective``; ``params`` the
+    typical values and shared ones) with the population's own part.
 
     ``objective`` is −2 log L (Laplace/FOCEI, constants included); nlmixr2 and NONMEM
     print it less N log 2π (``objective_nlmixr``). ``population`` holds per random
@@ -104,51 +123,25 @@ class PopulationResult(AsFit):
     (random effects' values and individual ones) and their ``stderr`` (conditional on
     the population estimates)."""
 
-    x: np.ndarray
     names: list[str]
     objective: float
-    jac: np.ndarray
-    hess: np.ndarray
     cov: np.ndarray
     etas: np.ndarray
     population: dict
     shared: dict
     residual_sd: dict
     units: list
-    nit: int
-    nfev: int
-    status: Status
-    method: str
-    seconds: float
     observations: int
-    problem: Any = field(repr=False, default=None)
-    history: list = field(repr=False, default_factory=list)
     # the objective it was fitted with (its compiled programs: predictions, figures)
     objective_function: Any = field(repr=False, default=None)
-    notes: list = field(default_factory=list)  # warnings the fit raised, for the files
     # per output: its model ("additive", "proportional", "combined") and the estimates
     # "additive" (SD) and "proportional" (SD relative to the prediction), with stderrs
     residual_error: dict = field(default_factory=dict)
     # full Ω: {"cl,v": {"value": correlation of η_cl and η_v, "stderr": ...}}
     omega_correlation: dict = field(default_factory=dict)
-    # several starts: each one's {"start", "objective", "status", "nit"}, best first
-    starts: list = field(default_factory=list)
-    compile_seconds: float = 0.0  # this process's compiling (loading a kept program too)
     _table: dict | None = field(default=None, init=False, repr=False, compare=False)
     # a capability: ti.profile(res) hands the work to res.profile (profiles.py)
     profiles_itself: ClassVar[bool] = True
-
-    @property
-    def success(self) -> bool:
-        return self.status.success
-
-    @property
-    def message(self) -> str:
-        return self.status.describe()
-
-    @property
-    def cost(self) -> float:
-        return self.objective
 
     def table(self) -> dict:
         """The per-observation table {column: array}: ID, TIME, OUTPUT, DV, PRED,
@@ -164,13 +157,6 @@ class PopulationResult(AsFit):
     @property
     def objective_nlmixr(self) -> float:
         return self.objective - self.observations * float(np.log(2 * np.pi))
-
-    @property
-    def params(self) -> dict[str, float]:
-        """Typical values of the random-effect parameters and the shared ones."""
-        out = {n: v["typical"] for n, v in self.population.items()}
-        out.update({n: v["value"] for n, v in self.shared.items()})
-        return out
 
     @property
     def stderr(self) -> np.ndarray:
@@ -218,13 +204,11 @@ class PopulationResult(AsFit):
             units.append({"id": uid, "params": vals, "stderr": errs, "eta": eta})
         residual_sd = {o: v.get("additive", 0.0) for o, v in residual_error.items()}
         return cls(
-            x=x, names=list(obj.names), objective=float(r.fun), jac=np.asarray(r.jac),
-            hess=H, cov=cov, etas=np.asarray(etas), population=population, shared=shared,
-            residual_sd=residual_sd, residual_error=residual_error,
-            omega_correlation=correlation,
-            units=units, nit=r.nit, nfev=r.nfev, status=status, method=obj.method,
-            seconds=seconds, observations=_observations(obj.units), problem=obj.problem,
-            history=list(getattr(r, "history", [])), objective_function=obj,
+            **_record(obj, r, H, status, seconds, obj.method, population, shared),
+            names=list(obj.names), objective=float(r.fun), cov=cov, etas=np.asarray(etas),
+            population=population, shared=shared, residual_sd=residual_sd,
+            residual_error=residual_error, omega_correlation=correlation, units=units,
+            observations=_observations(obj.units), objective_function=obj,
         )  # fmt: skip
 
     @classmethod
@@ -260,12 +244,11 @@ class PopulationResult(AsFit):
             errs.update({n: v["stderr"] for n, v in shared.items()})
             units.append({"id": uid, "params": vals, "stderr": errs, "eta": {}})
         return cls(
-            x=x, names=list(obj.names), objective=float(r.fun), jac=np.asarray(r.jac), hess=H,
-            cov=cov, etas=np.asarray(etas), population={}, shared=shared,
+            **_record(obj, r, H, status, seconds, "joint", {}, shared),
+            names=list(obj.names), objective=float(r.fun), cov=cov, etas=np.asarray(etas),
+            population={}, shared=shared,
             residual_sd=dict(zip(obj.problem.model.outputs, sd.tolist(), strict=True)),
-            units=units, nit=r.nit, nfev=r.nfev, status=status, method="joint",
-            seconds=seconds, observations=N, problem=obj.problem,
-            history=list(getattr(r, "history", [])), objective_function=obj,
+            units=units, observations=N, objective_function=obj,
         )  # fmt: skip
 
     def summary(self) -> str:
@@ -394,7 +377,7 @@ class PopulationResult(AsFit):
 
         return profile(self, names, level, **options)
 
-    def validate(self, problem) -> list[dict]:
+    def validate(self, problem) -> list[dict]:  # type: ignore[override]  # (new units: a Problem)
         """Held-out units (a Problem over them, built as the fitted one): each one's η̂
         by empirical Bayes and its IPRED and PRED scores: population/validation.py."""
         from .validation import held_out
@@ -407,7 +390,7 @@ class PopulationResult(AsFit):
 
         return unit_influence(self, refits)
 
-    def plot(self, path=None) -> list:
+    def plot(self, path=None) -> list:  # type: ignore[override]  # (no validation records)
         """The fit's figures: every unit's data and fits, observed against predicted,
         and (random effects) the visual predictive check and the residuals. With
         ``path`` (a folder) written there as PNG files and their paths returned;

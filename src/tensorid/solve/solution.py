@@ -2,7 +2,7 @@
 scipy.optimize.OptimizeResult's vocabulary (x, fun, jac, hess, nit, nfev, status,
 history), built once where the run ends (endings.py).
 
-It knows nothing of statistics: :class:`tensorid.FitResult` (fitting/results.py) is
+It knows nothing of statistics: :class:`tensorid.FitResult` (analysis/results.py) is
 this record with the statistics' methods (uncertainty, summary, plot, ...), made from
 it by the composition layer (``FitResult.of``) once the solver has returned.
 """

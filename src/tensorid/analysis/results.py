@@ -11,13 +11,13 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from ..analysis.constraint_report import ConstraintReport
-from ..analysis.prior_effects import NoiseCheck, move_lines, prior_moves
-from ..analysis.summary import Tabular, collapsed_noise
-from ..analysis.uncertainty import Information, Uncertainty, information, uncertainty
 from ..solve.constrained import ConstraintOutcome
 from ..solve.solution import FitInterrupted, Solution
 from ..solve.stats import Stats
+from .constraint_report import ConstraintReport
+from .prior_effects import NoiseCheck, move_lines, prior_moves
+from .summary import Tabular, collapsed_noise
+from .uncertainty import Information, Uncertainty, information, uncertainty
 
 __all__ = ["FitInterrupted", "FitResult", "NoiseCheck", "Stats"]
 
@@ -110,7 +110,7 @@ class FitResult(Solution, Tabular):
         meat, lags = None, None
         bread, why = None, None
         if kind == "robust" or problem.loss.robust:
-            from ..analysis.sandwich import score_covariance, unresolved_scale
+            from .sandwich import score_covariance, unresolved_scale
 
             meat, lags = score_covariance(problem, theta, "auto" if kind == "robust" else 0)
             bread, why = unresolved_scale(problem, theta)
@@ -171,7 +171,7 @@ class FitResult(Solution, Tabular):
         scored as k-step-ahead prediction instead (MATLAB's compare with a prediction
         horizon): a filter's (predictor="ekf") state after sample h − k, run k samples
         ahead by the model; for output error, the simulation at every horizon."""
-        from ..analysis.validation import validate
+        from .validation import validate
 
         return validate(self, data, init_window, horizon)
 
@@ -190,7 +190,7 @@ class FitResult(Solution, Tabular):
         """Whiteness of the residuals and their independence from the inputs, as
         MATLAB's ``resid`` (see :mod:`tensorid.analysis.residuals`), on the samples
         the likelihood uses; a verdict the series cannot carry is "cannot be trusted"."""
-        from ..analysis.residuals import residual_tests
+        from .residuals import residual_tests
 
         key = ("residual tests", max_lag, level, self.cost, self.theta.tobytes())
         if key not in self._uncertainty:
@@ -202,7 +202,7 @@ class FitResult(Solution, Tabular):
         given records) agree within their robust error bars: where they do not, no
         error bar covers the model's error (see :mod:`tensorid.analysis.model_check`).
         Fits each part from this estimate; kept, so that the summary shows it."""
-        from ..analysis.model_check import model_check
+        from .model_check import model_check
 
         key = ("model check", self.cost, self.theta.tobytes())
         if key not in self._uncertainty or self._uncertainty[key].level != level or options:
@@ -216,21 +216,21 @@ class FitResult(Solution, Tabular):
     def criteria(self) -> dict:
         """AIC, AICc and BIC (Gaussian residuals of unknown variance), with n and K:
         for comparing model structures fitted to the same data."""
-        from ..analysis.residuals import information_criteria
+        from .residuals import information_criteria
 
         return information_criteria(self)
 
     def data_sensitivity(self):
         """dθ̂/dy for every measured sample: which samples drive each estimate (see
         :class:`tensorid.analysis.influence.DataSensitivity`)."""
-        from ..analysis.influence import data_sensitivity
+        from .influence import data_sensitivity
 
         return data_sensitivity(self)
 
     def profile(self, names=None, level: float = 0.95, **options) -> dict:
         """Profile likelihood of each unknown in ``names`` (default: every free
         parameter) with its likelihood-ratio interval: see :func:`tensorid.profile`."""
-        from ..analysis.profiles import profile
+        from .profiles import profile
 
         return profile(self, names, level, **options)
 
@@ -238,14 +238,14 @@ class FitResult(Solution, Tabular):
         """A plain-text table of the estimates with standard errors and intervals, the
         residual tests' verdicts and, where the residuals are not shown white, the
         robust standard errors beside the white ones and which to trust."""
-        from ..analysis.display import summary_table
+        from .display import summary_table
 
         return summary_table(self)
 
     def blocks(self) -> list:
         """The summary's content (headline, estimates, information, criteria, residual
         verdicts, warnings) as text and tables, for ``str()`` and ``_repr_html_``."""
-        from ..analysis.display import fit_blocks
+        from .display import fit_blocks
 
         return fit_blocks(self)
 
@@ -254,6 +254,6 @@ class FitResult(Solution, Tabular):
         history. With ``path`` (a folder) the figures are written there as PNG files
         and their paths returned; without, the matplotlib figures are returned and
         nothing is written. ``validation``: scores from :meth:`validate`."""
-        from ..analysis.figures import fit_figures
+        from .figures import fit_figures
 
         return fit_figures(self, path, validation)
