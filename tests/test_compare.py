@@ -508,6 +508,7 @@ def test_ipred_is_refused_in_one_line_where_it_cannot_estimate_a_units_own_value
          "drop the NAME=VALUE pairs"),
         (["simulate", *base, "--columns", "t=Time", "--params", str(fleet)],
          "no measured outputs"),
+        (["simulate", *base, "--columns", "t=Time,cp=conc"], "give its fit.json with --params"),
     ]  # fmt: skip
     for argv, expect in cases:
         assert cli.main(argv) == 2

@@ -310,6 +310,11 @@ def test_profile_validate_and_data_sensitivity_of_theophylline_from_the_command_
             assert scored["eta"] == pytest.approx(held_11["eta"], abs=1e-9)
             assert scored["params"] == pytest.approx(held_11["params"], abs=1e-9)
     assert "this unit's own (ka=" in capsys.readouterr().out
+    sim = ["simulate", str(model), str(held), "--records", "ID", "--unit", "11", "--columns",
+           "t=Time,cp=conc", "--params", str(out / "fit.json"), "--ipred", "--out",
+           str(tmp_path / "sim")]  # fmt: skip
+    assert cli.main(sim) == 0
+    assert f"GOF cp: {held_11['gof']:.4f}" in capsys.readouterr().out
     # the top unit's refit (its data masked) against a fit of the other eight
     spec = ti.load_model(model)
     exps = ti.load_data(train, spec.model, records="ID", columns={"t": "Time", "cp": "conc"},

@@ -779,16 +779,19 @@ def test_a_fleets_files_go_through_the_one_writer(tmp_path, monkeypatch, capsys)
     def pressed(*a, **k):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(population_run, "_figures", pressed)  # (before fit.json is written)
+    monkeypatch.setattr(population_run, "_figures", pressed)  # (after fit.json is written)
     kept: dict = {}
     (tmp_path / "b").mkdir()
     (tmp_path / "c").mkdir()
     with pytest.raises(KeyboardInterrupt):
         report_population(res, tmp_path / "b", set(), {}, args, kept=kept)
+    assert kept["fit.json"] == tmp_path / "b" / "fit.json"  # the complete one, first
     assert save_interrupted(res, tmp_path / "b", set(), {}, kept, after=True) == 130
     data = json.loads((tmp_path / "b" / "fit.json").read_text())
     assert data["population"]["ka"]["typical"] == pytest.approx(res.population["ka"]["typical"])
-    assert "the estimates are in" in capsys.readouterr().out
+    assert "fit.json was written" in capsys.readouterr().err
+    assert save_interrupted(res, tmp_path / "b", set(), {}, {}, after=True) == 130  # none yet
+    assert "the estimates are in" in capsys.readouterr().err
 
     def nowhere(path, text):
         raise OSError("no room anywhere")
@@ -955,13 +958,14 @@ def test_a_population_result_answers_every_name_a_fit_result_has():
         assert name in why and "\n" not in why and "res." in why, (name, why)
     assert res.fun == res.objective and np.array_equal(res.theta, res.x)
     assert res.compile_seconds >= 0 and res.stats["nit"] == res.nit and res.warnings == []
+    assert list(res.params) == ["ka", "cl", "v"] and res.blocks() == [res.summary()]
     h, r = res.uncertainty(), res.uncertainty("robust")
     assert np.allclose(h.stderr, np.sqrt(np.diag(res.cov))) and h.names == res.names
     _, g = res.objective_function.value_grad(res.x, res.etas)
     Hi = np.linalg.inv(res.hess)
     assert np.allclose(r.covariance, Hi @ (g.T @ g) @ Hi, rtol=1e-8)
     assert np.all(np.isfinite(r.stderr)) and np.all(r.stderr > 0)
-    assert "sandwich R⁻¹SR⁻¹ over the units" in str(r)
+    assert "sandwich H⁻¹ (Σ g_i g_iᵀ) H⁻¹ over the units" in str(r)
     with pytest.raises(ValueError, match="no Gauss-Newton form"):
         res.uncertainty("gauss-newton")
     assert sorted(d["id"] for d in values["data_sensitivity"]) == ["u0", "u1", "u2", "u3"]

@@ -108,7 +108,7 @@ def _save_interrupted(res, out: Path, old: set[Path], extras=None) -> int:
     return 130
 
 
-def write_folder(out: Path, old: set[Path], data: dict, kept: dict, figures: list, report,
+def write_folder(out: Path, old: set[Path], data: dict, kept: dict, figures, report,
                  tables: tuple | list = ()) -> tuple[list[Path], list[str]]:  # fmt: skip
     """The one writer of a fit's folder, a single record's fit's and a fleet's alike:
     fit.json first (the estimates are what matters: kept elsewhere, or printed, where
@@ -116,8 +116,10 @@ def write_folder(out: Path, old: set[Path], data: dict, kept: dict, figures: lis
     ((file name, writer of a path)), ``figures`` ((stem, maker that writes it and returns
     its path)) in the report's order, and report.md (``report(figures written)``), each
     atomically; what an earlier run wrote and this one did not is removed. A table or
-    figure that fails is one line of the failures, not the end of the others. Returns
-    (the figures written, the failures)."""
+    figure that fails is one line of the failures, not the end of the others;
+    ``figures`` may be a function returning them, called once fit.json is written (a
+    fleet's figures compute their arrays). Returns (the figures written, the
+    failures)."""
     failures = _keep(out, data, kept)
     if kept.get("fit.json") != out / "fit.json":
         return [], failures  # the folder cannot be written: the rest would fail as well
@@ -128,7 +130,7 @@ def write_folder(out: Path, old: set[Path], data: dict, kept: dict, figures: lis
         except Exception as e:  # a table is not worth the fit: say so, go on
             failures.append(f"could not write {out / name}: {_reason(e)}")
     made: list[Path] = []
-    for stem, make in figures:
+    for stem, make in figures() if callable(figures) else figures:
         try:
             made.append(make())
         except OSError as e:

@@ -11,6 +11,7 @@ failure in them keeps the fit."""
 from __future__ import annotations
 
 import csv
+import sys
 from functools import partial
 from pathlib import Path
 from types import SimpleNamespace
@@ -250,7 +251,7 @@ def report_population(res, out: Path, old: set[Path], recorded: dict, args=None,
     if res.population and np.isfinite(res.objective):  # (as its figures: an Ω, a fit)
         tables.append(("observations.csv", partial(_table_csv, res)))
     failures: list[str] = []
-    figures = _figures(res, out, extras.get("profiles"), renderer, failures)
+    figures = partial(_figures, res, out, extras.get("profiles"), renderer, failures)
     _, lost = write_folder(out, old, data, kept, figures,
                            lambda made: population_report(res, data, made), tables)  # fmt: skip
     for f in [*notes, *failures, *lost]:
@@ -289,10 +290,6 @@ def _drawn_here(path: Path, build):
     return lambda: write_atomic(path, partial(save_png, build()))
 
 
-def _reason(e: Exception) -> str:
-    return (e.strerror if isinstance(e, OSError) else None) or str(e)
-
-
 def _table_csv(res, path: Path) -> None:
     """observations.csv: one row per observation (population/diagnostics.py)."""
     tab = res.table()
@@ -319,11 +316,11 @@ def save_interrupted(res, out: Path, old: set[Path], recorded: dict, kept: dict 
     kept = {} if kept is None else kept
     if kept.get("fit.json"):
         _tidy(out, old, kept, [])
-        print(f"tensorid: interrupted; {kept['fit.json']} was written")
+        print(f"tensorid: interrupted; {kept['fit.json']} was written", file=sys.stderr)
         return 130
     if not after:
         print(res.summary())
     where = _save_now(out, old, lambda: _finite(population_json(res, recorded)))
     what = "the estimates" if after else "the best point so far"
-    print(f"tensorid: interrupted; {what} {'are' if after else 'is'} in {where}")
+    print(f"tensorid: interrupted; {what} {'are' if after else 'is'} in {where}", file=sys.stderr)
     return 130

@@ -234,7 +234,8 @@ def unit_estimate(spec: ModelSpec, fitted: dict, e, disc, params: dict, path: st
     from .fleets import problem_keywords
 
     m = spec.model
-    if not fitted.get("population") and not fitted.get("individual"):
+    fleet = fitted.get("kind") == "population" or fitted.get("population")
+    if not fleet:
         raise ValueError(
             f"--ipred: --params {path} is not a population fit's fit.json (a unit's own "
             "values come from its random effects): drop --ipred"
@@ -245,7 +246,14 @@ def unit_estimate(spec: ModelSpec, fitted: dict, e, disc, params: dict, path: st
             f"estimated from them: give a record with {list(m.outputs)}, or drop --ipred "
             "for the typical unit"
         )
-    pop = {n: float(v["omega"]) for n, v in fitted["population"].items()}
+    unmeasured = [n for n, v in (fitted.get("population") or {}).items()
+                  if not isinstance(v.get("omega"), int | float)]  # fmt: skip
+    if unmeasured:
+        raise ValueError(
+            f"--ipred: --params {path} has no ω of {unmeasured} (a fit that did not end): "
+            "give the fit.json of a finished fit"
+        )
+    pop = {n: float(v["omega"]) for n, v in (fitted.get("population") or {}).items()}
     shared = set(fitted.get("shared") or {})
     own = fitted.get("individual")
     if own is None:  # a fit.json before the key: the values that differ over its units

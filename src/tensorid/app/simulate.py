@@ -107,14 +107,20 @@ def _score(args, require_outputs: bool):
     disc = integration(args, fitted, spec)
     eta = None  # --ipred: the unit's own values, η̂ by empirical Bayes from its data
     if getattr(args, "ipred", False):
+        if fitted is None:
+            raise ValueError(
+                "--ipred estimates a unit's own values from a population fit: give its "
+                "fit.json with --params FIT.json"
+            )
         if len(args.params) > 1:
             raise ValueError(
                 "--ipred estimates the unit's own values from the fit's population: drop "
                 f"the NAME=VALUE pairs after {args.params[0]}"
             )
+    if getattr(args, "ipred", False):
         params, eta, defaults = unit_estimate(spec, fitted or {}, e, disc, params,
                                               args.params[0])  # fmt: skip
-    elif fitted is not None and fitted.get("population") and "integration" not in fitted:
+    if fitted is not None and fitted.get("population") and "integration" not in fitted:
         print(f"note: --params {args.params[0]} does not record the fit's integration (a "
               f"fit.json before 2026-12-07): integrated at {disc.substeps} substeps; give "
               "--substeps as the fit's", file=sys.stderr)  # fmt: skip

@@ -1,8 +1,9 @@
 """Fitting: the composition of the solvers (``tensorid.solve``) and the statistics
 (``tensorid.analysis``): ``fit`` and ``fit_batch`` (methods.py), the staged pipelines
 (a robust loss's stages, robust.py; the priors' noise re-check, priors.py), experiment
-design (design.py, which fits), and ``FitResult`` (results.py), the solver's record
-with the statistics' methods.
+design (design.py, which fits); ``FitResult``, the solver's record with the
+statistics' methods, is in ``tensorid.analysis.results`` (``tensorid.fitting.results``
+is the same module), below ``tensorid.population``, whose result is one.
 
 The modules that moved to ``tensorid.solve`` and ``tensorid.analysis`` keep their
 old import paths: ``tensorid.fitting.trust_region`` is ``tensorid.solve.trust_region``

@@ -12,6 +12,7 @@ holds where the random effects or the residual error are not as the model says.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -24,14 +25,19 @@ else:
     _Base = object
 
 
+@dataclass(repr=False)
 class PopulationUncertainty(Uncertainty):
     """:class:`tensorid.analysis.uncertainty.Uncertainty` of ψ, said as a population
-    fit's (no residual variance: −2 log L carries its own)."""
+    fit's (no residual variance: −2 log L carries its own); ``joint``: a fit of
+    individual parameters alone (least squares, 2 s² H⁻¹)."""
+
+    joint: bool = False
 
     def blocks(self) -> list:
         out = super().blocks()
-        how = {"hessian": "exact Hessian of −2 log L, R⁻¹",
-               "robust": "sandwich R⁻¹SR⁻¹ over the units"}[self.kind]  # fmt: skip
+        cost = "the least-squares cost, 2 s² H⁻¹" if self.joint else "−2 log L, R⁻¹"
+        how = {"hessian": f"exact Hessian of {cost}",
+               "robust": "sandwich H⁻¹ (Σ g_i g_iᵀ) H⁻¹ over the units"}[self.kind]  # fmt: skip
         head = self.not_available or f"standard errors of ψ ({how}), {self.dof} units"
         return [head, *out[1:]]
 
@@ -58,7 +64,7 @@ class AsFit(_Base):
     @property
     def warnings(self) -> list[str]:
         """How the fit ended, where it did not converge, and its notes."""
-        return [*self.convergence_warnings, *self.notes]
+        return self.convergence_warnings if not self.success else list(self.notes)
 
     def prior_moves(self) -> list[dict]:
         return []  # a fleet's fit takes no priors
@@ -89,17 +95,26 @@ class AsFit(_Base):
             correlation=corr, sigma2=1.0, dof=len(self.units), kind=kind,
             warnings=list(self.notes), forms=[kind] * len(names),
             lags=0 if kind == "robust" else None,  # (the units: independent)
+            joint=self.method == "joint",
         )  # fmt: skip
 
     def _sandwich(self) -> np.ndarray:
-        """H⁻¹ (Σ_i g_i g_iᵀ) H⁻¹ at the estimate, g_i unit i's gradient of its share."""
-        obj = self.objective_function
-        _, g = obj.value_grad(np.asarray(self.x), np.asarray(self.etas))
-        Hi = self.cov / 2.0  # H⁻¹, NaN where not measured
-        return Hi @ (g.T @ g) @ Hi
+        """H⁻¹ (Σ_i g_i g_iᵀ) H⁻¹ at the estimate, g_i unit i's gradient of its share of
+        the objective and H its exact Hessian, over the directions measured (NaN on
+        those held: no error bar there, and none spread to the others)."""
+        _, g = self.objective_function.value_grad(np.asarray(self.x), np.asarray(self.etas))
+        H = np.asarray(self.hess, dtype=float)
+        seen = np.isfinite(np.diag(self.cov))
+        out = np.full_like(H, np.nan)
+        if seen.any():
+            Hi = np.linalg.inv(H[np.ix_(seen, seen)])
+            gs = np.asarray(g)[:, seen]
+            out[np.ix_(seen, seen)] = Hi @ (gs.T @ gs) @ Hi
+        return out
 
     def data_sensitivity(self) -> list[dict]:
-        """For a fleet, which unit moves the estimates: ``unit_influence()``."""
+        """For a fleet, which unit moves the estimates: ``unit_influence()`` (a Newton
+        step per unit, the five ranked first refitted without their data)."""
         return self.unit_influence()
 
     def residual_tests(self, *args, **kwargs):

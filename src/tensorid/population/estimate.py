@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..engine.compiling.compilation import clocks_here, counted_by
 from ..engine.schemes.implicit import DiagonallyImplicitRungeKutta
 from ..engine.schemes.integrators import ExplicitRungeKutta
 from ..engine.schemes.status import Status
@@ -36,7 +37,7 @@ from .distributed import UnitMap, evaluate_chunk
 from .objective import Objective
 from .result import PopulationResult
 from .start import drawn_starts, start_point
-from .units import blocked
+from .units import BLOCK, blocked
 
 
 def _a_fleet(problem, executor):
@@ -293,20 +294,33 @@ def _interrupted(obj: Objective, state: dict, began: float) -> PopulationResult:
                                   time.perf_counter() - began)  # fmt: skip
 
 
-def _compile_ahead(obj: Objective, psi, etas) -> None:
+_AHEAD: set = set()  # (structure, units per call) whose Hessians were compiled ahead
+
+
+def _compile_ahead(obj: Objective, psi, etas) -> threading.Thread | None:
     """The outer and inner Hessians' programs compiled (or read) in a second thread
     while this one solves the inner problems and takes the gradient, XLA compiling
     without the GIL: on two cores a cold fit waits for the longest compile rather
-    than their sum. A later call of either waits for it (the Program's lock)."""
+    than their sum. A later call of either waits for it (the Program's lock); its
+    compiling counts in the fit's compile_seconds. Once per structure (a refit, a
+    further start, has them); the caller joins the thread before it returns."""
+    shape = (obj.key, min(len(obj.units.names), BLOCK))  # (a program per shape)
+    if shape in _AHEAD:
+        return None
+    _AHEAD.add(shape)
+    clocks = clocks_here()
 
     def run() -> None:
-        try:
-            obj.hessian(psi, etas)
-            obj.inner_hessians(psi, etas)
-        except Exception:  # the fit's own call meets it, and says so
-            pass
+        with counted_by(clocks):
+            try:
+                obj.hessian(psi, etas)
+                obj.inner_hessians(psi, etas)
+            except Exception:  # the fit's own call meets it, and says so
+                pass
 
-    threading.Thread(target=run, name="tensorid-compile-ahead", daemon=True).start()
+    thread = threading.Thread(target=run, name="tensorid-compile-ahead", daemon=True)
+    thread.start()
+    return thread
 
 
 def _outer(obj: Objective, units: UnitMap | None, state: dict, start=None, **options):
@@ -317,8 +331,9 @@ def _outer(obj: Objective, units: UnitMap | None, state: dict, start=None, **opt
     psi0, etas0 = (start_point(obj), obj.start_etas()) if start is None else start
     lo, hi = bounds(obj)
     state.update(etas=etas0, best=np.inf, n=0)
-    if units is None and obj.size:  # (spread: the workers compile their own)
-        _compile_ahead(obj, np.asarray(psi0, dtype=float), np.asarray(etas0, dtype=float))
+    ahead = None  # (spread over workers: they compile their own)
+    if units is None and obj.size:
+        ahead = _compile_ahead(obj, np.asarray(psi0, dtype=float), np.asarray(etas0, dtype=float))
 
     def fun(psi):
         if units is None:
@@ -345,8 +360,12 @@ def _outer(obj: Objective, units: UnitMap | None, state: dict, start=None, **opt
         return TRResult(psi0, J, g, H, nit=0, nfev=1, status=status), state["etas"]
     # a likelihood has no rounding floor (fatol): −2 log L may be negative
     # (Ctrl-C: the loop ends the run, then fit_population keeps the best point)
-    r = interrupted(minimize_trust_region(fun, psi0, lo, hi, radius=1.0, fatol=-np.inf, **options))
-    return r, state["etas"]
+    try:
+        r = minimize_trust_region(fun, psi0, lo, hi, radius=1.0, fatol=-np.inf, **options)
+    finally:  # (not left inside XLA when the process ends)
+        if ahead is not None:
+            ahead.join()
+    return interrupted(r), state["etas"]
 
 
 def coarse_steps(obj: Objective, res: PopulationResult, etas) -> float | None:

@@ -1,7 +1,8 @@
-"""A population fit's figures, built in memory (the app writes them): every unit's data
-with its own fit and the typical unit's (a grid of small panels), observed against
-predicted (population and individual), and a visual predictive check (the observed
-percentiles over time beside those of fleets simulated from the fitted population)."""
+"""A population fit's figures, as the arrays they plot (analysis/fleet_figures.py draws
+them, in the command's renderer or here): every unit's data with its own fit and the
+typical unit's (a grid of small panels), observed against predicted (population and
+individual), a visual predictive check (the observed percentiles over time beside
+those of fleets simulated from the fitted population) and the residual panels."""
 
 from __future__ import annotations
 
@@ -163,6 +164,21 @@ def figure(res, kind: str, output: int = 0):
     build = {"units": units_arguments, "observed_predicted": observed_predicted_arguments,
              "vpc": vpc_arguments, "population_residuals": residuals_arguments}  # fmt: skip
     return draw(kind, build[kind](res, output))
+
+
+def units_figure(res, output: int = 0):
+    """Each unit's observations, its own prediction (η̂) and the typical unit's (η = 0)."""
+    return figure(res, "units", output)
+
+
+def observed_predicted_figure(res, output: int = 0):
+    """Observed against population (η = 0) and individual (η̂) predictions."""
+    return figure(res, "observed_predicted", output)
+
+
+def vpc_figure(res, output: int = 0):
+    """The visual predictive check of 200 fleets simulated from the fit."""
+    return figure(res, "vpc", output)
 
 
 def residuals_figure(res, output: int = 0):

@@ -273,7 +273,10 @@ class Objective:
         return O, O_psi - O_eta @ jnp.linalg.solve(H, L)
 
     def unit_hessian(self, psi, eta, unit):
-        """d²O_i/dψ² along η = η̂_i(ψ) (η̂'s derivative: a Newton step's, at η̂)."""
+        """d²O_i/dψ² along η = η̂_i(ψ) (η̂'s derivative: a Newton step's, at η̂). ŷ is
+        its polynomial about η̂ (exact there); the Newton step from a converged η̂ is
+        rounding, so the terms beyond the polynomial's order are too (a unit whose inner
+        problem did not converge is named in the fit's notes)."""
         me = self.local(psi, eta, unit, self.approximation.hessian_order)
 
         def grad_along(psi_):

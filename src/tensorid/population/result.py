@@ -93,8 +93,11 @@ def _omega(obj, x, cov, se) -> tuple[np.ndarray, np.ndarray, dict]:
 def _record(obj, r, H, status, seconds, method: str, population, shared) -> dict:
     """The fields every fit's result has (``tensorid.FitResult``'s), of ψ."""
     x = np.asarray(r.x, dtype=float)
-    params = {n: v["typical"] for n, v in population.items()}  # typical values, shared
-    params.update({n: v["value"] for n, v in shared.items()})
+    m, p0 = obj.problem.model, obj.problem.p0
+    given = {n: float(p0[m.params.index(n)]) for n in obj.problem.fixed}  # fixed values
+    given |= {n: v["typical"] for n, v in population.items()}  # typical values, shared
+    given |= {n: v["value"] for n, v in shared.items()}
+    params = {n: given[n] for n in m.params if n in given}  # (individual: in .units)
     jac = np.asarray(r.jac, dtype=float)
     return dict(
         problem=obj.problem, method=method, theta=x, params=params,
@@ -250,6 +253,10 @@ class PopulationResult(AsFit, FitResult):
             residual_sd=dict(zip(obj.problem.model.outputs, sd.tolist(), strict=True)),
             units=units, observations=N, objective_function=obj,
         )  # fmt: skip
+
+    def blocks(self) -> list:
+        """The summary as the one block (FitResult's are a single record's tables)."""
+        return [self.summary()]
 
     def summary(self) -> str:
         """The population table, the shared parameters and the residual SD."""

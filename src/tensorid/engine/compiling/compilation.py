@@ -39,6 +39,23 @@ def compile_clock():
         _local.clocks = tuple(c for c in _local.clocks if c is not clock)
 
 
+def clocks_here() -> tuple:
+    """The compile clocks running on this thread, for another thread to count into
+    (:func:`counted_by`): its compilations are this block's too."""
+    return tuple(getattr(_local, "clocks", ()))
+
+
+@contextmanager
+def counted_by(clocks: tuple):
+    """Within the block, this thread's compilations count on ``clocks`` as well."""
+    before = getattr(_local, "clocks", ())
+    _local.clocks = (*before, *clocks)
+    try:
+        yield
+    finally:
+        _local.clocks = before
+
+
 # -- what is being compiled, as it starts and ends -----------------------------------
 # A compiled program's first call (programs.py) is announced through JAX's own event
 # registry (jax.monitoring), so that a caller above the engine (the command line's
