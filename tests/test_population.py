@@ -970,3 +970,33 @@ def test_a_population_result_answers_every_name_a_fit_result_has():
         res.uncertainty("gauss-newton")
     assert sorted(d["id"] for d in values["data_sensitivity"]) == ["u0", "u1", "u2", "u3"]
     assert values["validate"][0]["id"] == "u0" and set(values["profile"]) == {"ka"}
+
+
+def test_ctrl_c_while_a_fleets_files_are_made_keeps_them_from_the_command_line(
+    tmp_path, monkeypatch, capsys
+):
+    """Issue 49, one writer: `tensorid fit` of a fleet pressed Ctrl-C while its figures
+    were made ended in a traceback; now exit 130 with the complete fit.json kept (the
+    fit itself is this file's 4-unit fleet, handed to the command in place of its own)."""
+    import json
+
+    from tensorid import cli
+    from tensorid.app import commands, population_run
+
+    res = ti.fit(fleet_problem(4))
+    root = Path(__file__).resolve().parents[1]
+    monkeypatch.setattr(commands, "fit", lambda problem, method, **options: res)
+
+    def pressed(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(population_run, "_figures", pressed)
+    out = tmp_path / "out"
+    rc = cli.main(["fit", str(root / "examples/phenobarbital/model.py"),
+                   str(Path(ti.__file__).parent / "datasets/phenobarbital.csv"),
+                   "--records", "ID", "--columns", "t=TIME,conc=DV", "--out", str(out),
+                   "--no-progress"])  # fmt: skip
+    err = capsys.readouterr().err
+    assert rc == 130 and "Traceback" not in err and "fit.json was written" in err, err
+    data = json.loads((out / "fit.json").read_text())
+    assert data["objective"] == pytest.approx(res.objective) and "population" in data
