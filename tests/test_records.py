@@ -360,3 +360,37 @@ def test_simulate_reads_one_unit_of_a_long_file(tmp_path, capsys):
     one = ["simulate", str(EXAMPLE), str(theophylline_csv()), "--unit", "3"]
     assert cli.main([*one, "--out", str(out)]) == 2
     assert "--unit 3 picks a unit of --records" in capsys.readouterr().err
+
+
+def test_plain_initial_state_expressions_are_read_without_sympy():
+    """Issue 50 item 1: a fleet's x0 = "Dose * Wt" imported SymPy (0.35 s of a warm
+    theophylline fit's 3.2 s); plain arithmetic is now read as written, with the values
+    SymPy gives, and SymPy reads the rest (and names what is wrong)."""
+    import subprocess
+    import sys
+
+    from tensorid.engine.modelling.equations import direct_function
+
+    fn, used = direct_function("exp(-ka) * Dose * Wt + Max(Wt, 2)", ["Dose", "Wt", "ka"], np)
+    assert used == {"Dose", "Wt", "ka"}
+    assert fn(4.0, 70.0, 0.5) == pytest.approx(np.exp(-0.5) * 280.0 + 70.0, rel=1e-15)
+    assert direct_function("Piecewise((1, Wt > 2))", ["Wt"]) is None  # SymPy's to read
+    assert direct_function("Dose * Height", ["Dose", "Wt"]) is None  # a stray name
+    code = (
+        "import sys, numpy as np, tensorid as ti\n"
+        "from tensorid.engine.modelling import initial\n"
+        "m = ti.Model(rhs=lambda x, p, u: -p[0] * x, output=lambda x, p: x, states=['a'],"
+        " params=['k'], inputs=['Dose', 'Wt'], outputs=['a'])\n"
+        "e = ti.Experiment(np.arange(3.0), np.array([[2.0, 70.0]] * 3), np.ones((3, 1)))\n"
+        "x0, used = initial.evaluate(m, [e], {'a': 'Dose * Wt * k'}, np.array([0.5]))\n"
+        "print(x0[0, 0], sorted(used), 'sympy' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.stdout.split() == ["70.0", "['k']", "False"], out.stderr
+    with pytest.raises(ValueError, match="neither inputs"):  # SymPy's path says what is wrong
+        from tensorid.engine.modelling import initial
+
+        m = ti.Model(rhs=lambda x, p, u: -p[0] * x, output=lambda x, p: x, states=["a"],
+                     params=["k"], inputs=["Dose"], outputs=["a"])  # fmt: skip
+        e = ti.Experiment(np.arange(3.0), np.ones((3, 1)), np.ones((3, 1)))
+        initial.evaluate(m, [e], {"a": "Dose * Height"}, np.array([0.5]))

@@ -281,6 +281,31 @@ def _integer(node) -> bool:
     return isinstance(node, ast.Constant) and type(node.value) is int and abs(node.value) < 64
 
 
+def direct_function(text, names: Sequence[str], module=jnp):
+    """(fn(*values, in the order of ``names``) by ``module``'s functions (JAX's, or
+    NumPy's for plain numbers), the names the text uses), or None
+    where ``text`` is not plain arithmetic on ``names`` (then SymPy reads it, and says
+    what is wrong). As ``_direct``: evaluated as written, without importing SymPy (a
+    fleet's x0 = "Dose * Wt" had imported it, 0.35 s of a warm fit's 3.2 s)."""
+    names = list(names)
+    if len(set(names)) != len(names) or not all(_usable(n) for n in names):
+        return None
+    if not isinstance(text, str):
+        return None
+    try:
+        tree = ast.parse(text.strip(), mode="eval")
+        if not _plain(tree, set(names)):
+            return None
+        used = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name) and n.id in names}
+        body = ast.unparse(_ToJax().visit(tree))
+        scope: dict = {"_jnp": module}
+        code = f"def _fn({', '.join(names)}):\n    return {body}\n"
+        exec(compile(code, "<tensorid expression>", "exec"), scope)  # only checked arithmetic
+    except (SyntaxError, ValueError, RecursionError, MemoryError):  # SymPy will say
+        return None
+    return scope["_fn"], used
+
+
 def _direct(rhs, output, states, inputs, params):
     """(f, h, params) from the text as written, or None where it is not plain arithmetic
     on the declared names (then SymPy reads it, and says what is wrong). The text is

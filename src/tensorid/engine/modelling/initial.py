@@ -14,7 +14,10 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
+import jax.numpy as jnp
 import numpy as np
+
+from .equations import direct_function
 
 
 def has_expressions(x0) -> bool:
@@ -24,17 +27,11 @@ def has_expressions(x0) -> bool:
 
 def evaluate(model, experiments, x0: Mapping, p0: np.ndarray) -> tuple[np.ndarray, set[str]]:
     """((E, N) initial states, the parameter names the expressions use)."""
-    import sympy as sp  # here: sympy costs 0.2-0.5 s to import
-
-    from .equations import _parse
-
     unknown = [k for k in x0 if k not in model.states]
     if unknown:
         raise ValueError(
             f"x0 names unknown states {unknown}; the model's states are {list(model.states)}"
         )
-    names = list(model.inputs) + list(model.params)
-    symbols = {n: sp.Symbol(n) for n in names}
     out = np.zeros((len(experiments), model.N))
     used: set[str] = set()
     for state, spec in x0.items():
@@ -42,16 +39,8 @@ def evaluate(model, experiments, x0: Mapping, p0: np.ndarray) -> tuple[np.ndarra
         if not isinstance(spec, str):
             out[:, i] = _number(state, spec)
             continue
-        expr = _parse(f"x0[{state!r}]", spec, symbols)
-        free = sorted(str(s) for s in expr.free_symbols)
-        stray = [n for n in free if n not in names]
-        if stray:
-            raise ValueError(
-                f"x0[{state!r}] = {spec!r} names {stray}, which are neither inputs "
-                f"{list(model.inputs)} nor parameters {list(model.params)} of the model"
-            )
-        used |= {n for n in free if n in model.params}
-        fn = sp.lambdify([symbols[n] for n in names], expr, "numpy")
+        fn, names = _function(model, state, spec, "numpy")
+        used |= names & set(model.params)
         for e, exp in enumerate(experiments):
             u0 = np.asarray(exp.u, dtype=float)[0] if np.size(exp.u) else np.zeros(0)
             value = float(fn(*u0, *p0[: model.M]))
@@ -64,22 +53,39 @@ def evaluate(model, experiments, x0: Mapping, p0: np.ndarray) -> tuple[np.ndarra
     return out, used
 
 
-def moving(model, x0: Mapping):
-    """The states whose expressions name parameters, as ``f(x0 (N,), u0 (U,), p (M,))
-    -> x0 (N,)`` in JAX (the others as given); None where no expression names one."""
-    import sympy as sp
+def _function(model, state: str, spec: str, modules: str):
+    """(fn(*inputs, *params), the names it uses) of x0[state]'s expression: as written
+    where it is plain arithmetic (no SymPy import), else by SymPy, whose parser says what
+    is wrong; a name that is neither an input nor a parameter is refused."""
+    names = list(model.inputs) + list(model.params)
+    direct = direct_function(spec, names, np if modules == "numpy" else jnp)
+    if direct is not None:
+        return direct
+    import sympy as sp  # here: sympy costs 0.2-0.5 s to import
 
     from .equations import _parse
 
-    names = list(model.inputs) + list(model.params)
     symbols = {n: sp.Symbol(n) for n in names}
+    expr = _parse(f"x0[{state!r}]", spec, symbols)
+    free = sorted(str(s) for s in expr.free_symbols)
+    stray = [n for n in free if n not in names]
+    if stray:
+        raise ValueError(
+            f"x0[{state!r}] = {spec!r} names {stray}, which are neither inputs "
+            f"{list(model.inputs)} nor parameters {list(model.params)} of the model"
+        )
+    return sp.lambdify([symbols[n] for n in names], expr, modules), set(free)
+
+
+def moving(model, x0: Mapping):
+    """The states whose expressions name parameters, as ``f(x0 (N,), u0 (U,), p (M,))
+    -> x0 (N,)`` in JAX (the others as given); None where no expression names one."""
     parts = []
     for state, spec in x0.items():
         if not isinstance(spec, str):
             continue
-        expr = _parse(f"x0[{state!r}]", spec, symbols)
-        if any(str(s) in model.params for s in expr.free_symbols):
-            fn = sp.lambdify([symbols[n] for n in names], expr, modules="jax")
+        fn, names = _function(model, state, spec, "jax")
+        if names & set(model.params):
             parts.append((model.states.index(state), fn))
     if not parts:
         return None
