@@ -14,7 +14,7 @@ from rich.console import Console, Group
 from rich.live import Live
 
 from ..analysis.display import summary_table
-from ..analysis.figures import figure_jobs, save_png
+from ..analysis.figures import figure_jobs
 from ..analysis.results import FitInterrupted
 from ..analysis.validation import Score, training_scores
 from ..engine.assembly.problem import Problem
@@ -46,9 +46,10 @@ from .keeping import (
     _no_interrupt,
     _save_after_interrupt,
     _save_interrupted,
+    drawn_here,
     write_folder,
 )
-from .output import check_destination, claimed, previous_outputs, write_atomic
+from .output import check_destination, claimed, previous_outputs
 from .overrides import given_once, overridden
 from .population_run import report_population, save_interrupted
 from .progress import _log_line, _progress_table
@@ -117,16 +118,14 @@ def _write_results(res, out: Path, scores: list[Score], old, extras, kept: dict,
     recorded = ("provenance", "overrides", "samples", "validate_samples")  # _recorded's
     data.update({k: extras[k] for k in recorded if k in extras})
     renderer, stems = drawn
-
-    def here(stem: str, build) -> tuple:  # a figure drawn in this process, when due
-        return stem, lambda: write_atomic(out / f"{stem}.png", partial(save_png, build()))
-
     # in the report's order: the fit's figures, profiles, residual tests, sensitivity
     figures = [(s, partial(renderer.collect, s)) for s in stems if s != "residual_tests"]
-    figures += [here(stem, build) for stem, build in _profile_figures(res, profiles)]
+    figures += [(stem, drawn_here(out / f"{stem}.png", build))
+                for stem, build in _profile_figures(res, profiles)]  # fmt: skip
     figures += [(s, partial(renderer.collect, s)) for s in stems if s == "residual_tests"]
     if influence is not None:
-        figures.append(here("data_sensitivity", influence.figure))
+        figures.append(("data_sensitivity", drawn_here(out / "data_sensitivity.png",
+                                                       influence.figure)))  # fmt: skip
     everything = training_scores(res) + scores
 
     def report(made: list[Path]) -> str:

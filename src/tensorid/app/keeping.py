@@ -8,11 +8,13 @@ from __future__ import annotations
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
 from ..analysis.display import summary_table
+from ..analysis.figures import save_png
 from .output import replace_outputs, write_atomic, write_kept, write_text
 from .reports import fit_json, json_text
 
@@ -143,6 +145,12 @@ def write_folder(out: Path, old: set[Path], data: dict, kept: dict, figures, rep
         failures.append(f"could not write {out / 'report.md'}: {e.strerror or e}")
     _replace_quietly(out, old, written + made, failures)
     return made, failures
+
+
+def drawn_here(path: Path, build):
+    """A figure maker for write_folder: ``build()`` drawn in this process when its turn
+    comes (after fit.json), written atomically to ``path``."""
+    return lambda: write_atomic(path, partial(save_png, build()))
 
 
 def _reason(e: Exception) -> str:

@@ -19,15 +19,14 @@ from types import SimpleNamespace
 import numpy as np
 
 from .._config import __version__
-from ..analysis.figures import draw, profile_figure, save_png
+from ..analysis.figures import draw, profile_figure
 from ..population.figures import figure_jobs
 from ..population.influence import influence_lines, unit_influence
 from ..population.profiles import names_of
 from ..population.validation import held_out, held_out_lines
 from .after_fit import printed_profiles
 from .fleet_report import fleet_json, fleet_lines
-from .keeping import _save_now, _tidy, write_folder
-from .output import write_atomic
+from .keeping import _save_now, _tidy, drawn_here, write_folder
 from .provenance import markdown as provenance_lines
 from .reports import _profile_json
 
@@ -280,14 +279,10 @@ def _figures(res, out: Path, profiles, renderer, failures: list[str]) -> list[tu
             renderer.submit(out, [(stem, kind, arguments)])
             makers.append((stem, partial(renderer.collect, stem)))
         else:
-            makers.append((stem, _drawn_here(out / f"{stem}.png", partial(draw, kind, arguments))))
+            makers.append((stem, drawn_here(out / f"{stem}.png", partial(draw, kind, arguments))))
     for stem, build in _profile_figures(res, profiles):
-        makers.append((stem, _drawn_here(out / f"{stem}.png", partial(build, res))))
+        makers.append((stem, drawn_here(out / f"{stem}.png", partial(build, res))))
     return makers
-
-
-def _drawn_here(path: Path, build):
-    return lambda: write_atomic(path, partial(save_png, build()))
 
 
 def _table_csv(res, path: Path) -> None:

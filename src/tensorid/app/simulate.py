@@ -117,9 +117,7 @@ def _score(args, require_outputs: bool):
                 "--ipred estimates the unit's own values from the fit's population: drop "
                 f"the NAME=VALUE pairs after {args.params[0]}"
             )
-    if getattr(args, "ipred", False):
-        params, eta, defaults = unit_estimate(spec, fitted or {}, e, disc, params,
-                                              args.params[0])  # fmt: skip
+        params, eta, defaults = unit_estimate(spec, fitted, e, disc, params, args.params[0])
     if fitted is not None and fitted.get("population") and "integration" not in fitted:
         print(f"note: --params {args.params[0]} does not record the fit's integration (a "
               f"fit.json before 2026-12-07): integrated at {disc.substeps} substeps; give "

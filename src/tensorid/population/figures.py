@@ -134,12 +134,10 @@ def figure_jobs(res) -> list[tuple]:
     a finite fit, the visual predictive check and the residuals. The builder computes
     the arrays (here, with JAX); the kind draws them (analysis/fleet_figures.py: in
     the command's renderer, while the command goes on)."""
-    out = [("units", "units", units_arguments),
-           ("observed_predicted", "observed_predicted", observed_predicted_arguments)]  # fmt: skip
+    kinds = [("units", "units"), ("observed_predicted", "observed_predicted")]
     if res.population and np.isfinite(res.objective):
-        out += [("vpc", "vpc", vpc_arguments), ("residuals", "population_residuals",
-                                                residuals_arguments)]  # fmt: skip
-    return out
+        kinds += [("vpc", "vpc"), ("residuals", "population_residuals")]
+    return [(stem, kind, ARGUMENTS[kind]) for stem, kind in kinds]
 
 
 def vpc_arguments(res, output: int = 0, replicates: int = 200) -> dict:
@@ -157,13 +155,16 @@ def residuals_arguments(res, output: int = 0) -> dict:
             "output": name}  # fmt: skip
 
 
+# each kind of figure (analysis/fleet_figures.py) and the builder of its arrays
+ARGUMENTS = {"units": units_arguments, "observed_predicted": observed_predicted_arguments,
+             "vpc": vpc_arguments, "population_residuals": residuals_arguments}  # fmt: skip
+
+
 def figure(res, kind: str, output: int = 0):
     """One of :func:`figure_jobs`' kinds of figure of ``res``, drawn here."""
     from ..analysis.figures import draw
 
-    build = {"units": units_arguments, "observed_predicted": observed_predicted_arguments,
-             "vpc": vpc_arguments, "population_residuals": residuals_arguments}  # fmt: skip
-    return draw(kind, build[kind](res, output))
+    return draw(kind, ARGUMENTS[kind](res, output))
 
 
 def units_figure(res, output: int = 0):
