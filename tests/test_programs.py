@@ -532,7 +532,7 @@ import tensorid as ti
 from tensorid.population.objective import Objective
 
 traced = []
-for name in ("unit_value_grad", "unit_hessian"):
+for name in ("unit_value_grad", "unit_evaluation"):
     fn = getattr(Objective, name)
     def counting(self, *a, _fn=fn, _name=name, **k):
         traced.append(_name)
@@ -558,7 +558,7 @@ def test_a_population_fits_programs_are_read_by_the_next_process(tmp_path):
     fit whose programs were all in JAX's cache; its programs are now kept as the
     sweeps' are, and a second process traces none of them, with the same numbers."""
     first = _run(tmp_path / "jax", script=POPULATION)
-    assert first["traced"] == ["unit_hessian", "unit_value_grad"]
+    assert first["traced"] == ["unit_evaluation", "unit_value_grad"]
     second = _run(tmp_path / "jax", script=POPULATION)
     assert second["traced"] == []  # read, not traced
     # (a kept program's numbers against a process that keeps nothing: the sweeps' test

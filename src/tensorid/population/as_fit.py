@@ -102,7 +102,7 @@ class AsFit(_Base):
         """H⁻¹ (Σ_i g_i g_iᵀ) H⁻¹ at the estimate, g_i unit i's gradient of its share of
         the objective and H its exact Hessian, over the directions measured (NaN on
         those held: no error bar there, and none spread to the others)."""
-        _, g = self.objective_function.value_grad(np.asarray(self.x), np.asarray(self.etas))
+        g = self.objective_function.evaluation(np.asarray(self.x), np.asarray(self.etas))[1]
         H = np.asarray(self.hess, dtype=float)
         seen = np.isfinite(np.diag(self.cov))
         out = np.full_like(H, np.nan)

@@ -29,9 +29,11 @@ def evaluate_chunk(obj: Objective, psi, etas, hessian: bool = True):
     etas, ok = obj.solve_inner(psi, etas)
     if not ok:
         return etas, list(obj.unconverged) + list(obj.unfinite), np.inf, None, None
-    O, g = obj.value_grad(psi, etas)
-    H = obj.hessian(psi, etas) if hessian else None
-    return etas, [], float(O.sum()), g.sum(0), H
+    if not hessian:  # (a profile's trial point: the smaller program)
+        O, g = obj.value_grad(psi, etas)
+        return etas, [], float(O.sum()), g.sum(0), None
+    O, g, H, _ = obj.evaluation(psi, etas)
+    return etas, [], float(O.sum()), g.sum(0), H.sum(0)
 
 
 def _chunk_task(problem, args):

@@ -298,23 +298,23 @@ _AHEAD: set = set()  # (structure, units per call) whose Hessians were compiled 
 
 
 def _compile_ahead(obj: Objective, psi, etas) -> threading.Thread | None:
-    """The outer and inner Hessians' programs compiled (or read) in a second thread
-    while this one solves the inner problems and takes the gradient, XLA compiling
+    """The outer evaluation's program (value, gradient, Hessians) compiled (or read) in
+    a second thread while this one compiles the inner steps and solves, XLA compiling
     without the GIL: on two cores a cold fit waits for the longest compile rather
-    than their sum. A later call of either waits for it (the Program's lock); its
+    than their sum. The fit's own call waits for it (the Program's lock); its
     compiling counts in the fit's compile_seconds. Once per structure (a refit, a
     further start, has them); the caller joins the thread before it returns."""
     shape = (obj.key, min(len(obj.units.names), BLOCK))  # (a program per shape)
     if shape in _AHEAD:
         return None
     _AHEAD.add(shape)
+    obj.evaluation(psi, etas, ahead=True)  # traced here: the thread then runs XLA alone
     clocks = clocks_here()
 
     def run() -> None:
         with counted_by(clocks):
             try:
-                obj.hessian(psi, etas)
-                obj.inner_hessians(psi, etas)
+                obj.evaluation(psi, etas)
             except Exception:  # the fit's own call meets it, and says so
                 pass
 

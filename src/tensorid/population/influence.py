@@ -46,8 +46,7 @@ def unit_influence(res, refits: int = 5) -> list[dict]:
     if not res.success:
         raise ValueError(f"unit influence needs a fit that converged; this one {res.message}")
     psi, etas = np.asarray(res.x), np.asarray(res.etas)
-    _, g = obj.value_grad(psi, etas)
-    H = obj.hessian(psi, etas, per_unit=True)
+    _, g, H, _ = obj.evaluation(psi, etas)
     G, Htot = g.sum(0), H.sum(0)
     cov = np.where(np.isfinite(res.cov), res.cov, 0.0)  # (NaN: a direction not measured)
     se, info = np.sqrt(np.abs(np.diag(cov))), np.linalg.pinv(cov, hermitian=True)

@@ -54,7 +54,7 @@ from .approximations import APPROXIMATIONS
 from .errors import ResidualErrors, positive_observations
 from .inner import solve_units
 from .random_effects import RandomEffects
-from .units import Units, blocked, outputs, taylor
+from .units import Units, block, blocked, outputs, taylor
 
 METHODS = tuple(APPROXIMATIONS)  # (approximations.py)
 _PROGRAMS: dict = {}  # compiled programs per structure (Objective.key)
@@ -272,9 +272,11 @@ class Objective:
         L = jax.jacfwd(jax.grad(me.ell), argnums=1)(eta, psi, unit)  # (q, ψ)
         return O, O_psi - O_eta @ jnp.linalg.solve(H, L)
 
-    def unit_hessian(self, psi, eta, unit):
-        """d²O_i/dψ² along η = η̂_i(ψ) (η̂'s derivative: a Newton step's, at η̂). ŷ is
-        its polynomial about η̂ (exact there); the Newton step from a converged η̂ is
+    def unit_evaluation(self, psi, eta, unit):
+        """(O_i, dO_i/dψ, d²O_i/dψ², ∇²_ηη ℓ_i) at η̂, in one program (what every outer
+        evaluation asks, so a fit compiles one program for it, not three). The Hessian
+        is taken along η = η̂_i(ψ) (η̂'s derivative: a Newton step's, at η̂). ŷ is its
+        polynomial about η̂ (exact there); the Newton step from a converged η̂ is
         rounding, so the terms beyond the polynomial's order are too (a unit whose inner
         problem did not converge is named in the fit's notes)."""
         me = self.local(psi, eta, unit, self.approximation.hessian_order)
@@ -282,9 +284,10 @@ class Objective:
         def grad_along(psi_):
             g = jax.grad(me.ell)(eta, psi_, unit)
             H = jax.hessian(me.ell)(eta, psi_, unit)
-            return me.unit_value_grad(psi_, eta - jnp.linalg.solve(H, g), unit, False)[1]
+            return me.unit_value_grad(psi_, eta - jnp.linalg.solve(H, g), unit, False)[1], H
 
-        return jax.jacfwd(grad_along)(psi)
+        H, inner = jax.jacfwd(grad_along, has_aux=True)(psi)
+        return (*me.unit_value_grad(psi, eta, unit, False), H, inner)
 
     def inner_step(self, eta, lam, psi, unit):
         """One damped Newton step on ℓ_i: (η, λ, ℓ, |step|)."""
@@ -377,8 +380,8 @@ class Objective:
 
         return jax.jit(total)
 
-    def _build_hessian(self):
-        return jax.jit(jax.vmap(self.unit_hessian, in_axes=(None, 0, 0)))
+    def _build_evaluation(self):
+        return jax.jit(jax.vmap(self.unit_evaluation, in_axes=(None, 0, 0)))
 
     def _build_inner_blocks(self):
         def blocks(eta, psi, unit):  # ∇²_ηη ℓ_i and ∇²_ηψ ℓ_i
@@ -412,9 +415,6 @@ class Objective:
                             units=(1, 2))  # fmt: skip
         return np.asarray(out)
 
-    def _build_inner_hessians(self):
-        return jax.jit(jax.vmap(jax.hessian(self.ell), in_axes=(0, None, 0)))
-
     def solve_inner(self, psi, etas, maxiter: int = 100, tol: float = 1e-11):
         """Each unit's η̂ from ``etas``: (η̂ (E, q), whether every unit converged);
         by damped Newton steps through the one loop (inner.py)."""
@@ -430,15 +430,17 @@ class Objective:
                              units=(1, 2))  # fmt: skip
         return np.asarray(O), np.asarray(g)
 
+    def evaluation(self, psi, etas, ahead: bool = False) -> tuple[np.ndarray, ...] | None:
+        """(O_i (E,), dO_i/dψ (E, ψ), d²O_i/dψ² (E, ψ, ψ), ∇²ℓ_i (E, q, q)) per unit at
+        η̂: an outer evaluation's value, gradient and Hessian, and each unit's inner
+        Hessian (its inverse: the unit's η covariance). ``ahead``: only its program
+        traced, here (Program.trace_ahead), for a first call in another thread."""
+        args = (jnp.asarray(psi), jnp.asarray(etas), self.data)
+        if ahead:
+            return self._compiled("evaluation").trace_ahead(*block(args, (1, 2)))
+        return tuple(np.asarray(a) for a in self._blocked("evaluation", *args, units=(1, 2)))
+
     def hessian(self, psi, etas, per_unit: bool = False) -> np.ndarray:
         """Σ_i d²O_i/dψ² at η̂ (each unit's, (E, ψ, ψ), with ``per_unit``)."""
-        H = self._blocked("hessian", jnp.asarray(psi), jnp.asarray(etas), self.data, units=(1, 2))
-        return np.asarray(H) if per_unit else np.asarray(H).sum(0)
-
-    def inner_hessians(self, psi, etas) -> np.ndarray:
-        """∇²ℓ_i(η̂_i) (E, q, q): the inverse is each unit's η covariance."""
-        return np.asarray(
-            self._blocked(
-                "inner_hessians", jnp.asarray(etas), jnp.asarray(psi), self.data, units=(0, 2)
-            )  # fmt: skip
-        )
+        H = self.evaluation(psi, etas)[2]
+        return H if per_unit else H.sum(0)

@@ -193,7 +193,7 @@ class PopulationResult(AsFit, FitResult):
             for j, n in enumerate(obj.shared)
         }
         residual_error = _residual_error(obj, x, se)
-        inner = obj.inner_hessians(x, etas)
+        inner = obj.evaluation(x, etas)[3]  # ∇²ℓ_i(η̂): its inverse, unit i's η covariance
         units = []
         for i, uid in enumerate(obj.units.names):
             ci = _inverse(inner[i])

@@ -83,9 +83,8 @@ _WHAT = {
     # a population fit's (population/objective.py)
     "population_steps": "the units' inner Newton steps",
     "population_value_grad": "the population objective and its gradient",
-    "population_hessian": "the population objective's Hessian",
+    "population_evaluation": "the population objective, its gradient and Hessians",
     "population_inner_blocks": "the units' inner curvature",
-    "population_inner_hessians": "the units' inner Hessians",
     "population_predict_all": "the units' predictions",
 }
 

@@ -49,6 +49,7 @@ import jax
 import numpy as np
 
 from ..._state import state
+from . import executables
 from .compilation import announced, describe
 
 _NOT_KEPT = ("custom_jvp", "custom_vjp", "custom_vmap", "callback", "debug", "<function", "0x")
@@ -209,6 +210,7 @@ class Program:
         self.jitted, self.sweeps, self.entry = jitted, sweeps, entry
         self._runs: dict = {}
         self._lock = threading.Lock()
+        self._exported: dict = {}  # traced ahead (trace_ahead), for the first call
 
     def __call__(self, *args):
         leaves, treedef = jax.tree_util.tree_flatten(args)
@@ -229,9 +231,34 @@ class Program:
             with announced(describe(self.entry)):  # the console's progress line
                 return self._first(args, leaves, treedef, shapes)
 
+    def trace_ahead(self, *args) -> None:
+        """Trace (export) the program for ``args`` here and now, where no process kept
+        it, so that its first call, made in another thread, only compiles: XLA runs
+        without the GIL, tracing holds it, and two threads tracing at once each take
+        as long as both (a population fit's first outer evaluation compiled in a
+        second thread, 6 s of trace beside the inner steps' own, instead of 3). Does
+        nothing where it is kept, exported already, or not kept at all."""
+        leaves, treedef = jax.tree_util.tree_flatten(args)
+        shapes = (treedef, tuple((a.shape, a.dtype) for a in leaves))
+        with self._lock:
+            if shapes in self._runs or shapes in self._exported:
+                return
+            try:
+                where = folder()
+                key = None if where is None else _key(self.sweeps, self.entry, leaves, treedef)
+                if key is None or executables.path_for(where, key).exists():
+                    return
+                path = where / f"{key}.jaxexport"
+                if path.exists():
+                    return
+                with announced(describe(self.entry)):
+                    self._exported[shapes] = _exported(self.jitted, args, path, where, key)
+            except Exception:  # the first call traces it itself
+                return
+
     def _first(self, args, leaves, treedef, shapes):
         """The first call for these shapes: compiled (or read), kept and run."""
-        run, path = self._prepare(args, leaves, treedef)
+        run, path = self._prepare(args, leaves, treedef, shapes)
         if run is self.jitted:
             self._runs[shapes] = run
             return run(*args)
@@ -245,7 +272,7 @@ class Program:
         self._runs[shapes] = run
         return out
 
-    def _prepare(self, args, leaves, treedef):
+    def _prepare(self, args, leaves, treedef, shapes):
         """(what runs for these shapes, and its file): the executable kept by an
         earlier process, else the exported program (read, or traced and written)
         compiled and its executable kept; or (the plain jit, None) where nothing can
@@ -258,30 +285,32 @@ class Program:
         if key is None:  # no program is kept: the compiled code is capped all the same
             _prune(None, "")
             return self.jitted, None
-        from jax import export
-
-        from . import executables
-
         kept = executables.path_for(where, key)
         run = executables.load(kept)
         if run is not None:  # compiled by an earlier process: neither lowered nor looked up
             return run, kept
         path = where / f"{key}.jaxexport"
-        exported = _read(path)
+        exported = self._exported.pop(shapes, None) or _read(path)
         if exported is None:  # not there yet, or damaged: trace it now
             try:
-                specs = jax.tree_util.tree_map(
-                    lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype), args
-                )
-                exported = export.export(self.jitted)(*specs)
-                _write(path, exported.serialize())
-                _prune(where, key[:8])
+                exported = _exported(self.jitted, args, path, where, key)
             except Exception:
                 return self.jitted, None
         run = executables.compile_and_keep(jax.jit(exported.call), args, kept, _write)
         if run is not None:
             return run, kept
         return jax.jit(exported.call), path
+
+
+def _exported(jitted, args, path: Path, where: Path, key: str):
+    """``jitted`` traced and exported at ``args``' shapes, and written to ``path``."""
+    from jax import export
+
+    specs = jax.tree_util.tree_map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype), args)
+    exported = export.export(jitted)(*specs)
+    _write(path, exported.serialize())
+    _prune(where, key[:8])
+    return exported
 
 
 def _read(path: Path):
