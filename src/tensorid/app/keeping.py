@@ -119,20 +119,23 @@ def write_folder(out: Path, old: set[Path], data: dict, kept: dict, figures, rep
     its path)) in the report's order, and report.md (``report(figures written)``), each
     atomically; what an earlier run wrote and this one did not is removed. A table or
     figure that fails is one line of the failures, not the end of the others;
-    ``figures`` may be a function returning them, called once fit.json is written (a
-    fleet's figures compute their arrays). Returns (the figures written, the
-    failures)."""
+    ``figures`` may be a function returning them, called once fit.json is written and
+    before the tables (a fleet's figures compute their arrays and hand them to the
+    renderer). Returns (the figures written, the failures)."""
     failures = _keep(out, data, kept)
     if kept.get("fit.json") != out / "fit.json":
         return [], failures  # the folder cannot be written: the rest would fail as well
     written: list[Path] = [kept["fit.json"]]
+    # the figures' makers before the tables: a fleet's compute their arrays and hand
+    # them to the renderer, which then draws while the tables are written
+    figures = figures() if callable(figures) else figures
     for name, write in tables:
         try:
             written.append(write_atomic(out / name, write))
         except Exception as e:  # a table is not worth the fit: say so, go on
             failures.append(f"could not write {out / name}: {_reason(e)}")
     made: list[Path] = []
-    for stem, make in figures() if callable(figures) else figures:
+    for stem, make in figures:
         try:
             made.append(make())
         except OSError as e:
