@@ -22,9 +22,10 @@ An executable is only written when this process compiled it: one that JAX's
 compilation cache handed back serializes incompletely (jaxlib 0.10.2: its call fails,
 "Function ... not found", when the result is read), and JAX's switch to keep its cache
 out of one compilation does not reach a cache the process has opened. So where JAX's
-cache answers (a hit, counted through jax.monitoring), nothing is kept: a program
-that cache already holds, from an earlier version of tensorid whose traced program
-was the same, goes on being loaded from it as before. What is written is read back
+cache answers (a hit, counted through jax.monitoring), nothing is kept. A program is
+compiled under a name made of its key (``programs._named``), which JAX's cache keys
+too, so an earlier version of tensorid whose traced program was the same does not
+answer for it: the new version compiles it once and keeps it. What is written is read back
 and run: a file that does not work fails in the process that wrote it (its first
 call is waited for), which removes it and runs the plain jit. Whatever else goes
 wrong (a file that cannot be read or written), the plain jit runs as before; this

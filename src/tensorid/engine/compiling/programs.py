@@ -296,10 +296,26 @@ class Program:
                 exported = _exported(self.jitted, args, path, where, key)
             except Exception:
                 return self.jitted, None
-        run = executables.compile_and_keep(jax.jit(exported.call), args, kept, _write)
+        jitted = jax.jit(_named(exported.call, key))
+        run = executables.compile_and_keep(jitted, args, kept, _write)
         if run is not None:
             return run, kept
-        return jax.jit(exported.call), path
+        return jitted, path
+
+
+def _named(call, key: str):
+    """``call`` under a name made of the program's key. JAX's compilation cache keys a
+    module by its name as well as its contents, so another version of tensorid whose
+    traced program is the same compiles it anew, and keeps the executable, instead of
+    being handed JAX's cached copy, which cannot be kept (:mod:`.executables`): every
+    later process of that version would have rebuilt it from JAX's cache (1.5 s of a
+    warm theophylline fit's 3.2 s). The first fit after an upgrade compiles, once."""
+
+    def named(*args):
+        return call(*args)
+
+    named.__name__ = named.__qualname__ = "kept_" + key.replace("-", "_")
+    return named
 
 
 def _exported(jitted, args, path: Path, where: Path, key: str):
