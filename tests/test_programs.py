@@ -15,6 +15,7 @@ import pytest
 
 import tensorid as ti
 from tensorid.engine import programs
+from tensorid.engine.compiling import pruning
 
 # one process: build a problem from text equations, count how often the sweeps' Python
 # runs (a trace), print (J, g, H) to full precision
@@ -252,7 +253,7 @@ def test_other_versions_programs_unused_for_a_month_are_pruned(tmp_path, monkeyp
     os.utime(old, (month, month))
     os.utime(ours, (month, month))
     monkeypatch.setattr(programs.state, "pruned", False)
-    programs._prune(folder, "cccccccc")
+    pruning.prune(folder, "cccccccc")
     assert not old.exists() and recent.exists() and ours.exists()
 
 
@@ -268,13 +269,13 @@ def test_a_folder_over_its_cap_loses_its_least_recently_used_programs(tmp_path, 
         f.write_bytes(b"x" * 100)
         os.utime(f, (now - 3600 * k, now - 3600 * k))
         files.append(f)
-    monkeypatch.setattr(programs, "MAX_BYTES", 800)
+    monkeypatch.setattr(pruning, "MAX_BYTES", 800)
     monkeypatch.setattr(programs.state, "pruned", False)
-    programs._prune(folder, "cccccccc")
+    pruning.prune(folder, "cccccccc")
     # over 800 bytes: the oldest go until 600 (three quarters) are left
     assert [f.exists() for f in files] == [True] * 6 + [False] * 4
     monkeypatch.setattr(programs.state, "pruned", False)
-    programs._prune(folder, "cccccccc")  # under the cap: nothing more goes
+    pruning.prune(folder, "cccccccc")  # under the cap: nothing more goes
     assert sum(f.exists() for f in files) == 6
 
 
@@ -300,9 +301,9 @@ def test_two_processes_pruning_at_once_remove_no_more_than_one(tmp_path, monkeyp
         raise FileNotFoundError(2, "No such file or directory", str(self))
 
     monkeypatch.setattr(Path, "unlink", raced)
-    monkeypatch.setattr(programs, "MAX_BYTES", 800)
+    monkeypatch.setattr(pruning, "MAX_BYTES", 800)
     monkeypatch.setattr(programs.state, "pruned", False)
-    programs._prune(folder, "cccccccc")
+    pruning.prune(folder, "cccccccc")
     assert sum(f.exists() for f in files) == 6
 
 
@@ -372,20 +373,20 @@ def test_jax_compiled_code_is_kept_under_its_cap_least_recently_used_first(tmp_p
         files.append(f)
     other = tmp_path / "jit_J-00-atime"  # not an entry: never removed
     other.write_bytes(b"x" * 1000)
-    monkeypatch.setattr(programs, "COMPILED_MAX_BYTES", 800)
-    programs._prune_compiled(str(tmp_path), 500)  # the user's own cap: JAX's job
+    monkeypatch.setattr(pruning, "COMPILED_MAX_BYTES", 800)
+    pruning._prune_compiled(str(tmp_path), 500)  # the user's own cap: JAX's job
     assert all(f.exists() for f in files)
-    programs._prune_compiled(str(tmp_path), -1)
+    pruning._prune_compiled(str(tmp_path), -1)
     assert [f.exists() for f in files] == [True] * 6 + [False] * 4
     assert other.exists()
 
 
 def test_the_first_program_written_prunes_the_compiled_code_too(tmp_path, monkeypatch):
     seen = []
-    monkeypatch.setattr(programs, "_prune_own_compiled", lambda: seen.append(True))
+    monkeypatch.setattr(pruning, "_prune_own_compiled", lambda: seen.append(True))
     monkeypatch.setattr(programs.state, "pruned", False)
-    programs._prune(tmp_path, "cccccccc")
-    programs._prune(tmp_path, "cccccccc")  # once per process
+    pruning.prune(tmp_path, "cccccccc")
+    pruning.prune(tmp_path, "cccccccc")  # once per process
     assert len(seen) == 1
 
 
@@ -397,12 +398,12 @@ def test_only_the_compiled_code_folder_tensorid_chose_is_pruned(tmp_path, monkey
     from tensorid import _config
 
     pruned = []
-    monkeypatch.setattr(programs, "_prune_compiled", lambda folder, cap: pruned.append(folder))
+    monkeypatch.setattr(pruning, "_prune_compiled", lambda folder, cap: pruned.append(folder))
     here = jax.config.values.get("jax_compilation_cache_dir")
     monkeypatch.setattr(_config, "own_cache", None)  # not ours
-    programs._prune_own_compiled()
+    pruning._prune_own_compiled()
     monkeypatch.setattr(_config, "own_cache", here)  # ours (tensorid set it)
-    programs._prune_own_compiled()
+    pruning._prune_own_compiled()
     on = jax.config.values.get("jax_enable_compilation_cache")
     assert pruned == ([here] if on and here else [])
 
@@ -415,9 +416,9 @@ def test_half_written_programs_of_killed_processes_are_removed(tmp_path, monkeyp
         f.write_bytes(b"x")
     hour = time.time() - 3700
     os.utime(stale, (hour, hour))
-    monkeypatch.setattr(programs, "_prune_compiled", lambda *a: None)
+    monkeypatch.setattr(pruning, "_prune_compiled", lambda *a: None)
     monkeypatch.setattr(programs.state, "pruned", False)
-    programs._prune(tmp_path, "cccccccc")
+    pruning.prune(tmp_path, "cccccccc")
     assert not stale.exists() and fresh.exists()  # a live writer's is left alone
 
 
@@ -564,3 +565,52 @@ def test_a_population_fits_programs_are_read_by_the_next_process(tmp_path):
     # (a kept program's numbers against a process that keeps nothing: the sweeps' test
     # above; the fingerprint script's 986 arrays are bit-identical with them kept)
     assert second["x"] == first["x"] and second["H"] == first["H"]
+
+
+# one Program by hand: traced ahead in one process (trace_ahead), read ahead in the next
+# (load_kept), counting the traces of its function and the reads of executables
+AHEAD = r"""
+import json, sys
+import jax
+import numpy as np
+import tensorid as ti
+from tensorid.engine.compiling import executables, programs
+
+model = ti.model_from_equations({"x": "-c*x"}, {"y": "x"}, [], ["c"])
+prob = ti.Problem(model, ti.Experiment(np.arange(5.0), None, np.ones(5)), p0={"c": 0.5},
+                  x0=[1.0])
+traced, loads, exports = [], [], []
+read, export = executables.load, programs._exported
+executables.load = lambda path: loads.append(path) or read(path)
+programs._exported = lambda *a: exports.append(1) or export(*a)
+
+def f(x):
+    traced.append(1)
+    return 2.0 * x + 1.0
+
+program = programs.Program(jax.jit(f), prob.sweeps, "test_ahead")
+x = np.arange(3.0)
+if sys.argv[1] == "trace":
+    program.trace_ahead(x)
+else:
+    program.load_kept(x)
+before = (len(exports), len(loads))
+out = program(x)
+print(json.dumps({"before": before, "exports": len(exports), "loads": len(loads),
+                  "traced": len(traced), "out": [float(v) for v in out]}))
+"""
+
+
+def test_a_program_traced_or_read_ahead_is_not_traced_or_read_again_by_its_call(tmp_path):
+    """issue 50: a fleet's biggest program is traced in the fit's thread before a second
+    thread compiles it (trace_ahead), and read from disk while the substeps are checked
+    (load_kept); its first call then uses what was done, instead of doing it again."""
+    first = _run(tmp_path / "jax", "trace", script=AHEAD)  # (argv[1], as _run's k)
+    assert first["before"] == [1, 0]  # traced (exported) ahead, nothing read
+    assert first["exports"] == 1  # the call compiled that export, not a new one
+    assert first["out"] == [1.0, 3.0, 5.0]
+    second = _run(tmp_path / "jax", "load", script=AHEAD)
+    assert second["before"] == [0, 1]  # read ahead, nothing exported
+    assert second["loads"] == 1  # the call used that read
+    assert second["exports"] == 0 and second["traced"] == 0
+    assert second["out"] == first["out"]

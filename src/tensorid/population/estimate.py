@@ -6,7 +6,6 @@ shrinkage."""
 
 from __future__ import annotations
 
-import threading
 import time
 import warnings
 from dataclasses import replace
@@ -16,7 +15,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..engine.compiling.compilation import clocks_here, counted_by
 from ..engine.schemes.implicit import DiagonallyImplicitRungeKutta
 from ..engine.schemes.integrators import ExplicitRungeKutta
 from ..engine.schemes.status import Status
@@ -24,6 +22,7 @@ from ..engine.sweeping.sweeps import shared_sweeps
 from ..solve.minimize import interrupted, minimize_trust_region
 from ..solve.solution import FitInterrupted
 from ..solve.trust_region import TRResult
+from .ahead import compile_ahead, joined, preload
 from .boundary import (
     Collapsed,
     bounds,
@@ -37,7 +36,7 @@ from .distributed import UnitMap, evaluate_chunk
 from .objective import Objective
 from .result import PopulationResult
 from .start import drawn_starts, start_point
-from .units import BLOCK, blocked
+from .units import blocked
 
 
 def _a_fleet(problem, executor):
@@ -150,8 +149,12 @@ def fit_population(
     fit = dict(executor=executor, workers=workers, timeout=timeout, began=began,
                maxiter=maxiter, gtol=gtol, ftol=ftol, xtol=xtol, callback=callback)  # fmt: skip
     collapsed: list[tuple[list[str], float]] = []
-    obj, raised = _presized(obj)
-    obj, res, etas = _best_start(obj, fit, collapsed, (starts, spread, sampling, seed))
+    loading = preload(obj, MAX_SUBSTEPS)  # read while the substeps are checked
+    try:
+        obj, raised = _presized(obj)
+        obj, res, etas = _best_start(obj, fit, collapsed, (starts, spread, sampling, seed))
+    finally:
+        joined(loading)
     ran = res.starts
     obj, res, etas, notes = _refined(obj, res, etas, fit, collapsed)
     res = replace(res, starts=ran)  # (a refinement's refit from the best keeps them)
@@ -294,35 +297,6 @@ def _interrupted(obj: Objective, state: dict, began: float) -> PopulationResult:
                                   time.perf_counter() - began)  # fmt: skip
 
 
-_AHEAD: set = set()  # (structure, units per call) whose Hessians were compiled ahead
-
-
-def _compile_ahead(obj: Objective, psi, etas) -> threading.Thread | None:
-    """The outer evaluation's program (value, gradient, Hessians) compiled (or read) in
-    a second thread while this one compiles the inner steps and solves, XLA compiling
-    without the GIL: on two cores a cold fit waits for the longest compile rather
-    than their sum. The fit's own call waits for it (the Program's lock); its
-    compiling counts in the fit's compile_seconds. Once per structure (a refit, a
-    further start, has them); the caller joins the thread before it returns."""
-    shape = (obj.key, min(len(obj.units.names), BLOCK))  # (a program per shape)
-    if shape in _AHEAD:
-        return None
-    _AHEAD.add(shape)
-    obj.evaluation(psi, etas, ahead=True)  # traced here: the thread then runs XLA alone
-    clocks = clocks_here()
-
-    def run() -> None:
-        with counted_by(clocks):
-            try:
-                obj.evaluation(psi, etas)
-            except Exception:  # the fit's own call meets it, and says so
-                pass
-
-    thread = threading.Thread(target=run, name="tensorid-compile-ahead", daemon=True)
-    thread.start()
-    return thread
-
-
 def _outer(obj: Objective, units: UnitMap | None, state: dict, start=None, **options):
     """The outer trust region over ψ, each evaluation starting every unit's inner
     problem from the best point's η̂; (its TRResult, that η̂). ``state`` keeps the best
@@ -333,7 +307,7 @@ def _outer(obj: Objective, units: UnitMap | None, state: dict, start=None, **opt
     state.update(etas=etas0, best=np.inf, n=0)
     ahead = None  # (spread over workers: they compile their own)
     if units is None and obj.size:
-        ahead = _compile_ahead(obj, np.asarray(psi0, dtype=float), np.asarray(etas0, dtype=float))
+        ahead = compile_ahead(obj, np.asarray(psi0, dtype=float), np.asarray(etas0, dtype=float))
 
     def fun(psi):
         if units is None:
@@ -363,8 +337,7 @@ def _outer(obj: Objective, units: UnitMap | None, state: dict, start=None, **opt
     try:
         r = minimize_trust_region(fun, psi0, lo, hi, radius=1.0, fatol=-np.inf, **options)
     finally:  # (not left inside XLA when the process ends)
-        if ahead is not None:
-            ahead.join()
+        joined(ahead)
     return interrupted(r), state["etas"]
 
 

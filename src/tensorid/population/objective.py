@@ -430,15 +430,19 @@ class Objective:
                              units=(1, 2))  # fmt: skip
         return np.asarray(O), np.asarray(g)
 
-    def evaluation(self, psi, etas, ahead: bool = False) -> tuple[np.ndarray, ...] | None:
+    def evaluation(self, psi, etas) -> tuple[np.ndarray, ...]:
         """(O_i (E,), dO_i/dψ (E, ψ), d²O_i/dψ² (E, ψ, ψ), ∇²ℓ_i (E, q, q)) per unit at
         η̂: an outer evaluation's value, gradient and Hessian, and each unit's inner
-        Hessian (its inverse: the unit's η covariance). ``ahead``: only its program
-        traced, here (Program.trace_ahead), for a first call in another thread."""
-        args = (jnp.asarray(psi), jnp.asarray(etas), self.data)
-        if ahead:
-            return self._compiled("evaluation").trace_ahead(*block(args, (1, 2)))
-        return tuple(np.asarray(a) for a in self._blocked("evaluation", *args, units=(1, 2)))
+        Hessian (its inverse: the unit's η covariance)."""
+        out = self._blocked("evaluation", *self._at(psi, etas), units=(1, 2))
+        return tuple(np.asarray(a) for a in out)
+
+    def evaluation_program(self, psi, etas):
+        """(its Program, the first block's arguments): what ahead.py prepares."""
+        return self._compiled("evaluation"), block(self._at(psi, etas), (1, 2))
+
+    def _at(self, psi, etas) -> tuple:
+        return (jnp.asarray(psi), jnp.asarray(etas), self.data)
 
     def hessian(self, psi, etas, per_unit: bool = False) -> np.ndarray:
         """Σ_i d²O_i/dψ² at η̂ (each unit's, (E, ψ, ψ), with ``per_unit``)."""

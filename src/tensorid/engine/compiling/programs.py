@@ -42,7 +42,7 @@ import hashlib
 import os
 import tempfile
 import threading
-import time
+from concurrent.futures import Future
 from pathlib import Path
 
 import jax
@@ -51,6 +51,7 @@ import numpy as np
 from ..._state import state
 from . import executables
 from .compilation import announced, describe
+from .pruning import prune as _prune
 
 _NOT_KEPT = ("custom_jvp", "custom_vjp", "custom_vmap", "callback", "debug", "<function", "0x")
 _SETTINGS = (
@@ -211,6 +212,7 @@ class Program:
         self._runs: dict = {}
         self._lock = threading.Lock()
         self._exported: dict = {}  # traced ahead (trace_ahead), for the first call
+        self._pending: dict = {}  # being read by load_kept: Futures of (run, file)
 
     def __call__(self, *args):
         leaves, treedef = jax.tree_util.tree_flatten(args)
@@ -241,12 +243,12 @@ class Program:
         leaves, treedef = jax.tree_util.tree_flatten(args)
         shapes = (treedef, tuple((a.shape, a.dtype) for a in leaves))
         with self._lock:
-            if shapes in self._runs or shapes in self._exported:
+            if shapes in self._runs or shapes in self._exported or shapes in self._pending:
                 return
             try:
                 where = folder()
                 key = None if where is None else _key(self.sweeps, self.entry, leaves, treedef)
-                if key is None or executables.path_for(where, key).exists():
+                if where is None or key is None or executables.path_for(where, key).exists():
                     return
                 path = where / f"{key}.jaxexport"
                 if path.exists():
@@ -255,6 +257,26 @@ class Program:
                     self._exported[shapes] = _exported(self.jitted, args, path, where, key)
             except Exception:  # the first call traces it itself
                 return
+
+    def load_kept(self, *args) -> None:
+        """Read the executable an earlier process kept for ``args``' shapes, if there is
+        one, for a first call that may come meanwhile from another thread (it waits for
+        this read, not for the Program's lock, which is not held while reading; the
+        read executable is still tried before it is trusted, as any). Nothing is traced
+        or compiled here."""
+        leaves, treedef = jax.tree_util.tree_flatten(args)
+        shapes = (treedef, tuple((a.shape, a.dtype) for a in leaves))
+        with self._lock:
+            if shapes in self._runs or shapes in self._pending:
+                return
+            where = folder()
+            key = None if where is None else _key(self.sweeps, self.entry, leaves, treedef)
+            if where is None or key is None or not executables.path_for(where, key).exists():
+                return
+            path = executables.path_for(where, key)
+            pending = self._pending[shapes] = Future()
+        run = executables.load(path)  # (without the GIL, mostly)
+        pending.set_result(None if run is None else (run, path))
 
     def _first(self, args, leaves, treedef, shapes):
         """The first call for these shapes: compiled (or read), kept and run."""
@@ -285,6 +307,9 @@ class Program:
         if key is None:  # no program is kept: the compiled code is capped all the same
             _prune(None, "")
             return self.jitted, None
+        pending = self._pending.pop(shapes, None)
+        if pending is not None and pending.result() is not None:  # read by load_kept
+            return pending.result()
         kept = executables.path_for(where, key)
         run = executables.load(kept)
         if run is not None:  # compiled by an earlier process: neither lowered nor looked up
@@ -349,99 +374,7 @@ def _read(path: Path):
     return exported
 
 
-STALE_DAYS = 30
-MAX_BYTES = 512 * 2**20  # the folder's cap: beyond it the least recently used go
-COMPILED_MAX_BYTES = 2**30  # the same for JAX's compiled code beside it
-
-
-def _prune(where: Path | None, current: str) -> None:
-    """Once per process: remove the programs of other versions of tensorid unused for
-    STALE_DAYS days, so that the folder does not grow with every upgrade, and then,
-    while the folder holds more than MAX_BYTES, the least recently used programs
-    (reading one marks it used) down to three quarters of that: every new record
-    length or model is a new program, and nothing else would ever remove them. Also
-    the half-written files of processes killed while writing (an hour old), and JAX's
-    compilation cache gets the same cap (:func:`_prune_compiled`). ``where`` None: no
-    program is kept in this process, only the compiled code is pruned."""
-    if state.pruned:
-        return
-    state.pruned = True
-    if where is not None:
-        _prune_programs(where, current)
-    _prune_own_compiled()
-
-
-def _prune_programs(where: Path, current: str) -> None:
-    old = time.time() - STALE_DAYS * 86400
-    kept = []
-    for path in (*where.glob("*.jaxexport"), *where.glob("*.xla")):
-        try:
-            st = path.stat()
-            if not path.name.startswith(current) and st.st_mtime < old:
-                path.unlink()
-            else:
-                kept.append((st.st_mtime, st.st_size, path))
-        except OSError:
-            pass
-    _keep_under(kept, MAX_BYTES)
-    for path in where.glob(".*.part"):  # a killed writer's: a live one's is seconds old
-        try:
-            if path.stat().st_mtime < time.time() - 3600:
-                path.unlink()
-        except OSError:
-            pass
-
-
-def _prune_own_compiled() -> None:
-    """:func:`_prune_compiled` on the cache folder tensorid chose, if it is on."""
-    from ... import _config
-
-    settings = jax.config.values
-    if settings.get("jax_enable_compilation_cache") and (
-        settings.get("jax_compilation_cache_dir") == _config.own_cache
-    ):
-        _prune_compiled(_config.own_cache, settings.get("jax_compilation_cache_max_size", -1))
-
-
-def _prune_compiled(folder: str | None, jax_cap: int) -> None:
-    """JAX's compilation cache in ``folder``, which grows with every program it
-    compiles (16,000 files and 310 MB on a developer's machine): kept to
-    COMPILED_MAX_BYTES, the least recently used first. JAX reads its files itself,
-    so "used" is the later of a file's access and modification times (at the day's
-    resolution of a relatime mount). Left to JAX where the user gave it a cap of its
-    own (``jax_cap``, its jax_compilation_cache_max_size, is not -1)."""
-    if not folder or jax_cap != -1:
-        return
-    entries = []
-    for path in Path(folder).glob("*-cache"):
-        try:
-            st = path.stat()
-        except OSError:
-            continue
-        entries.append((max(st.st_atime, st.st_mtime), st.st_size, path))
-    _keep_under(entries, COMPILED_MAX_BYTES)
-
-
-def _keep_under(entries: list, cap: int) -> None:
-    """Where the files of ``entries`` ((last used, size, path) each) hold more than
-    ``cap`` bytes, remove the least recently used down to three quarters of it (not
-    just under it: a folder at its cap would prune at every write)."""
-    total = sum(size for _, size, _ in entries)
-    if total <= cap:
-        return
-    for _, size, path in sorted(entries, key=lambda k: k[0]):
-        if total <= 0.75 * cap:
-            break
-        try:
-            path.unlink()
-        except FileNotFoundError:  # another process pruning too: gone all the same
-            pass
-        except OSError:
-            continue
-        total -= size
-
-
-def _write(path: Path, data: bytes) -> bool:
+def _write(path: Path, data: bytes | bytearray) -> bool:
     """Atomically and with a digest of the contents, so that a process reading it never
     uses half a program; a folder that cannot be written only means the next process
     traces again. Whether it was written."""
