@@ -614,3 +614,24 @@ def test_a_program_traced_or_read_ahead_is_not_traced_or_read_again_by_its_call(
     assert second["loads"] == 1  # the call used that read
     assert second["exports"] == 0 and second["traced"] == 0
     assert second["out"] == first["out"]
+
+
+def test_a_kept_executable_that_does_not_load_is_removed_by_its_check(tmp_path):
+    """The file just written is read back and run in a second thread, while the
+    process goes on with what it compiled (waiting for that read cost a cold
+    theophylline fit 0.7 s): a file that does not work is removed there."""
+    import jax
+
+    from tensorid.engine import executables
+
+    c = float(np.random.default_rng().integers(1, 2**40))  # (not in JAX's cache)
+    f, args = jax.jit(lambda x: x * c), (np.ones(3),)
+    broken = tmp_path / "broken.xla"
+    run = executables.compile_and_keep(f, args, broken, lambda p, b: programs._write(p, b"x"))
+    assert run is not None and np.array_equal(run(*args), np.full(3, c))  # its own
+    executables.settle()
+    assert not broken.exists()
+    good = tmp_path / "good.xla"
+    run = executables.compile_and_keep(jax.jit(lambda x: x - c), args, good, programs._write)
+    executables.settle()
+    assert good.exists() and np.array_equal(run(*args), np.full(3, 1.0 - c))
