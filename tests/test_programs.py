@@ -58,6 +58,7 @@ def _run(cache: Path, k: float = 2.0, script: str = SCRIPT, **env) -> dict:
         text=True,
         env=environ,
         check=True,
+        timeout=600,  # (a hang fails)
     )
     return json.loads(out.stdout.strip().splitlines()[-1])
 
@@ -592,6 +593,13 @@ program = programs.Program(jax.jit(f), prob.sweeps, "test_ahead")
 x = np.arange(3.0)
 if sys.argv[1] == "trace":
     program.trace_ahead(x)
+elif sys.argv[1] == "raise":  # a read that fails: its waiting first call is answered
+    counting, executables.load = executables.load, lambda path: 1 / 0
+    try:
+        program.load_kept(x)
+    except ZeroDivisionError:
+        pass
+    executables.load = counting
 else:
     program.load_kept(x)
 before = (len(exports), len(loads))
@@ -614,6 +622,8 @@ def test_a_program_traced_or_read_ahead_is_not_traced_or_read_again_by_its_call(
     assert second["loads"] == 1  # the call used that read
     assert second["exports"] == 0 and second["traced"] == 0
     assert second["out"] == first["out"]
+    failed = _run(tmp_path / "jax", "raise", script=AHEAD)  # (it hung: the read never said)
+    assert failed["loads"] == 1 and failed["out"] == first["out"]
 
 
 def test_a_kept_executable_that_does_not_load_is_removed_by_its_check(tmp_path):

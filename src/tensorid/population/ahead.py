@@ -12,6 +12,8 @@ import threading
 import numpy as np
 
 from ..engine.compiling.compilation import clocks_here, counted_by
+from ..engine.schemes.implicit import DiagonallyImplicitRungeKutta
+from ..engine.schemes.integrators import ExplicitRungeKutta
 from .objective import Objective
 from .units import BLOCK
 
@@ -53,7 +55,8 @@ def preload(obj: Objective, most: int) -> threading.Thread | None:
         return None
     problem, d = obj.problem, obj.problem.discretisation
     steps = [d.substeps]
-    while not d.chosen and steps[-1] < most:
+    fixed = isinstance(d.scheme, ExplicitRungeKutta | DiagonallyImplicitRungeKutta)
+    while fixed and not d.chosen and steps[-1] < most:  # (as the check may raise them)
         steps.append(4 * steps[-1])
     clocks = clocks_here()
 

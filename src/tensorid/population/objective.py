@@ -143,10 +143,10 @@ class Objective:
             )
         )
         self.size = len(self.names)
+        self._evaluated: dict = {}  # (ψ, η̂) → evaluation(): the last few
 
     def subset(self, index) -> Objective:
-        """This objective over the units ``index`` alone (a worker's chunk): the same
-        structure, so the same compiled programs for chunks of one size."""
+        """This objective over the units ``index`` alone (a worker's chunk): its programs."""
         new = copy.copy(self)
         u = self.units
         new.units = dataclasses.replace(
@@ -155,7 +155,7 @@ class Objective:
             cens=None if u.cens is None else u.cens[index],
         )  # fmt: skip
         new.data = tuple(a[np.asarray(index)] for a in self.data)
-        new.unconverged, new.unfinite = [], []
+        new.unconverged, new.unfinite, new._evaluated = [], [], {}
         return new
 
     # -- pieces -----------------------------------------------------------------------
@@ -330,7 +330,7 @@ class Objective:
         """The program ``build()`` makes, kept per structure here and on disk as the
         sweeps' are (engine/compiling/programs.py): a later process reads it, not traces it (the
         outer Hessian's trace alone was 10 s of a 17 s theophylline fit, cache warm)."""
-        with _LOCK:  # (one Program per name, also where estimate._compile_ahead asks)
+        with _LOCK:  # (one Program per name, also where ahead.py's threads ask)
             programs = _PROGRAMS.setdefault(self.key, {})
             if name not in programs:
                 label = name if isinstance(name, str) else "_".join(map(str, name))
@@ -339,8 +339,8 @@ class Objective:
             return programs[name]
 
     def _structure_text(self) -> str:
-        """What a program traces beyond its sweeps' structure (the random effects, Ω's
-        form, the method, x0's expressions, the error models), as text for its key."""
+        """What a program traces beyond its sweeps' (the random effects, Ω's form, the
+        method, x0's expressions, the error models): text for its key."""
         return repr(self.key[1:])
 
     def structure(self) -> Objective:
@@ -374,11 +374,7 @@ class Objective:
         return jax.jit(jax.vmap(self.inner_step, in_axes=(0, 0, None, 0)))
 
     def _build_value_grad(self):
-        def total(psi, etas, data):
-            O, g = jax.vmap(self.unit_value_grad, in_axes=(None, 0, 0))(psi, etas, data)
-            return O, g
-
-        return jax.jit(total)
+        return jax.jit(jax.vmap(self.unit_value_grad, in_axes=(None, 0, 0)))
 
     def _build_evaluation(self):
         return jax.jit(jax.vmap(self.unit_evaluation, in_axes=(None, 0, 0)))
@@ -433,16 +429,20 @@ class Objective:
     def evaluation(self, psi, etas) -> tuple[np.ndarray, ...]:
         """(O_i (E,), dO_i/dψ (E, ψ), d²O_i/dψ² (E, ψ, ψ), ∇²ℓ_i (E, q, q)) per unit at
         η̂: an outer evaluation's value, gradient and Hessian, and each unit's inner
-        Hessian (its inverse: the unit's η covariance)."""
-        out = self._blocked("evaluation", *self._at(psi, etas), units=(1, 2))
-        return tuple(np.asarray(a) for a in out)
+        Hessian (its inverse: the unit's η covariance). The last four are remembered:
+        a fit's result asks again for its best point's (10,000 units: seconds)."""
+        key = (np.asarray(psi, float).tobytes(), np.asarray(etas, float).tobytes())
+        if key not in self._evaluated:
+            out = self._blocked("evaluation", jnp.asarray(psi), jnp.asarray(etas), self.data,
+                                units=(1, 2))  # fmt: skip
+            kept = list(self._evaluated.items())[-3:] + [(key, tuple(map(np.asarray, out)))]
+            self._evaluated = dict(kept)
+        return self._evaluated[key]
 
     def evaluation_program(self, psi, etas):
         """(its Program, the first block's arguments): what ahead.py prepares."""
-        return self._compiled("evaluation"), block(self._at(psi, etas), (1, 2))
-
-    def _at(self, psi, etas) -> tuple:
-        return (jnp.asarray(psi), jnp.asarray(etas), self.data)
+        args = (jnp.asarray(psi), jnp.asarray(etas), self.data)
+        return self._compiled("evaluation"), block(args, (1, 2))
 
     def hessian(self, psi, etas, per_unit: bool = False) -> np.ndarray:
         """Σ_i d²O_i/dψ² at η̂ (each unit's, (E, ψ, ψ), with ``per_unit``)."""

@@ -87,13 +87,14 @@ def outputs(sw):
     Python again (the theophylline fit's traces, 1.6 s shorter; numbers bit for bit)."""
     if sw in _TOWERS:
         return _TOWERS[sw]
-    second = jax.jit(lambda *a: output_tensors(sw, *a)[2])  # (P, S, K, K)
-    first_sweep = jax.jit(sw._output_jacobian)  # (P, S, K)
+    ref = weakref.ref(sw)  # (the tower, kept by sw's entry, must not keep sw alive)
+    second = jax.jit(lambda *a: output_tensors(ref(), *a)[2])  # (P, S, K, K)
+    first_sweep = jax.jit(lambda *a: ref()._output_jacobian(*a))  # (P, S, K)
 
     @jax.jit
     def simulated(theta, x0, p, t, u):
-        x0_, p_ = sw.expand(theta, x0, p)
-        return sw._simulate(x0_, p_, t, u)[1]
+        x0_, p_ = ref().expand(theta, x0, p)
+        return ref()._simulate(x0_, p_, t, u)[1]
 
     @jax.custom_jvp
     def first(theta, x0, p, t, u):

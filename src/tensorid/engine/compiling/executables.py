@@ -151,9 +151,11 @@ def _listen() -> None:
 
 
 def compile_and_keep(jitted, args, path: Path, write):
-    """``jitted`` compiled for ``args``' shapes, written to ``path`` (with
-    ``write(path, bytes)``, atomic, True where written) and read back: the executable
-    to run, or None where it cannot be kept (then the caller's jit runs, by JAX's
+    """``jitted`` compiled for ``args``' shapes and written to ``path`` (with
+    ``write(path, bytes)``, atomic, True where written), the copy checked in a second
+    thread (on an accelerator, read back first and returned: two calls at once would
+    hold its memory twice): the executable to run, or None where it cannot be kept
+    (then the caller's jit runs, by JAX's
     compilation cache). Nothing is kept where the folder cannot be written (each
     process would compile afresh, never looking in JAX's cache) or where JAX's cache
     answered the compilation (a hit: the copy would be incomplete, see the module's
@@ -174,6 +176,9 @@ def compile_and_keep(jitted, args, path: Path, write):
         return None
     if not write(path, body):
         return None
+    if jax.default_backend() != "cpu":
+        kept = load(path)  # the copy later processes will read, run here first
+        return compiled if kept is None else kept
     _check_later(path, args)
     return compiled
 
@@ -189,8 +194,8 @@ def _check_later(path: Path, args) -> None:
     The checks are waited for when the process ends (:func:`settle`)."""
 
     def run() -> None:
-        kept = load(path)
         try:
+            kept = load(path)
             if kept is None:
                 raise ValueError("unreadable")
             jax.block_until_ready(kept(*args))

@@ -211,7 +211,7 @@ class Program:
         self.jitted, self.sweeps, self.entry = jitted, sweeps, entry
         self._runs: dict = {}
         self._lock = threading.Lock()
-        self._exported: dict = {}  # traced ahead (trace_ahead), for the first call
+        self._exported: dict = {}  # (key, exported) traced ahead by trace_ahead
         self._pending: dict = {}  # being read by load_kept: Futures of (run, file)
 
     def __call__(self, *args):
@@ -254,7 +254,7 @@ class Program:
                 if path.exists():
                     return
                 with announced(describe(self.entry)):
-                    self._exported[shapes] = _exported(self.jitted, args, path, where, key)
+                    self._exported[shapes] = (key, _exported(self.jitted, args, path, where, key))
             except Exception:  # the first call traces it itself
                 return
 
@@ -275,8 +275,11 @@ class Program:
                 return
             path = executables.path_for(where, key)
             pending = self._pending[shapes] = Future()
-        run = executables.load(path)  # (without the GIL, mostly)
-        pending.set_result(None if run is None else (run, path))
+        run = None
+        try:
+            run = executables.load(path)  # (without the GIL, mostly)
+        finally:  # a first call waits for this: it is always answered
+            pending.set_result(None if run is None else (run, path))
 
     def _first(self, args, leaves, treedef, shapes):
         """The first call for these shapes: compiled (or read), kept and run."""
@@ -307,15 +310,17 @@ class Program:
         if key is None:  # no program is kept: the compiled code is capped all the same
             _prune(None, "")
             return self.jitted, None
-        pending = self._pending.pop(shapes, None)
-        if pending is not None and pending.result() is not None:  # read by load_kept
-            return pending.result()
         kept = executables.path_for(where, key)
+        pending = self._pending.pop(shapes, None)  # read by load_kept (its key: this
+        # thread's settings may differ from the reading thread's, JAX's are per thread)
+        if pending is not None and pending.result() is not None and pending.result()[1] == kept:
+            return pending.result()
         run = executables.load(kept)
         if run is not None:  # compiled by an earlier process: neither lowered nor looked up
             return run, kept
         path = where / f"{key}.jaxexport"
-        exported = self._exported.pop(shapes, None) or _read(path)
+        ahead, exported = self._exported.pop(shapes, (None, None))  # (traced for this key)
+        exported = exported if ahead == key else _read(path)
         if exported is None:  # not there yet, or damaged: trace it now
             try:
                 exported = _exported(self.jitted, args, path, where, key)
