@@ -146,7 +146,7 @@ class Objective:
         self._evaluated: dict = {}  # (ψ, η̂) → evaluation(): the last few
 
     def subset(self, index) -> Objective:
-        """This objective over the units ``index`` alone (a worker's chunk): its programs."""
+        """This objective over ``index``'s units alone (a worker's chunk); the same programs."""
         new = copy.copy(self)
         u = self.units
         new.units = dataclasses.replace(
