@@ -138,10 +138,10 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
             (plain arithmetic on parameter names, or a single record's free initial
             states), which :func:`tensorid.fit` keeps by an augmented Lagrangian around
             its exact-derivative trust region (see :mod:`tensorid.solve.constrained`).
-        doses, lags, durations: {state: expression} for the records' events
-            (:class:`tensorid.Events`): what a dose puts into the state (of ``amt``, the
-            parameters and inputs: ``{"depot": "F * amt"}``), how long after its time it
-            does (``{"depot": "tlag"}``), how long a modelled infusion (rate −2) lasts.
+        doses: {state: expression} for the records' events (:class:`tensorid.Events`):
+            what a dose puts into the state (of ``amt``, parameters and inputs: ``{"depot":
+            "F * amt"}``); ``lags``: how long after its time (``{"depot": "tlag"}``);
+            ``durations``: how long a modelled infusion (rate −2) lasts.
     """
 
     dosing: Dosing | None  # what the records' events do (dosing.py); None: no events
