@@ -155,11 +155,10 @@ def compile_and_keep(jitted, args, path: Path, write):
     ``write(path, bytes)``, atomic, True where written), the copy checked in a second
     thread (on an accelerator, read back first and returned: two calls at once would
     hold its memory twice): the executable to run, or None where it cannot be kept
-    (then the caller's jit runs, by JAX's
-    compilation cache). Nothing is kept where the folder cannot be written (each
-    process would compile afresh, never looking in JAX's cache) or where JAX's cache
-    answered the compilation (a hit: the copy would be incomplete, see the module's
-    docstring)."""
+    (then the caller's jit runs, by JAX's compilation cache). Nothing is kept where the
+    folder cannot be written (each process would compile afresh, never looking in
+    JAX's cache) or where JAX's cache answered the compilation (a hit: the copy would
+    be incomplete, see the module's docstring)."""
     if not os.access(path.parent, os.W_OK):
         return None
     from jax.experimental import serialize_executable
