@@ -182,7 +182,8 @@ def compile_and_keep(jitted, args, path: Path, write):
     return compiled
 
 
-_checks: list[threading.Thread] = []
+_checks: list[threading.Thread] = []  # kept executables being checked (settle)
+_checks_lock = threading.Lock()
 
 
 def _check_later(path: Path, args) -> None:
@@ -202,7 +203,7 @@ def _check_later(path: Path, args) -> None:
             path.unlink(missing_ok=True)
 
     thread = threading.Thread(target=run, name="tensorid-check-kept", daemon=True)
-    with _listen_lock:
+    with _checks_lock:
         if not _checks:
             atexit.register(settle)
         _checks.append(thread)

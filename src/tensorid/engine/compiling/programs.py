@@ -240,16 +240,15 @@ class Program:
         as long as both (a population fit's first outer evaluation compiled in a
         second thread, 6 s of trace beside the inner steps' own, instead of 3). Does
         nothing where it is kept, exported already, or not kept at all."""
-        leaves, treedef = jax.tree_util.tree_flatten(args)
-        shapes = (treedef, tuple((a.shape, a.dtype) for a in leaves))
+        leaves, treedef, shapes = _shapes(args)
         with self._lock:
             if shapes in self._runs or shapes in self._exported or shapes in self._pending:
                 return
             try:
-                where = folder()
-                key = None if where is None else _key(self.sweeps, self.entry, leaves, treedef)
-                if where is None or key is None or executables.path_for(where, key).exists():
+                at = self._kept_at(leaves, treedef)
+                if at is None or executables.path_for(*at).exists():
                     return
+                where, key = at
                 path = where / f"{key}.jaxexport"
                 if path.exists():
                     return
@@ -264,22 +263,30 @@ class Program:
         this read, not for the Program's lock, which is not held while reading; the
         read executable is still tried before it is trusted, as any). Nothing is traced
         or compiled here."""
-        leaves, treedef = jax.tree_util.tree_flatten(args)
-        shapes = (treedef, tuple((a.shape, a.dtype) for a in leaves))
+        leaves, treedef, shapes = _shapes(args)
         with self._lock:
             if shapes in self._runs or shapes in self._pending:
                 return
-            where = folder()
-            key = None if where is None else _key(self.sweeps, self.entry, leaves, treedef)
-            if where is None or key is None or not executables.path_for(where, key).exists():
+            at = self._kept_at(leaves, treedef)
+            path = None if at is None else executables.path_for(*at)
+            if path is None or not path.exists():
                 return
-            path = executables.path_for(where, key)
             pending = self._pending[shapes] = Future()
         run = None
         try:
             run = executables.load(path)  # (without the GIL, mostly)
         finally:  # a first call waits for this: it is always answered
             pending.set_result(None if run is None else (run, path))
+
+    def _kept_at(self, leaves, treedef) -> tuple[Path, str] | None:
+        """(the folder, the key) this program is kept under for these arguments (each
+        thread's own: JAX's settings are per thread), or None where it is not kept."""
+        try:
+            where = folder()
+            key = None if where is None else _key(self.sweeps, self.entry, leaves, treedef)
+        except Exception:  # whatever keeps a key from being made: not kept
+            return None
+        return None if where is None or key is None else (where, key)
 
     def _first(self, args, leaves, treedef, shapes):
         """The first call for these shapes: compiled (or read), kept and run."""
@@ -302,14 +309,11 @@ class Program:
         earlier process, else the exported program (read, or traced and written)
         compiled and its executable kept; or (the plain jit, None) where nothing can
         be kept."""
-        try:
-            where = folder()
-            key = None if where is None else _key(self.sweeps, self.entry, leaves, treedef)
-        except Exception:  # whatever keeps a key from being made: not kept
-            key = None
-        if key is None:  # no program is kept: the compiled code is capped all the same
+        at = self._kept_at(leaves, treedef)
+        if at is None:  # no program is kept: the compiled code is capped all the same
             _prune(None, "")
             return self.jitted, None
+        where, key = at
         kept = executables.path_for(where, key)
         pending = self._pending.pop(shapes, None)  # read by load_kept (its key: this
         # thread's settings may differ from the reading thread's, JAX's are per thread)
@@ -331,6 +335,12 @@ class Program:
         if run is not None:
             return run, kept
         return jitted, path
+
+
+def _shapes(args) -> tuple:
+    """(leaves, treedef, the shapes a program is compiled for) of ``args``."""
+    leaves, treedef = jax.tree_util.tree_flatten(args)
+    return leaves, treedef, (treedef, tuple((a.shape, a.dtype) for a in leaves))
 
 
 def _named(call, key: str):

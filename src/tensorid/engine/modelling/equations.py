@@ -283,10 +283,10 @@ def _integer(node) -> bool:
 
 def direct_function(text, names: Sequence[str], module=jnp):
     """(fn(*values, in the order of ``names``) by ``module``'s functions (JAX's, or
-    NumPy's for plain numbers), the names the text uses), or None
-    where ``text`` is not plain arithmetic on ``names`` (then SymPy reads it, and says
-    what is wrong). As ``_direct``: evaluated as written, without importing SymPy (a
-    fleet's x0 = "Dose * Wt" had imported it, 0.35 s of a warm fit's 3.2 s)."""
+    NumPy's for plain numbers), the names the text uses), or None where ``text`` is not
+    plain arithmetic on ``names`` (then SymPy reads it, and says what is wrong). As
+    ``_direct``: evaluated as written, without importing SymPy (a fleet's x0 = "Dose *
+    Wt" had imported it, 0.35 s of a warm fit's 3.2 s)."""
     names = list(names)
     if len(set(names)) != len(names) or not all(_usable(n) for n in names):
         return None
