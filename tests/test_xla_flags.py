@@ -30,7 +30,10 @@ sw, (t, u, y) = prob._sweeps, prob._arrays[0]
 x0, p = jax.numpy.asarray(prob.x0[0]), jax.numpy.asarray(prob.p0)
 hlo = jax.jit(sw._simulate).lower(x0, p, t, u).compile()
 entry = hlo.as_text().split("ENTRY", 1)[1].split(chr(10) + "}", 1)[0]
-print(json.dumps({"flags": os.environ.get("XLA_FLAGS", ""),
+# a product and a sum, which XLA hands to YNNPACK where its fusions are on
+dot = jax.jit(lambda a: jax.numpy.sum(jax.numpy.tanh(a @ a), axis=0))
+library = "__ynn_fusion" in dot.lower(jax.numpy.ones((64, 64))).compile().as_text()
+print(json.dumps({"flags": os.environ.get("XLA_FLAGS", ""), "ynn": library,
                   "one_function": " while(" not in entry and "xla_cpu_small_call" in entry}))
 """
 
@@ -54,13 +57,27 @@ def test_a_sweep_over_a_record_compiles_as_one_function():
     low, high = _config.EMITTERS_FLAG_VERSIONS
     assert emitters == (low <= _config._jaxlib_version() < high)
     assert got["one_function"]
+    low, high = _config.YNN_FLAG_VERSIONS
+    if low <= _config._jaxlib_version() < high:  # no library fusions in what it compiles
+        assert f"--{_config.YNN_FLAG}=" in got["flags"] and not got["ynn"]
+
+
+def test_the_users_own_library_fusions_are_kept():
+    low, high = _config.YNN_FLAG_VERSIONS
+    if not low <= _config._jaxlib_version() < high:
+        return
+    mine = f"--{_config.YNN_FLAG}=dot,reduce"  # the user's choice: YNNPACK's products
+    got = _probe("tensorid-first", mine)
+    assert got["flags"].startswith(mine) and got["flags"].count(_config.YNN_FLAG) == 1
+    assert got["ynn"]
 
 
 def test_the_users_own_xla_options_win():
     # the user's threshold (XLA's default) is kept: the same loop runs op by op
     mine = f"--xla_backend_extra_options={_OPTION}=1024 --xla_cpu_use_fusion_emitters=true"
     got = _probe("tensorid-first", mine)
-    assert got["flags"] == mine
+    assert got["flags"].startswith(mine) and got["flags"].count(_OPTION) == 1
+    assert "fusion_emitters=false" not in got["flags"]
     assert not got["one_function"]
 
 
@@ -99,6 +116,16 @@ def test_the_emitters_flag_only_where_jaxlib_knows_it(monkeypatch):
         flags = _config._xla_flags()
         assert ("--xla_cpu_use_fusion_emitters=false" in flags) is added, version
         assert any(str(SMALL_LOOP_BYTES) in f for f in flags)
+
+
+def test_the_library_fusions_flag_only_where_jaxlib_knows_it(monkeypatch):
+    """--xla_cpu_experimental_ynn_fusion_type is named in jaxlib 0.8.1's libraries and
+    later, not in 0.8.0's: older versions would abort on it."""
+    for version, added in [((0, 7, 2), False), ((0, 8, 0), False), ((0, 8, 1), True),
+                           ((0, 10, 2), True), ((0, 11, 2), True), ((0, 12, 0), False),
+                           ((), False)]:  # fmt: skip
+        monkeypatch.setattr(_config, "_jaxlib_version", lambda v=version: v)
+        assert (f"--{_config.YNN_FLAG}=" in _config._xla_flags()) is added, version
 
 
 def test_the_command_keeps_xla_s_own_log_lines_off_the_terminal():

@@ -28,6 +28,19 @@ no faster (within ±5 % on Silverbox, two-tank, its filter and the chain). The
 numbers are the same to rounding (J, ∇J, ∇²J within 1.5e-16 relative, most bit for
 bit: benchmarks/numbers_fingerprint.py), so a fit that ends at a threshold may fall
 the other side of it (docs/robust.md, the two-tank filter).
+
+XLA's YNNPACK library fusions are turned off as well
+(``--xla_cpu_experimental_ynn_fusion_type=``, on the jaxlib versions that know it,
+YNN_FLAG_VERSIONS; a user's XLA_FLAGS naming it wins). An executable read back from
+disk sets its library fusions up at its first call: theophylline's outer evaluation
+took 0.14 s there against 0.01 s for each later call, and a warm population fit took
+2.25-2.36 s with them against 1.98-2.08 s without (5 alternating pairs, 2-core
+machine). The price is its first, cold fit: 11.1-11.4 s against 11.6-11.8 s (XLA
+compiles the products itself). Per call they bought nothing measurable (Silverbox's
+(J, ∇J, ∇²J) 1.99 against 2.01 ms, the chain's adjoint 42.8 against 39.7 ms:
+benchmarks/bench_edge.py), and single-record first fits compile no slower without
+them (benchmarks/bench_first_fit.py). Other projects report wrong values from these
+fusions on jaxlib 0.11 and turn them off with the same flag.
 """
 
 import os
@@ -70,6 +83,11 @@ def add_xla_flags(*flags: str) -> bool:
 # process (uncatchable) on a flag it does not know, and jaxlib 0.4.30-0.5.1 do not
 # know this one; it is set only on the versions it was measured or found on
 EMITTERS_FLAG_VERSIONS = ((0, 5, 3), (0, 11))
+# jaxlib versions whose XLA knows --xla_cpu_experimental_ynn_fusion_type: from 0.8.1
+# (its wheels' libraries name it; 0.8.0's do not), through 0.11 (where it is reported
+# as the cure for miscompiled fusions)
+YNN_FLAG_VERSIONS = ((0, 8, 1), (0, 12))
+YNN_FLAG = "xla_cpu_experimental_ynn_fusion_type"
 
 
 def _jaxlib_version() -> tuple[int, ...]:
@@ -84,9 +102,13 @@ def _jaxlib_version() -> tuple[int, ...]:
 def _xla_flags() -> list[str]:
     loops = f"xla_cpu_small_while_loop_byte_threshold={SMALL_LOOP_BYTES}"
     flags = [f"--xla_backend_extra_options={loops}"]
+    version = _jaxlib_version()
     low, high = EMITTERS_FLAG_VERSIONS
-    if low <= _jaxlib_version() < high:
+    if low <= version < high:
         flags.append("--xla_cpu_use_fusion_emitters=false")
+    low, high = YNN_FLAG_VERSIONS
+    if low <= version < high:
+        flags.append(f"--{YNN_FLAG}=")
     return flags
 
 
