@@ -28,11 +28,9 @@ report for the same model, so the numbers can be set side by side.
 
 The outer gradient is exact through the inner optimum (implicit-function theorem):
 dO/dψ = ∂O/∂ψ + ∂O/∂η · dη̂/dψ with dη̂/dψ = −(∇²_ηη ℓ)⁻¹ ∇²_ηψ ℓ. The outer Hessian is
-the derivative of that gradient along η = η̂(ψ): forward mode over it at one Newton
-step from η̂ (whose derivative in ψ is exactly dη̂/dψ where ∇_η ℓ = 0). Every model
-derivative comes from the sweeps (units.py), none from finite differences; the
-gradient and Hessian programs take them through ŷ's Taylor polynomial about (ψ, η̂)
-(units.taylor: the sweeps run once per order, not once per derivative and call site).
+the derivative of that gradient along η = η̂(ψ), by forward mode. Every model
+derivative comes from the sweeps (units.py), none from finite differences, through
+ŷ's Taylor polynomial about (ψ, η̂) (units.taylor: the sweeps run once per order).
 """
 
 from __future__ import annotations
@@ -265,29 +263,31 @@ class Objective:
         return jnp.where(sign > 0, O, jnp.inf)
 
     def unit_value_grad(self, psi, eta, unit, local: bool = True):
-        """(O_i, dO_i/dψ) with η = η̂_i(ψ) (the implicit-function theorem)."""
+        """(O_i, dO_i/dψ) with η = η̂_i(ψ) (the implicit-function theorem: dη̂/dψ =
+        −(∇²_ηη ℓ)⁻¹ ∇²_ηψ ℓ, both blocks from one derivative of ∇_η ℓ)."""
         me = self.local(psi, eta, unit, self.approximation.gradient_order) if local else self
         O, (O_psi, O_eta) = jax.value_and_grad(me.unit_objective, argnums=(0, 1))(psi, eta, unit)
-        H = jax.hessian(me.ell)(eta, psi, unit)
-        L = jax.jacfwd(jax.grad(me.ell), argnums=1)(eta, psi, unit)  # (q, ψ)
+        H, L = jax.jacfwd(jax.grad(me.ell), argnums=(0, 1))(eta, psi, unit)  # (q, q), (q, ψ)
         return O, O_psi - O_eta @ jnp.linalg.solve(H, L)
 
     def unit_evaluation(self, psi, eta, unit):
         """(O_i, dO_i/dψ, d²O_i/dψ², ∇²_ηη ℓ_i) at η̂, in one program (what every outer
-        evaluation asks, so a fit compiles one program for it, not three). The Hessian
-        is taken along η = η̂_i(ψ) (η̂'s derivative: a Newton step's, at η̂). ŷ is its
-        polynomial about η̂ (exact there); the Newton step from a converged η̂ is
-        rounding, so the terms beyond the polynomial's order are too (a unit whose inner
-        problem did not converge is named in the fit's notes)."""
+        evaluation asks). The Hessian differentiates the gradient along η̂ + M (ψ' − ψ),
+        M = dη̂/dψ: a point equal to η̂ to the last bit (O is value_grad's) whose
+        derivative is M. ŷ is its polynomial about η̂ (exact there); a unit whose inner
+        problem did not converge is named in the fit's notes."""
         me = self.local(psi, eta, unit, self.approximation.hessian_order)
+        H, L = jax.jacfwd(jax.grad(me.ell), argnums=(0, 1))(eta, psi, unit)
+        M = -jnp.linalg.solve(H, L)
+        M = jnp.where(jnp.isfinite(M), M, 0.0)  # (a singular H: O stays finite, g not)
 
         def grad_along(psi_):
-            g = jax.grad(me.ell)(eta, psi_, unit)
-            H = jax.hessian(me.ell)(eta, psi_, unit)
-            return me.unit_value_grad(psi_, eta - jnp.linalg.solve(H, g), unit, False)[1], H
+            O, g = me.unit_value_grad(psi_, eta + M @ (psi_ - jax.lax.stop_gradient(psi_)),
+                                      unit, False)  # fmt: skip
+            return g, (O, g)
 
-        H, inner = jax.jacfwd(grad_along, has_aux=True)(psi)
-        return (*me.unit_value_grad(psi, eta, unit, False), H, inner)
+        outer, (O, g) = jax.jacfwd(grad_along, has_aux=True)(psi)
+        return O, g, outer, H
 
     def inner_step(self, eta, lam, psi, unit):
         """One damped Newton step on ℓ_i: (η, λ, ℓ, |step|)."""

@@ -177,12 +177,31 @@ def taylor(Y, a0, args: tuple, order: int):
     tower = lambda a: (Y(a, *args),)  # noqa: E731
     for _ in range(order):
         tower = deeper(tower)
-    terms = tower(a0)
+    polynomial = power_series(tower(a0))
+    return lambda a, *_: polynomial(a - a0)
 
-    def polynomial(a, *_):
-        d = a - a0
+
+def power_series(terms: tuple):
+    """d ↦ Σ_k terms[k][d]^k / k! (each term contracted with d over its last k axes),
+    whose derivative is the same kind of sum one order lower: Σ_k terms[k+1][d]^k / k!
+    contracted with the direction (a custom JVP). JAX's own rules would differentiate
+    each product d·d·…·d term by term, k! ways at the k-th derivative; nested as the
+    outer Hessian nests them, that made theophylline's evaluation 4.9 s of XLA
+    compiling and 9 ms a call, against 2.7 s and 4 ms (values within 5e-14).
+
+    Arguments:
+        terms: (T_0, …, T_n), T_k of shape (…, K, …, K) with k trailing axes of K,
+            symmetric in them (derivatives), the same leading shape.
+
+    Returns:
+        the series as a function of d (K,), differentiable to any order in any mode.
+    """
+    n = len(terms) - 1
+
+    @jax.custom_jvp
+    def series(d):
         out, factorial = terms[0], 1.0
-        for k in range(1, order + 1):
+        for k in range(1, n + 1):
             factorial *= k
             term = terms[k]
             for _ in range(k):
@@ -190,4 +209,11 @@ def taylor(Y, a0, args: tuple, order: int):
             out = out + term / factorial
         return out
 
-    return polynomial
+    @series.defjvp
+    def _series_jvp(primals, tangents):
+        (d,), (v,) = primals, tangents
+        if n == 0:  # a constant
+            return series(d), jnp.zeros_like(terms[0])
+        return series(d), power_series(terms[1:])(d) @ v
+
+    return series
