@@ -841,6 +841,37 @@ def test_a_population_fit_raises_the_default_substeps_where_they_are_too_coarse(
     assert kept.problem.substeps == 4 and abs(kept.objective - res.objective) > 0.1
 
 
+def test_a_refit_at_finer_substeps_that_cannot_start_keeps_the_fit_it_refines(monkeypatch):
+    """A fit at the default substeps that the check refits at four times as many, where
+    one unit's inner problem fails from its estimates there (theophylline with ka each
+    subject's own: a plateau), returned the refit's start, −2 log L = inf and every SE
+    NaN: the fit it refines is kept, with why, and the refit's drops are not said."""
+    from dataclasses import replace
+
+    from tensorid.population import estimate
+
+    pr = fleet_problem()
+    done = ti.fit(pr)
+    pr.discretisation = replace(pr.discretisation, chosen=False)  # the default, say
+    dropping = estimate._dropping
+
+    def failing(obj, fit, collapsed, start=None):
+        if obj.problem.discretisation.substeps == 20:  # the fit itself
+            return dropping(obj, fit, collapsed, start)
+        obj.unconverged, obj.unfinite = ["3"], []
+        collapsed.append((["ka"], 1.0))
+        return obj, replace(done, objective=np.inf), start[1]
+
+    monkeypatch.setattr(estimate, "_dropping", failing)
+    monkeypatch.setattr(estimate, "coarse_steps", lambda obj, res, etas: 0.5)
+    with pytest.warns(UserWarning, match=r"repeated at 80 substeps .*unit\(s\) \['3'\]"):
+        res = ti.fit(pr)
+    assert res.problem.substeps == 20 and res.objective == pytest.approx(done.objective)
+    np.testing.assert_allclose(res.x, done.x, rtol=1e-9)
+    assert not any("collapsed" in n or "dropped" in n for n in res.notes), res.notes
+    assert any("raise the substeps" in n for n in res.notes)
+
+
 @pytest.mark.parametrize("where", ["inner re-solve", "substeps check"])
 def test_ctrl_c_after_the_outer_fit_converged_keeps_the_converged_point(monkeypatch, where):
     """issue 51, item 1: Ctrl-C after the outer optimiser converged (the inner re-solve,

@@ -236,14 +236,25 @@ def _refined(obj: Objective, res: PopulationResult, etas, fit: dict, collapsed: 
             raise FitInterrupted(replace(res, notes=[*notes, why])) from None  # type: ignore[arg-type]
         if worst is None or steps.chosen or steps.substeps >= MAX_SUBSTEPS:
             break
+        s = steps.substeps
+        finer = Objective(obj.problem.with_substeps(4 * s), obj.method)
+        dropped = len(collapsed)
+        refit = _dropping(finer, fit, collapsed, start=(res.x, etas))
+        if not np.isfinite(refit[1].objective):  # it could not even start: this fit stands
+            del collapsed[dropped:]  # (nothing the refit dropped is this fit's)
+            units = refit[0].unfinite or refit[0].unconverged
+            why = (f"the inner problems of unit(s) {units[:10]} did not converge or were not "
+                   "finite there" if units else "its objective was not finite there")  # fmt: skip
+            notes.append(f"the fit could not be repeated at {4 * s} substeps from its "
+                         f"estimates at {s} ({why}): these are the estimates at {s}")  # fmt: skip
+            break
         notes.append(
-            f"the substeps were raised from {steps.substeps} to {4 * steps.substeps} and the "
-            f"fit repeated from its estimates: at {steps.substeps} the predictions moved by "
-            f"{worst:.2g} residual SDs when the substeps doubled (--substeps on the command "
-            "line, substeps= in Python, chooses them)"
+            f"the substeps were raised from {s} to {4 * s} and the fit repeated from its "
+            f"estimates: at {s} the predictions moved by {worst:.2g} residual SDs when the "
+            "substeps doubled (--substeps on the command line, substeps= in Python, "
+            "chooses them)"
         )
-        finer = Objective(obj.problem.with_substeps(4 * steps.substeps), obj.method)
-        obj, res, etas = _dropping(finer, fit, collapsed, start=(res.x, etas))
+        obj, res, etas = refit
         notes += [n for n in res.notes if n not in notes]
         steps = obj.problem.discretisation
     if worst is not None:
