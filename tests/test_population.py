@@ -849,6 +849,7 @@ def test_a_refit_at_finer_substeps_that_cannot_start_keeps_the_fit_it_refines(mo
     from dataclasses import replace
 
     from tensorid.population import estimate
+    from tensorid.solve.solution import FitInterrupted
 
     pr = fleet_problem()
     done = ti.fit(pr)
@@ -870,6 +871,21 @@ def test_a_refit_at_finer_substeps_that_cannot_start_keeps_the_fit_it_refines(mo
     np.testing.assert_allclose(res.x, done.x, rtol=1e-9)
     assert not any("collapsed" in n or "dropped" in n for n in res.notes), res.notes
     assert any("raise the substeps" in n for n in res.notes)
+
+    def interrupted(obj, fit, collapsed, start=None):  # Ctrl-C while the refit compiles
+        if obj.problem.discretisation.substeps == 20:
+            return dropping(obj, fit, collapsed, start)
+        collapsed.append((["ka"], 1.0))
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(estimate, "_dropping", interrupted)
+    with pytest.raises(FitInterrupted) as caught:
+        ti.fit(pr)
+    kept = caught.value.result
+    np.testing.assert_allclose(kept.x, done.x, rtol=1e-9)
+    assert np.isfinite(kept.population["ka"]["omega_stderr"])
+    assert "refit at 80 substeps" in kept.notes[-1]
+    assert not any("collapsed" in n for n in kept.notes)
 
 
 @pytest.mark.parametrize("where", ["inner re-solve", "substeps check"])

@@ -85,7 +85,9 @@ def add_xla_flags(*flags: str) -> bool:
 EMITTERS_FLAG_VERSIONS = ((0, 5, 3), (0, 11))
 # jaxlib versions whose XLA knows --xla_cpu_experimental_ynn_fusion_type: from 0.8.1
 # (its wheels' libraries name it; 0.8.0's do not), through 0.11 (where it is reported
-# as the cure for miscompiled fusions)
+# as the cure for miscompiled fusions). By release number: a development build of
+# 0.8.1 older than the flag would abort, as would a child process with an older
+# jaxlib that inherits the variable (as with the emitters flag)
 YNN_FLAG_VERSIONS = ((0, 8, 1), (0, 12))
 YNN_FLAG = "xla_cpu_experimental_ynn_fusion_type"
 

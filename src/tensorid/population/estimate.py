@@ -239,14 +239,16 @@ def _refined(obj: Objective, res: PopulationResult, etas, fit: dict, collapsed: 
         s = steps.substeps
         finer = Objective(obj.problem.with_substeps(4 * s), obj.method)
         dropped = len(collapsed)
-        refit = _dropping(finer, fit, collapsed, start=(res.x, etas))
+        try:
+            refit = _dropping(finer, fit, collapsed, start=(res.x, etas))
+        except KeyboardInterrupt:  # Ctrl-C in the refit: the fit it refines is finished
+            del collapsed[dropped:]
+            why = f"interrupted in the refit at {4 * s} substeps: these are the estimates at {s}"
+            raise FitInterrupted(replace(res, notes=[*notes, why])) from None  # type: ignore[arg-type]
         if not np.isfinite(refit[1].objective):  # it could not even start: this fit stands
             del collapsed[dropped:]  # (nothing the refit dropped is this fit's)
-            units = refit[0].unfinite or refit[0].unconverged
-            why = (f"the inner problems of unit(s) {units[:10]} did not converge or were not "
-                   "finite there" if units else "its objective was not finite there")  # fmt: skip
-            notes.append(f"the fit could not be repeated at {4 * s} substeps from its "
-                         f"estimates at {s} ({why}): these are the estimates at {s}")  # fmt: skip
+            notes.append(_unrefined(refit[0], s))
+            res = replace(res, seconds=time.perf_counter() - fit["began"])  # (the refit too)
             break
         notes.append(
             f"the substeps were raised from {s} to {4 * s} and the fit repeated from its "
@@ -422,6 +424,17 @@ def _presized(obj: Objective) -> tuple[Objective, list[str]]:
         )
         obj = Objective(obj.problem.with_substeps(4 * d.substeps), obj.method)
     return obj, notes
+
+
+def _unrefined(finer: Objective, s: int) -> str:
+    """The note of a fit kept at ``s`` substeps whose refit at ``finer``'s could not start."""
+    units = finer.unfinite + [n for n in finer.unconverged if n not in finer.unfinite]
+    more = " ..." if len(units) > 10 else ""
+    why = f"the inner problems of {len(units)} unit(s) {units[:10]}{more} did not converge"
+    why = f"{why} or were not finite there" if units else "its objective was not finite there"
+    return (f"the fit could not be repeated at {4 * s} substeps from its estimates at {s} "
+            f"({why}): these are the estimates at {s}; a fit given --substeps {4 * s} "
+            "(substeps= in Python) starts there afresh")  # fmt: skip
 
 
 def _coarse_note(d, worst: float) -> str:

@@ -156,7 +156,8 @@ def taylor(Y, a0, args: tuple, order: int):
     Arguments:
         Y: ŷ(a, *args) (P, S), with the derivative tower of :func:`outputs`.
         a0: the expansion point (K,), constant (no derivative flows through it).
-        args: Y's other arguments (x0, p, t, u).
+        args: Y's other arguments (x0, p, t, u): data, not differentiated (the
+            polynomial's coefficients are constants of its derivatives).
         order: the highest derivative the caller takes of ŷ.
 
     Returns:
@@ -194,7 +195,8 @@ def power_series(terms: tuple):
             symmetric in them (derivatives), the same leading shape.
 
     Returns:
-        the series as a function of d (K,), differentiable to any order in any mode.
+        the series as a function of d (K,), differentiable in d to any order in any
+        mode (not in the terms, which it closes over).
     """
     n = len(terms) - 1
 
