@@ -262,12 +262,16 @@ class Objective:
         O = O + self.error.jacobian(unit[2], unit[3])  # the objective of y, not of h(y)
         return jnp.where(sign > 0, O, jnp.inf)
 
+    def curvature_blocks(self, eta, psi, unit):
+        """(∇²_ηη ℓ_i (q, q), ∇²_ηψ ℓ_i (q, ψ)): both from one derivative of ∇_η ℓ."""
+        return jax.jacfwd(jax.grad(self.ell), argnums=(0, 1))(eta, psi, unit)
+
     def unit_value_grad(self, psi, eta, unit, local: bool = True):
         """(O_i, dO_i/dψ) with η = η̂_i(ψ) (the implicit-function theorem: dη̂/dψ =
-        −(∇²_ηη ℓ)⁻¹ ∇²_ηψ ℓ, both blocks from one derivative of ∇_η ℓ)."""
+        −(∇²_ηη ℓ)⁻¹ ∇²_ηψ ℓ)."""
         me = self.local(psi, eta, unit, self.approximation.gradient_order) if local else self
         O, (O_psi, O_eta) = jax.value_and_grad(me.unit_objective, argnums=(0, 1))(psi, eta, unit)
-        H, L = jax.jacfwd(jax.grad(me.ell), argnums=(0, 1))(eta, psi, unit)  # (q, q), (q, ψ)
+        H, L = me.curvature_blocks(eta, psi, unit)
         return O, O_psi - O_eta @ jnp.linalg.solve(H, L)
 
     def unit_evaluation(self, psi, eta, unit):
@@ -277,7 +281,7 @@ class Objective:
         derivative is M. ŷ is its polynomial about η̂ (exact there); a unit whose inner
         problem did not converge is named in the fit's notes."""
         me = self.local(psi, eta, unit, self.approximation.hessian_order)
-        H, L = jax.jacfwd(jax.grad(me.ell), argnums=(0, 1))(eta, psi, unit)
+        H, L = me.curvature_blocks(eta, psi, unit)
         M = -jnp.linalg.solve(H, L)
         M = jnp.where(jnp.isfinite(M), M, 0.0)  # (a singular H: O stays finite, g not)
 
@@ -380,11 +384,7 @@ class Objective:
         return jax.jit(jax.vmap(self.unit_evaluation, in_axes=(None, 0, 0)))
 
     def _build_inner_blocks(self):
-        def blocks(eta, psi, unit):  # ∇²_ηη ℓ_i and ∇²_ηψ ℓ_i
-            L = jax.jacfwd(jax.grad(self.ell), argnums=1)(eta, psi, unit)
-            return jax.hessian(self.ell)(eta, psi, unit), L
-
-        return jax.jit(jax.vmap(blocks, in_axes=(0, None, 0)))
+        return jax.jit(jax.vmap(self.curvature_blocks, in_axes=(0, None, 0)))
 
     def inner_blocks(self, psi, etas) -> tuple[np.ndarray, np.ndarray]:
         """(∇²_ηη ℓ_i (E, q, q), ∇²_ηψ ℓ_i (E, q, ψ)) at η̂."""
