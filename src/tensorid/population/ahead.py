@@ -12,8 +12,6 @@ import threading
 import numpy as np
 
 from ..engine.compiling.compilation import clocks_here, counted_by
-from ..engine.schemes.implicit import DiagonallyImplicitRungeKutta
-from ..engine.schemes.integrators import ExplicitRungeKutta
 from .objective import Objective
 from .units import BLOCK
 
@@ -47,7 +45,7 @@ def compile_ahead(obj: Objective, psi, etas) -> threading.Thread | None:
 def preload(obj: Objective, most: int) -> threading.Thread | None:
     """The outer evaluation's executables an earlier process kept for this structure,
     read in a second thread (reading does not hold the GIL: 0.7 s for theophylline's)
-    while this one checks the substeps (estimate._presized), at each substeps the check
+    while this one checks the substeps (refine.presized), at each substeps the check
     may settle on (fourfold steps up to ``most``; the given ones alone where the user
     chose them). A program no process kept is left to the fit (nothing is compiled
     here); None where the fit has no outer evaluation of this kind."""
@@ -55,8 +53,7 @@ def preload(obj: Objective, most: int) -> threading.Thread | None:
         return None
     problem, d = obj.problem, obj.problem.discretisation
     steps = [d.substeps]
-    fixed = isinstance(d.scheme, ExplicitRungeKutta | DiagonallyImplicitRungeKutta)
-    while fixed and not d.chosen and steps[-1] < most:  # (as the check may raise them)
+    while d.fixed_steps and not d.chosen and steps[-1] < most:  # (as the check may raise them)
         steps.append(4 * steps[-1])
     clocks = clocks_here()
 

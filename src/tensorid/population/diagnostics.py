@@ -23,11 +23,8 @@ from __future__ import annotations
 
 from statistics import NormalDist
 
-import jax
 import jax.numpy as jnp
 import numpy as np
-
-from .units import blocked
 
 SIMULATIONS = 200  # replicate fleets behind NPDE (as the visual predictive check's)
 COLUMNS = ("ID", "TIME", "OUTPUT", "DV", "PRED", "IPRED", "RES", "IRES", "IWRES", "CWRES",
@@ -63,7 +60,7 @@ def table(res, simulations: int = SIMULATIONS, seed: int = 0) -> dict[str, np.nd
     pred, ipred = predictions(res)
     seen = u.mask > 0
     h = lambda v: np.asarray(err.scaled(v, u.mask))  # noqa: E731
-    sd = np.asarray(obj.residual_sd(res.x, res.etas))
+    sd = obj.residual_sd(res.x, res.etas, ipred)
     cwres = _cwres(obj, res, h(u.y), h(ipred), sd**2)
     npde = _npde(obj, res, h(u.y), simulations, np.random.default_rng(seed))
     E, P, S = u.y.shape
@@ -77,21 +74,6 @@ def table(res, simulations: int = SIMULATIONS, seed: int = 0) -> dict[str, np.nd
     return {k: np.asarray(v)[seen] for k, v in cols.items()}
 
 
-def _jacobians(obj, psi, etas) -> np.ndarray:
-    """A = ∂h(ŷ)/∂η (E, P, S, qp) of every unit at its η̂."""
-    bare = obj.structure()
-
-    def build():
-        def jac(psi, eta, unit):
-            fitted = lambda e: bare.error.scaled(bare.predict(psi, e, unit), unit[3])  # noqa: E731
-            return jax.jacfwd(fitted)(eta)[..., : bare.qp]
-
-        return jax.jit(jax.vmap(jac, in_axes=(None, 0, 0)))
-
-    program = obj._program("diagnostics_jacobian", build)
-    return np.asarray(blocked(program, (jnp.asarray(psi), jnp.asarray(etas), obj.data), (1, 2)))
-
-
 def _omega(obj, psi) -> np.ndarray:
     L = np.asarray(obj.effects.cholesky(jnp.asarray(psi[obj.qp : obj.first_shared])))
     return L @ L.T
@@ -99,7 +81,7 @@ def _omega(obj, psi) -> np.ndarray:
 
 def _cwres(obj, res, hy, hipred, var) -> np.ndarray:
     """CWRES (E, P, S), NaN where not observed."""
-    A = _jacobians(obj, res.x, res.etas)
+    A = obj.slopes(res.x, res.etas)  # ∂h(ŷ)/∂η at η̂ (E, P, S, qp)
     omega, seen = _omega(obj, res.x), obj.units.mask > 0
     out = np.full(hy.shape, np.nan)
     for i in range(hy.shape[0]):
@@ -123,7 +105,7 @@ def _npde(obj, res, hy, K: int, rng) -> np.ndarray:
         etas = np.array(res.etas)  # individual values: each unit's own
         etas[:, :qp] = rng.standard_normal((len(etas), qp)) @ L.T
         pred = np.asarray(obj.predict_all(res.x, etas))
-        sd = np.asarray(obj.residual_sd(res.x, etas))
+        sd = obj.residual_sd(res.x, etas, pred)
         z = rng.standard_normal(pred.shape)
         y = np.stack([obj.error.sample(pred[..., g], sd[..., g], z[..., g], g)
                       for g in range(pred.shape[-1])], axis=-1)  # fmt: skip

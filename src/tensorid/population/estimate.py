@@ -11,14 +11,9 @@ import warnings
 from dataclasses import replace
 from typing import Any
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
-from ..engine.schemes.implicit import DiagonallyImplicitRungeKutta
-from ..engine.schemes.integrators import ExplicitRungeKutta
 from ..engine.schemes.status import Status
-from ..engine.sweeping.sweeps import shared_sweeps
 from ..solve.minimize import interrupted, minimize_trust_region
 from ..solve.solution import FitInterrupted
 from ..solve.trust_region import TRResult
@@ -34,9 +29,9 @@ from .boundary import (
 )
 from .distributed import UnitMap, evaluate_chunk
 from .objective import Objective
+from .refine import MAX_SUBSTEPS, coarse_note, coarse_steps, presized, unrefined
 from .result import PopulationResult
 from .start import drawn_starts, start_point
-from .units import blocked
 
 
 def _a_fleet(problem, executor):
@@ -65,11 +60,6 @@ def check_executor(executor) -> None:
             "executor must be a concurrent.futures executor (with submit), e.g. a Dask "
             f"client's client.get_executor(); got {executor!r}"
         )
-
-
-# where a population fit's check finds the default substeps too coarse, it raises them
-# fourfold and fits again, up to this many per sample interval
-MAX_SUBSTEPS = 64
 
 
 def _estimate(obj: Objective, executor, workers, timeout, began, start=None, **options):
@@ -151,7 +141,7 @@ def fit_population(
     collapsed: list[tuple[list[str], float]] = []
     loading = preload(obj, MAX_SUBSTEPS)  # read while the substeps are checked
     try:
-        obj, raised = _presized(obj)
+        obj, raised = presized(obj)
         obj, res, etas = _best_start(obj, fit, collapsed, (starts, spread, sampling, seed))
     finally:
         joined(loading)
@@ -247,7 +237,7 @@ def _refined(obj: Objective, res: PopulationResult, etas, fit: dict, collapsed: 
             raise FitInterrupted(replace(res, notes=[*notes, why])) from None  # type: ignore[arg-type]
         if not np.isfinite(refit[1].objective):  # it could not even start: this fit stands
             del collapsed[dropped:]  # (nothing the refit dropped is this fit's)
-            notes.append(_unrefined(refit[0], s))
+            notes.append(unrefined(refit[0], s))
             res = replace(res, seconds=time.perf_counter() - fit["began"])  # (the refit too)
             break
         notes.append(
@@ -260,7 +250,7 @@ def _refined(obj: Objective, res: PopulationResult, etas, fit: dict, collapsed: 
         notes += [n for n in res.notes if n not in notes]
         steps = obj.problem.discretisation
     if worst is not None:
-        notes.append(_coarse_note(steps, worst))
+        notes.append(coarse_note(steps, worst))
     return obj, res, etas, notes
 
 
@@ -276,23 +266,6 @@ def _near_singular(res: PopulationResult) -> list[str]:
         "unreliable or absent); give the parameters one shared effect, a covariate on "
         "both, or fit with omega='diagonal'"
     ]
-
-
-def _sd(obj: Objective, res: PopulationResult) -> np.ndarray:
-    """The residual SD against which predictions are measured: per output (individual
-    parameters alone), or per sample where it follows the prediction; on each error
-    model's scale (log y for an exponential one)."""
-    if obj.joint:
-        return np.array(list(res.residual_sd.values()))
-    return _sd_at(obj, res.x, res.etas)
-
-
-def _sd_at(obj: Objective, psi, etas) -> np.ndarray:
-    """The residual SD at (ψ, η) of a fit with a residual-error model: per output
-    where constant, else per sample."""
-    if obj.plain:
-        return obj.error.constant_sd(obj.split(psi)[3])
-    return obj.residual_sd(psi, etas)
 
 
 def _interrupted(obj: Objective, state: dict, began: float) -> PopulationResult:
@@ -352,96 +325,3 @@ def _outer(obj: Objective, units: UnitMap | None, state: dict, start=None, **opt
     finally:  # (not left inside XLA when the process ends)
         joined(ahead)
     return interrupted(r), state["etas"]
-
-
-def coarse_steps(obj: Objective, res: PopulationResult, etas) -> float | None:
-    """A fixed-step scheme's substeps are per sample interval, and a fleet's intervals
-    differ (a quarter of an hour after a dose, twelve hours later): where doubling the
-    substeps moves any unit's prediction at the estimates by more than a tenth of its
-    output's residual SD, the estimates are the discretisation's. Returns that largest
-    move in residual SDs, None where it is smaller (or cannot be measured)."""
-    if not np.isfinite(res.objective):
-        return None
-    return _moved(obj, res.x, etas, _sd(obj, res))
-
-
-def _moved(obj: Objective, x, etas, sigma) -> float | None:
-    """The largest move of a prediction at (ψ, η) when the substeps double, in the
-    residual SDs ``sigma``; None where it is at most a tenth (or cannot be measured)."""
-    d = obj.problem.discretisation
-    if not isinstance(d.scheme, ExplicitRungeKutta | DiagonallyImplicitRungeKutta):
-        return None  # adaptive steps control their own error; a discrete map is exact
-    fine = shared_sweeps(
-        obj.sweeps.model, (), (), replace(d, substeps=2 * d.substeps), dosing=obj.sweeps.dosing
-    )
-
-    bare = obj.structure()  # the kept program holds no units' data
-
-    def build():
-        def simulate(psi, eta, unit):
-            x0, p = bare.start(bare.theta(psi, eta), unit)
-            return fine._simulate(x0, p, unit[0], unit[1])[1]
-
-        return jax.jit(jax.vmap(simulate, in_axes=(None, 0, 0)))
-
-    program = obj._program(("finer", d.substeps), build)
-    finer = np.asarray(blocked(program, (jnp.asarray(x), jnp.asarray(etas), obj.data), (1, 2)))
-    coarse = np.asarray(obj.predict_all(x, etas))
-    mask = obj.units.mask
-    moved = np.asarray(obj.error.scaled(finer, mask)) - np.asarray(obj.error.scaled(coarse, mask))
-    moved = np.where(mask > 0, np.abs(moved) / np.maximum(sigma, 1e-300), 0.0)
-    worst = float(np.max(np.where(np.isfinite(moved), moved, np.inf)))  # (a blow-up: inf)
-    return worst if worst > 0.1 else None
-
-
-def _presized(obj: Objective) -> tuple[Objective, list[str]]:
-    """The default substeps raised fourfold before the fit while, at its start, doubling
-    them moves a prediction by more than a tenth of the start's residual SD, for the
-    typical unit and for units 2ω either side of it (the fleet's span; theophylline's
-    fastest absorbers are what 4 substeps cannot follow): one fit at the substeps the
-    check after it would ask for, not a fit and a refit (which compiled every program
-    twice). That check stays."""
-    notes: list[str] = []
-    while not (obj.joint or obj.problem.discretisation.chosen):
-        d = obj.problem.discretisation
-        if d.substeps >= MAX_SUBSTEPS:
-            break
-        psi, etas = start_point(obj), obj.start_etas()
-        omega = np.exp(psi[obj.qp : 2 * obj.qp]) if not obj.full else 0.0  # (full: typical)
-        moves = []
-        for side in (0.0, 2.0, -2.0):
-            probe = etas.copy()
-            probe[:, : obj.qp] = side * omega
-            moves.append(_moved(obj, psi, probe, _sd_at(obj, psi, probe)) or 0.0)
-        worst = max(moves) or None
-        if worst is None:
-            break
-        notes.append(
-            f"the substeps were raised from {d.substeps} to {4 * d.substeps} before the "
-            f"fit: at its start the predictions (of units 2ω either side of the typical "
-            f"one too) moved by {worst:.2g} residual SDs when the substeps doubled "
-            "(--substeps on the command line, substeps= in Python, chooses them)"
-        )
-        obj = Objective(obj.problem.with_substeps(4 * d.substeps), obj.method)
-    return obj, notes
-
-
-def _unrefined(finer: Objective, s: int) -> str:
-    """The note of a fit kept at ``s`` substeps whose refit at ``finer``'s could not start."""
-    units = finer.unfinite + [n for n in finer.unconverged if n not in finer.unfinite]
-    more = " ..." if len(units) > 10 else ""
-    why = f"the inner problems of {len(units)} unit(s) {units[:10]}{more} did not converge"
-    why = f"{why} or were not finite there" if units else "its objective was not finite there"
-    return (f"the fit could not be repeated at {4 * s} substeps from its estimates at {s} "
-            f"({why}): these are the estimates at {s}; a fit given --substeps {4 * s} "
-            "(substeps= in Python) starts there afresh")  # fmt: skip
-
-
-def _coarse_note(d, worst: float) -> str:
-    return (
-        f"the predictions at the estimates move by {worst:.2g} residual SDs when the "
-        f"substeps per sample interval go from {d.substeps} to {2 * d.substeps}: the "
-        "longest intervals are integrated too coarsely and the estimates are the "
-        f"scheme's, not the model's; raise the substeps (--substeps {4 * d.substeps} on "
-        f"the command line, substeps={4 * d.substeps} in Python)"
-    )

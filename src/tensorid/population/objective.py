@@ -27,11 +27,9 @@ third, one order fewer than Laplace everywhere, and it is what NONMEM and nlmixr
 report for the same model, so the numbers can be set side by side.
 
 The outer gradient is exact through the inner optimum (implicit-function theorem):
-dO/dψ = ∂O/∂ψ + ∂O/∂η · dη̂/dψ with dη̂/dψ = −(∇²_ηη ℓ)⁻¹ ∇²_ηψ ℓ. The outer Hessian is
-the derivative of that gradient along η = η̂(ψ), by forward mode. Every model
-derivative comes from the sweeps (units.py), none from finite differences, through
-ŷ's Taylor polynomial about (ψ, η̂) (units.taylor: the sweeps run once per order).
-"""
+dO/dψ = ∂O/∂ψ + ∂O/∂η · dη̂/dψ with dη̂/dψ = −(∇²_ηη ℓ)⁻¹ ∇²_ηψ ℓ; the outer Hessian its
+derivative along η = η̂(ψ), by forward mode. Every model derivative comes from the
+sweeps (units.py) through ŷ's Taylor polynomial about (ψ, η̂) (units.taylor)."""
 
 from __future__ import annotations
 
@@ -52,7 +50,7 @@ from .approximations import APPROXIMATIONS
 from .errors import ResidualErrors, positive_observations
 from .inner import solve_units
 from .random_effects import RandomEffects
-from .units import Units, block, blocked, outputs, taylor
+from .units import Units, block, blocked, outputs, simulated_at, taylor
 
 METHODS = tuple(APPROXIMATIONS)  # (approximations.py)
 _PROGRAMS: dict = {}  # compiled programs per structure (Objective.key)
@@ -93,9 +91,11 @@ class Objective:
         uses = set(getattr(problem, "x0_uses", set())) & set(problem.free_params)
         self.moving = moving(m, exprs) if uses else None
         states = tuple(range(m.N)) if self.moving else ()
-        self.sweeps = shared_sweeps(
-            m, states, tuple(free), problem.discretisation, dosing=getattr(problem, "dosing", None)
-        )
+        d, dosing = problem.discretisation, getattr(problem, "dosing", None)
+        self.sweeps = shared_sweeps(m, states, tuple(free), d, dosing=dosing)
+        # the predictions' program, one for every fixed-step substeps, kept as at 1
+        one = dataclasses.replace(d, substeps=1) if d.fixed_steps else d
+        self.any_steps = shared_sweeps(m, states, tuple(free), one, dosing=dosing)
         self.free = jnp.array(free, dtype=int)
         self.own_index = [m.params.index(n) for n in self.pop]
         self.pop_pos = jnp.array([problem.free_params.index(n) for n in self.pop], dtype=int)
@@ -129,29 +129,18 @@ class Objective:
         self.key += (self.weights,) if self.joint else (self.errors,)
         self.key += ("censored",) if self.censored else ()
         self.Y = outputs(self.sweeps)
-        self.names = (
-            self.shared
-            if self.joint
-            else (
-                [f"log_{n}" for n in self.pop[: self.qp]]
-                + [f"log_omega_{n}" for n in self.pop[: self.qp]]
-                + [f"omega_chol_{a}_{b}" for a, b in self.effects.lower_pairs()]
-                + self.shared
-                + self.error.names
-            )
-        )
+        random = self.pop[: self.qp]
+        self.names = self.shared if self.joint else (  # ψ's, in order
+            [f"log_{n}" for n in random] + [f"log_omega_{n}" for n in random]
+            + [f"omega_chol_{a}_{b}" for a, b in self.effects.lower_pairs()]
+            + self.shared + self.error.names)  # fmt: skip
         self.size = len(self.names)
         self._evaluated: dict = {}  # (ψ, η̂) → evaluation(): the last few
 
     def subset(self, index) -> Objective:
         """This objective over ``index``'s units alone (a worker's chunk); the same programs."""
         new = copy.copy(self)
-        u = self.units
-        new.units = dataclasses.replace(
-            u, t=u.t[index], u=u.u[index], y=u.y[index], mask=u.mask[index],
-            x0=u.x0[index], names=[u.names[i] for i in index], samples=u.samples[index],
-            cens=None if u.cens is None else u.cens[index],
-        )  # fmt: skip
+        new.units = self.units.subset(index)
         new.data = tuple(a[np.asarray(index)] for a in self.data)
         new.unconverged, new.unfinite, new._evaluated = [], [], {}
         return new
@@ -275,11 +264,12 @@ class Objective:
         return O, O_psi - O_eta @ jnp.linalg.solve(H, L)
 
     def unit_evaluation(self, psi, eta, unit):
-        """(O_i, dO_i/dψ, d²O_i/dψ², ∇²_ηη ℓ_i) at η̂, in one program (what every outer
-        evaluation asks). The Hessian differentiates the gradient along η̂ + M (ψ' − ψ),
-        M = dη̂/dψ: a point equal to η̂ to the last bit (O is value_grad's) whose
-        derivative is M. ŷ is its polynomial about η̂ (exact there); a unit whose inner
-        problem did not converge is named in the fit's notes."""
+        """(O_i, dO_i/dψ, d²O_i/dψ², ∇²_ηη ℓ_i, ∂h(ŷ)/∂η) at η̂, in one program (what
+        every outer evaluation asks; the last, of the random effects, for CWRES). The
+        Hessian differentiates the gradient along η̂ + M (ψ' − ψ), M = dη̂/dψ: a point
+        equal to η̂ to the last bit (O is value_grad's) whose derivative is M. ŷ is its
+        polynomial about η̂ (exact there); a unit whose inner problem did not converge
+        is named in the fit's notes."""
         me = self.local(psi, eta, unit, self.approximation.hessian_order)
         H, L = me.curvature_blocks(eta, psi, unit)
         M = -jnp.linalg.solve(H, L)
@@ -291,7 +281,8 @@ class Objective:
             return g, (O, g)
 
         outer, (O, g) = jax.jacfwd(grad_along, has_aux=True)(psi)
-        return O, g, outer, H
+        fitted = lambda e: self.error.scaled(me.predict(psi, e, unit), unit[3])  # noqa: E731
+        return O, g, outer, H, jax.jacfwd(fitted)(eta)[..., : self.qp]
 
     def inner_step(self, eta, lam, psi, unit):
         """One damped Newton step on ℓ_i: (η, λ, ℓ, |step|)."""
@@ -333,13 +324,15 @@ class Objective:
     def _program(self, name: str | tuple, build):
         """The program ``build()`` makes, kept per structure here and on disk as the
         sweeps' are (engine/compiling/programs.py): a later process reads it, not traces it (the
-        outer Hessian's trace alone was 10 s of a 17 s theophylline fit, cache warm)."""
+        outer Hessian's trace alone was 10 s of a 17 s theophylline fit, cache warm).
+        The predictions' serves every substeps: kept as at 1 (units.simulated_at)."""
+        sweeps = self.any_steps if name == "predict_all" else self.sweeps
         with _LOCK:  # (one Program per name, also where ahead.py's threads ask)
-            programs = _PROGRAMS.setdefault(self.key, {})
+            programs = _PROGRAMS.setdefault((sweeps, *self.key[1:]), {})
             if name not in programs:
                 label = name if isinstance(name, str) else "_".join(map(str, name))
                 entry = f"population_{label} {self._structure_text()}"
-                programs[name] = Program(build(), self.sweeps, entry)
+                programs[name] = Program(build(), sweeps, entry)
             return programs[name]
 
     def _structure_text(self) -> str:
@@ -366,13 +359,18 @@ class Objective:
             return programs[name]
         return self._program(name, getattr(self.structure(), f"_build_{name}"))
 
-    def predict_all(self, psi, etas):
-        """ŷ (E, P, S) of every unit at (ψ, η (E, q))."""
+    def predict_all(self, psi, etas, substeps: int | None = None):
+        """ŷ (E, P, S) of every unit at (ψ, η (E, q)), by the scheme at ``substeps`` per
+        interval (None: the fit's; another number for a fixed-step scheme alone)."""
+        steps = jnp.asarray(substeps or self.sweeps.discretisation.substeps, jnp.int32)
         return self._blocked("predict_all", jnp.asarray(psi), jnp.asarray(etas), self.data,
-                             units=(1, 2))  # fmt: skip
+                             steps, units=(1, 2))  # fmt: skip
 
     def _build_predict_all(self):
-        return jax.jit(jax.vmap(self.predict, in_axes=(None, 0, 0)))
+        def at(psi, eta, unit, steps):
+            return simulated_at(self.sweeps, self._argument(psi, eta, unit), unit, steps)
+
+        return jax.jit(jax.vmap(at, in_axes=(None, 0, 0, None)))
 
     def _build_steps(self):
         return jax.jit(jax.vmap(self.inner_step, in_axes=(0, 0, None, 0)))
@@ -398,18 +396,13 @@ class Objective:
         p0 = [0.0] * qp + [pr.p0[pr.model.params.index(n)] for n in self.pop[qp:]]
         return np.tile(np.asarray(p0, dtype=float), (E, 1)).reshape(E, self.q)
 
+    def residual_sd(self, psi, etas, yhat=None) -> np.ndarray:
+        """σ_hg (E, P, S) of every unit's residual error at (ψ, η) (predictions: ``yhat``)."""
+        yhat = self.predict_all(psi, etas) if yhat is None else yhat
+        return np.asarray(self._compiled("residual_sd")(jnp.asarray(psi), jnp.asarray(yhat)))
+
     def _build_residual_sd(self):
-        def sd(psi, eta, unit):
-            f = self.predict(psi, eta, unit)
-            return jnp.sqrt(self.variance(self.split(psi)[3], f))
-
-        return jax.jit(jax.vmap(sd, in_axes=(None, 0, 0)))
-
-    def residual_sd(self, psi, etas) -> np.ndarray:
-        """σ_hg (E, P, S) of every unit's residual error at (ψ, η)."""
-        out = self._blocked("residual_sd", jnp.asarray(psi), jnp.asarray(etas), self.data,
-                            units=(1, 2))  # fmt: skip
-        return np.asarray(out)
+        return jax.jit(lambda psi, yhat: jnp.sqrt(self.variance(self.split(psi)[3], yhat)))
 
     def solve_inner(self, psi, etas, maxiter: int = 100, tol: float = 1e-11):
         """Each unit's η̂ from ``etas``: (η̂ (E, q), whether every unit converged);
@@ -431,12 +424,19 @@ class Objective:
         η̂: an outer evaluation's value, gradient and Hessian, and each unit's inner
         Hessian (its inverse: the unit's η covariance). The last four are remembered:
         a fit's result asks again for its best point's (10,000 units: seconds)."""
+        return self._remembered(psi, etas, slopes=False)[:4]
+
+    def slopes(self, psi, etas) -> np.ndarray:
+        """A = ∂h(ŷ)/∂η (E, P, S, random effects) at η̂ (CWRES's), from the evaluation."""
+        return self._remembered(psi, etas, slopes=True)[4]
+
+    def _remembered(self, psi, etas, slopes: bool) -> tuple:
         key = (np.asarray(psi, float).tobytes(), np.asarray(etas, float).tobytes())
-        if key not in self._evaluated:
+        if key not in self._evaluated or (slopes and len(self._evaluated[key]) < 5):
             out = self._blocked("evaluation", jnp.asarray(psi), jnp.asarray(etas), self.data,
                                 units=(1, 2))  # fmt: skip
-            kept = list(self._evaluated.items())[-3:] + [(key, tuple(map(np.asarray, out)))]
-            self._evaluated = dict(kept)
+            kept = [(k, v[:4]) for k, v in self._evaluated.items() if k != key][-3:]
+            self._evaluated = dict(kept + [(key, tuple(map(np.asarray, out)))])  # (A: newest)
         return self._evaluated[key]
 
     def evaluation_program(self, psi, etas):

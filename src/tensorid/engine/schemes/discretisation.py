@@ -20,7 +20,16 @@ import numpy as np
 
 from ... import _config  # noqa: F401
 from ..modelling.checks import did_you_mean
-from .integrators import DISCRETE, DiscreteMap, RungeKuttaScheme, Scheme, _x, get_scheme
+from .implicit import DiagonallyImplicitRungeKutta
+from .integrators import (
+    DISCRETE,
+    DiscreteMap,
+    ExplicitRungeKutta,
+    RungeKuttaScheme,
+    Scheme,
+    _x,
+    get_scheme,
+)
 from .intersample import SMOOTH, chebyshev_at, track
 from .status import Status
 
@@ -123,6 +132,19 @@ class Discretisation:
             f"{self.substeps}"
         )
 
+    @property
+    def fixed_steps(self) -> bool:
+        """Whether the scheme takes ``substeps`` equal steps per interval (explicit or
+        diagonally implicit Runge-Kutta): its answer moves with them."""
+        return isinstance(self.scheme, ExplicitRungeKutta | DiagonallyImplicitRungeKutta)
+
+    def at_run_time(self, substeps) -> Discretisation:
+        """This fixed-step discretisation with its substeps an integer given when the
+        program runs (a traced int32 scalar), so that one compiled program serves every
+        number of substeps (a population fit's predictions, which its substeps check
+        compares at s and 2s; the loop over steps is then a while loop)."""
+        return Discretisation(_RunTimeSteps(self.scheme, substeps), 1, self.interpolation)
+
     def inputs(self, model, t, u) -> np.ndarray:
         """The inputs as the march reads them: the samples (P, U), delayed where the
         model says so; for a smooth interpolation, each interval's coefficients
@@ -143,6 +165,21 @@ class Discretisation:
             if hasattr(self.scheme, tol):
                 d[tol] = getattr(self.scheme, tol)
         return d
+
+
+@dataclass(frozen=True, eq=False)
+class _RunTimeSteps:
+    """A fixed-step scheme that takes as many steps per interval as a number given at
+    run time says (Discretisation.at_run_time)."""
+
+    scheme: ExplicitRungeKutta | DiagonallyImplicitRungeKutta
+    substeps: jax.Array
+
+    name = property(lambda self: self.scheme.name)
+    order = property(lambda self: self.scheme.order)
+
+    def interval(self, f, fs, y, dt, carry, substeps: int):
+        return self.scheme.interval(f, fs, y, dt, carry, self.substeps)
 
 
 class DiscretisationSettings:

@@ -1,0 +1,52 @@
+"""A population fit's substeps check (population/refine.py) compares every unit's
+predictions at s and 2s substeps: both come from one program, which reads the number of
+substeps when it runs (Discretisation.at_run_time), and its predictions are the fit's."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from test_population import fleet_problem, one_compartment
+
+import tensorid as ti
+from tensorid.engine.sweeping.sweeps import shared_sweeps
+from tensorid.population.objective import Objective
+from tensorid.population.start import start_point
+
+
+@pytest.mark.parametrize("scheme", ["rk4", "sdirk2"])
+def test_substeps_read_at_run_time_simulate_as_those_compiled_in(scheme):
+    m = one_compartment()
+    t = np.array([0.0, 0.5, 1.0, 3.0, 8.0, 24.0])
+    u = np.full((t.size, 1), 300.0)
+    x0, p = jnp.array([300.0, 0.0]), jnp.array([1.4, 2.5, 30.0])
+    d = ti.Discretisation.of(scheme, 1)
+
+    @jax.jit
+    def at(steps):
+        sw = shared_sweeps(m, (), (), d.at_run_time(steps))
+        return sw._simulate(x0, p, jnp.asarray(t), jnp.asarray(u))[1]
+
+    for s in (3, 8):
+        fixed = shared_sweeps(m, (), (), ti.Discretisation.of(scheme, s))
+        want = np.asarray(fixed._simulate(x0, p, jnp.asarray(t), jnp.asarray(u))[1])
+        np.testing.assert_allclose(np.asarray(at(jnp.int32(s))), want, rtol=1e-14, atol=0)
+    assert at._cache_size() == 1  # one program for both
+
+
+def test_one_program_predicts_the_fleet_at_every_substeps_as_the_fit_does():
+    problem = fleet_problem(3)
+    obj, finer = Objective(problem, "focei"), Objective(problem.with_substeps(40), "focei")
+    psi, etas = start_point(obj), obj.start_etas()
+    etas[:, 0] = [0.3, -0.2, 0.1]
+    fit_own = jax.vmap(obj.predict, in_axes=(None, 0, 0))  # ŷ as the fit's ℓ sees it
+    own = np.asarray(fit_own(jnp.asarray(psi), jnp.asarray(etas), obj.data))
+    np.testing.assert_array_equal(np.asarray(obj.predict_all(psi, etas)), own)
+    fine = np.asarray(jax.vmap(finer.predict, in_axes=(None, 0, 0))(psi, etas, finer.data))
+    np.testing.assert_allclose(np.asarray(obj.predict_all(psi, etas, 40)), fine, rtol=1e-13)
+    np.testing.assert_allclose(np.asarray(finer.predict_all(psi, etas)), fine, rtol=1e-13)
+    program = obj._compiled("predict_all")
+    assert finer._compiled("predict_all") is program  # (kept as at 1 substep)
+    assert len(program._runs) == 1  # compiled once, for 20 and 40 substeps alike
