@@ -50,3 +50,8 @@ def test_one_program_predicts_the_fleet_at_every_substeps_as_the_fit_does():
     program = obj._compiled("predict_all")
     assert finer._compiled("predict_all") is program  # (kept as at 1 substep)
     assert len(program._runs) == 1  # compiled once, for 20 and 40 substeps alike
+
+
+def test_only_a_fixed_step_scheme_reads_its_substeps_at_run_time():
+    with pytest.raises(TypeError, match="dopri5 scheme does not take a fixed number"):
+        ti.Discretisation.of("dopri5").at_run_time(jnp.int32(3))

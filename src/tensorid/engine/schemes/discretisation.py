@@ -143,6 +143,8 @@ class Discretisation:
         program runs (a traced int32 scalar), so that one compiled program serves every
         number of substeps (a population fit's predictions, which its substeps check
         compares at s and 2s; the loop over steps is then a while loop)."""
+        if not isinstance(self.scheme, ExplicitRungeKutta | DiagonallyImplicitRungeKutta):
+            raise TypeError(f"the {self.scheme.name} scheme does not take a fixed number of steps")
         return Discretisation(_RunTimeSteps(self.scheme, substeps), 1, self.interpolation)
 
     def inputs(self, model, t, u) -> np.ndarray:

@@ -98,7 +98,7 @@ class DiagonallyImplicitRungeKutta:
             ks.append(jax.tree_util.tree_map(lambda zl, bl, g=gamma_step: (zl - bl) / g, z, base))
         return _axpy(y, step, zip(self.b, ks, strict=True)), ok
 
-    def interval(self, f: Field, fs: Field, y, dt, carry, substeps: int):
+    def interval(self, f: Field, fs: Field, y, dt, carry, substeps: int | jax.Array):
         """Cover one sample interval with ``substeps`` equal implicit steps."""
         step, ds = dt / substeps, 1.0 / substeps
         solve = NewtonStageSolver(f, fs, self.newton_tol, self.max_newton)

@@ -96,8 +96,9 @@ class ExplicitRungeKutta:
         ks = _explicit_stages(self.a, self.c, f, y, step, s0, ds)
         return _axpy(y, step, zip(self.b, ks, strict=True))
 
-    def interval(self, f: Field, fs: Field, y, dt, carry, substeps: int):
-        """Cover one sample interval of length dt with ``substeps`` equal steps;
+    def interval(self, f: Field, fs: Field, y, dt, carry, substeps: int | jax.Array):
+        """Cover one sample interval of length dt with ``substeps`` equal steps (a
+        traced integer where they are read at run time: Discretisation.at_run_time);
         returns (y, carry, failure code)."""
         step, ds = dt / substeps, 1.0 / substeps
         y = jax.lax.fori_loop(0, substeps, lambda i, yy: self.step(f, yy, step, i * ds, ds), y)
