@@ -11,6 +11,7 @@ import pytest
 from test_population import fleet_problem, one_compartment
 
 import tensorid as ti
+from tensorid.engine.modelling.events import Events
 from tensorid.engine.sweeping.sweeps import shared_sweeps
 from tensorid.population.objective import Objective
 from tensorid.population.start import start_point
@@ -44,14 +45,37 @@ def test_one_program_predicts_the_fleet_at_every_substeps_as_the_fit_does():
     fit_own = jax.vmap(obj.predict, in_axes=(None, 0, 0))  # ŷ as the fit's ℓ sees it
     own = np.asarray(fit_own(jnp.asarray(psi), jnp.asarray(etas), obj.data))
     np.testing.assert_array_equal(np.asarray(obj.predict_all(psi, etas)), own)
+    program = obj._compiled("predict_all")
+    runs = len(program._runs)  # (other tests' fleets of this structure may have added)
     fine = np.asarray(jax.vmap(finer.predict, in_axes=(None, 0, 0))(psi, etas, finer.data))
     np.testing.assert_allclose(np.asarray(obj.predict_all(psi, etas, 40)), fine, rtol=1e-13)
     np.testing.assert_allclose(np.asarray(finer.predict_all(psi, etas)), fine, rtol=1e-13)
-    program = obj._compiled("predict_all")
     assert finer._compiled("predict_all") is program  # (kept as at 1 substep)
-    assert len(program._runs) == 1  # compiled once, for 20 and 40 substeps alike
+    assert len(program._runs) == runs  # compiled once, for 20 and 40 substeps alike
 
 
 def test_only_a_fixed_step_scheme_reads_its_substeps_at_run_time():
     with pytest.raises(TypeError, match="dopri5 scheme does not take a fixed number"):
         ti.Discretisation.of("dopri5").at_run_time(jnp.int32(3))
+
+
+def test_a_steady_state_dose_s_cycle_takes_its_own_steps_at_run_time_substeps():
+    """A steady-state dose integrates each part of its cycle with CYCLE_STEPS times the
+    substeps (engine/sweeping/steady.py): the run-time substeps multiply those too, so
+    the predictions stay the fit's (RK4 at 4 steps over a 24 h cycle is unstable)."""
+    m = ti.Model(rhs=lambda x, p, u: jnp.stack([-p[0] * x[0] - 0.02 * x[0] ** 2 / (1 + x[0])]),
+                 output=lambda x, p: x / p[1], states=["c"], params=["k", "v"],
+                 outputs=["cp"])  # fmt: skip
+    T, rng, units = np.array([0.5, 2.0, 6.0, 11.0, 14.0]), np.random.default_rng(0), []
+    for i in range(3):
+        y = np.array([[9.0, 8.0, 6.0, 4.0, 8.5]]).T * np.exp(0.02 * rng.standard_normal((5, 1)))
+        ev = Events.doses(0.0, "c", 100.0, ii=24.0, addl=1, ss=True)
+        units.append(ti.Experiment(T, None, y, events=ev, name=f"u{i}"))
+    problem = ti.Problem(m, units, p0={"k": 0.3, "v": 10.0}, x0=[0.0], population={"k": 0.3})
+    obj, finer = Objective(problem, "focei"), Objective(problem.with_substeps(8), "focei")
+    psi, etas = start_point(obj), obj.start_etas()
+    etas[:, 0] = [0.8, 0.0, -0.8]
+    for o, s in ((obj, None), (finer, None), (obj, 8)):
+        own = o if s is None else finer
+        fit_own = np.asarray(jax.vmap(own.predict, in_axes=(None, 0, 0))(psi, etas, own.data))
+        np.testing.assert_allclose(np.asarray(o.predict_all(psi, etas, s)), fit_own, rtol=1e-13)

@@ -14,6 +14,7 @@ here: a lost worker costs time, never the fit.
 
 from __future__ import annotations
 
+import copy
 import warnings
 from concurrent.futures import CancelledError, Executor
 from concurrent.futures import TimeoutError as FutureTimeout
@@ -36,13 +37,22 @@ def evaluate_chunk(obj: Objective, psi, etas, hessian: bool = True):
     return etas, [], float(O.sum()), g.sum(0), H.sum(0)
 
 
+def subset(obj: Objective, index) -> Objective:
+    """``obj`` over ``index``'s units alone (a worker's chunk); the same programs."""
+    new = copy.copy(obj)
+    new.units = obj.units.subset(index)
+    new.data = tuple(a[np.asarray(index)] for a in obj.data)
+    new.unconverged, new.unfinite, new._evaluated = [], [], {}
+    return new
+
+
 def _chunk_task(problem, args):
     """Worker side: one chunk's evaluation (its Objective built once per worker)."""
     method, index, psi, etas, hessian = args
     cache = problem.__dict__.setdefault("_population_objectives", {})
     if method not in cache:
         cache[method] = Objective(problem, method)
-    return evaluate_chunk(cache[method].subset(index), psi, etas, hessian)
+    return evaluate_chunk(subset(cache[method], index), psi, etas, hessian)
 
 
 class UnitMap:
@@ -114,7 +124,7 @@ class UnitMap:
                         pass
                 self.here = True
                 self._say(f"{why}: computed here, as every chunk is from now on")
-        return evaluate_chunk(self.obj.subset(idx), psi, etas[idx], hessian)
+        return evaluate_chunk(subset(self.obj, idx), psi, etas[idx], hessian)
 
     def _wait(self, future, k: int):
         """The chunk's answer; FutureTimeout where its worker counts as lost."""

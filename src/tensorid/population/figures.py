@@ -106,8 +106,9 @@ def vpc(res, replicates: int = 200, seed: int = 0, bins: int = 8, output: int = 
             etas = etas[rng.integers(0, E, E)]
         z = rng.standard_normal((E, qp))
         etas[:, :qp] = z * omega if L is None else z @ L.T  # η ~ N(0, Ω)
-        pred = np.asarray(obj.predict_all(res.x, etas))[..., output]
-        sd = _noise_sd(res, obj, etas, pred.shape, output)
+        every = np.asarray(obj.predict_all(res.x, etas))  # (E, P, S)
+        pred = every[..., output]
+        sd = _noise_sd(res, obj, etas, every, output)
         pred = pred[seen]
         z = rng.standard_normal(pred.shape)
         sims.append(percentiles(obj.error.sample(pred, sd[seen], z, output)))
@@ -121,11 +122,12 @@ def vpc(res, replicates: int = 200, seed: int = 0, bins: int = 8, output: int = 
     }
 
 
-def _noise_sd(res, obj, etas, shape, output: int) -> np.ndarray:
-    """The residual SD of each simulated sample of ``output``."""
+def _noise_sd(res, obj, etas, pred, output: int) -> np.ndarray:
+    """The residual SD of each simulated sample of ``output``, the fleet's predictions
+    ``pred`` (E, P, S)."""
     if obj.plain:  # the output's one term: σ on its scale
-        return np.full(shape, obj.error.constant_sd(obj.split(res.x)[3])[output])
-    return obj.residual_sd(res.x, etas)[..., output]
+        return np.full(pred.shape[:-1], obj.error.constant_sd(obj.split(res.x)[3])[output])
+    return obj.residual_sd(res.x, etas, pred)[..., output]
 
 
 def figure_jobs(res) -> list[tuple]:

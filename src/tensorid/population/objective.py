@@ -21,10 +21,8 @@ with M_i = ∇²_ηη ℓ_i(η̂_i) (``"laplace"``) or its first-order part
 Σ_h A_hᵀ diag(σ_h⁻²) A_h + Ω⁻¹, A = ∂ŷ/∂η (``"focei"``: first-order conditional
 estimation with interaction, σ² evaluated at η̂_i, as NONMEM's FOCE INTER; with
 additive error alone σ does not depend on η, so FOCE and FOCEI agree).
-FOCEI is the default: its objective needs first-order output sensitivities, its exact
-gradient the second-order ones (the transition tensors) and its exact Hessian the
-third, one order fewer than Laplace everywhere, and it is what NONMEM and nlmixr2
-report for the same model, so the numbers can be set side by side.
+FOCEI is the default (one order of ŷ's derivatives fewer than Laplace everywhere, and
+what NONMEM and nlmixr2 report for the same model: approximations.py).
 
 The outer gradient is exact through the inner optimum (implicit-function theorem):
 dO/dψ = ∂O/∂ψ + ∂O/∂η · dη̂/dψ with dη̂/dψ = −(∇²_ηη ℓ)⁻¹ ∇²_ηψ ℓ; the outer Hessian its
@@ -53,7 +51,7 @@ from .random_effects import RandomEffects
 from .units import Units, block, blocked, outputs, simulated_at, taylor
 
 METHODS = tuple(APPROXIMATIONS)  # (approximations.py)
-_PROGRAMS: dict = {}  # compiled programs per structure (Objective.key)
+_PROGRAMS: dict = {}  # compiled programs per structure (Objective._key_of)
 _LOCK = threading.Lock()
 LOG_2PI = float(np.log(2 * np.pi))
 
@@ -93,9 +91,9 @@ class Objective:
         states = tuple(range(m.N)) if self.moving else ()
         d, dosing = problem.discretisation, getattr(problem, "dosing", None)
         self.sweeps = shared_sweeps(m, states, tuple(free), d, dosing=dosing)
-        # the predictions' program, one for every fixed-step substeps, kept as at 1
+        # the predictions' program serves every fixed-step substeps: kept as at 1
         one = dataclasses.replace(d, substeps=1) if d.fixed_steps else d
-        self.any_steps = shared_sweeps(m, states, tuple(free), one, dosing=dosing)
+        self.run_time_sweeps = shared_sweeps(m, states, tuple(free), one, dosing=dosing)
         self.free = jnp.array(free, dtype=int)
         self.own_index = [m.params.index(n) for n in self.pop]
         self.pop_pos = jnp.array([problem.free_params.index(n) for n in self.pop], dtype=int)
@@ -137,14 +135,6 @@ class Objective:
         self.size = len(self.names)
         self._evaluated: dict = {}  # (ψ, η̂) → evaluation(): the last few
 
-    def subset(self, index) -> Objective:
-        """This objective over ``index``'s units alone (a worker's chunk); the same programs."""
-        new = copy.copy(self)
-        new.units = self.units.subset(index)
-        new.data = tuple(a[np.asarray(index)] for a in self.data)
-        new.unconverged, new.unfinite, new._evaluated = [], [], {}
-        return new
-
     # -- pieces -----------------------------------------------------------------------
     def split(self, psi):
         """(log typical values, log ω, shared, residual error) of ψ."""
@@ -160,10 +150,6 @@ class Objective:
         qp = self.qp
         own = eta if self.joint else jnp.concatenate([jnp.exp(mu + eta[:qp]), eta[qp:]])
         return th.at[self.pop_pos].set(own).at[self.sh_pos].set(s)
-
-    def variance(self, noise, yhat):
-        """σ²_hg of each output's residual error (P, S), on its model's scale."""
-        return self.error.variance(noise, yhat)
 
     def start(self, theta, unit):
         """(x0, p) of the unit at its free parameters θ: x0's expressions evaluated
@@ -203,11 +189,11 @@ class Objective:
         if self.plain:
             out = 0.5 * (jnp.sum(r**2 * jnp.exp(-2 * noise[self.error.first])) + prior)
             return jnp.where(bad, jnp.inf, out)
-        V = jnp.where(mask > 0, self.variance(noise, f), 1.0)  # 1: no observation
+        V = jnp.where(mask > 0, self.error.variance(noise, f), 1.0)  # 1: no observation
         out = 0.5 * (jnp.sum(r**2 / V + mask * jnp.log(V)) + prior)
         if self.censored:  # −log P(y < limit) = −log Φ((limit − ŷ)/σ), y holding the limit
             c = unit[6]
-            Vc = jnp.where(c > 0, self.variance(noise, f), 1.0)  # (σ² = 0 where ŷ = 0)
+            Vc = jnp.where(c > 0, self.error.variance(noise, f), 1.0)  # (σ² = 0 where ŷ = 0)
             z = self.error.censored_z(y, f, c, Vc)
             out = out - jnp.sum(jnp.where(c > 0, jax.scipy.special.log_ndtr(z), 0.0))
         return jnp.where(bad, jnp.inf, out)
@@ -220,15 +206,19 @@ class Objective:
         if self.approximation.exact_curvature:
             return jax.hessian(self.ell)(eta, psi, unit)[:qp, :qp]
         _, logw, _, noise = self.split(psi)
-        fitted = lambda e: self.error.scaled(self.predict(psi, e, unit), unit[3])  # noqa: E731
-        A = jax.jacfwd(fitted)(eta)[..., :qp]  # (P, S, qp): of h(ŷ)
+        A = self.unit_slopes(psi, eta, unit)
         if self.plain:
             Aw = A * (jnp.sqrt(unit[3]) * jnp.exp(-noise[self.error.first]))[..., None]
         else:  # FOCE with interaction: σ² at the unit's η̂
             f = self.predict(psi, eta, unit)
-            V = jnp.where(unit[3] > 0, self.variance(noise, f), 1.0)
+            V = jnp.where(unit[3] > 0, self.error.variance(noise, f), 1.0)
             Aw = A * jnp.sqrt(unit[3] / V)[..., None]
         return jnp.einsum("psj,psk->jk", Aw, Aw) + self.effects.inverse(logw)
+
+    def unit_slopes(self, psi, eta, unit):
+        """A = ∂h(ŷ)/∂η (P, S, random effects) of the unit at η: FOCEI's and CWRES's."""
+        fitted = lambda e: self.error.scaled(self.predict(psi, e, unit), unit[3])  # noqa: E731
+        return jax.jacfwd(fitted)(eta)[..., : self.qp]
 
     def unit_objective(self, psi, eta, unit):
         """O_i: −2 log of the unit's approximate marginal likelihood (for individual
@@ -281,8 +271,7 @@ class Objective:
             return g, (O, g)
 
         outer, (O, g) = jax.jacfwd(grad_along, has_aux=True)(psi)
-        fitted = lambda e: self.error.scaled(me.predict(psi, e, unit), unit[3])  # noqa: E731
-        return O, g, outer, H, jax.jacfwd(fitted)(eta)[..., : self.qp]
+        return O, g, outer, H, me.unit_slopes(psi, eta, unit)
 
     def inner_step(self, eta, lam, psi, unit):
         """One damped Newton step on ℓ_i: (η, λ, ℓ, |step|)."""
@@ -326,14 +315,16 @@ class Objective:
         sweeps' are (engine/compiling/programs.py): a later process reads it, not traces it (the
         outer Hessian's trace alone was 10 s of a 17 s theophylline fit, cache warm).
         The predictions' serves every substeps: kept as at 1 (units.simulated_at)."""
-        sweeps = self.any_steps if name == "predict_all" else self.sweeps
         with _LOCK:  # (one Program per name, also where ahead.py's threads ask)
-            programs = _PROGRAMS.setdefault((sweeps, *self.key[1:]), {})
+            programs = _PROGRAMS.setdefault(self._key_of(name), {})
             if name not in programs:
                 label = name if isinstance(name, str) else "_".join(map(str, name))
                 entry = f"population_{label} {self._structure_text()}"
-                programs[name] = Program(build(), sweeps, entry)
+                programs[name] = Program(build(), self._key_of(name)[0], entry)
             return programs[name]
+
+    def _key_of(self, name) -> tuple:
+        return (self.run_time_sweeps if name == "predict_all" else self.sweeps, *self.key[1:])
 
     def _structure_text(self) -> str:
         """What a program traces beyond its sweeps' (the random effects, Ω's form, the
@@ -345,6 +336,7 @@ class Objective:
         hold on to (the programs outlive the fit; its data need not)."""
         bare = copy.copy(self)
         bare.units = bare.data = bare.problem = None  # type: ignore[assignment]
+        bare._evaluated = {}
         return bare
 
     def _blocked(self, name: str, *args, units: tuple[int, ...]):
@@ -354,7 +346,7 @@ class Objective:
 
     def _compiled(self, name: str):
         """The program ``_build_<name>`` makes, kept per structure."""
-        programs = _PROGRAMS.get(self.key, {})
+        programs = _PROGRAMS.get(self._key_of(name), {})
         if name in programs:
             return programs[name]
         return self._program(name, getattr(self.structure(), f"_build_{name}"))
@@ -362,7 +354,10 @@ class Objective:
     def predict_all(self, psi, etas, substeps: int | None = None):
         """ŷ (E, P, S) of every unit at (ψ, η (E, q)), by the scheme at ``substeps`` per
         interval (None: the fit's; another number for a fixed-step scheme alone)."""
-        steps = jnp.asarray(substeps or self.sweeps.discretisation.substeps, jnp.int32)
+        d = self.sweeps.discretisation
+        if substeps is not None and not d.fixed_steps:
+            raise ValueError(f"the {d.scheme.name} scheme does not take a number of substeps")
+        steps = jnp.asarray(d.substeps if substeps is None else substeps, jnp.int32)
         return self._blocked("predict_all", jnp.asarray(psi), jnp.asarray(etas), self.data,
                              steps, units=(1, 2))  # fmt: skip
 
@@ -402,7 +397,7 @@ class Objective:
         return np.asarray(self._compiled("residual_sd")(jnp.asarray(psi), jnp.asarray(yhat)))
 
     def _build_residual_sd(self):
-        return jax.jit(lambda psi, yhat: jnp.sqrt(self.variance(self.split(psi)[3], yhat)))
+        return jax.jit(lambda psi, yhat: jnp.sqrt(self.error.variance(self.split(psi)[3], yhat)))
 
     def solve_inner(self, psi, etas, maxiter: int = 100, tol: float = 1e-11):
         """Each unit's η̂ from ``etas``: (η̂ (E, q), whether every unit converged);
@@ -422,22 +417,25 @@ class Objective:
     def evaluation(self, psi, etas) -> tuple[np.ndarray, ...]:
         """(O_i (E,), dO_i/dψ (E, ψ), d²O_i/dψ² (E, ψ, ψ), ∇²ℓ_i (E, q, q)) per unit at
         η̂: an outer evaluation's value, gradient and Hessian, and each unit's inner
-        Hessian (its inverse: the unit's η covariance). The last four are remembered:
-        a fit's result asks again for its best point's (10,000 units: seconds)."""
+        Hessian (its inverse: the unit's η covariance). The last four are remembered,
+        the newest with its slopes: a fit's result asks again for its best point's."""
         return self._remembered(psi, etas, slopes=False)[:4]
 
     def slopes(self, psi, etas) -> np.ndarray:
-        """A = ∂h(ŷ)/∂η (E, P, S, random effects) at η̂ (CWRES's), from the evaluation."""
+        """A = ∂h(ŷ)/∂η (E, P, S, random effects) at η̂ (CWRES's), from the evaluation
+        (the newest point's remembered; another point's costs an outer evaluation)."""
         return self._remembered(psi, etas, slopes=True)[4]
 
     def _remembered(self, psi, etas, slopes: bool) -> tuple:
         key = (np.asarray(psi, float).tobytes(), np.asarray(etas, float).tobytes())
-        if key not in self._evaluated or (slopes and len(self._evaluated[key]) < 5):
+        got = self._evaluated.get(key)  # (read once: another thread may replace the memo)
+        if got is None or (slopes and len(got) < 5):
             out = self._blocked("evaluation", jnp.asarray(psi), jnp.asarray(etas), self.data,
                                 units=(1, 2))  # fmt: skip
+            got = tuple(map(np.asarray, out))
             kept = [(k, v[:4]) for k, v in self._evaluated.items() if k != key][-3:]
-            self._evaluated = dict(kept + [(key, tuple(map(np.asarray, out)))])  # (A: newest)
-        return self._evaluated[key]
+            self._evaluated = dict(kept + [(key, got)])
+        return got
 
     def evaluation_program(self, psi, etas):
         """(its Program, the first block's arguments): what ahead.py prepares."""

@@ -20,21 +20,13 @@ from .start import start_point
 MAX_SUBSTEPS = 64
 
 
-def _sd(obj: Objective, res: PopulationResult) -> np.ndarray:
-    """The residual SD against which predictions are measured: per output (individual
-    parameters alone), or per sample where it follows the prediction; on each error
-    model's scale (log y for an exponential one)."""
-    if obj.joint:
-        return np.array(list(res.residual_sd.values()))
-    return _sd_at(obj, res.x, res.etas)
-
-
-def _sd_at(obj: Objective, psi, etas) -> np.ndarray:
-    """The residual SD at (ψ, η) of a fit with a residual-error model: per output
-    where constant, else per sample."""
+def _sd_at(obj: Objective, psi, etas, yhat) -> np.ndarray:
+    """The residual SD at (ψ, η) of a fit with a residual-error model, whose predictions
+    are ``yhat``: per output where constant, else per sample; on each error model's
+    scale (log y for an exponential one)."""
     if obj.plain:
         return obj.error.constant_sd(obj.split(psi)[3])
-    return obj.residual_sd(psi, etas)
+    return obj.residual_sd(psi, etas, yhat)
 
 
 def coarse_steps(obj: Objective, res: PopulationResult, etas) -> float | None:
@@ -43,18 +35,21 @@ def coarse_steps(obj: Objective, res: PopulationResult, etas) -> float | None:
     measured)."""
     if not np.isfinite(res.objective):
         return None
-    return _moved(obj, res.x, etas, _sd(obj, res))
+    sd = np.array(list(res.residual_sd.values())) if obj.joint else None  # (per output)
+    return _moved(obj, res.x, etas, sd)
 
 
-def _moved(obj: Objective, x, etas, sigma) -> float | None:
+def _moved(obj: Objective, x, etas, sigma=None) -> float | None:
     """The largest move of a prediction at (ψ, η) when the substeps double, in the
-    residual SDs ``sigma``; None where it is at most a tenth (or cannot be measured).
-    Both predictions come from the one program that serves every substeps."""
+    residual SDs ``sigma`` (None: the fit's error model's there); None where it is at
+    most a tenth (or cannot be measured). Both predictions come from the one program
+    that serves every substeps."""
     d = obj.problem.discretisation
     if not d.fixed_steps:
         return None  # adaptive steps control their own error; a discrete map is exact
     coarse = np.asarray(obj.predict_all(x, etas))
     finer = np.asarray(obj.predict_all(x, etas, 2 * d.substeps))
+    sigma = _sd_at(obj, x, etas, coarse) if sigma is None else sigma
     mask = obj.units.mask
     moved = np.asarray(obj.error.scaled(finer, mask)) - np.asarray(obj.error.scaled(coarse, mask))
     moved = np.where(mask > 0, np.abs(moved) / np.maximum(sigma, 1e-300), 0.0)
@@ -80,7 +75,7 @@ def presized(obj: Objective) -> tuple[Objective, list[str]]:
         for side in (0.0, 2.0, -2.0):
             probe = etas.copy()
             probe[:, : obj.qp] = side * omega
-            moves.append(_moved(obj, psi, probe, _sd_at(obj, psi, probe)) or 0.0)
+            moves.append(_moved(obj, psi, probe) or 0.0)
         worst = max(moves) or None
         if worst is None:
             break

@@ -75,9 +75,11 @@ class Units:
     def subset(self, index) -> Units:
         """These units at ``index`` alone (a worker's chunk)."""
         i = np.asarray(index)
-        cens = None if self.cens is None else self.cens[i]
-        return Units(self.t[i], self.u[i], self.y[i], self.mask[i], self.x0[i],
-                     [self.names[k] for k in i], self.samples[i], cens)  # fmt: skip
+        return dataclasses.replace(
+            self, t=self.t[i], u=self.u[i], y=self.y[i], mask=self.mask[i], x0=self.x0[i],
+            names=[self.names[k] for k in i], samples=self.samples[i],
+            cens=None if self.cens is None else self.cens[i],
+        )  # fmt: skip
 
     def arrays(self):
         return tuple(jnp.asarray(a) for a in (self.t, self.u, self.y, self.mask, self.x0))
@@ -97,7 +99,7 @@ def outputs(sw):
         return _TOWERS[sw]
     ref = weakref.ref(sw)  # (the tower, kept by sw's entry, must not keep sw alive)
     tensors = jax.jit(lambda *a: output_tensors(ref(), *a))  # ŷ, ∂ŷ, ∂²ŷ in one sweep
-    second = jax.jit(lambda *a: output_tensors(ref(), *a)[2])  # (P, S, K, K)
+    second = jax.jit(lambda *a: tensors(*a)[2])  # (P, S, K, K); the sweep traced once
     first_sweep = jax.jit(lambda *a: ref()._output_jacobian(*a))  # (P, S, K)
 
     @jax.jit

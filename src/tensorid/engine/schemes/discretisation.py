@@ -171,8 +171,10 @@ class Discretisation:
 
 @dataclass(frozen=True, eq=False)
 class _RunTimeSteps:
-    """A fixed-step scheme that takes as many steps per interval as a number given at
-    run time says (Discretisation.at_run_time)."""
+    """A fixed-step scheme whose substeps are a number given at run time
+    (Discretisation.at_run_time): an interval asked to take k steps per substep (the
+    discretisation's own 1, a steady-state dose's CYCLE_STEPS per part of its cycle)
+    takes k times that number."""
 
     scheme: ExplicitRungeKutta | DiagonallyImplicitRungeKutta
     substeps: jax.Array
@@ -181,7 +183,7 @@ class _RunTimeSteps:
     order = property(lambda self: self.scheme.order)
 
     def interval(self, f, fs, y, dt, carry, substeps: int):
-        return self.scheme.interval(f, fs, y, dt, carry, self.substeps)
+        return self.scheme.interval(f, fs, y, dt, carry, substeps * self.substeps)
 
 
 class DiscretisationSettings:
