@@ -181,6 +181,28 @@ def test_a_wrong_tableau_is_refused_when_the_scheme_is_built(kwargs, match):
         ti.ExplicitRungeKutta("bad", order=2, **kwargs)
 
 
+def test_a_scheme_steps_any_callable_field_as_it_is():
+    """RK4.interval called with a user's own field object: one that cannot be hashed,
+    and two equal ones with other state (the stages' jitted call must not key on them)."""
+    from dataclasses import dataclass
+
+    from tensorid.engine.schemes.integrators import RK4
+
+    @dataclass
+    class Decay:  # (a dataclass: equal by value, unhashable)
+        rate: float
+
+        def __call__(self, y, s):
+            return -self.rate * y
+
+    y0 = jnp.ones(2)
+    for rate in (1.0, 3.0):
+        y = RK4.interval(Decay(rate), Decay(rate), y0, 1.0, None, 8)[0]
+        z = -rate / 8  # RK4's amplification per step of y' = -rate y
+        np.testing.assert_allclose(np.asarray(y), (1 + z + z**2 / 2 + z**3 / 6 + z**4 / 24) ** 8,
+                                   rtol=1e-13)  # fmt: skip
+
+
 def test_a_users_own_scheme_that_follows_the_protocol_runs():
     from tensorid.engine.schemes.integrators import RK4, RungeKuttaScheme
 

@@ -79,3 +79,11 @@ def test_a_steady_state_dose_s_cycle_takes_its_own_steps_at_run_time_substeps():
         own = o if s is None else finer
         fit_own = np.asarray(jax.vmap(own.predict, in_axes=(None, 0, 0))(psi, etas, own.data))
         np.testing.assert_allclose(np.asarray(o.predict_all(psi, etas, s)), fit_own, rtol=1e-13)
+
+
+def test_predictions_at_substeps_that_are_not_a_positive_integer_are_refused():
+    obj = Objective(fleet_problem(2), "focei")
+    psi, etas = start_point(obj), obj.start_etas()
+    for bad in (0, -4, 2.7):
+        with pytest.raises(ValueError, match="substeps must be a positive integer"):
+            obj.predict_all(psi, etas, bad)

@@ -102,9 +102,11 @@ class ExplicitRungeKutta:
         returns (y, carry, failure code)."""
         step, ds = dt / substeps, 1.0 / substeps
         # the stages call one jitted field: traced once, not once per stage (XLA inlines
-        # it; a population fit's third-order trace of the sweeps: 1.3 -> 1.0 s)
-        f = jax.jit(f)
-        y = jax.lax.fori_loop(0, substeps, lambda i, yy: self.step(f, yy, step, i * ds, ds), y)
+        # it; a population fit's third-order trace of the sweeps: 1.3 -> 1.0 s). A fresh
+        # closure: jit's cache is keyed on the function, which a caller's own callable
+        # (unhashable, or equal to another with other state) must not be
+        g = jax.jit(lambda yy, s: f(yy, s))
+        y = jax.lax.fori_loop(0, substeps, lambda i, yy: self.step(g, yy, step, i * ds, ds), y)
         return y, carry, jnp.int32(0)
 
 
