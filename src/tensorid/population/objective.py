@@ -355,11 +355,11 @@ class Objective:
         """ŷ (E, P, S) of every unit at (ψ, η (E, q)), by the scheme at ``substeps`` per
         interval (None: the fit's; another number for a fixed-step scheme alone)."""
         d = self.sweeps.discretisation
-        if substeps is not None and not (d.fixed_steps and isinstance(substeps, int | np.integer)
-                                         and substeps >= 1):  # fmt: skip
-            raise ValueError(f"substeps must be a positive integer for a fixed-step scheme, "
-                             f"got {substeps!r} for {d.scheme.name}")  # fmt: skip
-        steps = jnp.asarray(d.substeps if substeps is None else substeps, jnp.int32)
+        if substeps is not None:  # (checked as any discretisation's)
+            if not d.fixed_steps:
+                raise ValueError(f"the {d.scheme.name} scheme takes no number of substeps")
+            d = dataclasses.replace(d, substeps=substeps)
+        steps = jnp.asarray(d.substeps, jnp.int32)
         return self._blocked("predict_all", jnp.asarray(psi), jnp.asarray(etas), self.data,
                              steps, units=(1, 2))  # fmt: skip
 

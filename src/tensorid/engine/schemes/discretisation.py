@@ -33,6 +33,8 @@ from .integrators import (
 from .intersample import SMOOTH, chebyshev_at, track
 from .status import Status
 
+FIXED_STEPS = ExplicitRungeKutta | DiagonallyImplicitRungeKutta  # substeps equal steps
+
 INTERPOLATIONS = ("linear", "zoh", *SMOOTH)
 DEFAULT_SUBSTEPS = 4
 
@@ -136,14 +138,14 @@ class Discretisation:
     def fixed_steps(self) -> bool:
         """Whether the scheme takes ``substeps`` equal steps per interval (explicit or
         diagonally implicit Runge-Kutta): its answer moves with them."""
-        return isinstance(self.scheme, ExplicitRungeKutta | DiagonallyImplicitRungeKutta)
+        return isinstance(self.scheme, FIXED_STEPS)
 
     def at_run_time(self, substeps) -> Discretisation:
         """This fixed-step discretisation with its substeps an integer given when the
         program runs (a traced int32 scalar), so that one compiled program serves every
         number of substeps (a population fit's predictions, which its substeps check
         compares at s and 2s; the loop over steps is then a while loop)."""
-        if not isinstance(self.scheme, ExplicitRungeKutta | DiagonallyImplicitRungeKutta):
+        if not isinstance(self.scheme, FIXED_STEPS):
             raise TypeError(f"the {self.scheme.name} scheme does not take a fixed number of steps")
         return Discretisation(_RunTimeSteps(self.scheme, substeps), 1, self.interpolation)
 
