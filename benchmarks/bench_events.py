@@ -5,7 +5,11 @@ nlme on the same model and data (issue 48):
   repeated IV doses, one compartment, random effects on clearance and volume;
 - a multiple-dose study with oral (II/ADDL into the depot, bioavailability F) and
   IV subjects, simulated with a fixed seed by benchmarks/peers/multiple_dose_nlme.R,
-  which fits it by nlme with a closed-form superposition model.
+  which fits it by nlme with a closed-form superposition model;
+- a steady-state study (SS = 1: every subject at steady state when its record starts,
+  oral every 12 h or IV every 24 h), simulated by benchmarks/peers/steady_state_nlme.R,
+  which fits it by nlme with the closed-form steady state; tensorid fits it with the
+  multiple-dose study's model file (the same one compartment).
 
 Each estimate is set beside nlme's, on the log scale where nlme estimates it, with the
 difference in units of nlme's standard error. nlme fits by its alternating
@@ -78,11 +82,18 @@ def main() -> None:
     print(f"tensorid fit (CLI, FOCEI): {wall:.1f} s wall; nlme: {peer['seconds']:.2f} s\n")
     print("| | tensorid | nlme (SE) | difference / SE |\n|---|---|---|---|")
     print("\n".join(_rows(fit, peer, ["cl", "v"])))
-    table = work / "multiple_dose.csv"
-    peer = _rscript(PEERS / "multiple_dose_nlme.R", str(table))
-    fit, wall = _tensorid("examples/multiple_dose/model.py", table, work / "md",
+    _simulated(work, "multiple_dose", "Multiple doses, oral (II/ADDL, F) and IV (24 subjects)")
+    _simulated(work, "steady_state", "Steady state, oral and IV (SS = 1, 24 subjects)")
+
+
+def _simulated(work: Path, study: str, title: str) -> None:
+    """A study its peer script simulates and fits (benchmarks/peers/<study>_nlme.R),
+    fitted by the multiple-dose model file beside it."""
+    table = work / f"{study}.csv"
+    peer = _rscript(PEERS / f"{study}_nlme.R", str(table))
+    fit, wall = _tensorid("examples/multiple_dose/model.py", table, work / study,
                           "--columns", "t=TIME,cp=DV", "--substeps", "16")  # fmt: skip
-    print("\n## Multiple doses, oral (II/ADDL, F) and IV (24 subjects)\n")
+    print(f"\n## {title}\n")
     print(f"tensorid fit (CLI, FOCEI, --substeps 16): {wall:.1f} s wall; nlme: "
           f"{peer['seconds']:.2f} s\n")  # fmt: skip
     print("| | tensorid | nlme (SE) | difference / SE |\n|---|---|---|---|")

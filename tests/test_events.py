@@ -318,10 +318,12 @@ def test_a_steady_state_dose_starts_from_its_cycle():
         Events.doses(0.0, "c", 100.0, ss=True)
 
 
-@pytest.mark.slow  # jax.hessian through the Newton iterations compiles for about a minute
+@pytest.mark.slow  # two Hessian programs through the steady state (5 s)
 def test_the_derivatives_through_a_steady_state_are_exact():
     """The gradient and Hessian through the steady state (a nonlinear model: Newton on
-    the dosing cycle) equal jax.hessian's and finite differences'."""
+    the dosing cycle, differentiated by the implicit function's rule) equal
+    jax.hessian's and finite differences' (of the cost, and of the exact gradient:
+    jax.hessian uses the same rule, finite differences do not)."""
     ss = Events.doses(0.0, "c", 100.0, ii=12.0, addl=1, ss=True)
     e = ti.Experiment(T_SS, None, Y_SS, events=ss)
     pr = ti.Problem(_steady_model(), e, p0={"k": 0.1, "v": 10.0}, x0=[0.0], substeps=4)
@@ -331,3 +333,31 @@ def test_the_derivatives_through_a_steady_state_are_exact():
     steps = np.diag(1e-6 * theta)
     fd = [(pr.cost(theta + s) - pr.cost(theta - s)) / (2 * s[i]) for i, s in enumerate(steps)]
     np.testing.assert_allclose(g, fd, rtol=1e-5)
+    grad = lambda th: pr.cost_grad_hess(th)[1]  # noqa: E731
+    fdH = np.array([(grad(theta + s) - grad(theta - s)) / (2 * s[i]) for i, s in enumerate(steps)])
+    np.testing.assert_allclose(H, fdH, rtol=1e-5, atol=1e-6 * np.abs(H).max())
+
+
+def _equations(jaxpr) -> int:
+    """The equations of a jaxpr, those of the loops and branches inside it counted."""
+    n = 0
+    for eq in jaxpr.eqns:
+        n += 1
+        for v in eq.params.values():
+            for sub in v if isinstance(v, list | tuple) else [v]:
+                inner = getattr(sub, "jaxpr", sub)
+                n += _equations(inner) if hasattr(inner, "eqns") else 0
+    return n
+
+
+def test_no_newton_step_is_differentiated_through_a_steady_state():
+    """x_ss's derivatives are the implicit function's (steady.py's rule): the Hessian's
+    program through a steady-state dose stays a few times the one through a plain dose
+    (differentiating the six Newton steps made it 63 times: its compile took minutes)."""
+    sizes = []
+    for ss in (True, False):
+        ev = Events.doses(0.0, "c", 100.0, ii=12.0, addl=1, ss=ss)
+        pr = ti.Problem(_steady_model(), ti.Experiment(T_SS, None, Y_SS, events=ev),
+                        p0={"k": 0.1, "v": 10.0}, x0=[0.0], substeps=4)  # fmt: skip
+        sizes.append(_equations(jax.make_jaxpr(jax.hessian(pr.jax_cost))(jnp.ones(2)).jaxpr))
+    assert sizes[0] < 12 * sizes[1], sizes

@@ -87,3 +87,34 @@ def test_predictions_at_substeps_that_are_not_a_positive_integer_are_refused():
     for bad in (0, -4, 2.7):
         with pytest.raises(ValueError, match="substeps must be a positive integer"):
             obj.predict_all(psi, etas, bad)
+
+
+@pytest.mark.slow  # the reverse-mode programs of a batch and of each unit (8 s)
+def test_a_fleet_that_mixes_steady_state_and_plain_doses_is_exact_unit_by_unit():
+    """In a batch of units the steady state's loops run for the units that hold one
+    and take no step for the others (steady.py): every unit's ℓ and its gradient
+    (reverse mode, through both branches) are those of the unit alone, and finite."""
+    m = ti.Model(rhs=lambda x, p, u: jnp.stack([-p[0] * x[0] - 0.02 * x[0] ** 2 / (1 + x[0])]),
+                 output=lambda x, p: x / p[1], states=["c"], params=["k", "v"],
+                 outputs=["cp"])  # fmt: skip
+    T, Y = np.array([0.5, 2.0, 6.0, 11.0, 14.0]), np.array([[9.0, 8.0, 6.0, 4.0, 8.5]]).T
+    units = [ti.Experiment(T, None, Y * (1 + 0.05 * i), name=f"u{i}",
+                           events=Events.doses(0.0, "c", 100.0, ii=12.0, addl=1, ss=i == 0))
+             for i in range(2)]  # fmt: skip
+    fleet = Objective(ti.Problem(m, units, p0={"k": 0.3, "v": 10.0}, x0=[0.0],
+                                 population={"k": 0.3}), "focei")  # fmt: skip
+    psi, etas = start_point(fleet), fleet.start_etas() + 0.2
+
+    def ell(e, d):  # ℓ and ∇ℓ (reverse mode) of a unit at η
+        return jax.value_and_grad(fleet.ell)(e, psi, d)
+
+    @jax.jit
+    def both(etas, data):  # the batch's, and each unit's alone (its own branch taken)
+        alone = [ell(etas[i], jax.tree.map(lambda a: a[i], data)) for i in range(2)]  # noqa: B023
+        return jax.vmap(ell)(etas, data), alone
+
+    batch, alone = both(etas, fleet.data)
+    for i in range(2):
+        for a, b in zip(batch, alone[i], strict=True):
+            assert np.isfinite(np.asarray(a[i])).all()
+            np.testing.assert_allclose(np.asarray(a[i]), np.asarray(b), rtol=1e-12)
