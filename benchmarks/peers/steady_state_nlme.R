@@ -3,10 +3,13 @@
 # benchmarks/bench_events.py. 16 subjects take 100 mg by mouth every 12 h and 8 get
 # 100 mg IV every 24 h, each long enough to be at steady state when the record starts:
 # one SS = 1 dose row at 0 with its II and ADDL 1 (the next dose, which keeps the
-# steady state), then a dosing interval of samples and one after the next dose. Writes the NONMEM-style table (argument 1) and prints nlme's
-# estimates as one line of JSON.
+# steady state), then a dosing interval of samples and one after the next dose.
+# Writes the NONMEM-style table (argument 1) and prints nlme's estimates as one line
+# of JSON (one_compartment_nlme.R fits).
 #   Rscript benchmarks/peers/steady_state_nlme.R /tmp/ss.csv
-suppressMessages(library(nlme))
+# one_compartment_nlme.R, beside this file: the fit and its line of JSON
+here <- sub("^--file=", "", grep("^--file=", commandArgs(FALSE), value = TRUE))
+source(file.path(dirname(normalizePath(here)), "one_compartment_nlme.R"))
 args <- commandArgs(trailingOnly = TRUE)
 out <- if (length(args)) args[1] else "steady_state.csv"
 set.seed(20261207)
@@ -51,14 +54,4 @@ model <- function(TIME, ID, lka, lcl, lv, lF) {
   }
   out
 }
-t0 <- proc.time()
-fit <- nlme(DV ~ model(TIME, ID, lka, lcl, lv, lF), data = obs,
-            fixed = lka + lcl + lv + lF ~ 1, random = pdDiag(lka + lcl + lv ~ 1),
-            groups = ~ID, start = c(log(1), log(2.5), log(25), log(0.8)), method = "ML")
-el <- (proc.time() - t0)[["elapsed"]]
-tt <- summary(fit)$tTable
-sd <- as.numeric(VarCorr(fit)[1:3, "StdDev"])
-cat(sprintf(paste0('{"seconds": %.3f, "m2ll": %.4f, "log_ka": [%.6f, %.6f], "log_cl": [%.6f, %.6f], ',
-  '"log_v": [%.6f, %.6f], "log_F": [%.6f, %.6f], "omega": [%.5f, %.5f, %.5f], "sigma": %.5f}\n'),
-  el, -2 * as.numeric(logLik(fit)), tt[1, 1], tt[1, 2], tt[2, 1], tt[2, 2], tt[3, 1], tt[3, 2],
-  tt[4, 1], tt[4, 2], sd[1], sd[2], sd[3], fit$sigma))
+fit_and_print(obs, model)
