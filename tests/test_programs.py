@@ -645,3 +645,19 @@ def test_a_kept_executable_that_does_not_load_is_removed_by_its_check(tmp_path):
     run = executables.compile_and_keep(jax.jit(lambda x: x - c), args, good, programs._write)
     executables.settle()
     assert good.exists() and np.array_equal(run(*args), np.full(3, 1.0 - c))
+
+
+def test_a_process_keeps_the_programs_of_the_structures_it_used_last():
+    """A long-lived process that fits many population models keeps the programs of
+    the last ``limit`` structures only (each holds its executables and its model);
+    a structure asked for again is the newest."""
+    from tensorid.population import objective
+
+    kept = programs.KeptStructures(limit=2)
+    kept.programs("a")["evaluation"] = 1
+    kept.programs("b")["evaluation"] = 2
+    assert kept.get("a") == {"evaluation": 1}  # now a is newer than b
+    kept.programs("c")
+    assert len(kept) == 2 and kept.get("b") is None and kept.get("a", {}) == {"evaluation": 1}
+    assert kept.programs("c") == {} and kept.get("c") is kept.programs("c")
+    assert isinstance(objective._PROGRAMS, programs.KeptStructures)

@@ -41,7 +41,7 @@ import jax.scipy.linalg
 import jax.scipy.special
 import numpy as np
 
-from ..engine.compiling.programs import Program
+from ..engine.compiling.programs import KeptStructures, Program
 from ..engine.modelling.initial import moving
 from ..engine.sweeping.sweeps import shared_sweeps
 from .approximations import APPROXIMATIONS
@@ -51,7 +51,7 @@ from .random_effects import RandomEffects
 from .units import Units, block, blocked, outputs, simulated_at, taylor
 
 METHODS = tuple(APPROXIMATIONS)  # (approximations.py)
-_PROGRAMS: dict = {}  # compiled programs per structure (Objective._key_of)
+_PROGRAMS = KeptStructures()  # compiled programs per structure (Objective._key_of)
 _LOCK = threading.Lock()
 LOG_2PI = float(np.log(2 * np.pi))
 
@@ -316,7 +316,7 @@ class Objective:
         outer Hessian's trace alone was 10 s of a 17 s theophylline fit, cache warm).
         The predictions' serves every substeps: kept as at 1 (units.simulated_at)."""
         with _LOCK:  # (one Program per name, also where ahead.py's threads ask)
-            programs = _PROGRAMS.setdefault(self._key_of(name), {})
+            programs = _PROGRAMS.programs(self._key_of(name))
             if name not in programs:
                 label = name if isinstance(name, str) else "_".join(map(str, name))
                 entry = f"population_{label} {self._structure_text()}"

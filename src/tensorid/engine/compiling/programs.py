@@ -42,6 +42,7 @@ import hashlib
 import os
 import tempfile
 import threading
+from collections import OrderedDict
 from concurrent.futures import Future
 from pathlib import Path
 
@@ -335,6 +336,41 @@ class Program:
         if run is not None:
             return run, kept
         return jitted, path
+
+
+class KeptStructures:
+    """Programs kept in this process per structure (a population objective's model,
+    discretisation, random effects, method, …): those of the ``limit`` structures used
+    last. A structure's programs hold its compiled executables and its model, tens of
+    MB; a process that fits many models (a notebook, a worker, a scan over model
+    variants) would otherwise keep every one it ever compiled. A structure pushed out
+    and asked for again reads its programs from disk (or traces them) anew."""
+
+    def __init__(self, limit: int = 8):
+        self.limit = limit
+        self._kept: OrderedDict = OrderedDict()
+        self._lock = threading.Lock()
+
+    def programs(self, key) -> dict:
+        """The programs kept under ``key`` (an empty dict to fill where none are),
+        now the last used; the oldest structure beyond ``limit`` is let go."""
+        with self._lock:
+            kept = self._kept.setdefault(key, {})
+            self._kept.move_to_end(key)
+            while len(self._kept) > self.limit:
+                self._kept.popitem(last=False)
+            return kept
+
+    def get(self, key, default=None):
+        """The programs kept under ``key`` (now the last used), or ``default``."""
+        with self._lock:
+            if key not in self._kept:
+                return default
+            self._kept.move_to_end(key)
+            return self._kept[key]
+
+    def __len__(self) -> int:
+        return len(self._kept)
 
 
 def _shapes(args) -> tuple:
