@@ -6,10 +6,11 @@ steady state of the dose repeated every II for ever, just before it is given,
                          amount/rate, then the rest of II),
 
 which the dose's own event then follows. x_ss is found by Newton's method on
-Ψ(x) − x from 0 with Ψ's exact Jacobian (forward mode). A linear model's cycle is
-affine in x, and one iteration lands on x_ss; NEWTON iterations give a nonlinear one
-room. Each part of the cycle is integrated by the record's scheme with CYCLE_STEPS
-times its substeps (a cycle is longer than a sample interval).
+Ψ(x) − x from 0 with Ψ's exact Jacobian (forward mode) until a step is below TOL. A
+linear model's cycle is affine in x, and one iteration lands on x_ss (a second
+confirms it); NEWTON iterations give a nonlinear one room. Each part of the cycle is
+integrated by the record's scheme with CYCLE_STEPS times its substeps (a cycle is
+longer than a sample interval).
 
 The derivatives are the implicit function's, by a custom JVP rule rather than
 through the Newton steps:
@@ -19,7 +20,12 @@ through the Newton steps:
 and the rule calls x_ss again, so that every order (the sweeps' second, a
 population fit's third and fourth) is exact at a converged x_ss, in forward and
 reverse mode. Differentiated through the steps instead, each order multiplied the
-program by the steps: a one-state fleet's FOCEI evaluation compiled for 225 s.
+program by the steps: a 24-subject study's FOCEI fit took 424 s from the command
+line, 58 s now (benchmarks/bench_events.py, docs/events.md).
+
+In a batch of units (vmap) lax.cond computes both branches, so the cycle's loops and
+the Newton iterations take a number of steps read when they run: none at a row
+without a steady-state dose, where a batch then spends nothing on them.
 """
 
 from __future__ import annotations
