@@ -65,7 +65,13 @@ def test_the_multi_start_example_prints_the_line_the_docs_show(tmp_path, capsys,
     assert cli.main([*args, "--no-progress", "--out", str(tmp_path / "fit")]) == 0
     captured = capsys.readouterr()
     printed = [ln for ln in (captured.out + captured.err).splitlines() if "best of 4" in ln]
-    assert printed == [shown[1]]
+    # the starts' total iterations and evaluations are rounding's (a start's last steps
+    # at its optimum: one more or fewer on another processor); the rest digit for digit
+    totals = re.compile(r"all starts: (\d+) iterations, (\d+) cost evaluations")
+    masked = [totals.sub("all starts: _", ln) for ln in (*printed, shown[1])]
+    assert len(printed) == 1 and masked[0] == masked[1]
+    for a, b in zip(totals.findall(printed[0])[0], totals.findall(shown[1])[0], strict=True):
+        assert abs(int(a) - int(b)) <= 3, (printed[0], shown[1])
 
 
 def test_the_quick_study_s_time_is_said_the_same_everywhere(capsys):
@@ -134,10 +140,24 @@ def _fleet_page_runs() -> list[tuple[str, str]]:
     return runs
 
 
+# How a converged fit ended and after how many iterations are rounding's at its optimum:
+# whether the last step's relative decrease falls below ftol or nothing decreases at
+# all, one iteration sooner or later, differ between processors (AVX-512 or AVX2 code
+# from XLA: theophylline at --substeps 40 ends after 6 or 7 iterations, with every
+# printed estimate the same). The estimates and −2 log L are compared digit for digit.
+ENDED = re.compile(r"converged: [^\n]*")
+COUNT = re.compile(r"(\d+) iterations, [\d.]+ s")
+
+
 def _masked(text: str) -> list[str]:
-    """The lines with the wall time masked (it is the machine's, not the fit's)."""
-    return [re.sub(r"iterations, [\d.]+ s", "iterations, _ s", ln.rstrip()) for ln in
-            text.strip().splitlines()]  # fmt: skip
+    """The lines with the wall time masked (it is the machine's, not the fit's), and
+    how a converged fit ended and its iteration count (ENDED, COUNT)."""
+    lines = [ENDED.sub("converged: _", ln.rstrip()) for ln in text.strip().splitlines()]
+    return [COUNT.sub("_ iterations, _ s", ln) for ln in lines]
+
+
+def _iterations(text: str) -> list[int]:
+    return [int(n) for n in COUNT.findall(text)]
 
 
 @pytest.mark.slow  # three population fits from the command line: about 2 minutes
@@ -159,6 +179,8 @@ def test_the_fleet_page_s_theophylline_blocks_are_what_its_commands_print(tmp_pa
         printed = done.stdout[done.stdout.index("Population fit") :]
         printed = printed[: printed.index("results in")]
         assert _masked(printed) == _masked(shown), command
+        for ran, said in zip(_iterations(printed), _iterations(shown), strict=True):
+            assert abs(ran - said) <= 2, (command, ran, said)
 
 
 @pytest.mark.slow  # a population fit: about 40 s cold

@@ -338,6 +338,28 @@ def test_the_derivatives_through_a_steady_state_are_exact():
     np.testing.assert_allclose(H, fdH, rtol=1e-5, atol=1e-6 * np.abs(H).max())
 
 
+def test_a_steady_state_is_converged_at_any_scale_and_needs_an_explicit_scheme():
+    """Newton stops when its step is small against x_ss itself: a saturable model in
+    units of 1e-15 reaches the steady state that the same model in units of 1 does,
+    scaled (an absolute floor had stopped it after one step, 1.4e-5 off). A scheme
+    the cycle cannot take is named in one line, by simulate too."""
+
+    def ss_state(scale, scheme="rk4"):
+        m = ti.Model(rhs=lambda x, p, u: -p[0] * x / (scale + x), output=lambda x, p: x,
+                     states=["c"], params=["vm"], outputs=["c"])  # fmt: skip
+        e = ti.Experiment(
+            T_SS[:2],
+            None,
+            Y_SS[:2],
+            events=Events.doses(0.0, "c", 5 * scale, ii=12.0, addl=1, ss=True),
+        )
+        return ti.simulate(m, {"vm": scale}, [0.0], e, substeps=4, scheme=scheme).x[1, 0]
+
+    assert ss_state(1e-15) / 1e-15 == pytest.approx(ss_state(1.0), rel=1e-12)
+    with pytest.raises(ValueError, match="steady-state doses take an explicit fixed-step"):
+        ss_state(1.0, "dopri5")
+
+
 def _equations(jaxpr) -> int:
     """The equations of a jaxpr, those of the loops and branches inside it counted."""
     n = 0

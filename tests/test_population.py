@@ -688,7 +688,9 @@ def test_lost_workers_cost_time_not_the_fit():
     # chunk here for good (issue 51 item 2: it had re-sent every chunk each evaluation)
     assert lost.submitted == 3
     assert there.success and there.objective == pytest.approx(here.objective, rel=1e-12)
-    np.testing.assert_allclose(there.x, here.x, rtol=1e-9, atol=1e-12)
+    # the units in other chunks are other programs, whose rounding the optimum's flat
+    # directions magnify (1.4e-9 on an AVX-512 machine, below 1e-9 on another)
+    np.testing.assert_allclose(there.x, here.x, rtol=1e-8, atol=1e-12)
 
 
 @pytest.mark.slow  # two spawned workers compile their own programs

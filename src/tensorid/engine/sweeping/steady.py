@@ -15,17 +15,24 @@ longer than a sample interval).
 The derivatives are the implicit function's, by a custom JVP rule rather than
 through the Newton steps:
 
-    dx_ss = (I − Ψ_x)⁻¹ (Ψ_p dp),      Ψ_x, Ψ_p at x_ss,
+    dx_ss = (I − Ψ_x)⁻¹ (Ψ_p dp + Ψ_u du),      Ψ_x, Ψ_p, Ψ_u at x_ss
+                                               (du: the dose row's, where differentiated),
 
 and the rule calls x_ss again, so that every order (the sweeps' second, a
-population fit's third and fourth) is exact at a converged x_ss, in forward and
-reverse mode. Differentiated through the steps instead, each order multiplied the
-program by the steps: a 24-subject study's FOCEI fit took 424 s from the command
-line, 58 s now (benchmarks/bench_events.py, docs/events.md).
+population fit's third and fourth) is exact at a converged x_ss. Differentiated
+through the steps instead, each order multiplied the program by the steps: a
+24-subject study's FOCEI fit took 424 s from the command line, 58 s now
+(benchmarks/bench_events.py, docs/events.md).
 
-In a batch of units (vmap) lax.cond computes both branches, so the cycle's loops and
-the Newton iterations take a number of steps read when they run: none at a row
-without a steady-state dose, where a batch then spends nothing on them.
+In a batch of units (vmap) lax.cond computes both branches, so Newton's iterations
+and the cycle's loops take a number of steps read when they run: none at a row
+without a steady-state dose, so that a batch spends nothing on them at the rows where
+no unit holds one (a batched loop runs while one of its units needs it). Reverse mode
+cannot differentiate a loop of a run-time length: jax.grad and jax.hessian (forward
+over reverse) and any nesting of forward mode go through a steady state, reverse mode
+over a first derivative (jax.jacrev of jax.jacfwd or of jax.grad) does not. With a fixed number of
+steps in the rule's Jacobians it did, and the 24-subject study's second process took
+17 s rather than 6: no fit differentiates in that order.
 """
 
 from __future__ import annotations
@@ -36,8 +43,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..schemes.integrators import ExplicitRungeKutta
+
 NEWTON = 6
-TOL = 1e-13  # a Newton step this small (relative to 1 + |x_ss|): converged
+TOL = 1e-13  # a Newton step this small relative to x_ss (its largest entry): converged
 CYCLE_STEPS = 8
 
 
@@ -48,6 +57,12 @@ def settle_map(sweeps):
     dosing = sweeps.dosing
     if dosing is None or not dosing.steady:
         return None
+    scheme = sweeps.discretisation.scheme
+    if not isinstance(getattr(scheme, "scheme", scheme), ExplicitRungeKutta):
+        raise ValueError(
+            f"steady-state doses take an explicit fixed-step scheme (rk4, rk38, heun, "
+            f"euler), not {scheme.name!r}"
+        )
     flag = dosing.inputs + 4 * len(dosing.targets)
 
     def dosed(uu):
@@ -78,7 +93,7 @@ def _cycle(sweeps, flag: int):
         def field(xx, _s):
             return model.f(xx, p, uu[:U]).at[idx].add(rate)
 
-        return scheme.interval(field, field, x, span, None, n)[0]
+        return scheme.interval(field, field, x, span, span / steps, n)[0]
 
     def cycle(x, p, uu):
         on, d, a, r, ii = (uu[flag + k] for k in range(5))
@@ -124,13 +139,14 @@ def _implicit(cycle, dosed):
     @jax.custom_jvp
     def steady(x, p, uu):
         """x_ss by Newton steps on Ψ(z) − z from 0 until a step moves it by less than
-        TOL (at most NEWTON steps; none without a dose). x gives the shape only."""
+        TOL of its size (at most NEWTON steps; none without a dose). x gives the shape
+        only."""
 
         def step(state):
             z, i, _ = state
             psi, Jz, _, _ = jacobians(z, p, uu, params=False)
             dz = jnp.linalg.solve(gap_matrix(Jz, uu), psi - z)
-            return z + dz, i + 1, jnp.max(jnp.abs(dz)) > TOL * (1 + jnp.max(jnp.abs(z)))
+            return z + dz, i + 1, jnp.max(jnp.abs(dz)) > TOL * jnp.max(jnp.abs(z + dz))
 
         def more(state):
             return (state[1] < jnp.where(dosed(uu), NEWTON, 0)) & state[2]
