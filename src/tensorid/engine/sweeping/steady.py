@@ -29,10 +29,11 @@ and the cycle's loops take a number of steps read when they run: none at a row
 without a steady-state dose, so that a batch spends nothing on them at the rows where
 no unit holds one (a batched loop runs while one of its units needs it). Reverse mode
 cannot differentiate a loop of a run-time length: jax.grad and jax.hessian (forward
-over reverse) and any nesting of forward mode go through a steady state, reverse mode
-over a first derivative (jax.jacrev of jax.jacfwd or of jax.grad) does not. With a fixed number of
-steps in the rule's Jacobians it did, and the 24-subject study's second process took
-17 s rather than 6: no fit differentiates in that order.
+over reverse) and any nesting of forward mode go through a steady state; reverse mode
+over a first derivative (jax.jacrev of jax.jacfwd or of jax.grad) does not. With a
+fixed number of steps in the rule's Jacobians it did, and the 24-subject study's
+second process took 17 s rather than 6-8 (measured by hand): no fit differentiates in
+that order.
 """
 
 from __future__ import annotations
