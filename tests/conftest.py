@@ -17,11 +17,47 @@ os.environ.setdefault(
 # (10-20 % more compile time); tests/test_programs.py turns them on where it checks them
 os.environ.setdefault("TENSORID_PROGRAMS", "0")
 
+import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 import tensorid as ti  # noqa: E402
+
+# a reference program runs once: LLVM's optimisations would only lengthen its compile,
+# the larger part of a derivative test's time (XLA's own passes still run)
+REFERENCE_OPTIONS = {"xla_backend_optimization_level": 0}
+
+
+def autodiff(f, *, hessian=True):
+    """``θ -> (J, ∇J, ∇²J)`` of the scalar ``f`` by JAX (forward over reverse mode: what
+    jax.hessian takes), as NumPy arrays, from one program compiled at the first call
+    (three separately jitted references compiled the common reverse pass three times);
+    ``hessian=False``: (J, ∇J)."""
+
+    def value_grad_hess(z):
+        if not hessian:
+            return jax.value_and_grad(f)(z)
+
+        def along(v):
+            return jax.jvp(jax.value_and_grad(f), (z,), (v,))
+
+        eye = jnp.eye(z.size, dtype=z.dtype)
+        (J, g), (_, H) = jax.vmap(along, out_axes=((None, None), 0))(eye)
+        return J, g, H.T  # row i is H's column i (H is symmetric up to rounding)
+
+    compiled = {}
+
+    def at(theta):
+        th = jnp.asarray(theta, dtype=float)
+        if th.shape not in compiled:
+            lowered = jax.jit(value_grad_hess).lower(th)
+            compiled[th.shape] = lowered.compile(compiler_options=REFERENCE_OPTIONS)
+        out = compiled[th.shape](th)
+        return (float(out[0]), *(np.asarray(a) for a in out[1:]))
+
+    return at
+
 
 SILVERBOX_P = {"m": 5.27e-6, "d": 2.15e-4, "a": 0.9675, "b": 3.975}
 TS_SILVERBOX = 2**14 / 1e7

@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import autodiff
 
 import tensorid as ti
 
@@ -180,12 +181,7 @@ def test_ekf_derivatives_equal_jax_hessian_of_a_plain_filter(case, substeps, exp
     def ref(th):
         return plain_filter_cost(m, th, pr, substeps, pr.interpolation)
 
-    def grad_with_value(th):  # jax.hessian is jacfwd(jacrev): one trace gives all three
-        value, grad = jax.value_and_grad(ref)(th)
-        return grad, (value, grad)
-
-    Hr, (Jr, gr) = jax.jacfwd(grad_with_value, has_aux=True)(jnp.asarray(theta))
-    Jr, gr, Hr = float(Jr), np.asarray(gr), np.asarray(Hr)
+    Jr, gr, Hr = autodiff(ref)(theta)
     assert abs(J - Jr) <= 1e-9 * abs(Jr)
     assert np.abs(g - gr).max() <= 1e-9 * np.abs(gr).max()
     assert np.abs(H - Hr).max() <= 1e-9 * np.abs(Hr).max()

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from conftest import (
     SILVERBOX_P,
+    autodiff,
     decay_model,
     derivative_problems,
     interpolation_problems,
@@ -31,9 +32,7 @@ CASES = [
 @pytest.mark.parametrize("name,prob,theta", CASES)
 def test_gradient_and_hessian_equal_autodiff(name, prob, theta):
     J, g, H = prob.cost_grad_hess(theta)
-    J_ad = float(prob.jax_cost(theta))
-    g_ad = np.asarray(jax.jit(jax.grad(prob.jax_cost))(theta))
-    H_ad = np.asarray(jax.jit(jax.hessian(prob.jax_cost))(theta))
+    J_ad, g_ad, H_ad = autodiff(prob.jax_cost)(theta)
     assert J > 0 and np.isfinite(J)
     np.testing.assert_allclose(J, J_ad, rtol=1e-12)
     np.testing.assert_allclose(g, g_ad, rtol=1e-9, atol=1e-9 * np.abs(g_ad).max())
