@@ -173,7 +173,7 @@ class Dosing:
                 x = settle(x, p, uu)
             b, _, r, v = split(uu)
             xs = x[idx]
-            return x.at[idx].set((1.0 - r) * xs + r * v + amount(b, p, uu))
+            return set_at(x, idx, (1.0 - r) * xs + r * v + amount(b, p, uu))
 
         def of(fns_, p, uu, empty):  # (D,) expressions of p and the inputs
             args = [*(uu[k] for k in range(U)), *(p[k] for k in range(len(self.params)))]
@@ -322,6 +322,22 @@ def check_events(
     return True
 
 
+def add_at(x, idx: np.ndarray, v):
+    """x with v added at the static positions ``idx`` (along x's last axis): a product
+    with a constant one-hot matrix, not a scatter. XLA's CPU backend turns a batched
+    scatter into a loop of its own, in every RK stage and every order of derivative: a
+    steady-state study's population program held 270 loops where 28 were written, and
+    compiled for 31 s. Exact: the other positions add 0."""
+    onto = jnp.asarray(np.eye(x.shape[-1])[idx], dtype=x.dtype)
+    return x + v @ onto
+
+
+def set_at(x, idx: np.ndarray, v):
+    """x with the positions ``idx`` replaced by v (as ``add_at``, without a scatter)."""
+    onto = np.eye(x.shape[-1])[idx]
+    return jnp.where(onto.any(axis=0), v @ jnp.asarray(onto, dtype=x.dtype), x)
+
+
 @functools.cache
 def maps(dosing: Dosing):
     """``dosing.functions()``, made once per Dosing (SymPy's lambdify is slow)."""
@@ -340,9 +356,9 @@ def rhs(model, dosing: Dosing | None, uu):
 
         lag = maps(dosing)[2]
         return lambda x, p_: (
-            length(dosing, lag, p_, uu) * model.f(x, p_, uu[:U]).at[idx].add(rate(p_, uu))
+            length(dosing, lag, p_, uu) * add_at(model.f(x, p_, uu[:U]), idx, rate(p_, uu))
         )
-    return lambda x, p_: model.f(x, p_, uu[:U]).at[idx].add(rate(p_, uu))
+    return lambda x, p_: add_at(model.f(x, p_, uu[:U]), idx, rate(p_, uu))
 
 
 def jump_hook(dosing: Dosing | None, p, push=None, settle=None):

@@ -80,21 +80,18 @@ def settle_map(sweeps):
 def _cycle(sweeps, flag: int):
     """Ψ(x, p, uu): one dosing cycle of the steady-state dose at row uu (its channels
     from position ``flag`` on), each part integrated with CYCLE_STEPS times the
-    substeps."""
-    from .dosing import maps
+    substeps, both parts in one loop (one step in the program: each order of
+    derivative a fit asks for carries the cycle again)."""
+    from .dosing import add_at, maps
 
     dosing, model = sweeps.dosing, sweeps.model
     U, D = dosing.inputs, len(dosing.targets)
     idx = np.array(dosing.targets, dtype=int)
     amount = maps(dosing)[3]
     scheme = sweeps.discretisation.scheme
-    steps = CYCLE_STEPS * sweeps.discretisation.substeps
-
-    def flow(x, p, uu, rate, span, n):
-        def field(xx, _s):
-            return model.f(xx, p, uu[:U]).at[idx].add(rate)
-
-        return scheme.interval(field, field, x, span, span / steps, n)[0]
+    # a population's substeps are read at run time (Discretisation.at_run_time)
+    steps = CYCLE_STEPS * sweeps.discretisation.substeps * getattr(scheme, "substeps", 1)
+    rk = getattr(scheme, "scheme", scheme)
 
     def cycle(x, p, uu):
         on, d, a, r, ii = (uu[flag + k] for k in range(5))
@@ -103,9 +100,18 @@ def _cycle(sweeps, flag: int):
         n = jnp.where(on > 0, steps, 0)
         which = (jnp.arange(D) == d).astype(x.dtype)
         infused = jnp.where(r > 0, a / jnp.where(r > 0, r, 1.0), 0.0)
-        x = x.at[idx].add(amount(which * jnp.where(r > 0, 0.0, a), p, uu))
-        x = flow(x, p, uu, amount(which * r, p, uu), infused, n)
-        return flow(x, p, uu, jnp.zeros(D, x.dtype), ii - infused, n)
+        x = add_at(x, idx, amount(which * jnp.where(r > 0, 0.0, a), p, uu))
+        rate = amount(which * r, p, uu)
+        # traced once, not once per stage (as ExplicitRungeKutta.interval does)
+        field = jax.jit(lambda xx, q: add_at(model.f(xx, p, uu[:U]), idx, q))
+
+        def step(i, xx):  # n steps over the infusion at its rate, n over the rest of II
+            first = i < n
+            h = jnp.where(first, infused, ii - infused) / jnp.maximum(n, 1)
+            q = jnp.where(first, rate, jnp.zeros_like(rate))
+            return rk.step(lambda yy, _s: field(yy, q), xx, h, 0.0, 0.0)
+
+        return jax.lax.fori_loop(0, 2 * n, step, x)
 
     return cycle
 
