@@ -329,9 +329,9 @@ def add_at(x, idx: np.ndarray, v):
     steady-state study's population program held 270 loops where 28 were written, and
     compiled for 31 s. Exact for finite v: the other positions add 0 (an inf in v
     makes NaN of every position, 0 · inf, where a scatter kept it in place: only once
-    a dose, a rate or a targeted state has overflowed). One select
-    per target instead kept an inf in place, but compiled that study 5 s slower
-    (46.4, 47.1 s against 41.7, 41.8 s, alternating)."""
+    a dose, a rate or a targeted state has overflowed). One select per target instead
+    kept an inf in place, but compiled that study 5 s slower (46.4, 47.1 s against
+    41.7, 41.8 s, alternating)."""
     onto = jnp.asarray(np.eye(x.shape[-1])[idx], dtype=x.dtype)
     return x + v @ onto
 
