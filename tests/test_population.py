@@ -75,11 +75,6 @@ def _over_units(unit_O, obj: Objective, etas):
     return total
 
 
-def _value_and_grad(plain, psi):
-    """The plain objective's value and gradient in one compiled program."""
-    return autodiff(plain, hessian=False)(psi)
-
-
 def _plain_objective(obj: Objective, etas, newton_steps: int = 2, laplace: bool = False):
     """O(ψ) written plainly: ŷ by the engine's simulation differentiated by JAX itself
     (no sensitivity sweeps), each η̂ by Newton steps inside the function from the
@@ -147,7 +142,7 @@ def assert_plain(obj: Objective, psi, etas, plain) -> None:
     """The objective and its gradient against ``plain``'s (a plainly written one,
     differentiated by JAX)."""
     O, g = obj.value_grad(psi, etas)
-    value, gp = _value_and_grad(plain, psi)
+    value, gp = autodiff(plain, hessian=False)(psi)
     assert O.sum() == pytest.approx(value, rel=1e-12)
     np.testing.assert_allclose(g.sum(0), gp, rtol=1e-8, atol=1e-8 * np.abs(gp).max())
 
@@ -291,7 +286,7 @@ def test_a_full_omega_has_the_plain_objectives_gradient_and_reports_the_correlat
 
     plain = _over_units(unit_O, obj, etas)
 
-    value, gp = _value_and_grad(plain, psi)
+    value, gp = autodiff(plain, hessian=False)(psi)
     assert O.sum() == pytest.approx(value, rel=1e-12)
     np.testing.assert_allclose(g.sum(0), gp, rtol=1e-8, atol=1e-8 * np.abs(gp).max())
     with pytest.raises(ValueError, match="two or more"):
@@ -359,7 +354,7 @@ def test_an_initial_state_that_moves_with_estimated_parameters():
 
     plain = _over_units(unit_O, obj, etas)
 
-    value, gp = _value_and_grad(plain, psi)
+    value, gp = autodiff(plain, hessian=False)(psi)
     assert O.sum() == pytest.approx(value, rel=1e-12)
     np.testing.assert_allclose(g.sum(0), gp, rtol=1e-8, atol=1e-8 * np.abs(gp).max())
 
