@@ -21,7 +21,7 @@ through the Newton steps:
 and the rule calls x_ss again, so that every order (the sweeps' second, a
 population fit's third and fourth) is exact at a converged x_ss. Differentiated
 through the steps instead, each order multiplied the program by the steps: a
-24-subject study's FOCEI fit took 424 s from the command line, 45.0 s now
+24-subject study's FOCEI fit took 424 s from the command line, 43.8 s now
 (benchmarks/bench_events.py, docs/events.md).
 
 In a batch of units (vmap) lax.cond computes both branches, so Newton's iterations
