@@ -33,7 +33,8 @@ def _reference(prob, name):
 
     def J(theta):
         total = 0.0
-        for e, (t, u, y) in enumerate(prob._arrays):
+        for e, (t, u, _) in enumerate(prob._arrays):
+            y = prob.experiments[e].y  # the measurements (the sweeps' y carries a mask)
             local = theta[prob._slices(e)]
             x0, p = sw.expand(local, jnp.asarray(prob.x0[e]), jnp.asarray(prob.p0))
             ys = sw._simulate(x0, p, t, u)[1]

@@ -86,7 +86,8 @@ def test_a_loss_is_one_class(welsch, hessian):
     _, _, H = _against_jax(prob)
     # the plainly written loss, differentiated by JAX: the class's ρ is what is summed
     sw, th = prob._sweeps, prob.theta0
-    (t, u, y), c = prob._arrays[0], 0.05 * np.sqrt(prob.weights)
+    (t, u, _), c = prob._arrays[0], 0.05 * np.sqrt(prob.weights)
+    y = prob.experiments[0].y  # the measurements (the sweeps' y carries a mask)
 
     def plain(theta):
         x0, p = sw.expand(theta, jnp.asarray(prob.x0[0]), jnp.asarray(prob.p0))

@@ -28,7 +28,7 @@ from ..modelling.fleet import check_fleet
 from ..modelling.model import Model
 from ..schemes.discretisation import Discretisation, DiscretisationSettings
 from ..schemes.integrators import Scheme
-from ..sweeping.dosing import Dosing, check_events, measured
+from ..sweeping.dosing import Dosing, check_events, masks_records, measured
 from ..sweeping.hessians import HessianPath, choose_hessian
 from ..sweeping.losses import Loss, make_loss
 from ..sweeping.packing import unpack_symmetric
@@ -111,8 +111,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
             only) or "auto" (default): the faster of the two by a cost model measured on
             N, K and the record length (:func:`tensorid.engine.hessians.choose_hessian`); or
             a :class:`tensorid.engine.hessians.HessianPath`. Both give the same Hessian to
-            rounding. The resolved choice is ``Problem.hessian`` (its name) and
-            ``Problem.hessian_path``.
+            rounding; the resolved choice: ``Problem.hessian`` (its name), ``.hessian_path``.
         predictor: how the state is carried from sample to sample: "simulation" (default:
             output error, the model simulated from its initial state) or "ekf" (a
             continuous-discrete extended Kalman filter: prediction error, J = −2 log L of
@@ -214,15 +213,15 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
             raise ValueError("nothing to estimate: every parameter is fixed and free_x0 is empty")
         self.constraints, self.penalty = check_constraints(self, constraints), None  # Fs >= Fc
         gaps = check_events(self, doses, hessian, segments, segment_length, lags, durations)
-        self._sweeps = self._shared_sweeps()
-        self.threads = check_threads(threads)
-        self._arrays = [self.arrays_of(e) for e in self.experiments]
-        counts = resolve_segments(self.experiments, segments, segment_length)  # shooting.py
-        self.shooting = Shooting(self, counts) if counts else None
+        self._sweeps, self.threads = self._shared_sweeps(), check_threads(threads)
         self.hessian_path = choose_hessian(
             hessian, discretisation, model.N, self._sweeps.K, [e.P for e in self.experiments],
             threads, adjoint=self.predictor.supports_adjoint and not gaps,
         )  # fmt: skip
+        counts = resolve_segments(self.experiments, segments, segment_length)  # shooting.py
+        self.masked = masks_records(self, counts)  # y with a mask (dosing.measured)
+        self._arrays = [self.arrays_of(e) for e in self.experiments]
+        self.shooting = Shooting(self, counts) if counts else None
 
     def _shared_sweeps(self) -> Sweeps:
         m, d = self.model, self.discretisation
@@ -257,7 +256,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         """(t, u, y) of record e as the sweeps take them (``grid``; y with its mask where
         the record has gaps or moving events' nodes: dosing.measured)."""
         t, u = self.grid(e)
-        return on_device(t), on_device(u), measured(e, t.size)
+        return on_device(t), on_device(u), measured(e, t.size, self.masked)
 
     @property
     def sweeps(self) -> Sweeps:
@@ -333,6 +332,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         w = jnp.asarray(self.loss_weights)
         J = 0.0
         for e, (t, u, y) in enumerate(self._arrays):
+            y = y["y"] if self.masked and self.experiments[e].observed is None else y  # plain
             J = J + self._sweeps._cost(
                 theta[self._slices(e)], jnp.asarray(self.x0[e]), jnp.asarray(self.p0), t, u, y, w
             )

@@ -32,10 +32,13 @@ class HessianPath:
         supports_predictors: the path differentiates any predictor (its field,
             predict and update), not only output error's model; where it does not,
             a predictor without the marker ``supports_adjoint`` is refused.
+        takes_gaps: the path's sweep reads records whose samples carry a mask (a
+            record with gaps or events, ``dosing.measured``).
     """
 
     name: ClassVar[str] = ""
     supports_predictors: ClassVar[bool] = True
+    takes_gaps: ClassVar[bool] = True
     needs: ClassVar[str] = "a scheme it can differentiate"  # (for a refusal)
 
     def supports(self, discretisation) -> bool:
@@ -111,6 +114,7 @@ class SecondOrderAdjoints(HessianPath):
 
     name: ClassVar[str] = "adjoint"
     supports_predictors: ClassVar[bool] = False
+    takes_gaps: ClassVar[bool] = False
     needs: ClassVar[str] = "an explicit scheme"
 
     def supports(self, discretisation) -> bool:

@@ -33,6 +33,32 @@ def _weighted(obs_h, w):
     return obs_h if isinstance(obs_h, tuple) else (obs_h, w)
 
 
+def _residuals(loss, y, pis, w):
+    """The loss's residuals (P, S) at the predictions π; a record with gaps ({"y",
+    "mask"}): 0 where nothing was measured (not the NaN of a non-finite π there)."""
+    if not isinstance(y, dict):
+        return loss.residual(y, pis, w)
+    r = loss.residual(y["y"], pis, (w[0] * y["mask"], w[1]))
+    return jnp.where(y["mask"] > 0, r, 0.0)
+
+
+def _unobserved_add_nothing(observe):
+    """``observe`` for a record with a mask: at a sample where nothing was observed,
+    the accumulator comes back as it was and the sample's own output (its score) is
+    0, where a zero weight times a non-finite prediction would have been NaN. A model
+    that is not finite after a record's last observation (the model-error check's
+    halves are the record with the rest masked) then costs what it costs without
+    those samples."""
+
+    def skipping(acc, state, obs_h, u_h):
+        new, out = observe(acc, state, obs_h, u_h)
+        seen = jnp.any(obs_h["mask"] > 0)
+        keep = functools.partial(jnp.where, seen)
+        return jax.tree.map(keep, new, acc), jax.tree.map(lambda o: keep(o, 0.0), out)
+
+    return skipping
+
+
 @dataclass(frozen=True)
 class Layout:
     """How (x (N,), dxᵀ (K, N)[, d2xᵀ (L, N)]) are carried: one flat vector, or the

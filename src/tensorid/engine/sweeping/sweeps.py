@@ -53,7 +53,7 @@ from .output_sensitivity import output_jacobian
 from .packing import quadratic_full
 from .packing import unpack_symmetric as unpack_symmetric  # its old home, re-exported
 from .predictors import SIMULATION, Predictor
-from .second_order import _weighted, layout, second_order
+from .second_order import _residuals, _unobserved_add_nothing, _weighted, layout, second_order
 from .steady import settle_map
 
 # numbers of per-sample scores (P·K) a fit's first-order step keeps beside (J, ∇J,
@@ -159,6 +159,7 @@ class Sweeps:
         def state_field(x, uu):
             return self._f(p, uu)(x) if own is None else own(x, uu)
 
+        observe = _unobserved_add_nothing(observe) if isinstance(obs, dict) else observe
         if end:
             inner = observe
 
@@ -257,9 +258,7 @@ class Sweeps:
 
     def _residuals(self, theta, x0, p, t, u, y, w):
         _, pis = self._predictions(theta, x0, p, t, u, y)
-        if isinstance(y, dict):  # a record with gaps: what was not measured weighs 0
-            y, w = y["y"], (w[0] * y["mask"], w[1])
-        return self.loss.residual(y, pis, w).reshape(-1)
+        return _residuals(self.loss, y, pis, w).reshape(-1)
 
     # -- first order: (J, ∇J) and the Gauss-Newton Hessian -----------------------------
     def _first_order(self, theta, x0, p, t, u, y, w, gauss_newton=True, end=False, scores=False):
