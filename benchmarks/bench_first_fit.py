@@ -28,6 +28,12 @@ gate from the upper tank, a softplus dead-zone pump, power-law outflows with a f
 exponent; 10 parameters, 1,024 samples, RK4 with 4 substeps).
 
 Medians over the repeats, range in brackets; the load average is printed with them.
+
+``--masked N`` (issue 50 item 2) also times, in a new process per model, the XLA
+compile of the fit's two sweeps (second-order and first-order with scores) with y
+plain and with y carrying its mask (``Problem.masked``, which lets the model-error
+check's halves run the fit's own programs), N pairs in alternating order, no cache:
+the median of the paired ratios masked / plain.
 """
 
 from __future__ import annotations
@@ -152,6 +158,38 @@ for name, fn in (("value_and_grad", jax.value_and_grad(cost)), ("hessian", jax.h
 print(json.dumps(res))
 """
 
+# the fit's two sweeps compiled with y masked and plain, in pairs (--masked)
+MASKED = """
+import json, statistics, sys, time
+import jax, jax.numpy as jnp, numpy as np
+import tensorid as ti
+from tensorid.app.files import load_model
+jax.config.update("jax_enable_compilation_cache", False)
+spec, d = load_model(sys.argv[1]), np.genfromtxt(sys.argv[2], delimiter=",", names=True)
+prob = ti.Problem(spec.model, ti.Experiment(d["t"], d["u"], d["y"]), p0=spec.p0, x0=spec.x0,
+                  free_x0=spec.free_x0)
+if not prob.masked:  # (the adjoint's Hessian path takes y plain)
+    print(json.dumps({}))
+    sys.exit()
+sw, (t, u, y) = prob._sweeps, prob._arrays[0]
+x0, p, w = jnp.asarray(prob.x0[0]), jnp.asarray(prob.p0), jnp.asarray(prob.loss_weights)
+th = jnp.asarray(prob.theta0)
+def seconds(fn, yy):  # a new function each time: nothing cached in the process
+    t0 = time.perf_counter()
+    jax.jit(lambda *a: fn(*a)).lower(th, x0, p, t, u, yy, w).compile()
+    return time.perf_counter() - t0
+out = {}
+for name, fn in (("second", sw._second_order_both), ("first", sw._first_order_scores)):
+    pairs = []
+    for r in range(int(sys.argv[3])):
+        a, b = (y, y["y"]) if r % 2 else (y["y"], y)
+        ta, tb = seconds(fn, a), seconds(fn, b)
+        pairs.append((ta, tb) if r % 2 else (tb, ta))
+    out[name] = [statistics.median(m / q for m, q in pairs),
+                 statistics.median(q for _, q in pairs)]
+print(json.dumps(out))
+"""
+
 # tensorid's command line with JAX's compile events counted
 CLI = """
 import json, sys, atexit
@@ -261,6 +299,13 @@ def _plain(spec: dict, folder: Path) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+def _masked(model: Path, data: Path, pairs: int) -> dict:
+    env = {**os.environ, "PYTHONPATH": str(SRC), "TENSORID_CACHE": "0"}
+    cmd = [sys.executable, "-c", MASKED, str(model), str(data), str(pairs)]
+    done = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
 def _med(values) -> str:
     values = [v for v in values if v is not None]
     if not values:
@@ -274,6 +319,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--models", default="two-tank,cascade,switches")
+    parser.add_argument("--masked", type=int, default=0, help="pairs of masked/plain compiles")
     args = parser.parse_args()
     sys.path.insert(0, str(SRC))
     os.environ["TENSORID_CACHE"] = "0"  # this process only makes the data: no cache
@@ -321,6 +367,15 @@ def main() -> None:
             f" | {_med([x['value_and_grad'] for x in p])}"
             f" | {_med([x['hessian'] for x in p])} | {_med([x['hessian_rolled'] for x in p])} |"
         )
+    if args.masked:
+        print(f"\nXLA compile with y masked / plain, median of {args.masked} pairs (plain s):")
+        for name, (model, data, _) in cases.items():
+            m = _masked(model, data, args.masked)
+            if not m:
+                print(f"    {name}: y plain (its Hessian path, the adjoint's, takes no mask)")
+                continue
+            print(f"    {name}: second-order sweep {m['second'][0]:.3f} ({m['second'][1]:.2f} s),"
+                  f" first-order sweep {m['first'][0]:.3f} ({m['first'][1]:.2f} s)")  # fmt: skip
     for name, runs in rows.items():
         print(f"\n{name}, the first fit's compile lines (last repeat):")
         for line in runs[-1]["cold"]["lines"]:

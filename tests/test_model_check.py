@@ -128,22 +128,77 @@ def test_a_filter_fit_at_its_sigma_e_floor_is_not_checked():
     assert "could not be made (the measurement noise" in trust_advice(check)
 
 
-def test_an_odd_records_halves_have_one_length_and_compile_nothing_more():
-    """61 samples: halves 0-29 and 31-60 (the middle one in neither), so the check's
-    fits run the programs of one record length (30), not of two (30 and 31)."""
+def _runs(problem) -> set:
+    """(program, argument shapes) of every compiled program the problem's sweeps have
+    run in this process (the sweeps are shared by problems of one model)."""
     from tensorid.engine.compiling.programs import Program
 
-    res = ti.fit(ti.Problem(LINEAR, record(5).window(0, 61), p0={"k": 3.0, "c": 0.5, "g": 1}))
-    check = res.model_check()
-    assert check.parts == ["samples 0-29", "samples 31-60"] and check.passed is not None
-    sweeps = vars(res.problem._sweeps).values()
-    lengths = {
-        shape[0]
-        for prog in sweeps if isinstance(prog, Program)
-        for _, leaves in prog._runs
-        for shape, _ in leaves if len(shape) == 1
+    return {
+        (id(prog), shapes)
+        for prog in vars(problem._sweeps).values() if isinstance(prog, Program)
+        for shapes in prog._runs
     }  # fmt: skip
-    assert {30, 61} <= lengths and 31 not in lengths
+
+
+def _new_lengths(check, res) -> set[int]:
+    """The lengths of the 1-D arguments (t, θ, x0) of the programs ``check(res)`` ran
+    that had not run before."""
+    before = _runs(res.problem)
+    check(res)
+    new = {key for _, key in _runs(res.problem) - before}  # key: (tree, (shape, dtype)...)
+    return {sh[0] for _, leaves in new for sh, _ in leaves if len(sh) == 1}
+
+
+def _same_check(a, b) -> None:
+    assert a.parts == b.parts and a.names == b.names and a.passed == b.passed
+    np.testing.assert_allclose(a.estimates, b.estimates, rtol=1e-9, atol=0)
+    np.testing.assert_allclose(a.stderr, b.stderr, rtol=1e-9, atol=0)
+    assert a.statistic == pytest.approx(b.statistic, rel=1e-8)
+
+
+def test_the_halves_run_the_fits_own_programs():
+    """issue 50 item 2: each half is the record with the other samples masked, so the
+    check's fits run the programs the fit compiled (61 samples), and give what fits
+    of the halves' own length give. Unmasked, the halves of an odd record (0-29 and
+    31-60, the middle one in neither) have one length, 30, not two."""
+    from tensorid.analysis.model_check import model_check
+
+    res = ti.fit(ti.Problem(LINEAR, record(5).window(0, 61), p0={"k": 3.0, "c": 0.5, "g": 1}))
+    assert res.problem.masked
+    checks = []
+    assert not _new_lengths(lambda r: checks.append(model_check(r)), res) & {30, 31}
+    assert checks[0].parts == ["samples 0-29", "samples 31-60"] and checks[0].passed is not None
+    res.problem.masked = False  # the parts as records of their own length
+    assert {30, 31} & _new_lengths(lambda r: checks.append(model_check(r)), res) == {30}
+    _same_check(*checks)
+
+
+def test_a_model_not_finite_on_the_masked_samples_is_fitted_as_on_the_half_alone(monkeypatch):
+    """An unobserved sample adds nothing to J, ∇J, ∇²J or the scores, even where the
+    model is not finite there (a zero weight times NaN would be NaN, and a fit would
+    reject the step): a half's fit is the fit of the half alone. The padding's inputs
+    are made so large here that RK4's stage sums overflow on it."""
+    from tensorid.analysis import model_check as mc
+
+    res = ti.fit(ti.Problem(LINEAR, record(6).window(0, 80), p0={"k": 3.0, "c": 0.5, "g": 1}))
+    padded = mc._padded
+
+    def huge(rec, start, stop):
+        e = padded(rec, start, stop)
+        u = np.where(np.arange(rec.P)[:, None] < stop - start, e.u, 1.7e308)
+        return ti.Experiment(e.t, u, e.y, observed=e.observed)
+
+    monkeypatch.setattr(mc, "_padded", huge)
+    [(_, part, theta, _), _] = list(mc._parts(res))
+    assert not np.isfinite(part.simulate(theta)[0].y[40:]).all()
+    J, g, H = part.cost_grad_hess(theta)
+    assert np.isfinite(J) and np.isfinite(g).all() and np.isfinite(H).all()
+    assert np.isfinite(part.residuals(theta)).all()
+    checks = []
+    assert not _new_lengths(lambda r: checks.append(mc.model_check(r)), res) & {40}
+    monkeypatch.undo()
+    res.problem.masked = False
+    _same_check(checks[0], mc.model_check(res))
 
 
 def test_halves_of_one_repeated_excitation_cannot_pass_a_wrong_model():

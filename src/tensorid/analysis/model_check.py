@@ -7,11 +7,16 @@ truth). Whiteness cannot tell the two apart: both colour the residuals.
 
 The check. The record is cut into parts: the given records when there are several,
 else the record's two halves (of one length: an odd record's middle sample is left
-out). The model is fitted to each part alone, from the full fit's estimate. Where
-the model is right, every part estimates the same θ and the parts' estimates differ
-by noise only, θ̂_i ≈ N(θ, Σ_i) with Σ_i each part's robust covariance (Newey-West:
-coloured noise included), nearly independent between parts (the scores' correlation
-dies out within the bandwidth, far shorter than a part).
+out). The model is fitted to each part alone, from the full fit's estimate. Where the
+problem's record carries a mask (``Problem.masked``: output error, single shooting, no
+events), a half is the whole record with the other samples masked, so that the fit's
+own compiled programs fit it (programs of the half's length had compiled for about a
+second); a masked sample adds nothing, even where the model is not finite there, so
+this is the fit of the half alone. Where the model is right, every part estimates
+the same θ and the parts' estimates differ by noise only, θ̂_i ≈ N(θ, Σ_i) with Σ_i
+each part's robust covariance (Newey-West: coloured noise included), nearly
+independent between parts (the scores' correlation dies out within the bandwidth,
+far shorter than a part).
 The homogeneity statistic
 
     Q = Σ_i (θ̂_i − θ̄)ᵀ Σ_i⁻¹ (θ̂_i − θ̄),      θ̄ = (Σ_i Σ_i⁻¹)⁻¹ Σ_i Σ_i⁻¹ θ̂_i
@@ -54,6 +59,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..engine.compiling.compiled import on_device
+from ..engine.modelling.data import Experiment
 from ..engine.schemes.status import Status
 from ..solve.minimize import interrupted, minimize_trust_region
 from ..solve.scaling import Tracker
@@ -210,9 +216,9 @@ def _model_check(res, level: float, maxiter: int) -> ModelCheck:
     if p == 0:
         return ModelCheck(level, how, not_available="no parameter is estimated")
     labels, est, covs, ses, inputs = [], [], [], [], []
-    for label, part, theta0 in _parts(res):
-        inputs.append(np.asarray(part.experiments[0].u, dtype=float))
-        fitted = _fit_part(part, theta0, maxiter)
+    for label, part, theta0, own in _parts(res):
+        inputs.append(np.asarray(part.experiments[0].u[own], dtype=float))
+        fitted = _fit_part(part, theta0, maxiter, own)
         if isinstance(fitted, str):
             return ModelCheck(level, how, not_available=f"the fit of {label} {fitted}")
         labels.append(label)
@@ -287,39 +293,68 @@ def _floor(res) -> str | None:
 
 
 def _parts(res):
-    """(label, the part as a Problem, its θ to start from) for each part."""
+    """(label, the part as a Problem, its θ to start from, the part's own samples: a
+    slice of its record) for each part."""
     problem = res.problem
     exps = problem.experiments
     _, x0 = problem.unpack(res.theta)
-    if len(exps) > 1:
+    if len(exps) > 1:  # each record alone: the programs the fit compiled for its length
         for e, rec in enumerate(exps):
             keep = problem._slices(e)
             label = f"record '{rec.name}'" if rec.name else f"record {e}"
-            yield label, _part(problem, [rec], x0[e], keep), res.theta[keep]
+            yield label, _part(problem, [rec], x0[e], keep), res.theta[keep], slice(None)
         return
-    # halves of one length, so that both run the same compiled programs: an odd
-    # record's middle sample is in neither (a third length would compile every
-    # program of the check once more, seconds against the check's fits)
-    rec, keep = exps[0], np.arange(problem.K)
+    # halves of one length (an odd record's middle sample is in neither); where the
+    # problem's record carries a mask (Problem.masked), each half is a record of the
+    # full length with the rest masked, so the fit's own compiled programs fit it
+    rec = exps[0]
     half = rec.P // 2
     cut = rec.P - half
-    yield f"samples 0-{half - 1}", _part(problem, [rec.window(0, half)], x0[0], keep), res.theta
+    own = slice(0, half)
+    yield f"samples 0-{half - 1}", _half(problem, rec, 0, half, x0[0]), res.theta, own
     at_cut = _state_at(problem, res.theta, cut)
     theta = res.theta.copy()
     free = [problem.model.states.index(n) for n in problem.free_x0]
     theta[: len(free)] = at_cut[free]
-    second = _part(problem, [rec.window(cut, rec.P)], at_cut, keep)
-    yield f"samples {cut}-{rec.P - 1}", second, theta
+    yield f"samples {cut}-{rec.P - 1}", _half(problem, rec, cut, rec.P, at_cut), theta, own
+
+
+def _half(problem, rec, start: int, stop: int, x0):
+    """The part on samples [start, stop) of ``rec``: the record with its other samples
+    masked where the problem's record carries a mask (the fit's compiled programs fit
+    it; an unobserved sample adds nothing, even where the model is not finite there),
+    else a record of its own length (its programs compiled for it)."""
+    keep = np.arange(problem.K)
+    part = _padded(rec, start, stop) if problem.masked else rec.window(start, stop)
+    return _part(problem, [part], x0, keep)
+
+
+def _padded(rec, start: int, stop: int) -> Experiment:
+    """Samples [start, stop) of ``rec`` as a record of its length whose other samples
+    are not observed: the record from ``start`` on, then its beginning played again
+    after its end (its times shifted by its span and one interval)."""
+    P = rec.P
+    rows = (start + np.arange(P)) % P
+    shift = np.where(rows < start, rec.t[-1] - rec.t[0] + (rec.t[1] - rec.t[0]), 0.0)
+    seen = np.ones(rec.y.shape, dtype=bool) if rec.observed is None else rec.observed
+    own = np.arange(P) < stop - start
+    return Experiment(
+        rec.t[rows] + shift, rec.u[rows], rec.y[rows], name=rec.name,
+        observed=seen[rows] & own[:, None],
+    )  # fmt: skip
 
 
 def _state_at(problem, theta, h: int) -> np.ndarray:
-    """The state at sample h: the simulation's (output error), or the filter's estimate
-    before its update there."""
+    """The state at sample h: the simulation's (output error without events: the
+    fit's own program), or the predictor's (a filter's estimate before its update)."""
+    _, x0 = problem.unpack(theta)
+    if not problem.predictor.filters and problem.dosing is None:
+        x = problem.simulate(theta)[0].x[h]
+        return x if np.isfinite(x).all() else x0[0]
     sw = problem.sweeps
     t, u, y = problem.arrays[0]
     local = on_device(theta[problem._slices(0)])
     zs, _ = sw.predictions(local, on_device(problem.x0[0]), on_device(problem.p0), t, u, y)
-    _, x0 = problem.unpack(theta)
     x = np.asarray(sw.predictor.states(np.asarray(zs)))[h]
     return x if np.isfinite(x).all() else x0[0]
 
@@ -340,8 +375,9 @@ def _part(problem, records, x0, keep):
     return out
 
 
-def _fit_part(part, theta0, maxiter: int):
-    """The part's Uncertainty (robust) at its optimum from ``theta0``, or why not (text)."""
+def _fit_part(part, theta0, maxiter: int, own: slice):
+    """The part's Uncertainty (robust) at its optimum from ``theta0``, or why not (text);
+    its scores on its ``own`` samples (not on a padded record's masked rest)."""
     theta0 = np.clip(theta0, part.lower, part.upper)
     J0, _, H_gn = part.cost_grad_gn(theta0)
     if not np.isfinite(J0):
@@ -359,7 +395,7 @@ def _fit_part(part, theta0, maxiter: int):
     flat_end = r.status in (Status.RADIUS_COLLAPSED, Status.NO_PREDICTED_DECREASE)
     if not ((r.success or flat_end) and np.isfinite(J)):
         return f"did not converge ({r.message})"
-    meat = score_covariance(part, theta, "auto")[0]
+    meat = score_covariance(part, theta, "auto", rows=own)[0]
     u = uncertainty(
         part, theta, J, H, "hessian", gauss_newton=lambda: part.cost_grad_gn(theta)[2],
         grad=g, scale=tr.scale, meat=meat,

@@ -90,11 +90,12 @@ def _prewhiten(parts: list[np.ndarray]) -> tuple[list[np.ndarray], np.ndarray]:
     return [x * sd for x in e], (sd[:, None] * back) / sd[None, :]
 
 
-def score_covariance(problem, theta, lags="auto") -> tuple[np.ndarray, int]:
+def score_covariance(problem, theta, lags="auto", rows: slice = slice(None)):
     """(B (K, K), L): the scores' covariance, independent samples for ``lags`` 0,
     Newey-West with L lags for an integer, and for "auto" prewhitened (VAR(1), see
-    _prewhiten) with Andrews' bandwidth on what the VAR leaves."""
-    parts = scores(problem, theta)
+    _prewhiten) with Andrews' bandwidth on what the VAR leaves; on each record's
+    samples ``rows`` (a part of a record padded to its length: its own)."""
+    parts = [s[rows] for s in scores(problem, theta)]
     K = problem.K
     back = np.eye(K)
     if lags == "auto" and min(s.shape[0] for s in parts) > 2 * K + 2:
