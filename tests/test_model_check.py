@@ -179,6 +179,7 @@ def test_a_model_not_finite_on_the_masked_samples_is_fitted_as_on_the_half_alone
     reject the step): a half's fit is the fit of the half alone. The padding's inputs
     are made so large here that RK4's stage sums overflow on it."""
     from tensorid.analysis import model_check as mc
+    from tensorid.analysis.sandwich import scores
 
     res = ti.fit(ti.Problem(LINEAR, record(6).window(0, 80), p0={"k": 3.0, "c": 0.5, "g": 1}))
     padded = mc._padded
@@ -194,11 +195,57 @@ def test_a_model_not_finite_on_the_masked_samples_is_fitted_as_on_the_half_alone
     J, g, H = part.cost_grad_hess(theta)
     assert np.isfinite(J) and np.isfinite(g).all() and np.isfinite(H).all()
     assert np.isfinite(part.residuals(theta)).all()
+    [shares] = scores(part, theta)  # the error bars' per-sample scores: 0 where masked
+    assert np.isfinite(shares).all() and not shares[40:].any()
     checks = []
     assert not _new_lengths(lambda r: checks.append(mc.model_check(r)), res) & {40}
     monkeypatch.undo()
     res.problem.masked = False
     _same_check(checks[0], mc.model_check(res))
+
+
+def test_a_record_s_predictions_at_its_unobserved_samples_are_the_simulation():
+    """The masked march keeps the accumulators at a row where nothing was observed,
+    not the row's own outputs: a record with gaps predicts (one step, and k steps
+    ahead, which start from those states) the simulation there, not 0."""
+    e = record(7).window(0, 60)
+    seen = np.ones((60, 1), dtype=bool)
+    seen[10:15] = False
+    data = ti.Experiment(e.t, e.u, e.y, observed=seen)
+    pb = ti.Problem(LINEAR, data, p0={"k": 3.0, "c": 0.5, "g": 1.0})
+    sim = pb.simulate(pb.theta0)[0].y[:, 0]
+    for horizon in (1, 2):
+        [pred] = pb.predict(pb.theta0, horizon=horizon)
+        np.testing.assert_allclose(pred.predicted[:, 0], sim, rtol=1e-12, atol=1e-15)
+
+
+def test_which_problems_pass_their_record_with_a_mask():
+    """Problem.masked: one record, output error, single shooting, no events, inputs
+    linear or held between samples (a smooth interpolation is fitted to the whole
+    record, so a masked half would see other inputs than the half alone), and a
+    Hessian path that opts in (a new path's sweep keeps y as it was)."""
+    from tensorid.engine.sweeping.hessians import HessianPath, TransitionTensors
+
+    class Opted(HessianPath):
+        name = "opted-out"
+
+        def sweep(self, sweeps, batched, threads_cap):
+            return TransitionTensors().sweep(sweeps, batched, threads_cap)
+
+    e = record(8).window(0, 80)
+    p0 = {"k": 3.0, "c": 0.5, "g": 1.0}
+
+    def masked(data=e, **kw) -> bool:
+        return ti.Problem(LINEAR, data, p0=p0, **kw).masked
+
+    assert masked() and masked(interpolation="zoh")
+    assert not masked([e.window(0, 40), e.window(40, 80)])
+    assert not masked(interpolation="cubic") and not masked(interpolation="bandlimited")
+    assert not masked(hessian="adjoint") and not masked(segments=2)
+    assert not masked(hessian=Opted())
+    assert not masked(predictor="ekf", process_noise={"v": 0.1})
+    pb = ti.Problem(LINEAR, e, p0=p0, hessian=Opted())
+    assert not isinstance(pb.arrays[0][2], dict)
 
 
 def test_halves_of_one_repeated_excitation_cannot_pass_a_wrong_model():

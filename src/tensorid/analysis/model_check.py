@@ -8,15 +8,15 @@ truth). Whiteness cannot tell the two apart: both colour the residuals.
 The check. The record is cut into parts: the given records when there are several,
 else the record's two halves (of one length: an odd record's middle sample is left
 out). The model is fitted to each part alone, from the full fit's estimate. Where the
-problem's record carries a mask (``Problem.masked``: output error, single shooting, no
-events), a half is the whole record with the other samples masked, so that the fit's
-own compiled programs fit it (programs of the half's length had compiled for about a
-second); a masked sample adds nothing, even where the model is not finite there, so
-this is the fit of the half alone. Where the model is right, every part estimates
-the same θ and the parts' estimates differ by noise only, θ̂_i ≈ N(θ, Σ_i) with Σ_i
-each part's robust covariance (Newey-West: coloured noise included), nearly
-independent between parts (the scores' correlation dies out within the bandwidth,
-far shorter than a part).
+problem's record carries a mask (``Problem.masked``: one record, output error, single
+shooting, no events, linear or held inputs), a half is the whole record with the other
+samples masked, so that the fit's own compiled programs fit it (programs of the
+half's length had compiled for about a second); a masked sample adds nothing, even
+where the model is not finite there, so this is the fit of the half alone. Where the
+model is right, every part estimates the same θ and the parts' estimates differ by
+noise only, θ̂_i ≈ N(θ, Σ_i) with Σ_i each part's robust covariance (Newey-West:
+coloured noise included), nearly independent between parts (the scores' correlation
+dies out within the bandwidth, far shorter than a part).
 The homogeneity statistic
 
     Q = Σ_i (θ̂_i − θ̄)ᵀ Σ_i⁻¹ (θ̂_i − θ̄),      θ̄ = (Σ_i Σ_i⁻¹)⁻¹ Σ_i Σ_i⁻¹ θ̂_i

@@ -18,6 +18,7 @@ import numpy as np
 
 from ..compiling.compiled import on_device
 from ..modelling.events import state_index, stopped
+from ..schemes.intersample import SMOOTH
 from .hessians import get_hessian
 
 
@@ -381,15 +382,17 @@ def jump_hook(dosing: Dosing | None, p, push=None, settle=None):
 
 def masks_records(problem, segments) -> bool:
     """Whether a problem's one record passes y with a mask (``measured``) although it
-    has no gaps, wherever its sweeps take one (output error, single shooting, no
-    events, a Hessian path that takes gaps). The model-error check's halves are then
-    the record with its other samples masked, fitted by the programs the fit compiled
-    instead of new ones of a half's length (about a second on a first fit; the masked
-    programs compile within a few per cent of the plain ones). Several records are
-    the check's parts as they are: they keep y plain."""
+    has no gaps: output error, single shooting, no events, inputs between samples
+    from their two neighbours (linear or held: a smooth interpolation is fitted to
+    the whole record), and a Hessian path with the marker ``masks_one_record``. The
+    model-error check's halves are then the record with its other samples masked,
+    fitted by the programs the fit compiled instead of new ones of a half's length
+    (about a second on a first fit). Several records are the check's parts as they
+    are: they keep y plain."""
     if len(problem.experiments) != 1 or segments or problem.predictor.filters:
         return False
-    return problem.dosing is None and problem.hessian_path.takes_gaps
+    smooth = problem.discretisation.interpolation in SMOOTH
+    return problem.dosing is None and not smooth and problem.hessian_path.masks_one_record
 
 
 def measured(e, size: int, masked: bool = False):

@@ -34,11 +34,15 @@ class HessianPath:
             a predictor without the marker ``supports_adjoint`` is refused.
         takes_gaps: the path's sweep reads records whose samples carry a mask (a
             record with gaps or events, ``dosing.measured``).
+        masks_one_record: the path takes a gap-free single record with its mask too
+            (``Problem.masked``: the model-error check's halves then run the fit's
+            programs); a new path opts in, so that its sweep's y stays as it was.
     """
 
     name: ClassVar[str] = ""
     supports_predictors: ClassVar[bool] = True
     takes_gaps: ClassVar[bool] = True
+    masks_one_record: ClassVar[bool] = False
     needs: ClassVar[str] = "a scheme it can differentiate"  # (for a refusal)
 
     def supports(self, discretisation) -> bool:
@@ -102,6 +106,7 @@ class TransitionTensors(HessianPath):
     """The paper's transition tensors, integrated forward with the states."""
 
     name: ClassVar[str] = "tensors"
+    masks_one_record: ClassVar[bool] = True
 
     def sweep(self, sweeps, batched: bool, threads_cap):
         return (sweeps.second_order_both_batch if batched else sweeps.second_order_both), "JgPP"

@@ -42,19 +42,33 @@ def _residuals(loss, y, pis, w):
     return jnp.where(y["mask"] > 0, r, 0.0)
 
 
+def _seen(obs_h, v, otherwise):
+    """v at a sample where something was observed, else ``otherwise`` (a tree like v)."""
+    keep = functools.partial(jnp.where, jnp.any(obs_h["mask"] > 0))
+    return jax.tree.map(keep, v, otherwise)
+
+
+def _observed_only(y, shares):
+    """Per-sample values (P, ...) with the rows where nothing was observed set to 0
+    (a record with a mask); as they are for data without one."""
+    if not isinstance(y, dict):
+        return shares
+    seen = jnp.any(y["mask"] > 0, axis=-1).reshape((-1,) + (1,) * (shares.ndim - 1))
+    return jnp.where(seen, shares, 0.0)
+
+
 def _unobserved_add_nothing(observe):
     """``observe`` for a record with a mask: at a sample where nothing was observed,
-    the accumulator comes back as it was and the sample's own output (its score) is
-    0, where a zero weight times a non-finite prediction would have been NaN. A model
-    that is not finite after a record's last observation (the model-error check's
-    halves are the record with the rest masked) then costs what it costs without
-    those samples."""
+    the accumulator comes back as it was, where a zero weight times a non-finite
+    prediction would have been NaN (the sample's own output, a prediction, is kept).
+    A model that is not finite after a record's last observation (the model-error
+    check's halves are the record with the rest masked) then costs what it costs
+    without those samples: J and the sweeps' derivatives, carried forward in time
+    (reverse-mode autodiff through the march still meets the NaN)."""
 
     def skipping(acc, state, obs_h, u_h):
         new, out = observe(acc, state, obs_h, u_h)
-        seen = jnp.any(obs_h["mask"] > 0)
-        keep = functools.partial(jnp.where, seen)
-        return jax.tree.map(keep, new, acc), jax.tree.map(lambda o: keep(o, 0.0), out)
+        return _seen(obs_h, new, acc), out
 
     return skipping
 

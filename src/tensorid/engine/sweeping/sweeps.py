@@ -45,6 +45,7 @@ from ..compiling.compiled import Compiled
 from ..compiling.programs import Program
 from ..modelling.model import Model
 from ..schemes.discretisation import Discretisation, march
+from . import second_order as orders  # (its mask helpers)
 from .adjoint import SecondOrderAdjoint
 from .dosing import Dosing, jump_hook, maps, rhs
 from .losses import SQUARED, Loss
@@ -53,7 +54,7 @@ from .output_sensitivity import output_jacobian
 from .packing import quadratic_full
 from .packing import unpack_symmetric as unpack_symmetric  # its old home, re-exported
 from .predictors import SIMULATION, Predictor
-from .second_order import _residuals, _unobserved_add_nothing, _weighted, layout, second_order
+from .second_order import _weighted, layout, second_order
 from .steady import settle_map
 
 # numbers of per-sample scores (P·K) a fit's first-order step keeps beside (J, ∇J,
@@ -159,7 +160,7 @@ class Sweeps:
         def state_field(x, uu):
             return self._f(p, uu)(x) if own is None else own(x, uu)
 
-        observe = _unobserved_add_nothing(observe) if isinstance(obs, dict) else observe
+        observe = orders._unobserved_add_nothing(observe) if isinstance(obs, dict) else observe
         if end:
             inner = observe
 
@@ -258,7 +259,7 @@ class Sweeps:
 
     def _residuals(self, theta, x0, p, t, u, y, w):
         _, pis = self._predictions(theta, x0, p, t, u, y)
-        return _residuals(self.loss, y, pis, w).reshape(-1)
+        return orders._residuals(self.loss, y, pis, w).reshape(-1)
 
     # -- first order: (J, ∇J) and the Gauss-Newton Hessian -----------------------------
     def _first_order(self, theta, x0, p, t, u, y, w, gauss_newton=True, end=False, scores=False):
@@ -301,8 +302,8 @@ class Sweeps:
         acc, shares, _ = self._march(
             field, observe, state0, acc0, t, u, y, p, end, update, push=push
         )
-        if scores:
-            return (*acc, shares)
+        if scores:  # (a row where nothing was observed: 0, whatever its prediction)
+            return (*acc, orders._observed_only(y, shares))
         return (*acc[0], lay.tuple(acc[1])) if end else acc
 
     # -- second order: (J, ∇J, ∇²J) or (J, ∇J, ∇²J v) by transition tensors ------------
