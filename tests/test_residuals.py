@@ -85,6 +85,32 @@ def test_the_statistics_are_those_of_the_textbook():
     assert "10000 lags on 600 samples" in many.not_available and "150 or fewer" in many.lines()[0]
 
 
+def test_a_record_with_gaps_is_tested_and_drawn_on_its_measured_samples():
+    """A sample not measured holds y = 0, not a measurement: its "residual" −ŷ had
+    entered the tests (the right model's input correlation failed, Q = 337 on a
+    record whose every third sample was missing) and the figure (a line to 0). The
+    tests and the figure now take each output's measured samples."""
+    from tensorid.analysis.figures import compare_figure, figure_jobs
+
+    e = _record(3)
+    seen = np.ones((T.size, 1), dtype=bool)
+    seen[::3] = False
+    data = ti.Experiment(T, e.u, e.y, observed=seen)
+    res = ti.fit(ti.Problem(SECOND, data, p0={"k": 3.0, "c": 0.5, "g": 1.2}))
+    tests = res.residual_tests(max_lag=10)
+    assert tests.samples == seen.sum() and tests.passed
+    err = (data.y - res.simulate()[0].y)[seen[:, 0], 0]
+    err = err - err.mean()
+    r = np.array([err[k:] @ err[: err.size - k] for k in range(11)]) / (err @ err)
+    np.testing.assert_allclose(tests.whiteness[0].values, r, rtol=1e-10)
+    assert tests.whiteness[0].statistic == pytest.approx(seen.sum() * np.sum(r[1:] ** 2))
+    [job] = [j for j in figure_jobs(res, convergence=False) if j[1] == "compare"]
+    assert np.isnan(job[2]["y_meas"][~seen[:, 0]]).all()
+    fig = compare_figure(**job[2])
+    measured, residual = fig.axes[0].lines[0], fig.axes[1].lines[0]
+    assert measured.get_xdata().size == residual.get_xdata().size == seen.sum()
+
+
 def test_feedback_shows_at_negative_lags_only():
     from tensorid.analysis.residuals import _correlation
 

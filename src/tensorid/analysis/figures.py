@@ -139,18 +139,22 @@ def compare_figure(
     window: float | None = None,
 ):
     """Measured against simulated output, with the residual below (one output);
-    ``window``: the end of an initialisation window, shaded (not scored)."""
+    ``window``: the end of an initialisation window, shaded (not scored). A NaN in
+    ``y_meas`` is a sample not measured: the measurements and residuals are drawn
+    on the measured samples alone, each marked (a record with gaps or events' rows)."""
     fig = new_figure(figsize=(9, 5.5))
     ax, axr = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
     if window is not None:
         for a in (ax, axr):
             a.axvspan(t[0], window, color="0.85", zorder=0)
-    ax.plot(t, y_meas, color="0.2", lw=1.0, label=labels[0])
+    seen = np.isfinite(y_meas)
+    dots = {} if seen.all() else {"marker": ".", "ms": 4}
+    ax.plot(t[seen], y_meas[seen], color="0.2", lw=1.0, label=labels[0], **dots)
     ax.plot(t, y_sim, color="tab:red", lw=0.9, ls="--", label=labels[1])
     ax.set_ylabel(ylabel)
     titled_with_legend(ax, title)
     ax.grid(alpha=0.3)
-    axr.plot(t, y_meas - y_sim, color="tab:blue", lw=0.8)
+    axr.plot(t[seen], (y_meas - y_sim)[seen], color="tab:blue", lw=0.8, **dots)
     axr.set_ylabel(f"residual [units of {ylabel}]")
     axr.set_xlabel(xlabel)
     axr.grid(alpha=0.3)
@@ -341,7 +345,7 @@ def figure_jobs(res, validation=None, training: bool = True, convergence: bool =
                 title += f" (scored after the first {s.start} samples)"
             arguments = dict(
                 t=np.asarray(e.t),
-                y_meas=np.asarray(e.measured[:, j]),
+                y_meas=e.measured_with_gaps[:, j],
                 y_sim=np.asarray(s.simulation.y[:, j]),
                 ylabel=name,
                 title=title,

@@ -21,8 +21,10 @@ summed over lags with almost no products under a threshold that grows with M
 The tests use the samples the likelihood uses: a filter (predictor="ekf") with
 estimated initial states leaves each record's first sample out of its likelihood
 (its standardised innovation divides by √R alone and may be anything), so the tests
-leave it out too. A verdict is only given where the series can carry one; otherwise
-the test "cannot be trusted" (``passed`` None) and ``untrusted`` says why:
+leave it out too; and each output's series is its measured samples (a record with
+gaps or events' rows: a sample not measured holds no residual), N its count. A
+verdict is only given where the series can carry one; otherwise the test "cannot be
+trusted" (``passed`` None) and ``untrusted`` says why:
 
 * a swamped series: when the largest 1 % of the samples (at least one) hold more
   than half of its sum of squares, r(τ) = Σ e_k e_{k−τ} / Σ e² is the correlation
@@ -219,7 +221,10 @@ class ResidualTests(Tabular):
 
 
 def _correlation(a: list[np.ndarray], b: list[np.ndarray], lags: int) -> np.ndarray:
-    """Σ a[k] b[k − τ] / √(Σa² Σb²) for τ = 0..lags, pooled over the records."""
+    """Σ a[k] b[k − τ] / √(Σa² Σb²) for τ = 0..lags, pooled over the records (a record
+    with no sample of a series, an output it never observed, adds nothing)."""
+    pairs = [(x, y) for x, y in zip(a, b, strict=True) if x.size]
+    a, b = [x for x, _ in pairs], [y for _, y in pairs]
     num = np.zeros(lags + 1)
     for x, y in zip(a, b, strict=True):
         x, y = x - x.mean(), y - y.mean()
@@ -252,7 +257,10 @@ def residual_tests(res, max_lag: int = 25, level: float = 0.99) -> ResidualTests
     model = problem.model
     first = skipped_samples(problem)
     exps = problem.experiments
-    N = sum(e.P - first for e in exps)
+    # each output's series is its observed samples (a record with gaps or events' rows)
+    seen = [np.ones((e.P, model.S), bool) if e.observed is None else e.observed for e in exps]
+    seen = [k[first:] for k in seen]
+    N = min(int(sum(k[:, j].sum() for k in seen)) for j in range(model.S))
     if max_lag > lag_limit(N):
         fix = (
             f"give max_lag (--residual-lags) {lag_limit(N)} or fewer"
@@ -275,19 +283,21 @@ def residual_tests(res, max_lag: int = 25, level: float = 0.99) -> ResidualTests
     q_cross = quantiles.chi2(max_lag + 1, level)
     lags = np.arange(max_lag + 1)
     for j, out in enumerate(model.outputs):
-        err = [a[:, j] for a in errors]
+        rows = [k[:, j] for k in seen]
+        err = [a[k, j] for a, k in zip(errors, rows, strict=True)]
+        Nj = sum(a.size for a in err)
         why: str | None = _floor_reason(out, collapsed[out]) if out in collapsed else swamped(err)
         r = _correlation(err, err, max_lag)
-        Q = float(N * np.sum(r[1:] ** 2))
+        Q = float(Nj * np.sum(r[1:] ** 2))
         verdict = None if why else bool(Q <= q_white)
         tested = f"{out}'s innovations" if problem.loss.likelihood else out  # what was tested
         white.append(Correlation(f"whiteness of {tested}", lags, r, Q, q_white, verdict, None, why))
         for i, name in enumerate(model.inputs):
             if name in constant:
                 continue
-            u = [a[:, i] for a in inputs]
+            u = [a[k, i] for a, k in zip(inputs, rows, strict=True)]
             c = _correlation(err, u, max_lag)
-            Qc = float(N * np.sum(c**2))
+            Qc = float(Nj * np.sum(c**2))
             back = _correlation(u, err, max_lag)[1:]  # Σ e[k] u[k + τ]: later inputs
             what = f"{out} against input {name}"
             verdict = None if why else bool(Qc <= q_cross)
@@ -302,7 +312,7 @@ def _errors(res) -> list[np.ndarray]:
     problem = res.problem
     if problem.loss.likelihood:
         return [np.asarray(o.innovations) for o in problem.predict(res.theta)]
-    sims = res.simulate()
+    sims = res.simulate()  # (a sample not observed: its y is 0, not a measurement)
     return [e.measured - s.y for e, s in zip(problem.experiments, sims, strict=True)]
 
 

@@ -300,6 +300,12 @@ class Experiment:
         return self.y
 
     @property
+    def measured_with_gaps(self) -> np.ndarray:
+        """y (P, S) with NaN where a sample of an output was not measured."""
+        y = self.measured
+        return y if self.observed is None else np.where(self.observed, y, np.nan)
+
+    @property
     def P(self) -> int:
         """Number of samples."""
         return self.t.size
