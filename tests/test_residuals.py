@@ -111,6 +111,31 @@ def test_a_record_with_gaps_is_tested_and_drawn_on_its_measured_samples():
     assert measured.get_xdata().size == residual.get_xdata().size == seen.sum()
 
 
+def test_the_sandwich_of_a_record_with_gaps_counts_its_measured_samples():
+    """The robust error bars' scores are those of the samples that hold a measurement:
+    a gap's row (score 0) had counted in n and spread the Newey-West lags across it."""
+    from tensorid.analysis.sandwich import score_covariance, scores
+
+    e = _record(4)
+    seen = np.ones((T.size, 1), dtype=bool)
+    seen[::3] = False
+    data = ti.Experiment(T, e.u, e.y, observed=seen)
+    pb = ti.Problem(SECOND, data, p0={"k": 4.0, "c": 0.8, "g": 1.0})
+    theta = pb.theta0
+    [s] = scores(pb, theta)
+    assert not s[~seen[:, 0]].any()  # (0 where nothing was measured)
+    kept, n, K = s[seen[:, 0]], int(seen.sum()), pb.K
+    B, _ = score_covariance(pb, theta, 0)
+    np.testing.assert_allclose(B, kept.T @ kept * n / (n - K), rtol=1e-12)
+    B2, L = score_covariance(pb, theta, 2)
+    nw = kept.T @ kept
+    for lag in (1, 2):
+        G = kept[lag:].T @ kept[:-lag]
+        nw += (1 - lag / 3) * (G + G.T)
+    assert L == 2
+    np.testing.assert_allclose(B2, nw * n / (n - K), rtol=1e-12)
+
+
 def test_feedback_shows_at_negative_lags_only():
     from tensorid.analysis.residuals import _correlation
 

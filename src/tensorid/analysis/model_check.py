@@ -218,7 +218,7 @@ def _model_check(res, level: float, maxiter: int) -> ModelCheck:
     labels, est, covs, ses, inputs = [], [], [], [], []
     for label, part, theta0, own in _parts(res):
         inputs.append(np.asarray(part.experiments[0].u[own], dtype=float))
-        fitted = _fit_part(part, theta0, maxiter, own)
+        fitted = _fit_part(part, theta0, maxiter)
         if isinstance(fitted, str):
             return ModelCheck(level, how, not_available=f"the fit of {label} {fitted}")
         labels.append(label)
@@ -375,9 +375,9 @@ def _part(problem, records, x0, keep):
     return out
 
 
-def _fit_part(part, theta0, maxiter: int, own: slice):
-    """The part's Uncertainty (robust) at its optimum from ``theta0``, or why not (text);
-    its scores on its ``own`` samples (not on a padded record's masked rest)."""
+def _fit_part(part, theta0, maxiter: int):
+    """The part's Uncertainty (robust) at its optimum from ``theta0``, or why not (text)
+    (its scores on its measured samples: a padded record's masked rest has none)."""
     theta0 = np.clip(theta0, part.lower, part.upper)
     J0, _, H_gn = part.cost_grad_gn(theta0)
     if not np.isfinite(J0):
@@ -395,7 +395,7 @@ def _fit_part(part, theta0, maxiter: int, own: slice):
     flat_end = r.status in (Status.RADIUS_COLLAPSED, Status.NO_PREDICTED_DECREASE)
     if not ((r.success or flat_end) and np.isfinite(J)):
         return f"did not converge ({r.message})"
-    meat = score_covariance(part, theta, "auto", rows=own)[0]
+    meat = score_covariance(part, theta, "auto")[0]
     u = uncertainty(
         part, theta, J, H, "hessian", gauss_newton=lambda: part.cost_grad_gn(theta)[2],
         grad=g, scale=tr.scale, meat=meat,

@@ -90,12 +90,18 @@ def _prewhiten(parts: list[np.ndarray]) -> tuple[list[np.ndarray], np.ndarray]:
     return [x * sd for x in e], (sd[:, None] * back) / sd[None, :]
 
 
-def score_covariance(problem, theta, lags="auto", rows: slice = slice(None)):
+def score_covariance(problem, theta, lags="auto") -> tuple[np.ndarray, int]:
     """(B (K, K), L): the scores' covariance, independent samples for ``lags`` 0,
     Newey-West with L lags for an integer, and for "auto" prewhitened (VAR(1), see
-    _prewhiten) with Andrews' bandwidth on what the VAR leaves; on each record's
-    samples ``rows`` (a part of a record padded to its length: its own)."""
-    parts = [s[rows] for s in scores(problem, theta)]
+    _prewhiten) with Andrews' bandwidth on what the VAR leaves; on the samples that
+    hold a measurement (as the residual tests: a gap's or an event's row has no
+    score, and counted it would dilute the lags and n)."""
+    first = skipped_samples(problem)
+    parts = []
+    for e, s in zip(problem.experiments, scores(problem, theta), strict=True):
+        seen = np.zeros(s.shape[0] + first, dtype=bool)  # (a moving event's nodes last)
+        seen[: e.P] = True if e.observed is None else e.observed.any(axis=1)
+        parts.append(s[seen[first:]])
     K = problem.K
     back = np.eye(K)
     if lags == "auto" and min(s.shape[0] for s in parts) > 2 * K + 2:
