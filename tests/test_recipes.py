@@ -253,6 +253,9 @@ def test_a_hessian_path_is_one_class(monkeypatch):
     assert J == pytest.approx(Jt, rel=1e-13)
     np.testing.assert_allclose(g, gt, rtol=1e-9, atol=1e-12 * abs(J))
     np.testing.assert_allclose(H, Ht, rtol=1e-8, atol=1e-10 * abs(J))
+    # its sweep is made once per Sweeps (its own jax.jit is not traced again per call)
+    made = prob.hessian_path.made(prob._sweeps, False, prob.threads)
+    assert made is prob.hessian_path.made(prob._sweeps, False, prob.threads)
     # by object too, and a fit steps by it
     assert ti.fit(_problem(hessian=ReverseMode()), "newton", maxiter=3).nit == 3
 

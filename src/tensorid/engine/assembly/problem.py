@@ -369,7 +369,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
 
     def _hessian_sweep(self, batched: bool):
         """The sweep giving (J, ∇J, ∇²J, Gauss-Newton part) and its parts letters."""
-        return self.hessian_path.sweep(self._sweeps, batched, self.threads)
+        return self.hessian_path.made(self._sweeps, batched, self.threads)
 
     def cost_grad_hess_batch(self, thetas, gauss_newton: bool = False, both: bool = False):
         """cost_grad_hess (or cost_grad_gn) at every row of ``thetas`` (B, K) in one
