@@ -15,14 +15,10 @@ checks ask its markers, never its name.
 from __future__ import annotations
 
 import functools
-import weakref
 from typing import ClassVar, TypeVar
 
 from ..modelling.checks import from_registry
 from .adjoint import adjoint_pays, predicted_seconds, supports, threads
-
-# each Sweeps' paths' sweeps (HessianPath.made), gone with the Sweeps
-_MADE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 # the paths by name: the one place a path's name is looked up (``get_hessian``);
 # tensorid/names.py spells the command line's --hessian choices out
@@ -65,14 +61,14 @@ class HessianPath:
         raise NotImplementedError
 
     def made(self, sweeps, batched: bool, threads_cap):
-        """``sweep``'s answer, made once per Sweeps, path and arguments: a path that
-        builds its function in ``sweep`` (a ``jax.jit`` of its own, as the recipe in
+        """``sweep``'s answer, made once per Sweeps, path and arguments (kept in
+        ``sweeps.made``, which goes with them and is not pickled): a path that builds
+        its function in ``sweep`` (a ``jax.jit`` of its own, as the recipe in
         docs/architecture.md) would otherwise be traced again at every call of a fit."""
         key = (type(self), batched, threads_cap)
-        made = _MADE.setdefault(sweeps, {})
-        if key not in made:
-            made[key] = self.sweep(sweeps, batched, threads_cap)
-        return made[key]
+        if key not in sweeps.made:
+            sweeps.made[key] = self.sweep(sweeps, batched, threads_cap)
+        return sweeps.made[key]
 
     def __eq__(self, other) -> bool:
         return type(self) is type(other)

@@ -362,11 +362,9 @@ class Sweeps:
 
     @functools.cached_property
     def simulate(self):
-        """Compiled :meth:`_simulate`, which depends on the model and the
-        discretisation alone: every Sweeps of a model shares the one of its plain
-        Sweeps (nothing free, squared loss, simulation), so that it is compiled, or
-        read from disk, once (a command-line fit with validation read it three times,
-        0.02 s each). Looked up once per Sweeps (not kept when pickled)."""
+        """Compiled :meth:`_simulate` (the model's and discretisation's alone): every
+        Sweeps of a model shares its plain Sweeps' (nothing free), compiled or read
+        once (a fit with validation had read it three times, 0.02 s each)."""
         try:
             hash(self.discretisation)
         except TypeError:  # an unhashable user scheme: not shared
@@ -392,10 +390,13 @@ class Sweeps:
     segments = Compiled("_segment", batched=True, axes=(0, 0, None, 0, 0, 0, 0))
     segments_gn = Compiled("_segment_gn", batched=True, axes=(0, 0, None, 0, 0, 0, 0))
 
+    # each Hessian path's sweep of these Sweeps, made once (HessianPath.made)
+    made = functools.cached_property(lambda self: {})  # type: ignore[var-annotated]
+
     @functools.cached_property
     def k_step(self):
-        """Compiled :meth:`_k_step`: one program per horizon k, each kept across
-        processes (programs.py); called as ``k_step(theta, x0, p, t, u, y, k=k)``."""
+        """Compiled :meth:`_k_step`, one program per horizon k (each kept: programs.py);
+        called as ``k_step(theta, x0, p, t, u, y, k=k)``."""
         programs: dict = {}
 
         def run(theta, x0, p, t, u, y, k: int):
@@ -406,8 +407,7 @@ class Sweeps:
 
         return run
 
-    # (J, ∇J, ∇²J, Gauss-Newton part) by second-order adjoints (see adjoint.py)
-    @functools.cached_property
+    @functools.cached_property  # (J, ∇J, ∇²J, Gauss-Newton part) by second-order adjoints
     def adjoint(self) -> SecondOrderAdjoint:
         return SecondOrderAdjoint(self)
 
