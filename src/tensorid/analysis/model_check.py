@@ -336,11 +336,10 @@ def _padded(rec, start: int, stop: int) -> Experiment:
     P = rec.P
     rows = (start + np.arange(P)) % P
     shift = np.where(rows < start, rec.t[-1] - rec.t[0] + (rec.t[1] - rec.t[0]), 0.0)
-    seen = np.ones(rec.y.shape, dtype=bool) if rec.observed is None else rec.observed
     own = np.arange(P) < stop - start
     return Experiment(
         rec.t[rows] + shift, rec.u[rows], rec.y[rows], name=rec.name,
-        observed=seen[rows] & own[:, None],
+        observed=rec.seen[rows] & own[:, None],
     )  # fmt: skip
 
 

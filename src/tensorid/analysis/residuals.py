@@ -258,8 +258,7 @@ def residual_tests(res, max_lag: int = 25, level: float = 0.99) -> ResidualTests
     first = skipped_samples(problem)
     exps = problem.experiments
     # each output's series is its observed samples (a record with gaps or events' rows)
-    seen = [np.ones((e.P, model.S), bool) if e.observed is None else e.observed for e in exps]
-    seen = [k[first:] for k in seen]
+    seen = [e.seen[first:] for e in exps]
     N = min(int(sum(k[:, j].sum() for k in seen)) for j in range(model.S))
     if max_lag > lag_limit(N):
         fix = (

@@ -300,10 +300,15 @@ class Experiment:
         return self.y
 
     @property
+    def seen(self) -> np.ndarray:
+        """(P, S) booleans, True where a sample of an output was measured: ``observed``,
+        or every sample of a record without gaps."""
+        return np.ones(self.measured.shape, dtype=bool) if self.observed is None else self.observed
+
+    @property
     def measured_with_gaps(self) -> np.ndarray:
         """y (P, S) with NaN where a sample of an output was not measured."""
-        y = self.measured
-        return y if self.observed is None else np.where(self.observed, y, np.nan)
+        return np.where(self.seen, self.measured, np.nan)
 
     @property
     def P(self) -> int:

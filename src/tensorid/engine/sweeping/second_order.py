@@ -42,12 +42,6 @@ def _residuals(loss, y, pis, w):
     return jnp.where(y["mask"] > 0, r, 0.0)
 
 
-def _seen(obs_h, v, otherwise):
-    """v at a sample where something was observed, else ``otherwise`` (a tree like v)."""
-    keep = functools.partial(jnp.where, jnp.any(obs_h["mask"] > 0))
-    return jax.tree.map(keep, v, otherwise)
-
-
 def _observed_only(y, shares):
     """Per-sample values (P, ...) with the rows where nothing was observed set to 0
     (a record with a mask); as they are for data without one."""
@@ -68,7 +62,8 @@ def _unobserved_add_nothing(observe):
 
     def skipping(acc, state, obs_h, u_h):
         new, out = observe(acc, state, obs_h, u_h)
-        return _seen(obs_h, new, acc), out
+        keep = functools.partial(jnp.where, jnp.any(obs_h["mask"] > 0))
+        return jax.tree.map(keep, new, acc), out
 
     return skipping
 
