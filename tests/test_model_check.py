@@ -273,3 +273,45 @@ def test_halves_of_one_repeated_excitation_cannot_pass_a_wrong_model():
     assert advice.startswith("The model-error check cannot see model error here")
     assert "y against input u FAILS" in advice and "Trust neither" in advice
     assert "trust the robust ones" not in advice
+
+
+def _two_outputs(log):
+    """LINEAR with a second output, log x (NaN where x < 0), or a log that is finite
+    everywhere and the same where x > 0 (|x| + 1e-300 is x there, bit for bit)."""
+    return ti.Model(
+        rhs=LINEAR.f, states=["x", "v"], params=["k", "c", "g"], inputs=["u"],
+        output=lambda x, p: jnp.stack([x[0], log(x[0])]), outputs=["y", "log y"],
+        name="linear-log",
+    )  # fmt: skip
+
+
+def test_an_output_not_observed_in_a_row_adds_nothing_where_another_is_observed():
+    """Skipping is per output, not per row: in a row where y is measured and log y is
+    not (the oscillator is below 0 there), log y's NaN prediction adds nothing to J,
+    ∇J, ∇²J, the Gauss-Newton part, the residuals or the scores (a zero weight times
+    NaN was NaN, and the fit rejected every step)."""
+    from tensorid.analysis.sandwich import scores
+
+    e = record(9).window(0, 200)
+    x = ti.simulate(LINEAR, {"k": 4.0, "c": 0.8, "g": 1.0}, [0.3, 0.0], e).y[:, 0]
+    seen = np.stack([np.ones(e.P, bool), x > 0.05], axis=1)
+    assert 20 < (~seen[:, 1]).sum() < e.P - 20
+    noise = 0.01 * np.random.default_rng(3).standard_normal((e.P, 2))
+    y = np.stack([x, np.log(np.abs(x))], axis=1) + noise
+    data = ti.Experiment(e.t, e.u, y, observed=seen)
+    p0 = {"k": 3.8, "c": 0.7, "g": 1.1}
+    nan, safe = (ti.Problem(_two_outputs(f), data, p0=p0, x0=[0.3, 0.0])
+                 for f in (jnp.log, lambda v: jnp.log(jnp.abs(v) + 1e-300)))  # fmt: skip
+    theta = nan.theta0
+    log_y = nan.simulate(theta)[0].y[:, 1]  # the model's own: NaN where x < 0
+    assert np.isnan(log_y[~seen[:, 1]]).sum() > 20 and np.isfinite(log_y[seen[:, 1]]).all()
+    for a, b in zip(nan.cost_grad_hess_gn(theta), safe.cost_grad_hess_gn(theta), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-12)
+    for a, b in zip(nan.cost_grad_gn(theta), safe.cost_grad_gn(theta), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-12)
+    np.testing.assert_allclose(nan.cost(theta), safe.cost(theta), rtol=1e-12)
+    np.testing.assert_allclose(nan.residuals(theta), safe.residuals(theta), rtol=1e-12)
+    np.testing.assert_allclose(scores(nan, theta)[0], scores(safe, theta)[0], rtol=1e-12)
+    fits = [ti.fit(pb) for pb in (nan, safe)]
+    assert fits[0].success and np.isfinite(fits[0].cost)
+    np.testing.assert_allclose(fits[0].theta, fits[1].theta, rtol=1e-8)

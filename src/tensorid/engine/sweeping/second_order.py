@@ -42,30 +42,20 @@ def _residuals(loss, y, pis, w):
     return jnp.where(y["mask"] > 0, r, 0.0)
 
 
-def _observed_only(y, shares):
-    """Per-sample values (P, ...) with the rows where nothing was observed set to 0
-    (a record with a mask); as they are for data without one."""
-    if not isinstance(y, dict):
-        return shares
-    seen = jnp.any(y["mask"] > 0, axis=-1).reshape((-1,) + (1,) * (shares.ndim - 1))
-    return jnp.where(seen, shares, 0.0)
-
-
-def _unobserved_add_nothing(observe):
-    """``observe`` for a record with a mask: at a sample where nothing was observed,
-    the accumulator comes back as it was, where a zero weight times a non-finite
-    prediction would have been NaN (the sample's own output, a prediction, is kept).
-    A model that is not finite after a record's last observation (the model-error
-    check's halves are the record with the rest masked) then costs what it costs
-    without those samples: J and the sweeps' derivatives, carried forward in time
-    (reverse-mode autodiff through the march still meets the NaN)."""
-
-    def skipping(acc, state, obs_h, u_h):
-        new, out = observe(acc, state, obs_h, u_h)
-        keep = functools.partial(jnp.where, jnp.any(obs_h["mask"] > 0))
-        return jax.tree.map(keep, new, acc), out
-
-    return skipping
+def _observed(obs_h, w, pi):
+    """(y_h, w_h, π) of a sample (see _weighted); for a record with gaps, π is y_h
+    wherever nothing was measured, output by output: a prediction that is not finite
+    there (the model blows up after a record's last observation, or an output such
+    as log x is NaN where x < 0 and only the other output was measured) then adds
+    nothing to J, ∇J, ∇²J or the scores, where a zero weight times NaN was NaN. A
+    select's derivatives are selects, so the sweeps' derivatives, carried forward in
+    time, stay finite too (reverse-mode autodiff through the march still meets the
+    NaN: the "double where")."""
+    y_h, w_h = _weighted(obs_h, w)
+    if not isinstance(obs_h, dict):
+        return y_h, w_h, pi
+    seen = obs_h["mask"] > 0
+    return y_h, w_h, lambda x, p: jnp.where(seen, pi(x, p), y_h)
 
 
 @dataclass(frozen=True)
@@ -180,8 +170,7 @@ def second_order(sw, theta, x0, p, t, u, y, w, v=None, end=False, both=False):
     def observe(acc, state, obs_h, u_h):
         J, g, H = acc[:3]
         x, dxT, d2T = lay.split(state)
-        y_h, w_h = _weighted(obs_h, w)
-        pi = functools.partial(sw._pi, u_h=u_h)
+        y_h, w_h, pi = _observed(obs_h, w, functools.partial(sw._pi, u_h=u_h))
         Ca, e2 = pairs(pi, x, *directions(dxT, d2T))
         D = Ca[:K]  # (K, outputs) = (C_z Z)ᵀ
         ell, l1, l2, gamma = sw.loss.terms(y_h, pi(x, p), w_h)

@@ -54,7 +54,7 @@ from .output_sensitivity import output_jacobian
 from .packing import quadratic_full
 from .packing import unpack_symmetric as unpack_symmetric  # its old home, re-exported
 from .predictors import SIMULATION, Predictor
-from .second_order import _weighted, layout, second_order
+from .second_order import _observed, layout, second_order
 from .steady import settle_map
 
 # numbers of per-sample scores (P·K) a fit's first-order step keeps beside (J, ∇J,
@@ -160,7 +160,6 @@ class Sweeps:
         def state_field(x, uu):
             return self._f(p, uu)(x) if own is None else own(x, uu)
 
-        observe = orders._unobserved_add_nothing(observe) if isinstance(obs, dict) else observe
         if end:
             inner = observe
 
@@ -210,8 +209,8 @@ class Sweeps:
             return self._f(p, uu)(z)
 
         def observe(J, z, obs_h, u_h):
-            y_h, w_h = _weighted(obs_h, w)
-            return J + self.loss.value(y_h, self._pi(z, p, u_h), w_h), None
+            y_h, w_h, pi = _observed(obs_h, w, functools.partial(self._pi, u_h=u_h))
+            return J + self.loss.value(y_h, pi(z, p), w_h), None
 
         J, _, _ = self._march(field, observe, z0, jnp.zeros(()), t, u, y, p, update=self._update())
         return J
@@ -287,8 +286,7 @@ class Sweeps:
         def observe(acc, state, obs_h, u_h):
             J, g, H = acc
             x, dxT, _ = lay.split(state)
-            y_h, w = _weighted(obs_h, w_all)
-            pi = functools.partial(self._pi, u_h=u_h)
+            y_h, w, pi = _observed(obs_h, w_all, functools.partial(self._pi, u_h=u_h))
             ell, l1, _, gamma = self.loss.terms(y_h, pi(x, p), w)
             D = columns(pi, x, dxT)  # (K, outputs) = (C_z Z)ᵀ
             if gauss_newton:
@@ -303,7 +301,7 @@ class Sweeps:
             field, observe, state0, acc0, t, u, y, p, end, update, push=push
         )
         if scores:  # (a row where nothing was observed: 0, whatever its prediction)
-            return (*acc, orders._observed_only(y, shares))
+            return (*acc, shares)
         return (*acc[0], lay.tuple(acc[1])) if end else acc
 
     # -- second order: (J, ∇J, ∇²J) or (J, ∇J, ∇²J v) by transition tensors ------------
