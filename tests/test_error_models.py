@@ -239,3 +239,38 @@ def test_a_censored_sample_predicted_at_zero_has_probability_one_on_the_log_scal
     assert np.isfinite(float(value)) and np.isfinite(np.asarray(grad)).all()
     f = np.asarray(obj.predict(psi, eta, unit))[:6, 0]  # the censored t = 0 sample: ŷ = 0
     assert f[0] == 0.0
+
+
+def test_an_output_not_finite_at_a_dose_row_adds_nothing_to_a_unit_s_likelihood():
+    """An output written as log c is −∞ at the dose's own row (c = 0 before the dose
+    arrives), which is no observation: the likelihood's ŷ there is y, with every
+    derivative 0 at every order of units.outputs' tower, so ℓ_i, its gradient (reverse
+    mode) and its Hessian are those of a log that is finite there (a zero cotangent
+    times an infinite derivative was NaN, and the population fit stopped at once)."""
+
+    def model(log):
+        return ti.Model(rhs=lambda x, p, u: -p[0] / p[1] * x,
+                        output=lambda x, p: log(x / p[1]), states=["a"], params=["cl", "v"],
+                        outputs=["log c"])  # fmt: skip
+
+    t = np.array([0.5, 1, 2, 4, 8, 12])
+    exps = [ti.Experiment(t, None, np.log(10.0 * np.exp(-0.2 * (1 + 0.1 * i) * t))[:, None],
+                          name=str(i), events=ti.Events.doses(0.0, "a", 100.0))
+            for i in range(3)]  # fmt: skip
+    psi = jnp.asarray([np.log(2.0), np.log(0.3), np.log(10.0), np.log(0.1)])
+    eta = jnp.asarray([0.1])
+    out = []
+    for log in (jnp.log, lambda c: jnp.log(jnp.abs(c) + 1e-300)):
+        pr = ti.Problem(model(log), exps, p0={"cl": 2.0, "v": 10.0}, x0=[0.0],
+                        population={"cl": 0.3})  # fmt: skip
+        obj = Objective(pr, "focei")
+        unit = tuple(a[0] for a in obj.data)
+        assert obj.units.mask[0, 0, 0] == 0 and unit[0][0] == 0.0  # the dose's row
+        for o in (obj, obj.local(psi, eta, unit, 2)):  # the sweeps' tower, its polynomial
+            value, grad = jax.value_and_grad(o.ell, argnums=(0, 1))(eta, psi, unit)
+            out.append((value, *grad, jax.hessian(o.ell)(eta, psi, unit)))
+    assert np.isneginf(float(jnp.log(0.0)))  # what the first model's output is there
+    for a, b in zip(out[:2], out[2:], strict=True):
+        for x, y in zip(a, b, strict=True):
+            assert np.isfinite(np.asarray(x)).all()
+            np.testing.assert_allclose(x, y, rtol=1e-12)

@@ -158,8 +158,16 @@ class Objective:
         return (x0 if self.moving is None else self.moving(x0, unit[1][0], p)), p
 
     def predict(self, psi, eta, unit):
-        t, u, _, _, x0, p = unit[:6]
-        return self.Y(self._argument(psi, eta, unit), x0, p, t, u)
+        """ŷ (P, S) of the unit at (ψ, η), as the likelihood sees it: y itself, with
+        derivatives 0, where nothing was measured (units.outputs); its figures and
+        diagnostics take the model's own, :meth:`predict_all`."""
+        t, u, y, _, x0, p = unit[:6]
+        return self.Y(self._argument(psi, eta, unit), x0, p, t, u, y, self._seen(unit))
+
+    def _seen(self, unit):
+        """Where the unit's likelihood reads ŷ: its measured samples and, for Beal's M3,
+        its censored ones."""
+        return jnp.maximum(unit[3], unit[6]) if self.censored else unit[3]
 
     def _argument(self, psi, eta, unit):
         """Y's argument: θ, after the initial states where x0's expressions move."""
@@ -173,7 +181,8 @@ class Objective:
         (ψ, η) (units.taylor): the same value and derivatives there, cheaper to trace."""
         new = copy.copy(self)
         a0 = jax.lax.stop_gradient(self._argument(psi, eta, unit))
-        new.Y = taylor(self.Y, a0, tuple(unit[i] for i in (4, 5, 0, 1)), order)
+        args = (*(unit[i] for i in (4, 5, 0, 1, 2)), self._seen(unit))
+        new.Y = taylor(self.Y, a0, args, order)
         return new
 
     def ell(self, eta, psi, unit):

@@ -89,35 +89,51 @@ _TOWERS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def outputs(sw):
-    """ŷ(θ, x0, p, t, u) (P, S) for the Sweeps ``sw`` (θ its free parameters), with
-    the derivative tower described in the module docstring. One per Sweeps, each sweep
-    behind its own ``jax.jit``: JAX then traces a sweep once per process and argument
-    shape, and every program that differentiates ŷ (the inner steps, the outer
-    evaluation, the diagnostics) transforms that trace instead of tracing the sweep's
-    Python again (the theophylline fit's traces, 1.6 s shorter; numbers bit for bit)."""
+    """ŷ(θ, x0, p, t, u, y, seen) (P, S) for the Sweeps ``sw`` (θ its free
+    parameters), with the derivative tower described in the module docstring. Where a
+    sample was not measured (``seen`` 0: a dose's row, a padded sample) ŷ is y and
+    every derivative 0, at every level of the tower: an output that is not finite
+    there (log c before the first dose) then adds nothing, in forward and reverse mode
+    alike (a zero cotangent times a NaN derivative would be NaN). One per Sweeps, each
+    sweep behind its own ``jax.jit``: JAX then traces a sweep once per process and
+    argument shape, and every program that differentiates ŷ (the inner steps, the
+    outer evaluation, the diagnostics) transforms that trace instead of tracing the
+    sweep's Python again (the theophylline fit's traces, 1.6 s shorter)."""
     if sw in _TOWERS:
         return _TOWERS[sw]
     ref = weakref.ref(sw)  # (the tower, kept by sw's entry, must not keep sw alive)
-    tensors = jax.jit(lambda *a: output_tensors(ref(), *a))  # ŷ, ∂ŷ, ∂²ŷ in one sweep
+
+    def measured(a, seen, fill=0.0):
+        """a (P, S, K…) at the measured samples, ``fill`` elsewhere (a select)."""
+        return jnp.where((seen > 0).reshape(seen.shape + (1,) * (a.ndim - seen.ndim)), a, fill)
+
+    @jax.jit  # ŷ, ∂ŷ, ∂²ŷ in one sweep
+    def tensors(theta, x0, p, t, u, y, seen):
+        v, d1, d2 = output_tensors(ref(), theta, x0, p, t, u)
+        return measured(v, seen, y), measured(d1, seen), measured(d2, seen)
+
     second = jax.jit(lambda *a: tensors(*a)[2])  # (P, S, K, K); the sweep traced once
-    first_sweep = jax.jit(lambda *a: ref()._output_jacobian(*a))  # (P, S, K)
 
     @jax.jit
-    def simulated(theta, x0, p, t, u):
+    def first_sweep(theta, x0, p, t, u, y, seen):  # (P, S, K)
+        return measured(ref()._output_jacobian(theta, x0, p, t, u), seen)
+
+    @jax.jit
+    def simulated(theta, x0, p, t, u, y, seen):
         x0_, p_ = ref().expand(theta, x0, p)
-        return ref()._simulate(x0_, p_, t, u)[1]
+        return measured(ref()._simulate(x0_, p_, t, u)[1], seen, y)
 
     @jax.custom_jvp
-    def first(theta, x0, p, t, u):
-        return first_sweep(theta, x0, p, t, u)
+    def first(*a):
+        return first_sweep(*a)
 
     @first.defjvp
     def _first_jvp(primals, tangents):
         return first(*primals), jnp.einsum("psjk,k->psj", second(*primals), tangents[0])
 
     @jax.custom_jvp
-    def value(theta, x0, p, t, u):
-        return simulated(theta, x0, p, t, u)
+    def value(*a):
+        return simulated(*a)
 
     @value.defjvp
     def _value_jvp(primals, tangents):
@@ -186,7 +202,7 @@ def taylor(Y, a0, args: tuple, order: int):
     Arguments:
         Y: ŷ(a, *args) (P, S), with the derivative tower of :func:`outputs`.
         a0: the expansion point (K,), constant (no derivative flows through it).
-        args: Y's other arguments (x0, p, t, u): data, not differentiated (the
+        args: Y's other arguments (x0, p, t, u, y, seen): data, not differentiated (the
             polynomial's coefficients are constants of its derivatives).
         order: the highest derivative the caller takes of ŷ.
 
