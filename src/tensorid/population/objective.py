@@ -62,9 +62,7 @@ class Objective:
 
     def __init__(self, problem, method: str = "focei"):
         if method not in METHODS:
-            raise ValueError(
-                f"method must be one of {METHODS} for a population fit, got {method!r}"
-            )
+            raise ValueError(f"a population fit's method is one of {METHODS}, not {method!r}")
         m = problem.model
         self.problem, self.method = problem, method
         self.approximation = APPROXIMATIONS[method]
@@ -121,10 +119,9 @@ class Objective:
         if self.censored:
             self.data += (jnp.asarray(self.units.cens),)
         self.weights = tuple(float(w) for w in problem.weights)
-        self.key: tuple = (self.sweeps, tuple(self.pop), self.qp, self.full, tuple(self.shared))
-        self.key += (method,)
-        self.key += (tuple((k, str(v)) for k, v in exprs.items()) if self.moving else (),)
-        self.key += (self.weights,) if self.joint else (self.errors,)
+        moves = tuple((k, str(v)) for k, v in exprs.items()) if self.moving else ()
+        self.key: tuple = (self.sweeps, tuple(self.pop), self.qp, self.full, tuple(self.shared),
+                           method, moves, self.weights if self.joint else self.errors)  # fmt: skip
         self.key += ("censored",) if self.censored else ()
         self.Y = outputs(self.sweeps)
         random = self.pop[: self.qp]
@@ -158,16 +155,14 @@ class Objective:
         return (x0 if self.moving is None else self.moving(x0, unit[1][0], p)), p
 
     def predict(self, psi, eta, unit):
-        """ŷ (P, S) of the unit at (ψ, η), as the likelihood sees it: y itself, with
-        derivatives 0, where nothing was measured (units.outputs); its figures and
-        diagnostics take the model's own, :meth:`predict_all`."""
-        t, u, y, _, x0, p = unit[:6]
-        return self.Y(self._argument(psi, eta, unit), x0, p, t, u, y, self._seen(unit))
+        """ŷ (P, S) of the unit at (ψ, η) as the likelihood reads it: y, with derivatives
+        0, where nothing was measured (units.outputs; predict_all: the model's own)."""
+        return self.Y(self._argument(psi, eta, unit), *self._data(unit))
 
-    def _seen(self, unit):
-        """Where the unit's likelihood reads ŷ: its measured samples and, for Beal's M3,
-        its censored ones."""
-        return jnp.maximum(unit[3], unit[6]) if self.censored else unit[3]
+    def _data(self, unit):
+        """Y's data: x0, p, t, u, y and where ŷ is read (measured, or censored for M3)."""
+        seen = jnp.maximum(unit[3], unit[6]) if self.censored else unit[3]
+        return unit[4], unit[5], unit[0], unit[1], unit[2], seen
 
     def _argument(self, psi, eta, unit):
         """Y's argument: θ, after the initial states where x0's expressions move."""
@@ -181,8 +176,7 @@ class Objective:
         (ψ, η) (units.taylor): the same value and derivatives there, cheaper to trace."""
         new = copy.copy(self)
         a0 = jax.lax.stop_gradient(self._argument(psi, eta, unit))
-        args = (*(unit[i] for i in (4, 5, 0, 1, 2)), self._seen(unit))
-        new.Y = taylor(self.Y, a0, args, order)
+        new.Y = taylor(self.Y, a0, self._data(unit), order)
         return new
 
     def ell(self, eta, psi, unit):
@@ -238,12 +232,8 @@ class Objective:
         n = jnp.sum(unit[3], axis=0)  # observations per output
         sign, logdet = jnp.linalg.slogdet(self.curvature(eta, psi, unit))
         if self.plain:  # ℓ leaves out Σ log σ², constant in η
-            O = (
-                2 * self.ell(eta, psi, unit)
-                + jnp.sum(n * (LOG_2PI + 2 * noise[self.error.first]))
-                + 2 * jnp.sum(logw[: self.qp])
-                + logdet
-            )
+            O = 2 * self.ell(eta, psi, unit) + jnp.sum(n * (LOG_2PI + 2 * noise[self.error.first]))
+            O = O + 2 * jnp.sum(logw[: self.qp]) + logdet
         else:
             O = 2 * self.ell(eta, psi, unit) + jnp.sum(n * LOG_2PI) + logdet
             O = O + 2 * jnp.sum(logw[: self.qp])  # log det Ω
