@@ -5,6 +5,7 @@ fit that recovers the truth it was simulated with, and its bad input in one line
 from __future__ import annotations
 
 import functools
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -241,27 +242,32 @@ def test_a_censored_sample_predicted_at_zero_has_probability_one_on_the_log_scal
     assert f[0] == 0.0
 
 
+def _log_c(log):
+    """A one-compartment model whose output is log c (log: jnp.log, or a log finite at 0)."""
+    return ti.Model(rhs=lambda x, p, u: -p[0] / p[1] * x, output=lambda x, p: log(x / p[1]),
+                    states=["a"], params=["cl", "v"], outputs=["log c"])  # fmt: skip
+
+
+def _log_c_units(n: int, sd: float = 0.0):
+    """n units dosed at t = 0 (the dose's row: no observation), log c measured after."""
+    t, rng = np.array([0.5, 1, 2, 4, 8, 12]), np.random.default_rng(0)
+    return [ti.Experiment(t, None, (np.log(10.0) - 0.2 * (1 + 0.1 * i) * t
+                                    + sd * rng.standard_normal(6))[:, None],
+                          name=str(i), events=ti.Events.doses(0.0, "a", 100.0))
+            for i in range(n)]  # fmt: skip
+
+
 def test_an_output_not_finite_at_a_dose_row_adds_nothing_to_a_unit_s_likelihood():
     """An output written as log c is −∞ at the dose's own row (c = 0 before the dose
     arrives), which is no observation: the likelihood's ŷ there is y, with every
     derivative 0 at every order of units.outputs' tower, so ℓ_i, its gradient (reverse
     mode) and its Hessian are those of a log that is finite there (a zero cotangent
     times an infinite derivative was NaN, and the population fit stopped at once)."""
-
-    def model(log):
-        return ti.Model(rhs=lambda x, p, u: -p[0] / p[1] * x,
-                        output=lambda x, p: log(x / p[1]), states=["a"], params=["cl", "v"],
-                        outputs=["log c"])  # fmt: skip
-
-    t = np.array([0.5, 1, 2, 4, 8, 12])
-    exps = [ti.Experiment(t, None, np.log(10.0 * np.exp(-0.2 * (1 + 0.1 * i) * t))[:, None],
-                          name=str(i), events=ti.Events.doses(0.0, "a", 100.0))
-            for i in range(3)]  # fmt: skip
     psi = jnp.asarray([np.log(2.0), np.log(0.3), np.log(10.0), np.log(0.1)])
     eta = jnp.asarray([0.1])
     out = []
     for log in (jnp.log, lambda c: jnp.log(jnp.abs(c) + 1e-300)):
-        pr = ti.Problem(model(log), exps, p0={"cl": 2.0, "v": 10.0}, x0=[0.0],
+        pr = ti.Problem(_log_c(log), _log_c_units(3), p0={"cl": 2.0, "v": 10.0}, x0=[0.0],
                         population={"cl": 0.3})  # fmt: skip
         obj = Objective(pr, "focei")
         unit = tuple(a[0] for a in obj.data)
@@ -274,3 +280,18 @@ def test_an_output_not_finite_at_a_dose_row_adds_nothing_to_a_unit_s_likelihood(
         for x, y in zip(a, b, strict=True):
             assert np.isfinite(np.asarray(x)).all()
             np.testing.assert_allclose(x, y, rtol=1e-12)
+
+
+def test_a_fleet_of_individual_values_with_log_c_reports_a_finite_residual_sd():
+    """Individual parameters alone (no random effects): the fit's residual SD and its
+    check of the substeps read the model's own ŷ at the measured samples only (its −∞
+    at the dose's row times a zero mask was NaN: σ NaN, and the check refitted at 16,
+    64 and 128 substeps, each for a move of "inf residual SDs")."""
+    pr = ti.Problem(_log_c(jnp.log), _log_c_units(4, sd=0.05), p0={"cl": 2.0, "v": 10.0},
+                    x0=[0.0], individual=["cl"])  # fmt: skip
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # (−∞ − −∞ in the check: a warning)
+        res = ti.fit(pr)
+    assert res.success and np.isfinite(res.residual_sd["log c"]) and res.residual_sd["log c"] > 0
+    assert pr.discretisation.substeps == res.problem.discretisation.substeps
+    assert not [n for n in res.notes if "substeps" in n], res.notes

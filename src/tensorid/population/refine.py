@@ -47,10 +47,11 @@ def _moved(obj: Objective, x, etas, sigma=None) -> float | None:
     d = obj.problem.discretisation
     if not d.fixed_steps:
         return None  # adaptive steps control their own error; a discrete map is exact
-    coarse = np.asarray(obj.predict_all(x, etas))
-    finer = np.asarray(obj.predict_all(x, etas, 2 * d.substeps))
-    sigma = _sd_at(obj, x, etas, coarse) if sigma is None else sigma
     mask = obj.units.mask
+    # the model's own predictions, read where measured (−∞ elsewhere for log c at a dose)
+    coarse, finer = (np.where(mask > 0, obj.predict_all(x, etas, s), 0.0)
+                     for s in (None, 2 * d.substeps))  # fmt: skip
+    sigma = _sd_at(obj, x, etas, coarse) if sigma is None else sigma
     moved = np.asarray(obj.error.scaled(finer, mask)) - np.asarray(obj.error.scaled(coarse, mask))
     moved = np.where(mask > 0, np.abs(moved) / np.maximum(sigma, 1e-300), 0.0)
     worst = float(np.max(np.where(np.isfinite(moved), moved, np.inf)))  # (a blow-up: inf)

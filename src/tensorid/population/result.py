@@ -229,7 +229,8 @@ class PopulationResult(AsFit, FitResult):
         shared = {
             n: {"value": float(x[j]), "stderr": float(se[j])} for j, n in enumerate(obj.shared)
         }
-        resid = (u.y - np.asarray(obj.predict_all(x, etas))) * u.mask
+        # (the model's own ŷ: −∞ where an output such as log c has no observation)
+        resid = np.where(u.mask > 0, u.y - np.asarray(obj.predict_all(x, etas)), 0.0)
         n_out = np.maximum(u.mask.sum((0, 1)), 1)
         sd = np.sqrt((resid**2).sum((0, 1)) / n_out * (N / (N - K) if N > K else np.nan))
         Hb, L = obj.inner_blocks(x, etas)

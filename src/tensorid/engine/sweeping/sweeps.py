@@ -45,7 +45,7 @@ from ..compiling.compiled import Compiled
 from ..compiling.programs import Program
 from ..modelling.model import Model
 from ..schemes.discretisation import Discretisation, march
-from . import second_order as orders  # (its mask helpers)
+from . import second_order as orders
 from .adjoint import SecondOrderAdjoint
 from .dosing import Dosing, jump_hook, maps, rhs
 from .losses import SQUARED, Loss
@@ -300,7 +300,7 @@ class Sweeps:
         acc, shares, _ = self._march(
             field, observe, state0, acc0, t, u, y, p, end, update, push=push
         )
-        if scores:  # (a row where nothing was observed: 0, whatever its prediction)
+        if scores:  # (0 for an output not measured, whatever its prediction: _observed)
             return (*acc, shares)
         return (*acc[0], lay.tuple(acc[1])) if end else acc
 
