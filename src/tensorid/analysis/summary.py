@@ -87,14 +87,13 @@ def metric_rows(scores) -> tuple[list[str], list[list[str]]]:
     header = ["record", "output", "GOF", "RMSE", "NRMSE", "scored samples"]
     rows = []
     for s in scores:
-        n = s.experiment.P - s.start
-        scored = f"{n}" if not s.start else f"{n} (after {s.start})"
-        undefined = undefined_gof(s)
+        undefined, counts = undefined_gof(s), s.scored  # (measured samples, per output)
         for o in s.simulation.model.outputs:
             cells = [finite(s.gof[o], ".4f"), finite(s.rmse[o], ".4g"), finite(s.nrmse[o], ".4g")]
             if o in undefined:  # not a blow-up: no spread to divide by
                 cells[0] = cells[2] = "undefined"
-            rows.append([s.label, o, *cells, scored])
+            n = counts[o]
+            rows.append([s.label, o, *cells, f"{n}" if not s.start else f"{n} (after {s.start})"])
     return header, rows
 
 

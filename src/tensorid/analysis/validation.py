@@ -62,12 +62,24 @@ class Score(Tabular):
         return self.x0_status.name.lower() if self.x0_status else None
 
     def _pairs(self):
+        """Per output, (measured, simulated) at its scored samples: from ``start`` on,
+        where it was measured (not at a gap, nor at a row holding only a dose, whose
+        y is a placeholder 0 and whose prediction may not even be finite: log c)."""
+        seen = self.experiment.seen[self.start :]
         y, s = self.experiment.measured[self.start :], self.simulation.y[self.start :]
-        return [(y[:, j], s[:, j]) for j in range(y.shape[1])]
+        return [(y[seen[:, j], j], s[seen[:, j], j]) for j in range(y.shape[1])]
+
+    @property
+    def scored(self) -> dict[str, int]:
+        """{output: the number of its scored samples}."""
+        outs = self.simulation.model.outputs
+        return {o: int(a.size) for o, (a, _) in zip(outs, self._pairs(), strict=True)}
 
     def _per_output(self, metric) -> dict[str, float]:
+        """{output: metric}; NaN where fewer than two samples of it are scored."""
         outs = self.simulation.model.outputs
-        return {o: float(metric(a, b)) for o, (a, b) in zip(outs, self._pairs(), strict=True)}
+        return {o: float(metric(a, b)) if a.size > 1 else float("nan")
+                for o, (a, b) in zip(outs, self._pairs(), strict=True)}  # fmt: skip
 
     @property
     def gof(self) -> dict[str, float]:
@@ -85,7 +97,7 @@ class Score(Tabular):
         are undefined unless the simulation matches it exactly."""
         outs = self.simulation.model.outputs
         pairs = zip(outs, self._pairs(), strict=True)
-        return {o: float(a[0]) for o, (a, _) in pairs if np.ptp(a) == 0}
+        return {o: float(a[0]) for o, (a, _) in pairs if a.size and np.ptp(a) == 0}
 
     @property
     def nrmse(self) -> dict[str, float]:
@@ -114,9 +126,8 @@ class Score(Tabular):
     def __repr__(self) -> str:
         fits = ", ".join(f"{o}: {v:.4f}" for o, v in self.gof.items())
         after = f" after {self.start}" if self.start else ""
-        return (
-            f"Score({self.label}, gof={{{fits}}}, {self.experiment.P - self.start} samples{after})"
-        )
+        n = max(self.scored.values())
+        return f"Score({self.label}, gof={{{fits}}}, {n} samples{after})"
 
 
 def record_label(kind: str, name: str, alone: bool = True) -> str:
