@@ -167,6 +167,7 @@ def test_a_fit_on_doses_recovers_the_truth():
     seen = e.observed[:, 0]
     assert score.scored == {"cp": T_OBS.size} and metric_rows([score])[1][0][-1] == "11"
     assert score.gof["cp"] == gof(e.measured[seen, 0], score.simulation.y[seen, 0]) > 0.9
+    assert res.gof() == [score.gof["cp"]]
 
 
 @pytest.mark.parametrize(

@@ -21,8 +21,14 @@ from ..engine.schemes.status import Status
 from .stats import Stats
 
 
-def _squeeze(a: np.ndarray) -> np.ndarray:
-    return a[:, 0] if a.ndim == 2 and a.shape[1] == 1 else a
+def _measured_gof(e, y_sim: np.ndarray):
+    """GOF of each output of the record ``e`` at its measured samples (not its gaps,
+    nor a row holding only a dose): a float for one output, else (S,); NaN for an
+    output measured fewer than twice."""
+    seen = e.seen
+    v = np.array([gof(e.measured[seen[:, j], j], y_sim[seen[:, j], j])
+                  if seen[:, j].sum() > 1 else np.nan for j in range(seen.shape[1])])  # fmt: skip
+    return float(v[0]) if v.size == 1 else v
 
 
 @dataclass(frozen=True)
@@ -187,10 +193,7 @@ class Solution:
         is a dict keyed by output; ``training_scores`` in
         :mod:`tensorid.analysis.validation` gives the training records that way.)"""
         sims = self.simulate()
-        return [
-            gof(_squeeze(e.measured), _squeeze(s.y))
-            for e, s in zip(self.problem.experiments, sims, strict=True)
-        ]
+        return [_measured_gof(e, s.y) for e, s in zip(self.problem.experiments, sims, strict=True)]
 
     @property
     def convergence_warnings(self) -> list[str]:
