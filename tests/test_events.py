@@ -11,6 +11,7 @@ import pytest
 from conftest import autodiff
 
 import tensorid as ti
+from tensorid.analysis.residuals import default_lags
 from tensorid.analysis.summary import metric_rows
 from tensorid.analysis.validation import training_scores
 from tensorid.engine.modelling.events import Events
@@ -168,6 +169,7 @@ def test_a_fit_on_doses_recovers_the_truth():
     assert score.scored == {"cp": T_OBS.size} and metric_rows([score])[1][0][-1] == "11"
     assert score.gof["cp"] == gof(e.measured[seen, 0], score.simulation.y[seen, 0]) > 0.9
     assert res.gof() == [score.gof["cp"]]
+    assert default_lags(pr) == 11 // 4  # the residual tests' N/4: not 14 // 4
 
 
 @pytest.mark.parametrize(

@@ -364,8 +364,10 @@ DEFAULT_LAGS = 25  # MATLAB resid's
 
 def default_lags(problem) -> int:
     """The lags the tests take unless told: MATLAB's 25, fewer on a short record (at
-    most N/4, at least 1: below 4 samples the tests say not available)."""
-    samples = sum(e.P - skipped_samples(problem) for e in problem.experiments)
+    most N/4, at least 1: below 4 samples the tests say not available); N counts the
+    samples that hold a measurement (not a gap, nor a row holding only a dose)."""
+    first = skipped_samples(problem)
+    samples = sum(int(e.seen[first:].any(axis=1).sum()) for e in problem.experiments)
     return max(min(DEFAULT_LAGS, lag_limit(samples)), 1)
 
 
