@@ -4,6 +4,8 @@ checked against jax.hessian of a plainly written multiple-dose cost."""
 
 from __future__ import annotations
 
+import warnings
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -394,3 +396,36 @@ def test_no_newton_step_is_differentiated_through_a_steady_state():
                         p0={"k": 0.1, "v": 10.0}, x0=[0.0], substeps=4)  # fmt: skip
         sizes.append(_equations(jax.make_jaxpr(jax.hessian(pr.jax_cost))(jnp.ones(2)).jaxpr))
     assert sizes[0] < 12 * sizes[1], sizes
+
+
+def test_an_output_not_finite_at_a_dose_s_row_is_no_failure_and_no_sample():
+    """log c is −∞ at the first dose's row (nothing is in the body yet), which holds no
+    observation: the simulation is not a failure there (compare and simulate had
+    exited 1, "not finite at sample 0"), and the data sensitivity, the scores and the
+    robust loss's noise level count the 11 observations alone (the doses' rows had
+    been the samples that "pulled most", and the Huber scale came from their zeros)."""
+    from tensorid.engine.sweeping.losses import robust_sd
+    from tensorid.fitting.robust import residual_noise
+
+    m = ti.Model(rhs=lambda x, p, u: jnp.stack([-p[0] * x[0], p[0] * x[0] - p[1] * x[1]]),
+                 output=lambda x, p: jnp.log(x[1:] / p[2]), states=["depot", "center"],
+                 params=["ka", "ke", "v"], outputs=["log cp"])  # fmt: skip
+    truth = {"ka": 1.1, "ke": 0.15, "v": 9.0}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # ("stops being finite at sample 0")
+        sim = ti.simulate(m, truth, [0, 0], _record(), substeps=8)
+    assert sim.status.name == "OK" and np.isneginf(sim.y[0, 0])
+    seen = _record().observed[:, 0]
+    noise = 0.02 * np.random.default_rng(4).standard_normal((seen.sum(), 1))
+    e = _record(sim.y[seen] + noise)
+    res = ti.fit(ti.Problem(m, e, p0={"ka": 1.5, "ke": 0.2, "v": 7.0}, x0=[0, 0], substeps=8))
+    assert res.success and res.simulate()[0].status.name == "OK"
+    sens = res.data_sensitivity()
+    assert f"{T_OBS.size} samples" in sens.blocks()[0]
+    for name in res.problem.theta_names:
+        for by in ("pull", "scaled"):
+            assert all(seen[k] for _, k, _, _ in sens.most_influential(name, 5, by))
+    [score] = training_scores(res)
+    assert score.samples == T_OBS.size and np.isfinite(score.gof["log cp"])
+    r = e.measured[seen, 0] - res.simulate()[0].y[seen, 0]
+    assert residual_noise(res)[0] == robust_sd(r)

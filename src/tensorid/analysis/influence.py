@@ -44,6 +44,9 @@ class DataSensitivity(Tabular):
     records: list[str]
     residuals: list[np.ndarray]
     weights: np.ndarray
+    # per experiment, (P, S): which samples hold a measurement (None: all); a gap or a
+    # row holding only a dose has dθ̂/dy = 0 and no residual, and is not counted
+    seen: list[np.ndarray] | None = None
 
     def scaled(self, name: str) -> list[np.ndarray]:
         """|dθ̂_name/dy|·σ_s per experiment, (P, S): σ_s = σ/√w_s is output s's noise
@@ -80,7 +83,11 @@ class DataSensitivity(Tabular):
     def blocks(self) -> list:
         """Per unknown, the sample that has pulled its estimate furthest (outliers) and
         the one where a change of one noise level would move it most (leverage)."""
-        samples = sum(v.shape[0] for v in self.values)
+        samples = (
+            sum(v.shape[0] for v in self.values)
+            if self.seen is None
+            else sum(int(m.any(axis=1).sum()) for m in self.seen)
+        )
         head = (
             f"data sensitivity dθ̂/dy: {len(self.names)} unknowns, {samples} samples of "
             f"{', '.join(self.outputs)} in {len(self.records)} record(s), σ {self.sigma:.4g}"
@@ -146,10 +153,11 @@ def data_sensitivity(res) -> DataSensitivity:
     sc = jacobi_scale(res.hess)
     Hs = 0.5 * (res.hess + res.hess.T) * np.outer(sc, sc)
     Hinv = np.linalg.pinv(Hs, rcond=1e-12, hermitian=True) * np.outer(sc, sc)
-    w = np.asarray(problem.weights)
+    w, exps = np.asarray(problem.weights), problem.experiments
+    seen = [e.seen for e in exps]  # (where not measured: 0, whatever ∂ŷ/∂θ there)
     values = [
-        2.0 * (w[:, None] * dy) @ Hinv.T  # (P, S, K)
-        for dy in problem.output_sensitivities(res.theta)
+        2.0 * (w[:, None] * np.where(m[..., None], dy, 0.0)) @ Hinv.T  # (P, S, K)
+        for dy, m in zip(problem.output_sensitivities(res.theta), seen, strict=True)
     ]
     return DataSensitivity(
         names=problem.theta_names,
@@ -160,6 +168,8 @@ def data_sensitivity(res) -> DataSensitivity:
         records=[e.name or str(i) for i, e in enumerate(problem.experiments)],
         weights=np.asarray(problem.weights, dtype=float),
         residuals=[
-            e.measured - s.y for e, s in zip(problem.experiments, res.simulate(), strict=True)
+            np.where(m, e.measured - s.y, 0.0)
+            for e, s, m in zip(exps, res.simulate(), seen, strict=True)
         ],
+        seen=seen,
     )

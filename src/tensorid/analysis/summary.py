@@ -99,8 +99,9 @@ def metric_rows(scores) -> tuple[list[str], list[list[str]]]:
 
 def undefined_gof(score) -> dict[str, float]:
     """{output: value} where GOF is not finite because the record holds the output
-    constant (the simulation is finite but not exactly that value)."""
-    if not np.isfinite(score.simulation.y).all():
+    constant (the simulation is finite at its scored samples but not exactly that value)."""
+    seen = score.experiment.seen[score.start :]
+    if not np.isfinite(score.simulation.y[score.start :][seen]).all():
         return {}
     flat = getattr(score, "constant", {})
     return {o: v for o, v in flat.items() if not math.isfinite(score.gof[o])}

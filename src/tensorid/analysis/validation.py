@@ -70,6 +70,11 @@ class Score(Tabular):
         return [(y[seen[:, j], j], s[seen[:, j], j]) for j in range(y.shape[1])]
 
     @property
+    def samples(self) -> int:
+        """The scored samples: from ``start`` on, those holding a measurement."""
+        return int(self.experiment.seen[self.start :].any(axis=1).sum())
+
+    @property
     def scored(self) -> dict[str, int]:
         """{output: the number of its scored samples}."""
         outs = self.simulation.model.outputs
@@ -126,8 +131,7 @@ class Score(Tabular):
     def __repr__(self) -> str:
         fits = ", ".join(f"{o}: {v:.4f}" for o, v in self.gof.items())
         after = f" after {self.start}" if self.start else ""
-        n = max(self.scored.values())
-        return f"Score({self.label}, gof={{{fits}}}, {n} samples{after})"
+        return f"Score({self.label}, gof={{{fits}}}, {self.samples} samples{after})"
 
 
 def record_label(kind: str, name: str, alone: bool = True) -> str:

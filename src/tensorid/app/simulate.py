@@ -82,7 +82,8 @@ def _simulation_table(m, e, sim, table_only: bool) -> tuple[list[str], np.ndarra
     if table_only:
         return ["t", *states, *sims], np.column_stack([e.t, sim.x, sim.y])
     measured = list(m.outputs) if e.y is not None else []
-    parts = [e.t[:, None], e.u] + ([e.y] if e.y is not None else []) + [sim.y, sim.x]
+    measured_y = [e.measured_with_gaps] if e.y is not None else []  # NaN: not measured
+    parts = [e.t[:, None], e.u] + measured_y + [sim.y, sim.x]
     return ["t", *m.inputs, *measured, *sims, *states], np.column_stack(parts)
 
 
@@ -196,7 +197,7 @@ def _figures(score: Score, out: Path, stem: str) -> list[Path]:
         title = f"{stem} on {e.name or 'data'}, output {name}: GOF {gof_text(score, name)}"
         arguments = dict(
             t=np.asarray(e.t),
-            y_meas=np.asarray(e.measured[:, j]),
+            y_meas=np.asarray(e.measured_with_gaps[:, j]),  # (a dose's row: no point)
             y_sim=np.asarray(s.y[:, j]),
             ylabel=name,
             title=title + _after(score),
@@ -230,7 +231,7 @@ def run_compare(args) -> int:
         # what the outputs were scored as: an output-error fit's every horizon is its
         # simulation, so "horizon" (the one asked for) alone did not say
         "scored_as": f"{score.horizon}-step prediction" if score.horizon else "simulation",
-        "scored_samples": score.experiment.P - score.start,
+        "scored_samples": score.samples,
         "x0": dict(zip(m.states, score.x0.tolist(), strict=True)),
         "x0_source": source,
         "x0_fit_status": score.x0_fit,  # how the initial states' fit ended
@@ -267,8 +268,7 @@ def run_compare(args) -> int:
 
 
 def _print_scores(score: Score) -> None:
-    n = score.experiment.P - score.start
-    scored = f"{n} samples" + (f" after the first {score.start}" if score.start else "")
+    scored = f"{score.samples} samples" + (f" after the first {score.start}" if score.start else "")
     scored += f", {score.horizon}-step prediction" if score.horizon else ""
     flat = undefined_gof(score)
     for o, v in score.metrics().items():

@@ -38,10 +38,10 @@ ROUNDS = 3
 def residual_noise(res) -> np.ndarray:
     """(S,) each output's noise level from the fit's residuals, by the median absolute
     deviation (robust to the outliers a robust loss is for)."""
-    r = np.concatenate(
-        [e.y - s.y for e, s in zip(res.problem.experiments, res.simulate(), strict=True)]
-    )
-    return robust_sd(r)
+    exps = res.problem.experiments
+    r = np.concatenate([e.y - s.y for e, s in zip(exps, res.simulate(), strict=True)])
+    seen = np.concatenate([e.seen for e in exps])  # (not a gap, nor a dose's row)
+    return np.array([robust_sd(r[seen[:, j], j]) for j in range(r.shape[1])])
 
 
 def _implied(problem, res) -> dict | None:

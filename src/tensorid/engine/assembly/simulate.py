@@ -64,7 +64,10 @@ def run_simulation(sweeps: Sweeps, data: Experiment, x0, p) -> Simulation:
     xs, ys = np.asarray(xs)[: data.P], np.asarray(ys)[: data.P]  # a lagged event's nodes: out
     status = Status.from_code(int(code))
     failed_at: int | None = None if status is Status.OK else int(at)
-    bad_y = ~np.isfinite(ys).all(axis=1)
+    # an output not finite where it was not measured (log c at a dose's own row) is the
+    # model's value there, not a failure; the states must be finite everywhere
+    bad_y = ~np.isfinite(ys) & (True if data.observed is None else data.observed)
+    bad_y = bad_y.any(axis=1)
     first_y = int(np.argmax(bad_y)) if bad_y.any() else None
     # outputs that fail while the states are still finite fail first
     if first_y is not None and (failed_at is None or first_y < failed_at):
