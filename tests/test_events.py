@@ -429,3 +429,24 @@ def test_an_output_not_finite_at_a_dose_s_row_is_no_failure_and_no_sample():
     assert score.samples == T_OBS.size and np.isfinite(score.gof["log cp"])
     r = e.measured[seen, 0] - res.simulate()[0].y[seen, 0]
     assert residual_noise(res)[0] == robust_sd(r)
+
+
+def test_a_huber_scale_below_the_residuals_counts_the_measured_samples():
+    """The sandwich's bread for a Huber scale below what the residuals resolve counts
+    the 40 observations, not the 3 added rows of the doses (where log c is −∞ at the
+    first: its error bars had been inf)."""
+    from tensorid.analysis.sandwich import unresolved_scale
+
+    t, rng = np.linspace(0.5, 24, 40), np.random.default_rng(0)
+    times, amounts = [0.0, 6.25, 12.25], [100.0, 50.0, 50.0]
+    c = sum(np.where(t >= d, a / 10 * np.exp(-0.2 * (t - d)), 0)
+            for d, a in zip(times, amounts, strict=True))  # fmt: skip
+    e = ti.Experiment(t, None, (np.log(c) + 0.02 * rng.standard_normal(t.size))[:, None],
+                      events=Events.doses(times, "a", amounts))  # fmt: skip
+    m = ti.Model(rhs=lambda x, p, u: -p[0] / p[1] * x, output=lambda x, p: jnp.log(x / p[1]),
+                 states=["a"], params=["cl", "v"], outputs=["log c"])  # fmt: skip
+    pr = ti.Problem(m, e, p0={"cl": 2.0, "v": 10.0}, x0=[0.0], loss="huber", loss_scale=0.001)
+    res = ti.fit(pr)
+    H, why = unresolved_scale(pr, res.theta)
+    assert e.P == 43 and "of 40 residuals inside" in why and np.isfinite(H).all()
+    assert np.isfinite(res.uncertainty().stderr).all()

@@ -141,21 +141,23 @@ def unresolved_scale(problem, theta) -> tuple[np.ndarray | None, str | None]:
     if not problem.loss.robust:
         return None, None
     w, c = np.asarray(problem.loss_weights[0]), np.asarray(problem.loss_weights[1])
-    sims = problem.simulate(theta)
+    sims, exps = problem.simulate(theta), problem.experiments
     e = np.concatenate(
-        [np.sqrt(w) * (x.y - s.y) for x, s in zip(problem.experiments, sims, strict=True)]
-    )  # (n, S) weighted residuals, in the scale's units
-    n = e.shape[0]
-    h = 0.9 * robust_sd(e) * n ** (-0.2)
+        [np.sqrt(w) * (x.y - s.y) for x, s in zip(exps, sims, strict=True)]
+    )  # (rows, S) weighted residuals, in the scale's units
+    seen = np.concatenate([x.seen for x in exps])  # (not a gap, nor a dose's row)
+    cols = [e[seen[:, j], j] for j in range(e.shape[1])]  # each output's residuals
+    n = np.array([a.size for a in cols])
+    h = 0.9 * np.array([robust_sd(a) for a in cols]) * np.maximum(n, 1) ** (-0.2)
     counts = w > 0
     low = counts & (c < h)
     if not low.any():
         return None, None
-    inside = (np.abs(e) <= c).sum(axis=0)
+    inside = np.array([(np.abs(a) <= cj).sum() for a, cj in zip(cols, c, strict=True)])
     names = [o for o, b in zip(problem.model.outputs, low, strict=True) if b]
     scale = problem.loss_scale
     which = ", ".join(
-        f"{o} c = {scale[o]:.3g} (bandwidth {h[i] / np.sqrt(w[i]):.3g}, {inside[i]} of {n} "
+        f"{o} c = {scale[o]:.3g} (bandwidth {h[i] / np.sqrt(w[i]):.3g}, {inside[i]} of {n[i]} "
         "residuals inside)"
         for i, o in enumerate(problem.model.outputs)
         if o in names
@@ -168,11 +170,13 @@ def unresolved_scale(problem, theta) -> tuple[np.ndarray | None, str | None]:
             "the data's information); use a larger loss scale, or drop loss_scale to "
             "have it estimated"
         )
-    share = np.where(low, (c / np.where(h > 0, h, 1.0)) * (np.abs(e) <= h).mean(0),
-                     (np.abs(e) <= c).mean(0))  # fmt: skip
+    near = [np.mean(np.abs(a) <= b) for a, b in zip(cols, h, strict=True)]
+    near_c = [np.mean(np.abs(a) <= b) for a, b in zip(cols, c, strict=True)]
+    share = np.where(low, (c / np.where(h > 0, h, 1.0)) * near, near_c)
     gamma = np.where(counts, 2.0 * w * share, 0.0)  # E[ℓ_ŷŷ] per output
     H = np.diag(problem.prior_curvature).astype(float)
-    for D in problem.output_sensitivities(theta):
+    for D, x in zip(problem.output_sensitivities(theta), exps, strict=True):
+        D = np.where(x.seen[..., None], D, 0.0)  # a sample not measured brings nothing
         H += np.einsum("hsk,s,hsj->kj", D, gamma, D)
     return H, (
         f"{head}: the fit is least-absolute deviations there, and its error bars take the "
