@@ -172,6 +172,10 @@ def test_a_fit_on_doses_recovers_the_truth():
     assert score.gof["cp"] == gof(e.measured[seen, 0], score.simulation.y[seen, 0]) > 0.9
     assert res.gof() == [score.gof["cp"]]
     assert default_lags(pr) == 11 // 4  # the residual tests' N/4: not 14 // 4
+    from tensorid.fitting.priors import _per_output  # (a prior's noise check)
+
+    r = e.measured[seen, 0] - score.simulation.y[seen, 0]
+    assert _per_output(res)["cp"]["residual_variance"] == pytest.approx(np.mean(r**2), rel=1e-12)
 
 
 @pytest.mark.parametrize(

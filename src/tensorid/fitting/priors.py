@@ -164,13 +164,12 @@ def _per_output(res) -> dict[str, dict[str, float]]:
     (/6, as the estimate), the weighted residual variance and the second differences'
     lag-1 correlation."""
     problem, out = res.problem, {}
-    sims = res.simulate()
+    sims, exps = res.simulate(), problem.experiments
     for s, name in enumerate(problem.model.outputs):
         w = float(problem.weights[s])
-        d2 = [np.diff(e.measured[:, s], n=2) for e in problem.experiments]
-        r = [
-            e.measured[:, s] - sim.y[:, s] for e, sim in zip(problem.experiments, sims, strict=True)
-        ]
+        seen = [e.seen[:, s] for e in exps]  # (not a gap, nor a dose's row)
+        d2 = [np.diff(e.measured[m, s], n=2) for e, m in zip(exps, seen, strict=True)]
+        r = [e.measured[m, s] - sim.y[m, s] for e, sim, m in zip(exps, sims, seen, strict=True)]
         ss = sum(float(d @ d) for d in d2)
         lag = sum(float(d[1:] @ d[:-1]) for d in d2)
         out[name] = {
