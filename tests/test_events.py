@@ -176,6 +176,9 @@ def test_a_fit_on_doses_recovers_the_truth():
 
     r = e.measured[seen, 0] - score.simulation.y[seen, 0]
     assert _per_output(res)["cp"]["residual_variance"] == pytest.approx(np.mean(r**2), rel=1e-12)
+    # the model-error check's halves: 7 rows each, holding 6 and 5 measurements
+    why = res.model_check().not_available
+    assert "halves (6 and 5 measured samples) are shorter than 20" in why
 
 
 @pytest.mark.parametrize(
