@@ -518,7 +518,7 @@ def test_jax_s_cache_met_before_an_executable_is_kept_does_not_break_a_fit(tmp_p
         return out.stdout.split()[-1]
 
     plain = run(tmp_path / "off", TENSORID_CACHE="0")
-    for _ in range(3):
+    for _ in range(2):  # the second run meets JAX's cache holding what has no .xla
         assert run(tmp_path / "jax") == plain
         for f in (tmp_path / "jax" / "programs").glob("*.xla"):
             f.unlink()  # as pruning may leave JAX's cache with the program
