@@ -224,3 +224,28 @@ def test_robust_noise_ignores_outliers():
     y = 1e-3 * rng.standard_normal((2000, 1))
     y[::50] += 1.0
     assert robust_noise(y)[0] == pytest.approx(1e-3, rel=0.1)
+
+
+def test_outputs_sampled_at_different_times_each_set_their_robust_scale():
+    """y1 measured at the even samples, y2 at the odd ones: no row holds both, and the
+    scale came from the rows that did ("0 samples are too few"; a given scale crashed
+    in its check, "zero-size array"). Each output's scale (and weight) is now its own
+    samples'."""
+    from tensorid.engine.sweeping.losses import TUNING
+
+    t = np.linspace(0, 10, 40)
+    m = ti.Model(rhs=lambda x, p, u: -p[0] * x, output=lambda x, p: jnp.stack([x[0], 2 * x[0]]),
+                 states=["a"], params=["k"], outputs=["y1", "y2"])  # fmt: skip
+    noise = np.random.default_rng(0).standard_normal((40, 2)) * [0.01, 0.03]
+    y = np.exp(-0.3 * t)[:, None] * [1.0, 2.0] + noise
+    even = np.arange(40) % 2 == 0
+    e = ti.Experiment(t, None, y, observed=np.stack([even, ~even], axis=1))
+    est = ti.Problem(m, e, p0={"k": 0.2}, x0=[1.0], loss="huber")
+    own = [robust_noise(y[rows, j : j + 1])[0] for j, rows in enumerate((even, ~even))]
+    np.testing.assert_allclose(list(est.loss_scale.values()), TUNING["huber"] * np.array(own))
+    given = ti.Problem(m, e, p0={"k": 0.2}, x0=[1.0], loss="huber", loss_scale=0.02)
+    assert abs(ti.fit(given).params["k"] - 0.3) < 0.01
+    # weights="auto" (1/variance of each output) from each output's own samples too: the
+    # rows holding both were none, and the variances inf (weights 0)
+    auto = ti.Problem(m, e, p0={"k": 0.2}, x0=[1.0], weights="auto").weights
+    np.testing.assert_allclose(auto, [1 / np.var(y[even, 0]), 1 / np.var(y[~even, 1])])

@@ -125,6 +125,7 @@ def _known(get, value):
 
 
 def observed_rows(experiments) -> list:
-    """Each record's y on its fully observed rows (a record with gaps: the rows of a
-    dose alone hold zeros, which would pull a noise level or a scale towards 0)."""
-    return [e.y if e.observed is None else e.y[e.observed.all(axis=1)] for e in experiments]
+    """Each record's y with NaN where a sample was not measured (a record with gaps:
+    the rows of a dose alone hold zeros, which would pull a noise level or a scale
+    towards 0; outputs sampled at different times each keep their own samples)."""
+    return [e.y if e.observed is None else e.measured_with_gaps for e in experiments]

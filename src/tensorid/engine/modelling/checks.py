@@ -201,11 +201,15 @@ def check_weights(problem, weights) -> np.ndarray:
 
 
 def output_scales(problem) -> np.ndarray:
-    """The standard deviation of each measured output, all experiments together."""
-    y = np.concatenate([e.y if e.observed is None else e.y[e.observed.all(axis=1)]
+    """The standard deviation of each measured output, all experiments together, over
+    its own measured samples (outputs may be sampled at different times)."""
+    y = np.concatenate([e.y if e.observed is None else e.measured_with_gaps
                         for e in problem.experiments])  # fmt: skip
     with np.errstate(over="ignore", invalid="ignore"):
-        return np.nan_to_num(np.std(y, axis=0), nan=np.inf, posinf=np.inf)
+        sd = (np.std(y, axis=0) if not np.isnan(y).any()
+              else np.array([np.std(a[~np.isnan(a)]) if (~np.isnan(a)).any() else np.nan
+                             for a in y.T]))  # fmt: skip
+        return np.nan_to_num(sd, nan=np.inf, posinf=np.inf)
 
 
 def check_bounds(problem, bounds: Mapping) -> tuple[np.ndarray, np.ndarray]:

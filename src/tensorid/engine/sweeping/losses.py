@@ -37,6 +37,7 @@ least-squares step, as in IRLS.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar, TypeVar
@@ -306,10 +307,13 @@ def robust_noise(y: np.ndarray) -> np.ndarray:
     rate, y[k+1] − 2y[k] + y[k−1] has standard deviation √6 σ, and the median
     absolute deviation (× 1.4826, consistent for Gaussian noise) ignores the few
     differences a gross outlier touches, where a variance would not."""
-    d2 = np.diff(np.asarray(y, dtype=float), n=2, axis=0)
-    if d2.shape[0] == 0:
-        return np.zeros(np.shape(y)[1])
-    return robust_sd(d2) / np.sqrt(6.0)
+    y = np.asarray(y, dtype=float)
+    if not np.isnan(y).any():
+        d2 = np.diff(y, n=2, axis=0)
+        return robust_sd(d2) / np.sqrt(6.0) if d2.shape[0] else np.zeros(y.shape[1])
+    # NaN: not measured (outputs sampled at other times): each output's own sequence
+    cols = [np.diff(a[~np.isnan(a)], n=2) for a in y.T]
+    return np.array([robust_sd(d) / np.sqrt(6.0) if d.size else 0.0 for d in cols])
 
 
 def robust_sd(a: np.ndarray) -> np.ndarray:
@@ -336,9 +340,10 @@ def make_loss(
     if scale is None:
         y = np.concatenate([np.asarray(m, dtype=float) for m in measured])
         sigma = robust_noise(y)
-        if y.shape[0] < 4:
+        n = int((~np.isnan(y)).sum(axis=0).min())  # (NaN: not measured)
+        if n < 4:
             raise ValueError(
-                f"loss={name!r}: {y.shape[0]} samples are too few to set the loss scale from "
+                f"loss={name!r}: {n} samples are too few to set the loss scale from "
                 "(the noise level from second differences needs at least 4); give a scale "
                 "in the outputs' units (loss_scale=; --loss-scale on the command line), or "
                 "fit a longer record"
@@ -383,10 +388,11 @@ def _check_resolvable(name: str, c: np.ndarray, outputs: list[str], measured: li
     of their size, where no residual could lie inside it: the cost would be the
     outputs' rounding), nor so large that c² overflows (the loss is then the squared
     loss, computed as ∞ · 0)."""
-    y = np.concatenate([np.asarray(m, dtype=float) for m in measured])
-    with np.errstate(all="ignore"):
+    y = np.concatenate([np.asarray(m, dtype=float) for m in measured])  # NaN: not measured
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # (an output never measured: NaN)
         size = np.nanmax(np.abs(np.where(np.isfinite(y), y, np.nan)), axis=0)
-        noise = robust_noise(y) if y.shape[0] >= 4 else np.full(len(outputs), np.nan)
+        noise = robust_noise(y)
     size = np.where(np.isfinite(size), size, 0.0)
     floor = np.maximum(8 * np.finfo(float).eps * size, SCALE_RANGE[0])
     for k, o in enumerate(outputs):
