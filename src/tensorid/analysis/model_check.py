@@ -268,19 +268,15 @@ def _compare(level, how, labels, names, est, covs, ses) -> ModelCheck:
 def _too_short(problem) -> str | None:
     """Why the record cannot be cut into parts that each determine the unknowns."""
     need = max(MIN_PART, 2 * problem.K + 2)
-
-    def measured(e, rows=slice(None)) -> int:  # (not a gap, nor a row holding only a dose)
-        return int(e.seen[rows].any(axis=1).sum())
-
     if len(problem.experiments) > 1:
         exps = enumerate(problem.experiments)
-        short = [e.name or str(i) for i, e in exps if measured(e) < need]
+        short = [e.name or str(i) for i, e in exps if e.seen_rows.sum() < need]
         if short:
             return f"records {short} are shorter than {need} samples, too short to fit alone"
         return None
     e = problem.experiments[0]
     half = e.P // 2
-    n = (measured(e, slice(0, half)), measured(e, slice(e.P - half, None)))
+    n = (int(e.seen_rows[:half].sum()), int(e.seen_rows[e.P - half :].sum()))
     if min(n) < need:
         held = f"{n[0]} samples" if n[0] == n[1] else f"{n[0]} and {n[1]} measured samples"
         return f"the record's halves ({held}) are shorter than {need} samples"

@@ -367,7 +367,7 @@ def default_lags(problem) -> int:
     most N/4, at least 1: below 4 samples the tests say not available); N counts the
     samples that hold a measurement (not a gap, nor a row holding only a dose)."""
     first = skipped_samples(problem)
-    samples = sum(int(e.seen[first:].any(axis=1).sum()) for e in problem.experiments)
+    samples = sum(int(e.seen_rows[first:].sum()) for e in problem.experiments)
     return max(min(DEFAULT_LAGS, lag_limit(samples)), 1)
 
 

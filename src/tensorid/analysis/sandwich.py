@@ -100,7 +100,7 @@ def score_covariance(problem, theta, lags="auto") -> tuple[np.ndarray, int]:
     parts = []
     for e, s in zip(problem.experiments, scores(problem, theta), strict=True):
         seen = np.zeros(s.shape[0] + first, dtype=bool)  # (a moving event's nodes last)
-        seen[: e.P] = e.seen.any(axis=1)
+        seen[: e.P] = e.seen_rows
         parts.append(s[seen[first:]])
     K = problem.K
     back = np.eye(K)

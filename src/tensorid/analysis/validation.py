@@ -72,7 +72,7 @@ class Score(Tabular):
     @property
     def samples(self) -> int:
         """The scored samples: from ``start`` on, those holding a measurement."""
-        return int(self.experiment.seen[self.start :].any(axis=1).sum())
+        return int(self.experiment.seen_rows[self.start :].sum())
 
     @property
     def scored(self) -> dict[str, int]:

@@ -355,7 +355,7 @@ def _check_options(args, train, val) -> None:
             check_init_window(args.init_window, e)
         except ValueError as err:
             raise ValueError(f"--init-window: {err}") from None
-    samples = sum(int(e.seen.any(axis=1).sum()) for e in train)  # (measured: not a dose's row)
+    samples = sum(int(e.seen_rows.sum()) for e in train)
     if args.residual_lags is not None and args.residual_lags > lag_limit(samples):
         raise ValueError(
             f"--residual-lags {args.residual_lags}: the training records have {samples} "

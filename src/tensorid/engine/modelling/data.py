@@ -306,6 +306,12 @@ class Experiment:
         return np.ones(self.measured.shape, dtype=bool) if self.observed is None else self.observed
 
     @property
+    def seen_rows(self) -> np.ndarray:
+        """(P,) booleans, True where some output was measured (not a gap of every
+        output, nor a row holding only a dose): the samples that count as samples."""
+        return np.any(self.seen, axis=1)
+
+    @property
     def measured_with_gaps(self) -> np.ndarray:
         """y (P, S) with NaN where a sample of an output was not measured."""
         return np.where(self.seen, self.measured, np.nan)

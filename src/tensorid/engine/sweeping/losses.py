@@ -307,12 +307,9 @@ def robust_noise(y: np.ndarray) -> np.ndarray:
     rate, y[k+1] − 2y[k] + y[k−1] has standard deviation √6 σ, and the median
     absolute deviation (× 1.4826, consistent for Gaussian noise) ignores the few
     differences a gross outlier touches, where a variance would not."""
-    y = np.asarray(y, dtype=float)
-    if not np.isnan(y).any():
-        d2 = np.diff(y, n=2, axis=0)
-        return robust_sd(d2) / np.sqrt(6.0) if d2.shape[0] else np.zeros(y.shape[1])
-    # NaN: not measured (outputs sampled at other times): each output's own sequence
-    cols = [np.diff(a[~np.isnan(a)], n=2) for a in y.T]
+    # each output's own sequence: NaN marks a sample not measured (outputs sampled at
+    # other times); without NaN, the same medians as over the columns at once
+    cols = [np.diff(a[~np.isnan(a)], n=2) for a in np.asarray(y, dtype=float).T]
     return np.array([robust_sd(d) / np.sqrt(6.0) if d.size else 0.0 for d in cols])
 
 
