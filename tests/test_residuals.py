@@ -225,7 +225,8 @@ def test_the_command_line_writes_null_and_the_reason(tmp_path, capsys):
     assert not (out / "residual_tests.png").exists()
     # asked for more lags than the record supports: refused before any work
     assert cli.main(args + ["--no-progress", "--residual-lags", "151"]) == 2
-    assert "--residual-lags 151: the training records have 600 samples" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "--residual-lags 151: the training records have 600 measured samples" in err
 
 
 # -- verdicts the series cannot carry (issue 40, item 2) ---------------------------------
@@ -292,3 +293,22 @@ def test_a_filter_s_tests_leave_out_the_sample_its_likelihood_leaves_out():
     lines = tests.lines()
     assert lines[1].endswith(": as whiteness of y's innovations")  # the reason once
     assert "passes" not in str(tests)
+
+
+def test_the_default_lags_are_the_command_line_s_and_fit_outputs_sampled_apart():
+    """y1 measured at 20 samples, y2 at the other 20: each series has 20 samples, so at
+    most 5 lags. The default counted the 40 rows holding either (10 lags: "not
+    available" at the command line's own default), and the API's was MATLAB's 25 on
+    any record."""
+    t = np.linspace(0, 10, 40)
+    m = ti.Model(rhs=lambda x, p, u: -p[0] * x, output=lambda x, p: jnp.stack([x[0], 2 * x[0]]),
+                 states=["a"], params=["k"], outputs=["y1", "y2"])  # fmt: skip
+    noise = np.random.default_rng(1).standard_normal((40, 2)) * 0.01
+    y = np.exp(-0.3 * t)[:, None] * [1.0, 2.0] + noise
+    even = np.arange(40) % 2 == 0
+    e = ti.Experiment(t, None, y, observed=np.stack([even, ~even], axis=1))
+    res = ti.fit(ti.Problem(m, e, p0={"k": 0.2}, x0=[1.0]))
+    tests = res.residual_tests()
+    assert tests.not_available is None and tests.max_lag == 5
+    assert res.residual_tests(5) is tests  # the same call, cached once
+    assert "not available" in res.residual_tests(6).not_available

@@ -237,18 +237,21 @@ def _correlation(a: list[np.ndarray], b: list[np.ndarray], lags: int) -> np.ndar
     return num / den if den > 0 else np.zeros(lags + 1)
 
 
-def residual_tests(res, max_lag: int = 25, level: float = 0.99) -> ResidualTests:
+def residual_tests(res, max_lag: int | None = None, level: float = 0.99) -> ResidualTests:
     """Whiteness of each output's residuals and their independence from each input, on
     the samples the likelihood uses (see the module's docstring).
 
     Arguments:
       res : a FitResult with a finite cost.
-      max_lag : the largest lag (MATLAB's default M = 25).
+      max_lag : the largest lag; None: :func:`default_lags` (MATLAB's M = 25, fewer
+        on a short record), as the command line's.
       level : the confidence level of the tests and the band (0.99 as MATLAB).
 
     Returns:
       :class:`ResidualTests`.
     """
+    if max_lag is None:
+        max_lag = default_lags(res.problem)
     if not (isinstance(max_lag, int) and max_lag >= 1):
         raise ValueError(f"max_lag must be a whole number >= 1, got {max_lag!r}")
     if not 0 < level < 1:
@@ -259,7 +262,7 @@ def residual_tests(res, max_lag: int = 25, level: float = 0.99) -> ResidualTests
     exps = problem.experiments
     # each output's series is its observed samples (a record with gaps or events' rows)
     seen = [e.seen[first:] for e in exps]
-    N = min(int(sum(k[:, j].sum() for k in seen)) for j in range(model.S))
+    N = tested_samples(exps, first)
     if max_lag > lag_limit(N):
         fix = (
             f"give max_lag (--residual-lags) {lag_limit(N)} or fewer"
@@ -364,11 +367,19 @@ DEFAULT_LAGS = 25  # MATLAB resid's
 
 def default_lags(problem) -> int:
     """The lags the tests take unless told: MATLAB's 25, fewer on a short record (at
-    most N/4, at least 1: below 4 samples the tests say not available); N counts the
-    samples that hold a measurement (not a gap, nor a row holding only a dose)."""
-    first = skipped_samples(problem)
-    samples = sum(int(e.seen_rows[first:].sum()) for e in problem.experiments)
+    most N/4, at least 1: below 4 samples the tests say not available); N is
+    :func:`tested_samples`."""
+    samples = tested_samples(problem.experiments, skipped_samples(problem))
     return max(min(DEFAULT_LAGS, lag_limit(samples)), 1)
+
+
+def tested_samples(experiments, first: int = 0) -> int:
+    """N of the residual tests: the measured samples (not a gap, nor a row holding
+    only a dose) of the output measured least often, over the records, after each
+    record's first ``first`` samples (outputs sampled at different times are each
+    their own series)."""
+    S = experiments[0].seen.shape[1]
+    return min(int(sum(e.seen[first:, j].sum() for e in experiments)) for j in range(S))
 
 
 def lag_limit(samples: int) -> int:

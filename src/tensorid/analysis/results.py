@@ -186,12 +186,14 @@ class FitResult(Solution, Tabular):
             self._uncertainty[key] = information(observed, expected, self.hess, H_gn)
         return self._uncertainty[key]
 
-    def residual_tests(self, max_lag: int = 25, level: float = 0.99):
+    def residual_tests(self, max_lag: int | None = None, level: float = 0.99):
         """Whiteness of the residuals and their independence from the inputs, as
         MATLAB's ``resid`` (see :mod:`tensorid.analysis.residuals`), on the samples
-        the likelihood uses; a verdict the series cannot carry is "cannot be trusted"."""
-        from .residuals import residual_tests
+        the likelihood uses; a verdict the series cannot carry is "cannot be trusted".
+        ``max_lag`` None: MATLAB's 25, fewer on a short record (as the command line)."""
+        from .residuals import default_lags, residual_tests
 
+        max_lag = default_lags(self.problem) if max_lag is None else max_lag
         key = ("residual tests", max_lag, level, self.cost, self.theta.tobytes())
         if key not in self._uncertainty:
             self._uncertainty[key] = residual_tests(self, max_lag, level)

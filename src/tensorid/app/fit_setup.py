@@ -10,7 +10,7 @@ import sys
 
 import numpy as np
 
-from ..analysis.residuals import lag_limit
+from ..analysis.residuals import lag_limit, tested_samples
 from ..analysis.summary import SIGMA_E_FLOOR
 from ..analysis.validation import check_init_window
 from ..engine.assembly.problem import Problem
@@ -355,11 +355,12 @@ def _check_options(args, train, val) -> None:
             check_init_window(args.init_window, e)
         except ValueError as err:
             raise ValueError(f"--init-window: {err}") from None
-    samples = sum(int(e.seen_rows.sum()) for e in train)
+    samples = tested_samples(train)
     if args.residual_lags is not None and args.residual_lags > lag_limit(samples):
         raise ValueError(
             f"--residual-lags {args.residual_lags}: the training records have {samples} "
-            f"samples; the residual tests take at most N/4 = {lag_limit(samples)} lags"
+            f"measured samples (of the output measured least often); the residual tests "
+            f"take at most N/4 = {lag_limit(samples)} lags"
         )
 
 
