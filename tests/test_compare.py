@@ -514,3 +514,19 @@ def test_ipred_is_refused_in_one_line_where_it_cannot_estimate_a_units_own_value
         assert cli.main(argv) == 2
         err = capsys.readouterr().err
         assert expect in err and "--ipred" in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_an_init_window_on_a_record_with_unmeasured_rows_counts_its_measurements():
+    """12 rows, 2 measured (rows 1 and 11, as a unit of phenobarbital's doses and
+    levels): a window of 3 rows left 1 measurement to score, and the score was NaN
+    without a word. It is refused in one line; the whole record scores both."""
+    m = ti.Model(rhs=lambda x, p, u: -p[0] * x, output=lambda x, p: x[:1],
+                 states=["a"], params=["k"], outputs=["y"])  # fmt: skip
+    t = np.arange(12.0)
+    y = np.exp(-0.3 * t)[:, None]
+    res = ti.fit(ti.Problem(m, ti.Experiment(t, None, y), p0={"k": 0.2}, x0=[1.0], free_x0=["a"]))
+    seen = np.isin(np.arange(12), [1, 11])[:, None]
+    e = ti.Experiment(t, None, y, observed=seen, name="u1")
+    with pytest.raises(ValueError, match="init_window 3 leaves 1 measured sample.*and 1 to score"):
+        res.validate(e, init_window=3)
+    assert res.validate(e)[0].samples == 2

@@ -207,7 +207,8 @@ def _free_x0(problem: Problem) -> tuple[np.ndarray, Status]:
 
 def check_init_window(init_window: int | None, record: Experiment) -> None:
     """An initialisation window, a whole number of samples, leaves at least two
-    samples of ``record`` to score (2.5 was cut to 2 and "20" read as 20, silently)."""
+    samples of ``record`` to score (2.5 was cut to 2 and "20" read as 20, silently),
+    and on a record with unmeasured rows holds a measurement and leaves two."""
     whole = isinstance(init_window, int | np.integer) and not isinstance(init_window, bool)
     if init_window is not None and not whole:
         raise ValueError(f"init_window must be a whole number of samples, got {init_window!r}")
@@ -215,6 +216,20 @@ def check_init_window(init_window: int | None, record: Experiment) -> None:
         raise ValueError(
             f"init_window must be between 2 and {record.P - 2} samples (the record "
             f"{record.name!r} has {record.P}, and at least 2 are scored), got {init_window}"
+        )
+    if init_window is None or record.y is None or record.observed is None:
+        return
+    # a window counts rows, as the record's time axis does; on an event record (rows
+    # holding only a dose) or one with gaps, both of its sides must hold measurements
+    seen = record.seen_rows
+    inside, after = int(seen[: int(init_window)].sum()), int(seen[int(init_window) :].sum())
+    if inside < 1 or after < 2:
+        raise ValueError(
+            f"init_window {init_window} leaves {inside} measured sample(s) of the record "
+            f"{record.name!r} to estimate its initial states on and {after} to score (it "
+            f"has {record.P} samples, {int(seen.sum())} of them measured; rows holding "
+            "only a dose or a gap count as samples, not as measurements): the window must "
+            "hold at least 1 and leave at least 2; give another window"
         )
 
 

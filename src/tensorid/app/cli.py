@@ -216,7 +216,8 @@ def register(sub) -> None:
         default=None,
         metavar="N",
         help="validation as the benchmarks do it: initial states estimated on the first N "
-        "samples of each validation record (parameters held), scored after them",
+        "samples (rows) of each validation record (parameters held), scored after them; "
+        "on a record with unmeasured rows, the window holds a measurement and leaves two",
     )
     seg = f.add_mutually_exclusive_group()
     seg.add_argument(
