@@ -5,6 +5,8 @@ outliers do not pull; the sandwich error bars; and their bad input."""
 
 from __future__ import annotations
 
+import warnings
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -249,3 +251,24 @@ def test_outputs_sampled_at_different_times_each_set_their_robust_scale():
     # rows holding both were none, and the variances inf (weights 0)
     auto = ti.Problem(m, e, p0={"k": 0.2}, x0=[1.0], weights="auto").weights
     np.testing.assert_allclose(auto, [1 / np.var(y[even, 0]), 1 / np.var(y[~even, 1])])
+
+
+def test_an_output_measured_nowhere_is_named_once_and_tested_nowhere():
+    """y2 has no measurement in the record: its scale was taken as inf ("the outputs
+    differ in scale by inf (... y2 ~ inf)"), and the residual tests counted 0 samples
+    (not available). Now one warning names it, and y1 alone is weighed and tested."""
+    t = np.linspace(0, 10, 40)
+    m = ti.Model(rhs=lambda x, p, u: -p[0] * x, output=lambda x, p: jnp.stack([x[0], 2 * x[0]]),
+                 states=["a"], params=["k"], outputs=["y1", "y2"])  # fmt: skip
+    y = np.exp(-0.3 * t)[:, None] * [1.0, 2.0]
+    y[:, 0] += np.random.default_rng(2).standard_normal(40) * 0.01
+    e = ti.Experiment(t, None, y, observed=np.stack([np.ones(40, bool), np.zeros(40, bool)], 1))
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        est = ti.Problem(m, e, p0={"k": 0.2}, x0=[1.0])
+        auto = ti.Problem(m, e, p0={"k": 0.2}, x0=[1.0], weights="auto").weights
+    lines = [str(w.message) for w in said]
+    assert len(lines) == 2 and all("['y2'] are measured at no sample" in s for s in lines)
+    np.testing.assert_allclose(auto, [1 / np.var(y[:, 0]), 0.0])
+    tests = ti.fit(est).residual_tests()
+    assert tests.samples == 40 and [c.what for c in tests.whiteness] == ["whiteness of y1"]

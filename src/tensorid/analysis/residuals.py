@@ -288,6 +288,8 @@ def residual_tests(res, max_lag: int | None = None, level: float = 0.99) -> Resi
         rows = [k[:, j] for k in seen]
         err = [a[k, j] for a, k in zip(errors, rows, strict=True)]
         Nj = sum(a.size for a in err)
+        if not Nj:  # measured nowhere: no series, no test (Problem warned of it)
+            continue
         why: str | None = _floor_reason(out, collapsed[out]) if out in collapsed else swamped(err)
         r = _correlation(err, err, max_lag)
         Q = float(Nj * np.sum(r[1:] ** 2))
@@ -377,9 +379,10 @@ def tested_samples(experiments, first: int = 0) -> int:
     """N of the residual tests: the measured samples (not a gap, nor a row holding
     only a dose) of the output measured least often, over the records, after each
     record's first ``first`` samples (outputs sampled at different times are each
-    their own series)."""
+    their own series; an output measured nowhere has none)."""
     S = experiments[0].seen.shape[1]
-    return min(int(sum(e.seen[first:, j].sum() for e in experiments)) for j in range(S))
+    counts = [int(sum(e.seen[first:, j].sum() for e in experiments)) for j in range(S)]
+    return min([n for n in counts if n] or [0])  # an output measured nowhere is not tested
 
 
 def lag_limit(samples: int) -> int:

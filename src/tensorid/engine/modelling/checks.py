@@ -165,9 +165,20 @@ def check_x0(problem, x0) -> np.ndarray:
 def check_weights(problem, weights) -> np.ndarray:
     m = problem.model
     scale = output_scales(problem)
+    never = [o for o, v in zip(m.outputs, scale, strict=True) if np.isnan(v)]
+    if never:
+        warnings.warn(
+            f"output(s) {never} are measured at no sample of any record: they add nothing "
+            "to the fit; check the data's columns (or DVID), or leave them out of the model",
+            UserWarning,
+            stacklevel=3,
+        )
     if weights is None:
-        if m.S > 1 and scale.min() > 0 and scale.max() / scale.min() > 1e3:
-            sizes = ", ".join(f"{o} ~ {v:.1e}" for o, v in zip(m.outputs, scale, strict=True))
+        known = scale[~np.isnan(scale)]  # the scales of the outputs measured
+        if known.size > 1 and known.min() > 0 and known.max() / known.min() > 1e3:
+            sizes = ", ".join(f"{o} ~ {v:.1e}" for o, v in zip(m.outputs, scale, strict=True)
+                              if not np.isnan(v))  # fmt: skip
+            scale = known
             warnings.warn(
                 f"the outputs differ in scale by {scale.max() / scale.min():.0e} ({sizes}) "
                 "and no weights were given: the fit will all but ignore the small ones; "
@@ -179,13 +190,13 @@ def check_weights(problem, weights) -> np.ndarray:
     if isinstance(weights, str):
         if weights != "auto":
             raise ValueError(f"weights must be 'auto', a dict or an array, got {weights!r}")
-        if not (scale > 0).all():
-            flat = [o for o, v in zip(m.outputs, scale, strict=True) if not v > 0]
+        flat = [o for o, v in zip(m.outputs, scale, strict=True) if v == 0]
+        if flat:
             raise ValueError(
                 f"weights='auto' needs outputs that vary; {flat} are constant in the data: "
                 "give weights={output: w} instead"
             )
-        return 1.0 / scale**2
+        return np.where(np.isnan(scale), 0.0, 1.0 / scale**2)  # never measured: weighs 0
     if isinstance(weights, Mapping):
         w = name_list("weights", list(weights), m.outputs, "outputs")
         out = np.ones(m.S)
@@ -202,14 +213,16 @@ def check_weights(problem, weights) -> np.ndarray:
 
 def output_scales(problem) -> np.ndarray:
     """The standard deviation of each measured output, all experiments together, over
-    its own measured samples (outputs may be sampled at different times)."""
+    its own measured samples (outputs may be sampled at different times); NaN for an
+    output measured nowhere, inf where the values overflow it."""
     y = np.concatenate([e.y if e.observed is None else e.measured_with_gaps
                         for e in problem.experiments])  # fmt: skip
+    never = np.isnan(y).all(axis=0) if y.size else np.zeros(y.shape[1], bool)
     with np.errstate(over="ignore", invalid="ignore"):
         sd = (np.std(y, axis=0) if not np.isnan(y).any()
               else np.array([np.std(a[~np.isnan(a)]) if (~np.isnan(a)).any() else np.nan
                              for a in y.T]))  # fmt: skip
-        return np.nan_to_num(sd, nan=np.inf, posinf=np.inf)
+        return np.where(np.isnan(sd) & ~never, np.inf, sd)
 
 
 def check_bounds(problem, bounds: Mapping) -> tuple[np.ndarray, np.ndarray]:
