@@ -457,3 +457,17 @@ def test_a_huber_scale_below_the_residuals_counts_the_measured_samples():
     H, why = unresolved_scale(pr, res.theta)
     assert e.P == 43 and "of 40 residuals inside" in why and np.isfinite(H).all()
     assert np.isfinite(res.uncertainty().stderr).all()
+
+
+def test_a_simulation_whose_log_output_is_minus_inf_before_the_first_dose_is_no_blow_up():
+    """log c at the first dose's row, c = 0 before the dose: the warning said "the
+    simulation stops being finite at sample 0", of a simulation finite ever after."""
+    m = ti.Model(rhs=lambda x, p, u: -p[0] * x, output=lambda x, p: jnp.log(x[:1] / p[1]),
+                 states=["c"], params=["k", "v"], outputs=["logc"])  # fmt: skip
+    e = ti.Experiment(
+        np.arange(1.0, 24.0), None, None, events=ti.Events.doses([0.0, 12.0], "c", 100.0)
+    )
+    with pytest.warns(RuntimeWarning, match="not finite at 1 of the 24 samples.*not a blow-up"):
+        sim = ti.simulate(m, {"k": 0.1, "v": 10.0}, [0.0], e)
+    assert np.isneginf(sim.y[0, 0]) and np.isfinite(sim.y[1:]).all()
+    np.testing.assert_allclose(sim.y[1, 0], np.log(10.0) - 0.1)

@@ -117,10 +117,16 @@ def simulate(
     sim = run_simulation(shared_sweeps(model, (), (), discretisation, dosing=dosing), data, x, p)
     if sim.status is not Status.OK:
         h = sim.failed_at or 0
+        where = f"sample {h} (t = {data.t[h]:.6g})"
+        n = int((~np.isfinite(sim.y)).any(axis=1).sum())
+        said = (  # the states finite: no blow-up, the output's own value (log c at c = 0)
+            f"the outputs are not finite at {n} of the {data.P} samples, first at {where}, "
+            "where the states are finite: the output's own value there (such as log c "
+            "at c = 0), not a blow-up"
+            if sim.status is Status.NONFINITE_OUTPUT and np.isfinite(sim.x).all()
+            else f"the simulation stops being finite at {where}: {sim.status.message}"
+        )
         warnings.warn(
-            f"the simulation stops being finite at sample {h} (t = {data.t[h]:.6g}): "
-            f"{sim.status.message}; Simulation.status and failed_at say so too",
-            RuntimeWarning,
-            stacklevel=2,
+            f"{said}; Simulation.status and failed_at say so too", RuntimeWarning, stacklevel=2
         )
     return sim
