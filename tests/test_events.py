@@ -471,3 +471,24 @@ def test_a_simulation_whose_log_output_is_minus_inf_before_the_first_dose_is_no_
         sim = ti.simulate(m, {"k": 0.1, "v": 10.0}, [0.0], e)
     assert np.isneginf(sim.y[0, 0]) and np.isfinite(sim.y[1:]).all()
     np.testing.assert_allclose(sim.y[1, 0], np.log(10.0) - 0.1)
+
+
+def test_reverse_mode_through_jax_cost_skips_a_log_output_where_it_is_minus_inf():
+    """c is 0 before the first dose: log c is -inf at the dose's own row, where nothing
+    is measured. The sweeps skipped the row, but jax.grad of Problem.jax_cost met
+    0 · ∞ in log's derivative there and was NaN."""
+    m = ti.Model(rhs=lambda x, p, u: -p[0] * x, states=["c"], params=["k", "v"],
+                 output=lambda x, p: jnp.stack([x[0] / p[1], jnp.log(x[0] / p[1])]),
+                 outputs=["c", "logc"])  # fmt: skip
+    t = np.array([1.0, 2.0, 4.0, 6.0, 8.0])
+    c = 10.0 * np.exp(-0.2 * t) + 5.0 * np.exp(-0.2 * (t - 3)) * (t > 3)
+    seen = np.stack([t > 0, t != 2], axis=1)  # logc not measured at t = 2 (c is > 0)
+    ev = ti.Events.doses([0.0, 3.0], "c", [100.0, 50.0])  # rows of a dose alone
+    e = ti.Experiment(t, None, np.stack([c, np.log(c)], axis=1), observed=seen, events=ev)
+    prob = ti.Problem(m, e, p0={"k": 0.25, "v": 9.0}, x0=[0.0])
+    theta = prob.theta0
+    J, g, H = prob.cost_grad_hess(theta)
+    J_ad, g_ad, H_ad = autodiff(prob.jax_cost)(jnp.asarray(theta))
+    assert np.isfinite([J, *g, *H.ravel()]).all()
+    np.testing.assert_allclose([J_ad, *g_ad], [J, *g], rtol=1e-10)
+    np.testing.assert_allclose(H_ad, H, rtol=1e-8)

@@ -42,20 +42,35 @@ def _residuals(loss, y, pis, w):
     return jnp.where(y["mask"] > 0, r, 0.0)
 
 
-def _observed(obs_h, w, pi):
+def _observed(obs_h, w, pi, reverse: bool = False):
     """(y_h, w_h, π) of a sample (see _weighted); for a record with gaps, π is y_h
     wherever nothing was measured, output by output: a prediction that is not finite
     there (the model blows up after a record's last observation, or an output such
     as log x is NaN where x < 0 and only the other output was measured) then adds
     nothing to J, ∇J, ∇²J or the scores, where a zero weight times NaN was NaN. A
     select's derivatives are selects, so the sweeps' derivatives, carried forward in
-    time, stay finite too (reverse-mode autodiff through the march still meets the
-    NaN: the "double where")."""
+    time, stay finite too.
+
+    ``reverse``: for J differentiated in reverse mode (``Problem.jax_cost`` under
+    jax.grad), where the select's zero cotangent still meets the output's own
+    derivative (0 · ∞ of log x at x = 0): at a sample where nothing was measured
+    (a dose's own row), the outputs are computed from (x, p) cut from the derivatives
+    (the "double where"; a no-op compiled without them). A sample where one output
+    was measured and another is not finite still meets it there: jax.jacfwd does not.
+    """
     y_h, w_h = _weighted(obs_h, w)
     if not isinstance(obs_h, dict):
         return y_h, w_h, pi
     seen = obs_h["mask"] > 0
+    if reverse:
+        pi = functools.partial(_cut, pi, seen.any())
     return y_h, w_h, lambda x, p: jnp.where(seen, pi(x, p), y_h)
+
+
+def _cut(pi, any_seen, x, p):
+    """π(x, p), with x and p cut from the derivatives where ``any_seen`` is False."""
+    x, p = jax.tree.map(lambda a: jnp.where(any_seen, a, jax.lax.stop_gradient(a)), (x, p))
+    return pi(x, p)
 
 
 @dataclass(frozen=True)

@@ -209,7 +209,7 @@ class Sweeps:
             return self._f(p, uu)(z)
 
         def observe(J, z, obs_h, u_h):
-            y_h, w_h, pi = _observed(obs_h, w, functools.partial(self._pi, u_h=u_h))
+            y_h, w_h, pi = _observed(obs_h, w, functools.partial(self._pi, u_h=u_h), True)
             return J + self.loss.value(y_h, pi(z, p), w_h), None
 
         J, _, _ = self._march(field, observe, z0, jnp.zeros(()), t, u, y, p, update=self._update())
