@@ -774,3 +774,101 @@ def test_a_filter_fit_from_a_tiny_measurement_noise_does_not_stop_at_a_saddle():
         res = ti.fit(pr, method=method)
         assert res.success and res.cost < best, (method, res.cost, res.message)
         assert abs(res.params["log_sigma_e_y"] - np.log(0.02)) < 0.2  # 0.019 and 0.020
+
+
+# -- records with gaps ---------------------------------------------------------------------
+
+
+def plain_filter_with_gaps(model, theta, problem, substeps):
+    """−2 log L of a continuous-discrete EKF (no inputs) on a record with gaps, written
+    out plainly: at each sample the update and the likelihood term of the outputs
+    measured there alone (C, R and ε cut to them, one branch per subset), none where
+    nothing was."""
+    e = problem.experiments[0]
+    S, n, names = model.S, model.N, problem.model.params
+    p_all = jnp.asarray(problem.p0).at[jnp.array([names.index(k) for k in problem.free_params])]
+    p_all = p_all.set(theta[len(problem.free_x0) :])
+    p = p_all[: model.M]
+    noisy = [s for s in names if s.startswith("log_sigma_w_")]
+    Q = jnp.zeros(n).at[jnp.array([model.states.index(s[12:]) for s in noisy])]
+    Q = Q.set(jnp.exp(2 * jnp.array([p_all[names.index(s)] for s in noisy])))
+    R = jnp.exp(2 * jnp.array([p_all[names.index(f"log_sigma_e_{o}")] for o in model.outputs]))
+    x = jnp.asarray(problem.x0[0]).at[jnp.array([model.states.index(s) for s in problem.free_x0])]
+    x = x.set(theta[: len(problem.free_x0)])
+
+    def ode(x, P):
+        A = jax.jacfwd(lambda xx: model.f(xx, p, None))(x)
+        return model.f(x, p, None), A @ P + P @ A.T + jnp.diag(Q)
+
+    def measure(x, P, yk, idx):
+        if not idx:
+            return x, P, jnp.zeros((), x.dtype)
+        sel = jnp.array(idx)
+        C = jax.jacfwd(lambda xx: model.h(xx, p)[sel])(x)
+        Sg = C @ P @ C.T + jnp.diag(R[sel])
+        eps = yk[sel] - model.h(x, p)[sel]
+        G = P @ C.T @ jnp.linalg.inv(Sg)
+        I_GC = jnp.eye(n) - G @ C
+        term = jnp.linalg.slogdet(Sg)[1] + eps @ jnp.linalg.solve(Sg, eps)
+        return x + G @ eps, I_GC @ P @ I_GC.T + G @ jnp.diag(R[sel]) @ G.T, term
+
+    subsets = [tuple(j for j in range(S) if (c >> j) & 1) for c in range(2**S)]
+    branches = [lambda x, P, yk, idx=idx: measure(x, P, yk, idx) for idx in subsets]
+    codes = jnp.asarray((e.seen * (1 << np.arange(S))).sum(axis=1))
+    counted = jnp.asarray((np.arange(e.P) > 0) | (not problem.free_x0))  # t0 left out
+    dts = jnp.asarray(np.append(np.diff(e.t), 0.0) / substeps)
+
+    def step(carry, k):
+        x, P, J = carry
+        x, P, term = jax.lax.switch(codes[k], branches, x, P, jnp.asarray(e.y)[k])
+        h = dts[k]
+        for _ in range(substeps):
+            k1 = ode(x, P)
+            k2 = ode(x + h / 2 * k1[0], P + h / 2 * k1[1])
+            k3 = ode(x + h / 2 * k2[0], P + h / 2 * k2[1])
+            k4 = ode(x + h * k3[0], P + h * k3[1])
+            x = x + h / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
+            P = P + h / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
+        return (x, P, J + jnp.where(counted[k], term, 0.0)), None
+
+    (_, _, J), _ = jax.lax.scan(step, (x, jnp.zeros((n, n)), 0.0), jnp.arange(e.P))
+    return J
+
+
+def test_a_filter_on_a_record_with_gaps_updates_with_what_was_measured():
+    """Lotka-Volterra, both populations counted at some samples, one at others, none
+    at a few: the filter's J, ∇J and ∇²J are those of a filter that updates with the
+    measured outputs alone (records with gaps were refused: "fitted by output
+    error"), and the innovations and one-step predictions skip what was not measured."""
+    m = lotka()
+    params, x0 = {"a": 1.0, "b": 0.5, "c": 1.0}, [1.0, 0.5]
+    e = record(m, 24, 5, x0, params)
+    seen = np.random.default_rng(1).random((24, 2)) > 0.35
+    seen[[3, 9]] = False  # nothing measured: predicted, not corrected
+    y = np.where(seen, e.y, 0.0)
+    gaps = ti.Experiment(e.t, None, y, observed=seen)
+    noise = {"prey": 0.05, "pred": 0.1}
+    pr = ti.Problem(m, gaps, p0=params, x0=x0, free_x0=["prey"], predictor="ekf",
+                    process_noise=noise, interpolation="zoh", substeps=1)  # fmt: skip
+    theta = pr.theta0 * (1 + 0.05 * np.random.default_rng(3).standard_normal(pr.K))
+    J, g, H = pr.cost_grad_hess(theta)
+    Jr, gr, Hr = autodiff(lambda th: plain_filter_with_gaps(m, th, pr, 1))(theta)
+    assert abs(J - Jr) <= 1e-9 * abs(Jr)
+    assert np.abs(g - gr).max() <= 1e-9 * np.abs(gr).max()
+    assert np.abs(H - Hr).max() <= 1e-9 * np.abs(Hr).max()
+    innov = pr.predict(theta)[0].innovations
+    assert np.isfinite(innov).all() and (innov[~seen] == 0).all() and (innov[seen] != 0).all()
+    res = ti.fit(pr)
+    assert res.success and np.isfinite(res.cost)
+    assert res.residual_tests().samples == int(seen[1:].sum(axis=0).min())
+    # one step ahead on the record itself, its noise held where the filter's gains
+    # matter: no correction by the 0 placed where nothing was measured (GOF of the
+    # measured samples was below 0)
+    held = ti.Problem(m, gaps, p0=params, x0=x0, free_x0=["prey"], predictor="ekf",
+                      process_noise=noise, measurement_noise={"prey": 0.02, "pred": 0.02},
+                      fixed=[n for n in pr.model.params if n.startswith("log_sigma")],
+                      interpolation="zoh", substeps=1)  # fmt: skip
+    res = ti.fit(held)
+    full = ti.Experiment(e.t, None, e.y)
+    gofs = [res.validate(r, horizon=1)[0].gof for r in (gaps, full)]
+    assert all(v > 0.85 for g in gofs for v in g.values())

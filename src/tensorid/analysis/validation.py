@@ -16,8 +16,8 @@ from ..engine.modelling.checks import same_step, step
 from ..engine.modelling.data import Experiment
 from ..engine.modelling.metrics import gof, nrmse, r2, rmse
 from ..engine.schemes.status import Status
-from ..engine.sweeping.dosing import dosing_of
-from ..engine.sweeping.predictors import check_horizon
+from ..engine.sweeping.dosing import dosing_of, measured
+from ..engine.sweeping.predictions import check_horizon
 from ..engine.sweeping.sweeps import shared_sweeps
 from ..solve.minimize import interrupted, minimize_trust_region
 from ..solve.scaling import Tracker
@@ -285,8 +285,9 @@ def _predicted(sim, model, params, x0, record, disc, horizon, predictor) -> Simu
     check_horizon(horizon, record.P)
     sw = shared_sweeps(model, (), (), disc, *(predictor or ()))
     u = disc.inputs(model, record.t, record.u)
-    args = (on_device(a) for a in (x0, model.params_array(params), record.t, u, record.y))
-    y = np.asarray(sw.k_step(on_device(np.zeros(0)), *args, k=int(horizon)))
+    args = (on_device(a) for a in (x0, model.params_array(params), record.t, u))
+    y = measured(record, record.P)  # with its mask where it has gaps: no update there
+    y = np.asarray(sw.k_step(on_device(np.zeros(0)), *args, y, k=int(horizon)))
     return Simulation(model, record, sim.x, y, sim.status, sim.failed_at)
 
 

@@ -26,7 +26,8 @@ def filter_of(spec: ModelSpec, fitted: dict | None, record) -> tuple[ModelSpec, 
     if not kind.filters:
         return spec, None
     q, r = _noise_terms(fitted) if kind.has_noise_model else (None, None)
-    model, filt, _ = make_predictor(spec.model, kind, q, r, [record.y])
+    y = None if record.y is None else record.measured_with_gaps
+    model, filt, _ = make_predictor(spec.model, kind, q, r, [y])
     return replace(spec, model=model), (filt.own_loss or _fitted_loss(fitted), filt)
 
 

@@ -231,8 +231,8 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
 
     def _with_predictor(self, predictor, process_noise, measurement_noise) -> Model:
         """Set the predictor; a filter's model has its noise intensities appended to the
-        parameters (and p0). Returns the model the problem estimates."""
-        measured = [e.y for e in self.experiments]
+        parameters (and p0), started from the measured samples (NaN elsewhere)."""
+        measured = [None if e.y is None else e.measured_with_gaps for e in self.experiments]
         self.model, self.predictor, starts = make_predictor(
             self.model, predictor, process_noise, measurement_noise, measured
         )
@@ -419,9 +419,9 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
         """Per experiment, what the predictor makes of the record at θ: outputs
         predicted ``horizon`` samples ahead (1: one step), the filter's innovation
         covariances and standardised innovations (see
-        :class:`tensorid.engine.predictors.Prediction`). For output error every
+        :class:`tensorid.engine.predictions.Prediction`). For output error every
         horizon gives the simulation."""
-        from ..sweeping.predictors import predictions
+        from ..sweeping.predictions import predictions
 
         return predictions(self, theta, horizon)
 

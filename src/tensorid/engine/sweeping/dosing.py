@@ -298,10 +298,9 @@ def check_events(
     if not gaps:
         return False
     what = "records with events" if events else "records with unobserved samples"
-    if problem.predictor.filters:
-        raise ValueError(
-            f"{what} are fitted by output error: drop predictor={problem.predictor.name!r}"
-        )
+    pr = problem.predictor
+    if pr.filters and (events or not pr.takes_gaps):
+        raise ValueError(f"{what} are fitted by output error: drop predictor={pr.name!r}")
     if events and problem.discretisation.interpolation not in ("linear", "zoh"):
         raise ValueError(
             f"{what} take interpolation 'linear' or 'zoh', not "

@@ -28,7 +28,6 @@ an object); the rest of the package asks its markers, never its name.
 
 from __future__ import annotations
 
-import functools
 import warnings
 from dataclasses import dataclass
 from typing import Any, ClassVar, TypeVar
@@ -38,7 +37,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from ... import _config  # noqa: F401
-from ..compiling.compiled import on_device
 from ..modelling.checks import from_registry
 from .losses import GAUSSIAN, robust_noise
 
@@ -69,6 +67,9 @@ class Predictor:
             says otherwise).
         takes_loss: the user's loss and weights apply; False where the predictor
             brings its own (``own_loss``, e.g. a filter's Gaussian likelihood).
+        takes_gaps: a filter whose ``update`` takes ``seen=`` (S,), the outputs
+            measured at the sample, so that it corrects with those alone (records
+            with gaps); a predictor without an update takes gaps as it is.
     """
 
     name: ClassVar[str] = ""
@@ -77,6 +78,7 @@ class Predictor:
     supports_fleet: ClassVar[bool] = False
     supports_adjoint: ClassVar[bool] = False
     takes_loss: ClassVar[bool] = True
+    takes_gaps: ClassVar[bool] = False
     own_loss: ClassVar[Any] = None
     update: ClassVar[Any] = None
 
@@ -98,6 +100,11 @@ class Predictor:
 
     def predict(self, model, z, p, u=None):
         return model.h(z, p, u)
+
+    def masked(self, pi, seen, y):
+        """π as the loss sees it at a sample where only the outputs ``seen`` (S,) were
+        measured: y itself where not, so that those add nothing (nor their NaN)."""
+        return jnp.where(seen, pi, y)
 
     def build(self, model, process_noise, measurement_noise, measured) -> tuple:
         """(model, predictor, {noise parameter: start}) for a Problem of ``model``:
@@ -137,6 +144,7 @@ class OutputError(Predictor):
     carried state z (here the same)."""
 
     name: ClassVar[str] = "simulation"
+    takes_gaps: ClassVar[bool] = True
     supports_segments: ClassVar[bool] = True
     supports_fleet: ClassVar[bool] = True
     supports_adjoint: ClassVar[bool] = True
@@ -146,6 +154,10 @@ SIMULATION = OutputError()
 
 
 def __getattr__(name: str):
+    if name in ("Prediction", "predictions", "check_horizon"):  # their home before
+        from . import predictions
+
+        return getattr(predictions, name)
     if name == "Simulation":  # the name before issue 39: a simulation is engine/assembly/simulate's
         warnings.warn(
             "tensorid.engine.predictors.Simulation is deprecated: it is OutputError",
@@ -176,8 +188,13 @@ class ExtendedKalman(Predictor):
 
     The Joseph form keeps P symmetric and positive semi-definite under rounding.
     ``predict`` gives π = (ŷ, vec S) before the update, which the Gaussian loss
-    turns into log det S + εᵀ S⁻¹ ε. The initial covariance is P0 = 0: an initial
-    state is either estimated (a free x0, an unknown of θ) or known.
+    turns into log det S + εᵀ S⁻¹ ε. Where only some outputs were measured (a record
+    with gaps), C's other rows are 0 and S is 1 on their diagonal: the update uses
+    the measured outputs alone (their gains are 0), and the likelihood is that of the
+    measured block S_mm (log det and εᵀ S⁻¹ ε of a block-diagonal matrix, ε = 0
+    elsewhere). A sample where nothing was measured is a prediction, with no update.
+    The initial covariance is P0 = 0: an initial state is either estimated (a free
+    x0, an unknown of θ) or known.
 
     Arguments:
         process: (state index, parameter index) pairs: the states with process noise
@@ -188,6 +205,7 @@ class ExtendedKalman(Predictor):
     name: ClassVar[str] = "ekf"
     has_noise_model: ClassVar[bool] = True
     takes_loss: ClassVar[bool] = False
+    takes_gaps: ClassVar[bool] = True
     own_loss: ClassVar[Any] = GAUSSIAN
     process: tuple[tuple[int, int], ...] = ()
     measurement: tuple[int, ...] = ()
@@ -229,7 +247,10 @@ class ExtendedKalman(Predictor):
     def _R(self, p):
         return jnp.exp(2.0 * p[jnp.array(self.measurement, dtype=int)])
 
-    def _measurement(self, model, z, p, u):
+    def _measurement(self, model, z, p, u, seen=None):
+        """(x̂, P, ŷ, C, R, S); with ``seen``, C's rows of the outputs not measured
+        are 0 and S is 1 on their diagonal (selects: an output not finite there
+        stays out of every derivative)."""
         x, P = self._split(z)
 
         def h(xx):
@@ -237,20 +258,31 @@ class ExtendedKalman(Predictor):
 
         C = jax.jacfwd(h)(x)
         R = self._R(p)
-        S = C @ P @ C.T + jnp.diag(R)
-        return x, P, h(x), C, R, S
+        if seen is None:
+            return x, P, h(x), C, R, C @ P @ C.T + jnp.diag(R)
+        C = jnp.where(seen[:, None], C, 0.0)
+        return x, P, h(x), C, R, C @ P @ C.T + jnp.diag(jnp.where(seen, R, 1.0))
 
     def predict(self, model, z, p, u=None):
         _, _, yhat, _, _, S = self._measurement(model, z, p, u)
         return jnp.concatenate([yhat, S.reshape(-1)])
 
-    def update(self, model, z, p, y, u=None):  # type: ignore[override]
-        x, P, yhat, C, R, S = self._measurement(model, z, p, u)
+    def masked(self, pi, seen, y):
+        """(ŷ, vec S) of the measured outputs: y and S's rows and columns of the
+        identity elsewhere (the likelihood of the measured block, see the class)."""
+        n = y.shape[-1]
+        both = seen[:, None] & seen[None, :]
+        S = jnp.where(both, pi[n:].reshape(n, n), jnp.eye(n, dtype=pi.dtype))
+        return jnp.concatenate([jnp.where(seen, pi[:n], y), S.reshape(-1)])
+
+    def update(self, model, z, p, y, u=None, seen=None):  # type: ignore[override]
+        x, P, yhat, C, R, S = self._measurement(model, z, p, u, seen)
         PCt = P @ C.T
         K = jnp.linalg.solve(S, PCt.T).T  # P Cᵀ S⁻¹ (S symmetric)
         IKC = jnp.eye(x.shape[0], dtype=z.dtype) - K @ C
         P = IKC @ P @ IKC.T + (K * R) @ K.T
-        return jnp.concatenate([x + K @ (y - yhat), P.reshape(-1)])
+        eps = y - yhat if seen is None else jnp.where(seen, y - yhat, 0.0)
+        return jnp.concatenate([x + K @ eps, P.reshape(-1)])
 
     def build(self, model, process_noise, measurement_noise, measured) -> tuple:
         """(the filter's model, the filter, {noise parameter: start (log σ)}): the
@@ -381,67 +413,9 @@ def make_predictor(model, predictor, process_noise, measurement_noise, measured)
     return get_predictor(predictor).build(model, process_noise, measurement_noise, measured)
 
 
-@dataclass
-class Prediction:
-    """What a predictor made of one record at θ, per sample (P leading).
-
-    Arguments:
-        t: the sample times.
-        measured: y (P, S).
-        predicted: the one-step-ahead outputs ŷ_{h|h−1} (output error: the simulation),
-            or with ``horizon`` k, ŷ_{h|h−k}.
-        covariance: the filter's innovation covariances S_h (P, S, S); None for output
-            error.
-        innovations: standardised innovations L_h⁻¹ (y_h − ŷ_h), L_h L_hᵀ = S_h: white
-            with unit variance where the model and its noise are right (output error:
-            the plain residuals y − ŷ).
-        horizon: k (1: one step ahead).
-    """
-
-    t: np.ndarray
-    measured: np.ndarray
-    predicted: np.ndarray
-    covariance: np.ndarray | None
-    innovations: np.ndarray
-    horizon: int = 1
-
-
-def check_horizon(horizon, samples: int) -> None:
-    """A prediction horizon of at least one sample and below a record's length."""
-    whole = isinstance(horizon, int | np.integer) and not isinstance(horizon, bool)
-    if not (whole and 1 <= horizon < samples):
-        raise ValueError(
-            f"horizon must be a whole number of samples from 1 to {samples - 1}, got {horizon!r}"
-        )
-
-
-def predictions(problem, theta, horizon: int = 1) -> list[Prediction]:
-    """Per experiment of ``problem``, its :class:`Prediction` at θ (see
-    :meth:`tensorid.Problem.predict`)."""
-    for e in problem.experiments:
-        check_horizon(horizon, e.P)
-    theta = problem.check_theta(theta)
-    sw, out = problem.sweeps, []
-    S = problem.model.S
-    for e, (t, u, y) in enumerate(problem.arrays):
-        x0, p = on_device(problem.x0[e]), on_device(problem.p0)
-        local = on_device(theta[problem._slices(e)])
-        _, pis = (np.asarray(a) for a in sw.predictions(local, x0, p, t, u, y))
-        yhat, cov = pis[:, :S], None
-        meas = np.asarray(y["y"] if isinstance(y, dict) else y)  # a record with gaps: its y
-        if sw.loss.likelihood:  # π = (ŷ, vec S): the loss reads the covariance
-            cov = pis[:, S:].reshape(-1, S, S)
-            innov = np.asarray(_residual(sw.loss, y, on_device(pis)))
-        else:
-            innov = meas - yhat
-        if horizon > 1:
-            yhat = np.asarray(sw.k_step(local, x0, p, t, u, y, k=int(horizon)))
-        out.append(Prediction(np.asarray(t), meas, yhat, cov, innov, int(horizon)))
-    return out
-
-
-@functools.partial(jax.jit, static_argnums=0)
-def _residual(loss, y, pi):
-    """The loss's standardised residuals as one small program, not one per operation
-    (a filter's Cholesky factors and solves: seven programs to compile)."""
-    return loss.residual(y, pi, None)
+def corrected(predictor, model, z, p, y, *u):
+    """``predictor.update`` at a sample whose y may carry its mask ({"y", "mask"}: a
+    record with gaps; ``seen=`` the outputs measured there)."""
+    if isinstance(y, dict):
+        return predictor.update(model, z, p, y["y"], *u, seen=y["mask"] > 0)
+    return predictor.update(model, z, p, y, *u)

@@ -33,18 +33,22 @@ def _weighted(obs_h, w):
     return obs_h if isinstance(obs_h, tuple) else (obs_h, w)
 
 
-def _residuals(loss, y, pis, w):
+def _residuals(loss, y, pis, w, masked):
     """The loss's residuals (P, S) at the predictions π; a record with gaps ({"y",
-    "mask"}): 0 where nothing was measured (not the NaN of a non-finite π there)."""
+    "mask"}): 0 where nothing was measured (not the NaN of a non-finite π there), the
+    others from π as the loss sees it (``masked``: the predictor's)."""
     if not isinstance(y, dict):
         return loss.residual(y, pis, w)
+    seen = y["mask"] > 0
+    pis = jax.vmap(masked)(pis, seen, y["y"])
     r = loss.residual(y["y"], pis, (w[0] * y["mask"], w[1]))
-    return jnp.where(y["mask"] > 0, r, 0.0)
+    return jnp.where(seen, r, 0.0)
 
 
-def _observed(obs_h, w, pi, reverse: bool = False):
+def _observed(obs_h, w, pi, masked, reverse: bool = False):
     """(y_h, w_h, π) of a sample (see _weighted); for a record with gaps, π is y_h
-    wherever nothing was measured, output by output: a prediction that is not finite
+    wherever nothing was measured, output by output (``masked``: the predictor's
+    :meth:`~tensorid.engine.predictors.Predictor.masked`): a prediction that is not finite
     there (the model blows up after a record's last observation, or an output such
     as log x is NaN where x < 0 and only the other output was measured) then adds
     nothing to J, ∇J, ∇²J or the scores, where a zero weight times NaN was NaN. A
@@ -64,7 +68,7 @@ def _observed(obs_h, w, pi, reverse: bool = False):
     seen = obs_h["mask"] > 0
     if reverse:
         pi = functools.partial(_cut, pi, seen.any())
-    return y_h, w_h, lambda x, p: jnp.where(seen, pi(x, p), y_h)
+    return y_h, w_h, lambda x, p: masked(pi(x, p), seen, y_h)
 
 
 def _cut(pi, any_seen, x, p):
@@ -185,7 +189,7 @@ def second_order(sw, theta, x0, p, t, u, y, w, v=None, end=False, both=False):
     def observe(acc, state, obs_h, u_h):
         J, g, H = acc[:3]
         x, dxT, d2T = lay.split(state)
-        y_h, w_h, pi = _observed(obs_h, w, functools.partial(sw._pi, u_h=u_h))
+        y_h, w_h, pi = _observed(obs_h, w, functools.partial(sw._pi, u_h=u_h), sw.predictor.masked)
         Ca, e2 = pairs(pi, x, *directions(dxT, d2T))
         D = Ca[:K]  # (K, outputs) = (C_z Z)ᵀ
         ell, l1, l2, gamma = sw.loss.terms(y_h, pi(x, p), w_h)

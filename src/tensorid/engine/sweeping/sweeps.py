@@ -53,7 +53,7 @@ from .moving import march_moving
 from .output_sensitivity import output_jacobian
 from .packing import quadratic_full
 from .packing import unpack_symmetric as unpack_symmetric  # its old home, re-exported
-from .predictors import SIMULATION, Predictor
+from .predictors import SIMULATION, Predictor, corrected
 from .second_order import _observed, layout, second_order
 from .steady import settle_map
 
@@ -142,7 +142,7 @@ class Sweeps:
             y_h = obs_h[0] if isinstance(obs_h, tuple) else obs_h
 
             def fn(z, p_):
-                return pr.update(m, z, p_, y_h, *self._seen(u_h))
+                return corrected(pr, m, z, p_, y_h, *self._seen(u_h))
 
             return fn(state, p) if push is None else push(fn, state)
 
@@ -209,7 +209,8 @@ class Sweeps:
             return self._f(p, uu)(z)
 
         def observe(J, z, obs_h, u_h):
-            y_h, w_h, pi = _observed(obs_h, w, functools.partial(self._pi, u_h=u_h), True)
+            pi_h = functools.partial(self._pi, u_h=u_h)
+            y_h, w_h, pi = _observed(obs_h, w, pi_h, self.predictor.masked, True)
             return J + self.loss.value(y_h, pi(z, p), w_h), None
 
         J, _, _ = self._march(field, observe, z0, jnp.zeros(()), t, u, y, p, update=self._update())
@@ -239,7 +240,7 @@ class Sweeps:
         x0, p = self.expand(theta, x0, p)
         m, pr = self.model, self.predictor
         if pr.update is not None:
-            zs = jax.vmap(lambda z, yy, *uu: pr.update(m, z, p, yy, *uu))(zs, y, *self._seen(u))
+            zs = jax.vmap(lambda z, yy, *uu: corrected(pr, m, z, p, yy, *uu))(zs, y, *self._seen(u))
         xs = pr.states(zs)
 
         def field(x, uu):
@@ -258,7 +259,7 @@ class Sweeps:
 
     def _residuals(self, theta, x0, p, t, u, y, w):
         _, pis = self._predictions(theta, x0, p, t, u, y)
-        return orders._residuals(self.loss, y, pis, w).reshape(-1)
+        return orders._residuals(self.loss, y, pis, w, self.predictor.masked).reshape(-1)
 
     # -- first order: (J, ∇J) and the Gauss-Newton Hessian -----------------------------
     def _first_order(self, theta, x0, p, t, u, y, w, gauss_newton=True, end=False, scores=False):
@@ -286,7 +287,8 @@ class Sweeps:
         def observe(acc, state, obs_h, u_h):
             J, g, H = acc
             x, dxT, _ = lay.split(state)
-            y_h, w, pi = _observed(obs_h, w_all, functools.partial(self._pi, u_h=u_h))
+            pi_h = functools.partial(self._pi, u_h=u_h)
+            y_h, w, pi = _observed(obs_h, w_all, pi_h, self.predictor.masked)
             ell, l1, _, gamma = self.loss.terms(y_h, pi(x, p), w)
             D = columns(pi, x, dxT)  # (K, outputs) = (C_z Z)ᵀ
             if gauss_newton:
