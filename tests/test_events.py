@@ -492,3 +492,30 @@ def test_reverse_mode_through_jax_cost_skips_a_log_output_where_it_is_minus_inf(
     assert np.isfinite([J, *g, *H.ravel()]).all()
     np.testing.assert_allclose([J_ad, *g_ad], [J, *g], rtol=1e-10)
     np.testing.assert_allclose(H_ad, H, rtol=1e-8)
+
+
+def test_a_steady_state_near_saturation_is_found_or_refused_never_wrong():
+    """Michaelis-Menten elimination, 100 every 12 h against Vmax 8.4/h: Newton from 0
+    needs about 15 steps, and stopped after 6 at 1228 where the steady state is 1292
+    (phenytoin's case), silently. It is now found to the cycle's accuracy (here against
+    brentq on the cycle of scipy's solve_ivp), and a dose rate above Vmax, which has no
+    steady state, is a failed simulation (NaN), not a number."""
+    from scipy.integrate import solve_ivp
+    from scipy.optimize import brentq
+
+    m = ti.Model(rhs=lambda x, p, u: -p[0] * x / (10.0 + x), output=lambda x, p: x,
+                 states=["c"], params=["vm"], outputs=["c"])  # fmt: skip
+    e = ti.Experiment(np.array([0.0, 1.0]), None, np.zeros((2, 1)),
+                      events=Events.doses(0.0, "c", 100.0, ii=12.0, addl=1, ss=True))  # fmt: skip
+
+    def after(z, hours, vm=8.4):
+        f = solve_ivp(lambda t, x: -vm * x / (10 + x), (0, hours), [z + 100], rtol=1e-12,
+                      atol=1e-10)  # fmt: skip
+        return f.y[0, -1]
+
+    trough = brentq(lambda z: after(z, 12) - z, 0, 1e5, xtol=1e-10)
+    sim = ti.simulate(m, {"vm": 8.4}, [0.0], e, substeps=64)
+    assert sim.x[1, 0] == pytest.approx(after(trough, 1), rel=1e-6)
+    with pytest.warns(RuntimeWarning, match="stops being finite"):
+        none = ti.simulate(m, {"vm": 5.0}, [0.0], e, substeps=64)
+    assert np.isnan(none.x[1, 0])

@@ -8,7 +8,9 @@ steady state of the dose repeated every II for ever, just before it is given,
 which the dose's own event then follows. x_ss is found by Newton's method on
 Ψ(x) − x from 0 with Ψ's exact Jacobian (forward mode) until a step is below TOL. A
 linear model's cycle is affine in x, and one iteration lands on x_ss (a second
-confirms it); NEWTON iterations give a nonlinear one room. Each part of the cycle is
+confirms it); NEWTON iterations give a nonlinear one room (Michaelis-Menten
+elimination near saturation takes about 15 from 0), and a steady state not found in
+them is NaN: the simulation fails and says where, never a wrong x_ss. Each part of the cycle is
 integrated by the record's scheme with CYCLE_STEPS times its substeps (a cycle is
 longer than a sample interval).
 
@@ -46,8 +48,12 @@ import numpy as np
 
 from ..schemes.integrators import ExplicitRungeKutta
 
-NEWTON = 6
+NEWTON = 50
 TOL = 1e-13  # a Newton step this small relative to x_ss (its largest entry): converged
+# ... or below this one and no longer shrinking: converged to the cycle's rounding (a
+# nonlinear cycle of thousands of steps, whose Ψ(z) − z is not known better); a last
+# step above it: not converged
+FLOOR = 1e-9
 CYCLE_STEPS = 8
 
 
@@ -146,19 +152,28 @@ def _implicit(cycle, dosed):
     @jax.custom_jvp
     def steady(x, p, uu):
         """x_ss by Newton steps on Ψ(z) − z from 0 until a step moves it by less than
-        TOL of its size (at most NEWTON steps; none without a dose). x gives the shape
-        only."""
+        TOL of its size, or less than FLOOR and no less than half the step before (at
+        most NEWTON steps; none without a dose); NaN where it does not converge. x
+        gives the shape only."""
 
         def step(state):
-            z, i, _ = state
+            z, i, size, _ = state
             psi, Jz, _, _ = jacobians(z, p, uu, params=False)
             dz = jnp.linalg.solve(gap_matrix(Jz, uu), psi - z)
-            return z + dz, i + 1, jnp.max(jnp.abs(dz)) > TOL * jnp.max(jnp.abs(z + dz))
+            scale = jnp.maximum(jnp.max(jnp.abs(z + dz)), jnp.finfo(z.dtype).tiny)
+            return z + dz, i + 1, jnp.max(jnp.abs(dz)) / scale, size
 
         def more(state):
-            return (state[1] < jnp.where(dosed(uu), NEWTON, 0)) & state[2]
+            _, i, size, last = state
+            floor = (size < FLOOR) & (size >= last / 2)  # steps no longer shrink: rounding's
+            return (i < jnp.where(dosed(uu), NEWTON, 0)) & (size > TOL) & ~floor
 
-        return jax.lax.while_loop(more, step, (jnp.zeros_like(x), 0, True))[0]
+        inf = jnp.asarray(jnp.inf, x.dtype)
+        z, _, size, _ = jax.lax.while_loop(more, step, (jnp.zeros_like(x), 0, inf, inf))
+        # not converged (no steady state: a dose rate above what the model can
+        # eliminate; or none found in NEWTON steps): NaN, a failed simulation, never a
+        # wrong steady state
+        return jnp.where(dosed(uu) & (size > FLOOR), jnp.nan, z)
 
     @functools.partial(steady.defjvp, symbolic_zeros=True)
     def implicit(primals, tangents):
