@@ -33,6 +33,7 @@ from ..solve.solvers import Method, TrustRegion
 from ..solve.starts import fit_task, fits, many_starts
 from .priors import weigh_priors, weighed
 from .robust import fit_robust
+from .substeps import refined
 
 __all__ = ["LOCKSTEP", "METHODS", "fit", "fit_batch", "fit_task"]
 
@@ -113,6 +114,7 @@ def fit(
         else:
             thetas, where = theta0[None, :], None
         res = _starts(problem, solver, thetas, options, where, started)
+        res = refined(problem, res, _refit(solver, options, started), started)  # substeps
     res = replace(res, compile_seconds=clock[0])
     if res.status is Status.INTERRUPTED:
         raise FitInterrupted(res)
@@ -218,6 +220,11 @@ def _starts(problem, method, thetas, options, where, started) -> FitResult:
         return weighed(_fits)(problem, method, thetas, options, started)[0]
     res = FitResult.of(many_starts(problem, method, thetas, options, where, started))
     return weigh_priors(res, _fits, method, options, started)
+
+
+def _refit(method, options, started):
+    """``(problem, theta0) -> FitResult``: the fit repeated from θ0 (a finer problem's)."""
+    return lambda problem, theta: _starts(problem, method, theta[None, :], options, None, started)
 
 
 def fit_batch(problem: Problem, method: str | Method, thetas, **options) -> list[FitResult]:
