@@ -100,9 +100,7 @@ def fit(
     solver = check_method(problem, method)
     options = _options(options, x_scale, maxiter, gtol, ftol, xtol, callback, polish)
     theta0 = _check_start(problem, problem.theta0 if theta0 is None else theta0, "theta0")
-    if starts is not None:
-        _check_count("starts", starts)
-    n = 1 if starts is None else int(starts)
+    n = 1 if starts is None else _check_count("starts", starts)
     _check_multistart(spread, sampling, workers, timeout, seed, executor)
     if n > 1:
         batch = _check_batch(solver, batch, n, executor, workers)
@@ -345,9 +343,11 @@ def _check_start(problem: Problem, theta, what: str) -> np.ndarray:
     return theta
 
 
-def _check_count(name: str, n) -> None:
+def _check_count(name: str, n) -> int:
+    """``n``, a positive whole number, as an int; one line for anything else."""
     if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
         raise ValueError(f"{name} must be a positive integer, got {n!r}")
+    return int(n)
 
 
 def _check_multistart(spread, sampling, workers, timeout, seed=0, executor=None) -> None:
