@@ -550,3 +550,39 @@ def test_a_fit_whose_default_substeps_are_too_coarse_for_its_intervals_refits_fi
     kept = ti.fit(_oral(substeps=4))
     assert kept.problem.discretisation.substeps == 4 and abs(kept.params["ka"] - 1.0) > 0.1
     assert any("integrated too coarsely" in n for n in kept.notes)
+
+
+def test_a_dose_between_samples_leaves_held_inputs_held():
+    """With inputs held (zoh), a dose into another state between two samples made a
+    row whose input was interpolated (0.5 at t = 5 between 0 and 1), and the output
+    that reads the input changed; it is now the row before's, as without the dose."""
+    m = ti.Model(rhs=lambda x, p, u: jnp.stack([-p[0] * x[0], u[0] - p[0] * x[1]]),
+                 output=lambda x, p: x[1:], states=["a", "b"], params=["k"], inputs=["u"],
+                 outputs=["y"])  # fmt: skip
+    t, u = np.array([0.0, 10.0, 20.0]), np.array([[0.0], [1.0], [1.0]])
+
+    def y(events, interpolation):
+        e = ti.Experiment(t, u, events=events)
+        sim = ti.simulate(m, {"k": 0.1}, [0.0, 0.0], e, interpolation=interpolation, substeps=32)
+        return sim.y[np.isin(sim.t, t), 0]
+
+    dose = Events.doses(5.0, "a", 5.0)
+    np.testing.assert_allclose(y(dose, "zoh"), y(None, "zoh"), rtol=1e-12)
+    np.testing.assert_allclose(y(dose, "zoh")[-1], 10 * (1 - np.exp(-1.0)), rtol=1e-8)
+    np.testing.assert_allclose(y(dose, "linear"), y(None, "linear"), rtol=1e-8)
+    half = ti.Experiment(t, u, events=dose).window(0, 3)  # a window keeps the row added
+    assert np.array_equal(half.inputs_held("zoh")[:, 0], [0.0, 0.0, 1.0])
+
+
+def test_a_repeated_dose_s_time_is_its_row_s_to_rounding():
+    """II 0.7 from 0: the third repeat is 3 × 0.7 = 2.0999999999999996, which made a
+    node of its own just before the row at 2.1, whose observation then saw the dose
+    (the trough rule broken). It is now at the row, after its observation."""
+    e = ti.Experiment(np.array([0.0, 1.4, 2.1]), None, np.ones((3, 1)),
+                      events=Events.doses(0.0, "c", 100.0, ii=0.7, addl=3))  # fmt: skip
+    assert np.array_equal(e.t, [0.0, 0.7, 1.4, 2.1])
+    m = ti.Model(rhs=lambda x, p, u: -p[0] * x, output=lambda x, p: x, states=["c"],
+                 params=["k"], outputs=["c"])  # fmt: skip
+    c = ti.simulate(m, {"k": 0.1}, [0.0], e).x[:, 0]
+    trough = 100 * sum(np.exp(-0.1 * (2.1 - d)) for d in (0.0, 0.7, 1.4))
+    assert c[-1] == pytest.approx(trough, rel=1e-6)

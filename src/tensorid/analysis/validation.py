@@ -284,7 +284,7 @@ def _predicted(sim, model, params, x0, record, disc, horizon, predictor) -> Simu
         raise ValueError(f"a prediction horizon needs measured outputs; {record.name!r} has none")
     check_horizon(horizon, record.P)
     sw = shared_sweeps(model, (), (), disc, *(predictor or ()))
-    u = disc.inputs(model, record.t, record.u)
+    u = disc.inputs(model, record.t, record.inputs_held(disc.interpolation))
     args = (on_device(a) for a in (x0, model.params_array(params), record.t, u))
     y = measured(record, record.P)  # with its mask where it has gaps: no update there
     y = np.asarray(sw.k_step(on_device(np.zeros(0)), *args, y, k=int(horizon)))

@@ -247,7 +247,7 @@ class Problem(ThetaLayout, PriorTerms, DiscretisationSettings, LossSettings):
     def grid(self, e: Experiment) -> tuple[np.ndarray, np.ndarray]:
         """(t, u) of record e as the march reads them: with its events' channels after
         the inputs and its moving events' nodes after its own samples (dosing.py)."""
-        u = self.discretisation.inputs(self.model, e.t, e.u)
+        u = self.discretisation.inputs(self.model, e.t, e.inputs_held(self.interpolation))
         return (e.t, u) if self.dosing is None else self.dosing.arrays(e, u)
 
     hessian = property(lambda self: self.hessian_path.name, doc="fit.json's hessian_path")

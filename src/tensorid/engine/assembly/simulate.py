@@ -50,7 +50,8 @@ class Simulation:
 def run_simulation(sweeps: Sweeps, data: Experiment, x0, p) -> Simulation:
     """Simulate with compiled ``sweeps`` and read the integrator's failure code (a
     record's events through the sweeps' ``dosing``, widened to the states they act on)."""
-    u = sweeps.discretisation.inputs(sweeps.model, data.t, data.u)
+    d = sweeps.discretisation
+    u = d.inputs(sweeps.model, data.t, data.inputs_held(d.interpolation))
     dosing = covering(sweeps.dosing, sweeps.model, data)
     if dosing is not None:
         if dosing != sweeps.dosing:

@@ -158,8 +158,11 @@ def _check_finite(name: str, arr: np.ndarray) -> None:
         kind = "NaN" if np.isnan(arr[bad]).any() else "inf"
         raise ValueError(
             f"{name} contains {kind} at {bad.sum()} place(s), first at sample "
-            f"{rows[0]}; remove or interpolate those samples before fitting"
-        )
+            f"{rows[0]}; "
+            + ("mark them not measured (observed=, False there: they are left out) or "
+               "remove them" if name == "y" else "remove or interpolate those samples")
+            + " before fitting"
+        )  # fmt: skip
 
 
 @dataclass(frozen=True, eq=False)
@@ -196,6 +199,9 @@ class Experiment:
     observed: np.ndarray | None = None
     censored: np.ndarray | None = None
     late_events: int = field(default=0, init=False, repr=False)
+    # True at the record's own rows, False at those its events added (None: all own);
+    # passed on by window() and dataclasses.replace, whose events add no rows again
+    _own: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         t = np.asarray(self.t, dtype=float)
@@ -235,6 +241,9 @@ class Experiment:
                 )
             grid = t
             t, u, y, seen, events, late = merge(t, u, y, seen, self.events)
+            own = np.zeros(t.size, dtype=bool)
+            own[np.searchsorted(t, grid)] = True if self._own is None else self._own
+            object.__setattr__(self, "_own", None if own.all() else own)
             if cens is not None:  # the new rows are not censored samples either
                 wide = np.zeros((t.size, cens.shape[1]), dtype=bool)
                 wide[np.searchsorted(t, grid)] = cens
@@ -342,7 +351,17 @@ class Experiment:
             events=events,
             observed=None if self.observed is None else self.observed[start:stop],
             censored=None if self.censored is None else self.censored[start:stop],
+            _own=None if self._own is None else self._own[start:stop],
         )
+
+    def inputs_held(self, interpolation: str) -> np.ndarray:
+        """u as ``interpolation`` reads it: held ("zoh") from each of the record's own
+        rows over the rows its events added (a dose between two samples changes no
+        input there; their interpolated value is linear interpolation's)."""
+        if interpolation != "zoh" or self._own is None:
+            return self.u
+        last_own = np.maximum.accumulate(np.where(self._own, np.arange(self.P), 0))
+        return self.u[last_own]
 
     def __repr__(self) -> str:
         S = 0 if self.y is None else self.y.shape[1]
