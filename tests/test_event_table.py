@@ -76,6 +76,11 @@ def test_doses_repeats_and_infusions_are_read_with_rows_that_observe_nothing(tmp
         ("1,2,10,.,1,1,1,0,0,-1,70", "RATE -1 on line 3"),
         ("1,2,.,x,0,0,2,0,0,0,70", "holds 'x' on line 3"),
         ("1,0.5,.,1,0,0,2,0,0,0,70", "goes backwards on line 3"),
+        # dropped without a word before: a dose on an observation row, an infinite
+        # observation, an MDV that is neither 0 nor 1
+        ("1,2,100,.,0,1,1,0,0,0,70", "has AMT 100 and EVID 0, which doses nothing"),
+        ("1,2,.,inf,0,0,2,0,0,0,70", "observation on line 3 is infinite"),
+        ("1,2,.,1,0,2,2,0,0,0,70", "MDV 2 on line 3 is not understood"),
     ],
 )
 def test_a_bad_event_row_is_one_line_naming_the_file_the_unit_and_the_line(tmp_path, row, words):

@@ -268,6 +268,12 @@ def _one_or_joined(
     if records is None:
         not_several_units(label, cols)
     if event_table.is_event_table(cols):
+        if samples is not None or ts is not None:  # (they were dropped without a word)
+            what = "samples (--samples, --validate-samples)" if samples is not None else "ts (--ts)"
+            raise ValueError(
+                f"{label} is an event table (its rows are doses and observations at their "
+                f"times): {what} does not apply to it; drop it"
+            )
         return _event_records(label, cols, model, require_outputs, records, covariates)
     if records is None:
         check_covariates(label, None, cols, covariates)

@@ -144,6 +144,7 @@ def unit_record(where: str, name: str, cols: _Columns, model, require_outputs: b
         )
     mdv = numbers(where, cols, "MDV", n)
     mdv = np.where(np.isfinite(mdv), mdv, (evid != 0).astype(float))
+    _plain_rows(where, cols, evid, amt, mdv)
     events = _events(where, cols, model, t, evid, amt)
     outputs = [o for o in model.outputs if o in cols.values]
     y, seen = _observations(where, cols, model, outputs, evid, mdv, n)
@@ -253,6 +254,24 @@ def _dose(where, cols, i, model, t, amt, rate, ii, addl, ss, cmt) -> Events:
         raise ValueError(f"{where}, {line}: {str(err).removeprefix('events: ')}") from None
 
 
+def _plain_rows(where, cols, evid, amt, mdv) -> None:
+    """One line for a cell that would be dropped without a word: MDV other than 0 or
+    1, an amount on a row that doses nothing (EVID 0 or 2)."""
+    odd = np.flatnonzero(~np.isin(mdv, (0, 1)))
+    if odd.size:
+        raise ValueError(
+            f"{where}: MDV {mdv[odd[0]]:g} {_at(cols, int(odd[0]))} is not understood; MDV "
+            "is 0 (the row observes its output) or 1 (it does not)"
+        )
+    lost = np.flatnonzero(np.isin(evid, (0, 2)) & (np.nan_to_num(amt) != 0))
+    if lost.size:
+        i = int(lost[0])
+        raise ValueError(
+            f"{where}: the row {_at(cols, i)} has AMT {amt[i]:g} and EVID {evid[i]:g}, which "
+            "doses nothing; give EVID 1 for a dose, or an empty AMT (or 0)"
+        )
+
+
 def _observations(where, cols, model, outputs, evid, mdv, n):
     """(y (n, S) with NaN where not measured, observed (n, S)) of the rows; (None,
     None) where the file has no output column."""
@@ -262,6 +281,12 @@ def _observations(where, cols, model, outputs, evid, mdv, n):
     for name in outputs:
         y[:, model.outputs.index(name)] = numbers(where, cols, name, n)
     row = (evid == 0) & (mdv == 0)
+    inf = np.flatnonzero((row[:, None] & np.isinf(y)).any(axis=1))
+    if inf.size:
+        raise ValueError(
+            f"{where}: an observation {_at(cols, int(inf[0]))} is infinite; an observation "
+            "is a finite number (a missing one is empty or '.', or MDV 1)"
+        )
     seen = row[:, None] & np.isfinite(y)
     if "DVID" in cols.values:  # one output: the rows of another DVID are not its
         which = np.zeros((n, model.S), dtype=bool)
