@@ -272,3 +272,15 @@ def test_an_output_measured_nowhere_is_named_once_and_tested_nowhere():
     np.testing.assert_allclose(auto, [1 / np.var(y[:, 0]), 0.0])
     tests = ti.fit(est).residual_tests()
     assert tests.samples == 40 and [c.what for c in tests.whiteness] == ["whiteness of y1"]
+    # a robust loss: its scale from y1 alone (it had refused: "0 samples are too few"),
+    # error bars without numpy's warnings of empty means; and compare's scores count
+    # y1 alone (it had exited 1: "the None-step predictions are not finite")
+    from tensorid.app.filter_fits import scores_finite
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        warnings.simplefilter("error", RuntimeWarning)
+        rob = ti.fit(ti.Problem(m, e, p0={"k": 0.2}, x0=[1.0], loss="huber"))
+        assert np.isfinite(rob.uncertainty().stderr).all()
+    assert abs(rob.params["k"] - 0.3) < 0.01
+    assert scores_finite(rob.validate(e)[0])

@@ -73,9 +73,15 @@ class DataSensitivity(Tabular):
         (how far one noise level would move it: leverage)."""
         rows = []
         arrays = self.pull(name) if by == "pull" else self.scaled(name)
+        seen = self.seen or [None] * len(arrays)
         for e, a in enumerate(np.abs(x) for x in arrays):
+            if seen[e] is not None:  # a sample not measured is none of them
+                a = np.where(seen[e], a, -1.0)
+                n_e = min(n, int(seen[e].sum()))
+            else:
+                n_e = n
             for k, s in zip(
-                *np.unravel_index(np.argsort(a, axis=None)[::-1][:n], a.shape), strict=True
+                *np.unravel_index(np.argsort(a, axis=None)[::-1][:n_e], a.shape), strict=True
             ):
                 rows.append((self.records[e], int(k), self.outputs[s], float(a[k, s])))
         return sorted(rows, key=lambda r: -r[3])[:n]

@@ -148,8 +148,9 @@ def unresolved_scale(problem, theta) -> tuple[np.ndarray | None, str | None]:
     seen = np.concatenate([x.seen for x in exps])  # (not a gap, nor a dose's row)
     cols = [e[seen[:, j], j] for j in range(e.shape[1])]  # each output's residuals
     n = np.array([a.size for a in cols])
-    h = 0.9 * np.array([robust_sd(a) for a in cols]) * np.maximum(n, 1) ** (-0.2)
-    counts = w > 0
+    sd = np.array([robust_sd(a) if a.size else np.inf for a in cols])  # (measured nowhere)
+    h = 0.9 * sd * np.maximum(n, 1) ** (-0.2)
+    counts = (w > 0) & (n > 0)
     low = counts & (c < h)
     if not low.any():
         return None, None
@@ -170,8 +171,8 @@ def unresolved_scale(problem, theta) -> tuple[np.ndarray | None, str | None]:
             "the data's information); use a larger loss scale, or drop loss_scale to "
             "have it estimated"
         )
-    near = [np.mean(np.abs(a) <= b) for a, b in zip(cols, h, strict=True)]
-    near_c = [np.mean(np.abs(a) <= b) for a, b in zip(cols, c, strict=True)]
+    near = [np.mean(np.abs(a) <= b) if a.size else 0.0 for a, b in zip(cols, h, strict=True)]
+    near_c = [np.mean(np.abs(a) <= b) if a.size else 0.0 for a, b in zip(cols, c, strict=True)]
     share = np.where(low, (c / np.where(h > 0, h, 1.0)) * near, near_c)
     gamma = np.where(counts, 2.0 * w * share, 0.0)  # E[ℓ_ŷŷ] per output
     H = np.diag(problem.prior_curvature).astype(float)

@@ -82,6 +82,8 @@ NOT_SCORED = "scores_not_finite"  # compare.json's status: a finite simulation, 
 
 
 def scores_finite(score) -> bool:
-    """Whether every output's RMSE is finite (a filter whose predictions are not finite
-    leaves a finite simulation but no score)."""
-    return all(np.isfinite(v["rmse"]) for v in score.metrics().values())
+    """Whether the RMSE of every output measured at two samples or more is finite (a
+    filter whose predictions are not finite leaves a finite simulation but no score;
+    an output measured fewer than twice has none to give)."""
+    counts = score.scored
+    return all(np.isfinite(v["rmse"]) for o, v in score.metrics().items() if counts[o] > 1)

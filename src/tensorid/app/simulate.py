@@ -268,10 +268,11 @@ def run_compare(args) -> int:
 
 
 def _print_scores(score: Score) -> None:
-    scored = f"{score.samples} samples" + (f" after the first {score.start}" if score.start else "")
-    scored += f", {score.horizon}-step prediction" if score.horizon else ""
+    after = f" after the first {score.start}" if score.start else ""
+    after += f", {score.horizon}-step prediction" if score.horizon else ""
     flat = undefined_gof(score)
     for o, v in score.metrics().items():
+        scored = f"{score.scored[o]} samples{after}"  # its own (outputs measured apart)
         shown = {k: "undefined" if o in flat else format(x, spec) for k, x, spec in (
             ("nrmse", v["nrmse"], ".6g"), ("r2", v["r2"], ".9g"),
             ("fit_percent", v["fit_percent"], ".4f"), ("gof", v["gof"], ".6f"),

@@ -41,7 +41,9 @@ def residual_noise(res) -> np.ndarray:
     exps = res.problem.experiments
     r = np.concatenate([e.y - s.y for e, s in zip(exps, res.simulate(), strict=True)])
     seen = np.concatenate([e.seen for e in exps])  # (not a gap, nor a dose's row)
-    return np.array([robust_sd(r[seen[:, j], j]) for j in range(r.shape[1])])
+    # an output measured nowhere: NaN (no level; its scale stays the placeholder)
+    return np.array([robust_sd(r[seen[:, j], j]) if seen[:, j].any() else np.nan
+                     for j in range(r.shape[1])])  # fmt: skip
 
 
 def _implied(problem, res) -> dict | None:
@@ -49,7 +51,8 @@ def _implied(problem, res) -> dict | None:
     ``problem`` uses by more than RESCALE on an output that counts (else None)."""
     implied = problem.loss.tuning * residual_noise(res)
     used = np.array(list(problem.loss_scale.values()))
-    counts = problem.weights > 0  # an output of weight 0 keeps a placeholder scale
+    # an output of weight 0, or measured nowhere, keeps a placeholder scale
+    counts = (problem.weights > 0) & ~np.isnan(implied)
     if not (implied[counts] > 0).all():
         return None
     if np.all(np.abs(np.log(implied[counts] / used[counts])) < np.log(RESCALE)):

@@ -336,8 +336,10 @@ def make_loss(
         return loss, np.ones(S)
     if scale is None:
         y = np.concatenate([np.asarray(m, dtype=float) for m in measured])
-        sigma = robust_noise(y)
-        n = int((~np.isnan(y)).sum(axis=0).min())  # (NaN: not measured)
+        counts = (~np.isnan(y)).sum(axis=0)  # (NaN: not measured)
+        # an output measured nowhere adds nothing: any scale serves it (1)
+        sigma = np.where(counts > 0, robust_noise(y), 1.0 / loss.tuning)
+        n = int(counts[counts > 0].min()) if counts.any() else 0
         if n < 4:
             raise ValueError(
                 f"loss={name!r}: {n} samples are too few to set the loss scale from "
