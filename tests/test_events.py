@@ -586,3 +586,18 @@ def test_a_repeated_dose_s_time_is_its_row_s_to_rounding():
     c = ti.simulate(m, {"k": 0.1}, [0.0], e).x[:, 0]
     trough = 100 * sum(np.exp(-0.1 * (2.1 - d)) for d in (0.0, 0.7, 1.4))
     assert c[-1] == pytest.approx(trough, rel=1e-6)
+
+
+def test_doses_given_together_meet_an_amount_not_linear_in_amt_with_one_line():
+    """Two doses of 100 at one time into one state were summed before the model's
+    amount expression: amt/(1 + amt/d50) gave f(200) = 67, not 2 f(100) = 100, with no
+    word. A linear one (F · amt) sums as it should; a nonlinear one is refused."""
+    m = ti.Model(rhs=lambda x, p, u: -p[0] * x, output=lambda x, p: x, states=["central"],
+                 params=["k", "d50"], outputs=["c"])  # fmt: skip
+    e = ti.Experiment(np.array([1.0, 2.0]), None, None,
+                      events=Events.doses([0.0, 0.0], "central", [100.0, 100.0]))  # fmt: skip
+    p = {"k": 0.1, "d50": 100.0}
+    linear = ti.simulate(m, p, [0.0], e, doses={"central": "d50 / 100 * amt"})
+    assert linear.y[-1, 0] == pytest.approx(200 * np.exp(-0.2), rel=1e-6)
+    with pytest.raises(ValueError, match="not linear in amt, and two doses into it at t = 0"):
+        ti.simulate(m, p, [0.0], e, doses={"central": "amt / (1 + amt / d50)"})

@@ -114,14 +114,31 @@ class Dosing:
                     )
                 ss[h] = (1.0, d, ev.amount[k], ev.rate[k], ev.interval[k])
             elif kind in ("bolus", "impulse"):
+                if out[h, 0, d]:
+                    self._summed(e, d, f"two doses into it at t = {t[h]:g}")
                 out[h, 0, d] += ev.amount[k]
             elif kind == "reset":
                 out[h, 2, d], out[h, 3, d] = 1.0, ev.amount[k]
             else:  # infusion: its rate on every interval from its start to its end
                 end = stopped(ev, k, ev.time[k] + ev.amount[k] / ev.rate[k])
                 running = (t >= ev.time[k]) & (t < end - 1e-12 * max(abs(end), 1.0))
+                if out[running, 1, d].any():
+                    self._summed(e, d, f"infusions into it that overlap at t = {ev.time[k]:g}")
                 out[running, 1, d] += ev.rate[k]
         return np.concatenate([out.reshape(t.size, -1), ss], axis=1)
+
+    def _summed(self, e, d: int, what: str) -> None:
+        """One line where doses given together (their amounts, or rates, summed before
+        the target's expression sees them) meet an expression not linear in amt,
+        A(a + b) ≠ A(a) + A(b): each dose would not get its own."""
+        text = dict(self.amounts).get(d)
+        if text is None or _linear_in_amt(text):
+            return
+        raise ValueError(
+            f"record {e.name!r}: doses[{self.states[d]!r}] = {text!r} is not linear in amt, "
+            f"and {what} would be summed before it applies; give them at distinct times "
+            "(or write the expression linear in amt)"
+        )
 
     def _amount_functions(self, which: str = "doses"):
         """Per target, ``A(amt, p, u)`` in JAX (``which="lags"``: the lag's
@@ -192,6 +209,19 @@ class Dosing:
             return amount(q, p, uu)
 
         return jump, rate, shifts, amount
+
+
+@functools.lru_cache(maxsize=64)
+def _linear_in_amt(text: str) -> bool:
+    """Whether a dose expression is a(p, u) · amt: then doses given together may be
+    summed first."""
+    import sympy as sp
+
+    from ..modelling.equations import _parse
+
+    amt = sp.Symbol("amt")
+    expr = _parse("doses", text, {"amt": amt})
+    return sp.simplify(expr - amt * sp.diff(expr, amt)) == 0 and sp.diff(expr, amt, 2) == 0
 
 
 def dosing_of(
