@@ -330,3 +330,13 @@ def test_what_the_reviewers_found_is_refused_in_one_line(tmp_path):
     fleet = ti.Problem(m, exps, p0={"k": 1.0}, x0=[1.0], population={"k": 0.2})
     with pytest.raises(ValueError, match="x_scale=.* is not taken by a fit"):
         ti.fit(fleet, x_scale=np.array([1.0]))
+
+
+def test_repeats_past_a_unit_s_last_row_are_not_built(tmp_path):
+    """ADDL 1e8 every 0.001 h: every repeat was built before those after the unit's last
+    row were dropped (a MemoryError after 20 s); the ones that matter are built."""
+    p = _table(tmp_path, "1,0,100,.,1,1,1,0.001,100000000,0,70\n1,1,.,2,0,0,2,0,0,0,70\n")
+    spec = ti.load_model(tmp_path / "model.py")
+    with pytest.warns(UserWarning, match="events after a record's last row"):
+        (one,) = ti.load_data(p, spec.model, records="ID", columns={"t": "TIME", "cp": "DV"})
+    assert len(one.events) == 1001 and one.t[-1] == 1.0

@@ -217,9 +217,12 @@ def _events(where, cols, model, t, evid, amt) -> Events | None:
         if evid[i] in (3, 4):
             part = Events.resets(t[i], None)
         if evid[i] in (1, 4):
-            dose = _dose(
-                where, cols, i, model, t[i], amt[i], rate[i], ii[i], addl[i], ss[i], cmt[i]
-            )
+            # repeats past the unit's last row change nothing it holds: one of them is
+            # kept (for the note that they are left out), not ADDL = 1e8 of them
+            ii_i = float(np.nan_to_num(ii[i]))
+            more = np.floor((t[-1] - t[i]) / ii_i + 1e-9) + 1 if ii_i > 0 else np.inf
+            dose = _dose(where, cols, i, model, t[i], amt[i], rate[i], ii[i],
+                         min(addl[i], more), ss[i], cmt[i])  # fmt: skip
             part = dose if part is None else part + dose
         if part is not None:
             out = part if out is None else out + part
