@@ -305,10 +305,16 @@ def _event_records(label, cols, model, require_outputs, records, covariates) -> 
     units = [(_stem(label), cols)] if records is None else split_units(label, cols, records)
     for name, part in units:  # every unit checked before any is made
         check_covariates(label, None if records is None else name, part, covariates)
-    out, empty, late = [], [], {}
+    out, empty, late, single = [], [], {}, []
     for name, part in units:
         where = str(label) if records is None else as_text(label, name)
-        e = event_table.unit_record(where, name, part, model, require_outputs)
+        try:
+            e = event_table.unit_record(where, name, part, model, require_outputs)
+        except event_table.SingleRow:
+            if records is None:  # the file's one record: nothing else to fit
+                raise
+            single.append(name)
+            continue
         if e is None:
             empty.append(name)
             continue
@@ -319,6 +325,11 @@ def _event_records(label, cols, model, require_outputs, records, covariates) -> 
         warnings.warn(
             f"{label}: unit(s) {empty} have no observation and are left out", DataNote, stacklevel=3
         )
+    if single:
+        warnings.warn(
+            f"{label}: unit(s) {single} hold one row and no dose (nothing to integrate) and "
+            "are left out", DataNote, stacklevel=3
+        )  # fmt: skip
     warn_late(str(label), late)
     if not out:
         raise ValueError(f"{label}: no unit has an observation of {list(model.outputs)}")

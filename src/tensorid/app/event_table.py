@@ -190,11 +190,17 @@ def unit_record(where: str, name: str, cols: _Columns, model, require_outputs: b
         keep = grid <= grid[last]
         grid, u, y, seen = grid[keep], u[keep], y[keep], seen[keep]
         cens = None if cens is None else cens[keep]
+    if grid.size == 1 and events is None:
+        raise SingleRow(f"{where}: the unit holds one row and no dose: nothing to integrate")
     try:
         e = Experiment(grid, u, y, name=name, events=events, observed=seen, censored=cens)
     except ValueError as err:
         raise ValueError(f"{where}: {err}") from None
     return e
+
+
+class SingleRow(ValueError):
+    """A unit of one row and no dose (a fleet's file leaves it out, with a note)."""
 
 
 def _size(cols: _Columns) -> int:
