@@ -115,14 +115,20 @@ def _npde(obj, res, hy, K: int, rng) -> np.ndarray:
     for i in range(hy.shape[0]):
         k = seen[i]
         s = sims[:, i][:, k]  # (K, n)
-        centred = s - s.mean(0)
-        try:  # decorrelated by the simulations' own covariance
-            Li = np.linalg.cholesky(centred.T @ centred / (K - 1))
-            obs = np.linalg.solve(Li, hy[i][k] - s.mean(0))
-            dec = np.linalg.solve(Li, centred.T).T
-        except np.linalg.LinAlgError:  # more samples than replicates: standardised only
-            scale = np.maximum(centred.std(0, ddof=1), 1e-300)
-            obs, dec = (hy[i][k] - s.mean(0)) / scale, centred / scale
-        pde = np.clip((dec < obs).mean(0), 1 / (2 * K), 1 - 1 / (2 * K))
-        out[i][k] = inv(pde)
+        with np.errstate(all="ignore"):  # (a unit whose simulations overflow: no warning)
+            out[i][k] = inv(_pde(s, hy[i][k], K))
     return out
+
+
+def _pde(s: np.ndarray, obs: np.ndarray, K: int) -> np.ndarray:
+    """The prediction discrepancies of one unit's observations ``obs`` (n,) among its
+    K simulations ``s`` (K, n), decorrelated."""
+    centred = s - s.mean(0)
+    try:  # decorrelated by the simulations' own covariance
+        Li = np.linalg.cholesky(centred.T @ centred / (K - 1))
+        z = np.linalg.solve(Li, obs - s.mean(0))
+        dec = np.linalg.solve(Li, centred.T).T
+    except np.linalg.LinAlgError:  # more samples than replicates: standardised only
+        scale = np.maximum(centred.std(0, ddof=1), 1e-300)
+        z, dec = (obs - s.mean(0)) / scale, centred / scale
+    return np.clip((dec < z).mean(0), 1 / (2 * K), 1 - 1 / (2 * K))
