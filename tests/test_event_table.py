@@ -349,3 +349,20 @@ def test_a_unit_of_one_row_and_no_dose_is_left_out_with_a_note(tmp_path):
     with pytest.warns(UserWarning, match=r"unit\(s\) \['3'\] hold one row and no dose"):
         units = ti.load_data(p, spec.model, records="ID", columns={"t": "TIME", "cp": "DV"})
     assert [u.name for u in units] == ["1", "2"]
+
+
+def test_rows_of_an_output_no_column_is_mapped_to_are_said_once_for_the_file(tmp_path):
+    """DVID 2 names cm, but only cp=DV is mapped: its rows were dropped without a word."""
+    (tmp_path / "m.py").write_text(
+        'rhs = {"c": "-k * c", "m": "k * c - km * m"}\noutput = {"cp": "c", "cm": "m"}\n'
+        'params = ["k", "km"]\np0 = {"k": 0.2, "km": 0.1}\n'
+    )
+    rows = "".join(f"{i},0,100,.,1,1,.\n{i},1,.,80,0,.,1\n{i},1,.,15,0,.,2\n{i},2,.,60,0,.,1\n"
+                   for i in (1, 2))  # fmt: skip
+    (tmp_path / "t.csv").write_text("ID,TIME,AMT,DV,EVID,CMT,DVID\n" + rows)
+    model = ti.load_model(tmp_path / "m.py").model
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        ti.load_data(tmp_path / "t.csv", model, records="ID", columns={"t": "TIME", "cp": "DV"})
+    lines = [str(w.message) for w in said if "DVID names ['cm']" in str(w.message)]
+    assert len(lines) == 1 and "--columns cm=DV" in lines[0]

@@ -306,15 +306,20 @@ def _event_records(label, cols, model, require_outputs, records, covariates) -> 
     for name, part in units:  # every unit checked before any is made
         check_covariates(label, None if records is None else name, part, covariates)
     out, empty, late, single = [], [], {}, []
+    notes: dict[str, type[Warning]] = {}  # the units' notes, each said once for the file
     for name, part in units:
         where = str(label) if records is None else as_text(label, name)
         try:
-            e = event_table.unit_record(where, name, part, model, require_outputs)
+            with warnings.catch_warnings(record=True) as said:  # the file's notes: once
+                warnings.simplefilter("always")
+                e = event_table.unit_record(where, name, part, model, require_outputs)
         except event_table.SingleRow:
             if records is None:  # the file's one record: nothing else to fit
                 raise
             single.append(name)
             continue
+        finally:
+            notes.update({str(w.message): w.category for w in said})
         if e is None:
             empty.append(name)
             continue
@@ -325,6 +330,8 @@ def _event_records(label, cols, model, require_outputs, records, covariates) -> 
         warnings.warn(
             f"{label}: unit(s) {empty} have no observation and are left out", DataNote, stacklevel=3
         )
+    for text, category in notes.items():
+        warnings.warn(text, category, stacklevel=3)
     if single:
         warnings.warn(
             f"{label}: unit(s) {single} hold one row and no dose (nothing to integrate) and "

@@ -297,8 +297,8 @@ def _observations(where, cols, model, outputs, evid, mdv, n):
             "is a finite number (a missing one is empty or '.', or MDV 1)"
         )
     seen = row[:, None] & np.isfinite(y)
+    which = np.zeros((n, model.S), dtype=bool)  # the output each row's DVID names
     if "DVID" in cols.values:  # one output: the rows of another DVID are not its
-        which = np.zeros((n, model.S), dtype=bool)
         dvid = numbers(where, cols, "DVID", n) if "DVID" not in cols.text else None
         for i in np.flatnonzero(row):
             k = _output(where, cols, i, None if dvid is None else dvid[i], model)
@@ -306,6 +306,17 @@ def _observations(where, cols, model, outputs, evid, mdv, n):
         seen &= which
     missing = [o for o in model.outputs if o not in outputs]
     if missing:  # an output the file lacks is never observed
+        lost = which[:, [model.outputs.index(o) for o in missing]].any(axis=1)
+        if lost.any():  # rows whose DVID names it: said, not dropped silently
+            import warnings
+
+            from .timebase import DataNote
+
+            warnings.warn(  # (the file's, not each unit's: said once)
+                f"{where.split(', unit ')[0]}: the observation rows whose DVID names "
+                f"{missing} are not read: no column is mapped to them (--columns "
+                f"{missing[0]}=DV; columns= in Python)", DataNote, stacklevel=2
+            )  # fmt: skip
         seen[:, [model.outputs.index(o) for o in missing]] = False
     return y, seen
 

@@ -48,7 +48,8 @@ def coarse_move(problem, theta) -> float | None:
     r = np.concatenate([np.where(k, e.measured - s.y, np.nan)
                         for k, e, s in zip(seen, exps, coarse, strict=True)])  # fmt: skip
     with np.errstate(invalid="ignore"):
-        sd = np.sqrt(np.nanmean(r**2, axis=0))  # per output (NaN: measured nowhere)
+        n = (~np.isnan(r)).sum(axis=0)
+        sd = np.sqrt(np.nansum(r**2, axis=0) / np.where(n > 0, n, np.nan))  # (NaN: nowhere)
         moved = np.concatenate([np.where(k, np.abs(b.y - a.y), 0.0)
                                 for k, a, b in zip(seen, coarse, finer, strict=True)])  # fmt: skip
         moved = np.where(np.isnan(sd), 0.0, moved / np.maximum(np.nan_to_num(sd), 1e-300))
