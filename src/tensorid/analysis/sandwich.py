@@ -113,7 +113,8 @@ def score_covariance(problem, theta, lags="auto") -> tuple[np.ndarray, int]:
         for lag in range(1, min(L, s.shape[0] - 1) + 1):
             G = s[lag:].T @ s[:-lag]
             B += (1.0 - lag / (L + 1.0)) * (G + G.T)
-    n = sum(s.shape[0] for s in parts) * int((problem.weights > 0).sum())
+    counted = problem.weights > 0  # the measured values, not rows × outputs
+    n = sum(int(e.seen[first:][:, counted].sum()) for e in problem.experiments)
     return back @ B @ back.T * n / max(n - K, 1), L
 
 
