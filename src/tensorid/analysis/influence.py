@@ -73,7 +73,7 @@ class DataSensitivity(Tabular):
         (how far one noise level would move it: leverage)."""
         rows = []
         arrays = self.pull(name) if by == "pull" else self.scaled(name)
-        seen = self.seen or [None] * len(arrays)
+        seen: list = list(self.seen) if self.seen else [None] * len(arrays)
         for e, a in enumerate(np.abs(x) for x in arrays):
             if seen[e] is not None:  # a sample not measured is none of them
                 a = np.where(seen[e], a, -1.0)

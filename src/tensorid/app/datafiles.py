@@ -274,7 +274,9 @@ def _one_or_joined(
                 f"{label} is an event table (its rows are doses and observations at their "
                 f"times): {what} does not apply to it; drop it"
             )
-        return _event_records(label, cols, model, require_outputs, records, covariates)
+        return event_table.records_of(
+            label, cols, model, require_outputs, records, covariates, _stem(label)
+        )
     if records is None:
         check_covariates(label, None, cols, covariates)
         return [_experiment(label, cols, model, ts, samples, require_outputs)]
@@ -286,60 +288,6 @@ def _one_or_joined(
     for name, part in units:
         e = _experiment(as_text(label, name), part, model, ts, None, require_outputs)
         out.append(replace(e, name=name))
-    return out
-
-
-def _event_records(label, cols, model, require_outputs, records, covariates) -> list[Experiment]:
-    """The records of an event table (app/event_table.py): one per unit, each with its
-    doses and its rows without an observation; the units without any observation left
-    out with a note, the events after a unit's last row with one note for all."""
-    import warnings
-
-    from ..engine.modelling.events import warn_late
-
-    if "t" not in cols.values:
-        raise ValueError(
-            f"{label}: an event table needs its time column: map it with --columns t=TIME "
-            f"(columns={{'t': 'TIME'}}); found {sorted(cols.values)}"
-        )
-    units = [(_stem(label), cols)] if records is None else split_units(label, cols, records)
-    for name, part in units:  # every unit checked before any is made
-        check_covariates(label, None if records is None else name, part, covariates)
-    out, empty, late, single = [], [], {}, []
-    notes: dict[str, type[Warning]] = {}  # the units' notes, each said once for the file
-    for name, part in units:
-        where = str(label) if records is None else as_text(label, name)
-        try:
-            with warnings.catch_warnings(record=True) as said:  # the file's notes: once
-                warnings.simplefilter("always")
-                e = event_table.unit_record(where, name, part, model, require_outputs)
-        except event_table.SingleRow:
-            if records is None:  # the file's one record: nothing else to fit
-                raise
-            single.append(name)
-            continue
-        finally:
-            notes.update({str(w.message): w.category for w in said})
-        if e is None:
-            empty.append(name)
-            continue
-        if e.late_events:
-            late[name] = e.late_events
-        out.append(e)
-    if empty:
-        warnings.warn(
-            f"{label}: unit(s) {empty} have no observation and are left out", DataNote, stacklevel=3
-        )
-    for text, category in notes.items():
-        warnings.warn(text, category, stacklevel=3)
-    if single:
-        warnings.warn(
-            f"{label}: unit(s) {single} hold one row and no dose (nothing to integrate) and "
-            "are left out", DataNote, stacklevel=3
-        )  # fmt: skip
-    warn_late(str(label), late)
-    if not out:
-        raise ValueError(f"{label}: no unit has an observation of {list(model.outputs)}")
     return out
 
 

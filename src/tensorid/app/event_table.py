@@ -21,12 +21,15 @@ a row of a dose and one of an observation at one time: the observation comes fir
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from ..engine.modelling.data import Experiment
-from ..engine.modelling.events import Events, state_index
+from ..engine.modelling.events import Events, state_index, warn_late
 from .readers import Said, _Columns
-from .records import _at
+from .records import _at, as_text, check_covariates, split_units
+from .timebase import DataNote
 
 COLUMNS = ("EVID", "AMT", "CMT", "RATE", "II", "ADDL", "SS", "MDV", "DVID", "CENS")
 MISSING = ("", ".", "NA", "nan", "NaN")
@@ -134,14 +137,6 @@ def unit_record(where: str, name: str, cols: _Columns, model, require_outputs: b
     amt = numbers(where, cols, "AMT", n, 0.0)
     evid = numbers(where, cols, "EVID", n)
     evid = np.where(np.isfinite(evid), evid, np.where(np.nan_to_num(amt) > 0, 1.0, 0.0))
-    bad = np.flatnonzero(~np.isin(evid, (0, 1, 2, 3, 4)))
-    if bad.size:
-        i = int(bad[0])
-        raise ValueError(
-            f"{where}: EVID {evid[i]:g} {_at(cols, i)} is not understood; EVID is 0 (an "
-            "observation), 1 (a dose), 2 (nothing observed), 3 (a reset) or 4 (a reset and a "
-            "dose)"
-        )
     mdv = numbers(where, cols, "MDV", n)
     mdv = np.where(np.isfinite(mdv), mdv, (evid != 0).astype(float))
     _plain_rows(where, cols, evid, amt, mdv)
@@ -264,8 +259,17 @@ def _dose(where, cols, i, model, t, amt, rate, ii, addl, ss, cmt) -> Events:
 
 
 def _plain_rows(where, cols, evid, amt, mdv) -> None:
-    """One line for a cell that would be dropped without a word: MDV other than 0 or
-    1, an amount on a row that doses nothing (EVID 0 or 2)."""
+    """One line for an EVID not understood, and for a cell that would be dropped
+    without a word: MDV other than 0 or 1, an amount on a row that doses nothing (EVID
+    0 or 2)."""
+    bad = np.flatnonzero(~np.isin(evid, (0, 1, 2, 3, 4)))
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(
+            f"{where}: EVID {evid[i]:g} {_at(cols, i)} is not understood; EVID is 0 (an "
+            "observation), 1 (a dose), 2 (nothing observed), 3 (a reset) or 4 (a reset and a "
+            "dose)"
+        )
     odd = np.flatnonzero(~np.isin(mdv, (0, 1)))
     if odd.size:
         raise ValueError(
@@ -308,10 +312,6 @@ def _observations(where, cols, model, outputs, evid, mdv, n):
     if missing:  # an output the file lacks is never observed
         lost = which[:, [model.outputs.index(o) for o in missing]].any(axis=1)
         if lost.any():  # rows whose DVID names it: said, not dropped silently
-            import warnings
-
-            from .timebase import DataNote
-
             warnings.warn(  # (the file's, not each unit's: said once)
                 f"{where.split(', unit ')[0]}: the observation rows whose DVID names "
                 f"{missing} are not read: no column is mapped to them (--columns "
@@ -362,3 +362,56 @@ def _inputs(where, cols, model, first) -> np.ndarray:
             )
         cols_u.append(v[first])
     return np.stack(cols_u, axis=1)
+
+
+def records_of(label, cols, model, require_outputs, records, covariates, stem: str) -> list:
+    """The records of an event table: one per unit (``stem``: the name of the file's
+    one record without ``records``), each with its doses and its rows without an
+    observation; the units without any observation, or of one row and no dose, left
+    out with a note, the events after a unit's last row with one note for all, and
+    each unit's notes said once for the file."""
+
+    if "t" not in cols.values:
+        raise ValueError(
+            f"{label}: an event table needs its time column: map it with --columns t=TIME "
+            f"(columns={{'t': 'TIME'}}); found {sorted(cols.values)}"
+        )
+    units = [(stem, cols)] if records is None else split_units(label, cols, records)
+    for name, part in units:  # every unit checked before any is made
+        check_covariates(label, None if records is None else name, part, covariates)
+    out, empty, late, single = [], [], {}, []
+    notes: dict[str, type[Warning]] = {}  # the units' notes, each said once for the file
+    for name, part in units:
+        where = str(label) if records is None else as_text(label, name)
+        try:
+            with warnings.catch_warnings(record=True) as said:  # the file's notes: once
+                warnings.simplefilter("always")
+                e = unit_record(where, name, part, model, require_outputs)
+        except SingleRow:
+            if records is None:  # the file's one record: nothing else to fit
+                raise
+            single.append(name)
+            continue
+        finally:
+            notes.update({str(w.message): w.category for w in said})
+        if e is None:
+            empty.append(name)
+            continue
+        if e.late_events:
+            late[name] = e.late_events
+        out.append(e)
+    if empty:
+        warnings.warn(
+            f"{label}: unit(s) {empty} have no observation and are left out", DataNote, stacklevel=3
+        )
+    for text, category in notes.items():
+        warnings.warn(text, category, stacklevel=3)
+    if single:
+        warnings.warn(
+            f"{label}: unit(s) {single} hold one row and no dose (nothing to integrate) and "
+            "are left out", DataNote, stacklevel=3
+        )  # fmt: skip
+    warn_late(str(label), late)
+    if not out:
+        raise ValueError(f"{label}: no unit has an observation of {list(model.outputs)}")
+    return out
