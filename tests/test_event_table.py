@@ -344,9 +344,11 @@ def test_repeats_past_a_unit_s_last_row_are_not_built(tmp_path):
 
 def test_a_unit_of_one_row_and_no_dose_is_left_out_with_a_note(tmp_path):
     """It stopped the whole fleet: "an experiment needs at least 2 samples, got 1"."""
-    p = _table(tmp_path, ROWS + "3,0,.,0.5,0,0,2,0,0,0,70\n")
+    # unit 3: one row; unit 4: a baseline at its dose's time, then nothing observed
+    extra = "3,0,.,0.5,0,0,2,0,0,0,70\n4,0,.,0.0,0,0,2,0,0,0,70\n4,0,100,.,1,1,1,0,0,0,70\n"
+    p = _table(tmp_path, ROWS + extra)
     spec = ti.load_model(tmp_path / "model.py")
-    with pytest.warns(UserWarning, match=r"unit\(s\) \['3'\] hold one row and no dose"):
+    with pytest.warns(UserWarning, match=r"unit\(s\) \['3', '4'\] hold one time"):
         units = ti.load_data(p, spec.model, records="ID", columns={"t": "TIME", "cp": "DV"})
     assert [u.name for u in units] == ["1", "2"]
 

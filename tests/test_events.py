@@ -547,6 +547,8 @@ def test_a_fit_whose_default_substeps_are_too_coarse_for_its_intervals_refits_fi
     assert res.problem.discretisation.substeps == 16
     assert abs(res.params["ka"] - 1.0) < 0.05 and abs(res.params["v"] - 25.0) < 1.0
     assert any("substeps were raised from 4 to 16" in n for n in res.notes)
+    ranked = ti.fit(_oral(), starts=2, workers=1)  # the refit keeps the starts' ranking
+    assert len(ranked.starts) == 2 and ranked.problem.discretisation.substeps == 16
     kept = ti.fit(_oral(substeps=4))
     assert kept.problem.discretisation.substeps == 4 and abs(kept.params["ka"] - 1.0) > 0.1
     assert any("integrated too coarsely" in n for n in kept.notes)
@@ -601,3 +603,44 @@ def test_doses_given_together_meet_an_amount_not_linear_in_amt_with_one_line():
     assert linear.y[-1, 0] == pytest.approx(200 * np.exp(-0.2), rel=1e-6)
     with pytest.raises(ValueError, match="not linear in amt, and two doses into it at t = 0"):
         ti.simulate(m, p, [0.0], e, doses={"central": "amt / (1 + amt / d50)"})
+
+
+def test_a_steady_state_beside_a_state_a_billion_times_larger_and_epoch_times():
+    """Newton's step was judged against the largest state: beside 5e9 cells/L, the
+    drug's state "converged" at 4.25 where it is 12.9. And an event 1 s before a row
+    at epoch seconds (1.7e9) was moved onto the row (a tolerance of 1e-9 · |t|)."""
+
+    def c_at_1(cells: bool) -> float:
+        def f(x, p, u):
+            drug = -p[0] * x[0] / (0.1 + x[0])
+            return jnp.stack([drug, 5e8 - 0.1 * x[1]]) if cells else jnp.stack([drug])
+
+        n = 2 if cells else 1
+        m = ti.Model(rhs=f, output=lambda x, p: x[:1], states=["c", "cells"][:n],
+                     params=["vm"], outputs=["c"])  # fmt: skip
+        e = ti.Experiment(np.array([0.0, 1.0]), None, None,
+                          events=Events.doses(0.0, "c", 1.0, ii=12.0, addl=1, ss=True))  # fmt: skip
+        return float(ti.simulate(m, {"vm": 0.084}, [0.0] * n, e, substeps=16).x[1, 0])
+
+    assert c_at_1(True) == pytest.approx(c_at_1(False), rel=1e-9)
+    t0 = 1.7e9
+    e = ti.Experiment(t0 + np.array([0.0, 3600.0, 7200.0]), None, None,
+                      events=Events.doses([t0, t0 + 3599.0], "c", 100.0))  # fmt: skip
+    assert t0 + 3599.0 in e.t and e.P == 4
+
+
+def test_summed_doses_are_checked_with_a_lag_elsewhere_and_a_parameter_named_as_sympy():
+    """The check of doses given together was skipped when another state had a lag (its
+    grid sums them too), and a parameter named like a SymPy function (ff) could not be
+    parsed by it."""
+    m = ti.Model(rhs=lambda x, p, u: jnp.stack([-x[0], x[0] - p[0] * x[1]]),
+                 output=lambda x, p: x[1:], states=["depot", "central"],
+                 params=["k", "d50", "tlag", "ff"], outputs=["c"])  # fmt: skip
+    e = ti.Experiment(np.array([1.0, 2.0]), None, None,
+                      events=Events.doses([0.0, 0.0], "central", [100.0, 100.0]))  # fmt: skip
+    p = {"k": 0.1, "d50": 100.0, "tlag": 0.5, "ff": 1.0}
+    with pytest.raises(ValueError, match="not linear in amt, and two doses into it"):
+        ti.simulate(m, p, [0.0, 0.0], e, doses={"central": "amt / (1 + amt / d50)"},
+                    lags={"depot": "tlag"})  # fmt: skip
+    both = ti.simulate(m, p, [0.0, 0.0], e, doses={"central": "ff * amt"})
+    assert both.y[-1, 0] == pytest.approx(200 * np.exp(-0.2), rel=1e-6)

@@ -185,8 +185,8 @@ def unit_record(where: str, name: str, cols: _Columns, model, require_outputs: b
         keep = grid <= grid[last]
         grid, u, y, seen = grid[keep], u[keep], y[keep], seen[keep]
         cens = None if cens is None else cens[keep]
-    if grid.size == 1 and events is None:
-        raise SingleRow(f"{where}: the unit holds one row and no dose: nothing to integrate")
+    if grid.size == 1:  # (its doses after it are after its last observation)
+        raise SingleRow(f"{where}: the unit holds one time: nothing to integrate")
     try:
         e = Experiment(grid, u, y, name=name, events=events, observed=seen, censored=cens)
     except ValueError as err:
@@ -195,7 +195,7 @@ def unit_record(where: str, name: str, cols: _Columns, model, require_outputs: b
 
 
 class SingleRow(ValueError):
-    """A unit of one row and no dose (a fleet's file leaves it out, with a note)."""
+    """A unit of one time (a fleet's file leaves it out, with a note)."""
 
 
 def _size(cols: _Columns) -> int:
@@ -408,8 +408,8 @@ def records_of(label, cols, model, require_outputs, records, covariates, stem: s
         warnings.warn(text, category, stacklevel=3)
     if single:
         warnings.warn(
-            f"{label}: unit(s) {single} hold one row and no dose (nothing to integrate) and "
-            "are left out", DataNote, stacklevel=3
+            f"{label}: unit(s) {single} hold one time (one row, or a baseline at its dose's "
+            "time; nothing to integrate) and are left out", DataNote, stacklevel=3
         )  # fmt: skip
     warn_late(str(label), late)
     if not out:

@@ -69,18 +69,23 @@ def refined(problem, res: FitResult, refit, started: float) -> FitResult:
         try:
             worst = coarse_move(problem, res.theta)
         except KeyboardInterrupt:
-            raise FitInterrupted(replace(res, status=Status.INTERRUPTED)) from None
+            why = (
+                f"interrupted during the check of the substeps ({problem.discretisation.substeps})"
+            )
+            raise FitInterrupted(replace(res, notes=[*res.notes, *notes, why])) from None
         d = problem.discretisation
         if worst is None or d.chosen or d.substeps >= MAX_SUBSTEPS:
             break
         s, finer = d.substeps, problem.with_substeps(4 * d.substeps)
         again = refit(finer, res.theta)
-        if again.status is Status.INTERRUPTED or not np.isfinite(again.cost):
-            if again.status is Status.INTERRUPTED:  # its best point: at least as good
-                return replace(again, notes=[*again.notes, *notes])
+        if again.status is Status.INTERRUPTED:  # the fit it refines is finished: kept
+            why = f"interrupted in the refit at {4 * s} substeps: these are the estimates at {s}"
+            raise FitInterrupted(replace(res, notes=[*res.notes, *notes, why]))
+        if not np.isfinite(again.cost):
             notes.append(f"the fit could not be repeated at {4 * s} substeps from its "
                          f"estimates at {s}: these are the estimates at {s}")  # fmt: skip
             break
+        again = replace(again, starts=again.starts or res.starts)  # (the starts' ranking)
         notes.append(
             f"the substeps were raised from {s} to {4 * s} and the fit repeated from its "
             f"estimates: at {s} the predictions moved by {worst:.2g} residual SDs when the "

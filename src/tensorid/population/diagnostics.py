@@ -122,7 +122,10 @@ def _npde(obj, res, hy, K: int, rng) -> np.ndarray:
 
 def _pde(s: np.ndarray, obs: np.ndarray, K: int) -> np.ndarray:
     """The prediction discrepancies of one unit's observations ``obs`` (n,) among its
-    K simulations ``s`` (K, n), decorrelated."""
+    K simulations ``s`` (K, n), decorrelated; NaN where a simulation is not finite
+    (its discrepancies would mean nothing)."""
+    if not np.isfinite(s).all():
+        return np.full(obs.shape, np.nan)
     centred = s - s.mean(0)
     try:  # decorrelated by the simulations' own covariance
         Li = np.linalg.cholesky(centred.T @ centred / (K - 1))

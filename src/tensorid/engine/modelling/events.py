@@ -274,7 +274,7 @@ def merge(t, u, y, observed, events: Events):
     return (*regrid(t, u, y, observed, extra[extra <= t[-1]]), events, late)
 
 
-SNAP = 1e-9  # of the record's largest time: an event closer to a row is at the row
+SNAP = 1e-9  # of the record's span: an event closer to a row is at the row
 
 
 def snapped(events: Events, rows: np.ndarray) -> Events:
@@ -282,7 +282,8 @@ def snapped(events: Events, rows: np.ndarray) -> Events:
     t + k·II (3 × 0.7 = 2.0999999999999996 beside a row at 2.1) had made a node of its
     own just before the row, whose observation then saw the dose (the trough rule, an
     observation before a dose at its time, did not hold)."""
-    tol = SNAP * max(1.0, float(np.max(np.abs(rows))))
+    # the span's share, or a few roundings of the times themselves (epoch seconds)
+    tol = max(SNAP * float(rows[-1] - rows[0]), 64 * float(np.spacing(np.max(np.abs(rows)))))
     j = np.searchsorted(rows, events.time)
     lo, hi = rows[np.clip(j - 1, 0, rows.size - 1)], rows[np.clip(j, 0, rows.size - 1)]
     near = np.where(np.abs(lo - events.time) <= np.abs(hi - events.time), lo, hi)

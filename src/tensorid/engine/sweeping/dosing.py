@@ -132,7 +132,7 @@ class Dosing:
         the target's expression sees them) meet an expression not linear in amt,
         A(a + b) ≠ A(a) + A(b): each dose would not get its own."""
         text = dict(self.amounts).get(d)
-        if text is None or _linear_in_amt(text):
+        if text is None or _linear_in_amt(text, (*self.input_names, *self.params)):
             return
         raise ValueError(
             f"record {e.name!r}: doses[{self.states[d]!r}] = {text!r} is not linear in amt, "
@@ -212,15 +212,16 @@ class Dosing:
 
 
 @functools.lru_cache(maxsize=64)
-def _linear_in_amt(text: str) -> bool:
-    """Whether a dose expression is a(p, u) · amt: then doses given together may be
-    summed first."""
+def _linear_in_amt(text: str, names: tuple[str, ...]) -> bool:
+    """Whether a dose expression is a(p, u) · amt (``names``: the inputs' and the
+    parameters', symbols even where SymPy has a function of that name): then doses
+    given together may be summed first."""
     import sympy as sp
 
     from ..modelling.equations import _parse
 
     amt = sp.Symbol("amt")
-    expr = _parse("doses", text, {"amt": amt})
+    expr = _parse("doses", text, {"amt": amt, **{n: sp.Symbol(n) for n in names}})
     return sp.simplify(expr - amt * sp.diff(expr, amt)) == 0 and sp.diff(expr, amt, 2) == 0
 
 

@@ -53,6 +53,8 @@ def node_arrays(dosing, e, u) -> tuple[np.ndarray, np.ndarray]:
             if s in lagged:
                 rows.append((ev.time[k], d, ev.amount[k], 0.0, 0.0))
             else:
+                if fixed[h, 0, d]:
+                    dosing._summed(e, d, f"two doses into it at t = {t[h]:g}")
                 fixed[h, 0, d] += ev.amount[k]
         elif "reset-all" in ev.kind and (kind == "modelled-infusion" or s in lagged):
             raise ValueError(

@@ -49,11 +49,12 @@ import numpy as np
 from ..schemes.integrators import ExplicitRungeKutta
 
 NEWTON = 50
-TOL = 1e-13  # a Newton step this small relative to x_ss (its largest entry): converged
+TOL = 1e-13  # a Newton step this small relative to each state of x_ss: converged
 # ... or below this one and no longer shrinking: converged to the cycle's rounding (a
 # nonlinear cycle of thousands of steps, whose Ψ(z) − z is not known better); a last
 # step above it: not converged
 FLOOR = 1e-9
+SMALL = 1e-8  # a state below this share of the largest is judged against that share
 CYCLE_STEPS = 8
 
 
@@ -160,8 +161,11 @@ def _implicit(cycle, dosed):
             z, i, size, _ = state
             psi, Jz, _, _ = jacobians(z, p, uu, params=False)
             dz = jnp.linalg.solve(gap_matrix(Jz, uu), psi - z)
-            scale = jnp.maximum(jnp.max(jnp.abs(z + dz)), jnp.finfo(z.dtype).tiny)
-            return z + dz, i + 1, jnp.max(jnp.abs(dz)) / scale, size
+            # each state's step against its own size (a drug's mg beside 5e9 cells/L
+            # had "converged" at the cells' scale), above a floor of the largest's
+            big = jnp.max(jnp.abs(z + dz))
+            scale = jnp.maximum(jnp.abs(z + dz) + SMALL * big, jnp.finfo(z.dtype).tiny)
+            return z + dz, i + 1, jnp.max(jnp.abs(dz) / scale), size
 
         def more(state):
             _, i, size, last = state
