@@ -5,6 +5,7 @@ checked against jax.hessian of a plainly written multiple-dose cost."""
 from __future__ import annotations
 
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 
 import jax
 import jax.numpy as jnp
@@ -547,7 +548,8 @@ def test_a_fit_whose_default_substeps_are_too_coarse_for_its_intervals_refits_fi
     assert res.problem.discretisation.substeps == 16
     assert abs(res.params["ka"] - 1.0) < 0.05 and abs(res.params["v"] - 25.0) < 1.0
     assert any("substeps were raised from 4 to 16" in n for n in res.notes)
-    ranked = ti.fit(_oral(), starts=2, workers=1)  # the refit keeps the starts' ranking
+    with ThreadPoolExecutor(1) as pool:  # (no process to spawn)
+        ranked = ti.fit(_oral(), starts=2, executor=pool)  # the refit keeps their ranking
     assert len(ranked.starts) == 2 and ranked.problem.discretisation.substeps == 16
     kept = ti.fit(_oral(substeps=4))
     assert kept.problem.discretisation.substeps == 4 and abs(kept.params["ka"] - 1.0) > 0.1
