@@ -835,6 +835,7 @@ def plain_filter_with_gaps(model, theta, problem, substeps):
     return J
 
 
+@pytest.mark.slow  # compiles the masked filter, its reference and two fits (18 s cold)
 def test_a_filter_on_a_record_with_gaps_updates_with_what_was_measured():
     """Lotka-Volterra, both populations counted at some samples, one at others, none
     at a few: the filter's J, ∇J and ∇²J are those of a filter that updates with the
