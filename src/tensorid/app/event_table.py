@@ -367,8 +367,8 @@ def _inputs(where, cols, model, first) -> np.ndarray:
 def records_of(label, cols, model, require_outputs, records, covariates, stem: str) -> list:
     """The records of an event table: one per unit (``stem``: the name of the file's
     one record without ``records``), each with its doses and its rows without an
-    observation; the units without any observation, or of one row and no dose, left
-    out with a note, the events after a unit's last row with one note for all, and
+    observation; the units without any observation, or of one time, left out with a
+    note, the events after a unit's last row with one note for all, and
     each unit's notes said once for the file."""
 
     if "t" not in cols.values:

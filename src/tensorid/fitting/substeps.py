@@ -16,7 +16,7 @@ import numpy as np
 
 from ..analysis.results import FitInterrupted, FitResult
 from ..engine.schemes.status import Status
-from ..population.refine import MAX_SUBSTEPS, coarse_note
+from ..population.refine import MAX_SUBSTEPS, coarse_note, raised_note
 
 MOVE = 0.1  # of a residual SD: the largest move of a prediction that is no move
 
@@ -86,12 +86,7 @@ def refined(problem, res: FitResult, refit, started: float) -> FitResult:
                          f"estimates at {s}: these are the estimates at {s}")  # fmt: skip
             break
         again = replace(again, starts=again.starts or res.starts)  # (the starts' ranking)
-        notes.append(
-            f"the substeps were raised from {s} to {4 * s} and the fit repeated from its "
-            f"estimates: at {s} the predictions moved by {worst:.2g} residual SDs when the "
-            "substeps doubled (--substeps on the command line, substeps= in Python, "
-            "chooses them)"
-        )
+        notes.append(raised_note(s, worst))
         problem, res, worst = finer, again, None
     if worst is not None:
         notes.append(coarse_note(problem.discretisation, worst))

@@ -29,7 +29,7 @@ from .boundary import (
 )
 from .distributed import UnitMap, evaluate_chunk
 from .objective import Objective
-from .refine import MAX_SUBSTEPS, coarse_note, coarse_steps, presized, unrefined
+from .refine import MAX_SUBSTEPS, coarse_note, coarse_steps, presized, raised_note, unrefined
 from .result import PopulationResult
 from .start import drawn_starts, start_point
 
@@ -240,12 +240,7 @@ def _refined(obj: Objective, res: PopulationResult, etas, fit: dict, collapsed: 
             notes.append(unrefined(refit[0], s))
             res = replace(res, seconds=time.perf_counter() - fit["began"])  # (the refit too)
             break
-        notes.append(
-            f"the substeps were raised from {s} to {4 * s} and the fit repeated from its "
-            f"estimates: at {s} the predictions moved by {worst:.2g} residual SDs when the "
-            "substeps doubled (--substeps on the command line, substeps= in Python, "
-            "chooses them)"
-        )
+        notes.append(raised_note(s, worst))
         obj, res, etas = refit
         notes += [n for n in res.notes if n not in notes]
         steps = obj.problem.discretisation

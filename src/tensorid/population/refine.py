@@ -101,6 +101,16 @@ def unrefined(finer: Objective, s: int) -> str:
             "(substeps= in Python) starts there afresh")  # fmt: skip
 
 
+def raised_note(s: int, worst: float) -> str:
+    """The note of a fit repeated at 4 × ``s`` substeps (a fleet's or one system's)."""
+    return (
+        f"the substeps were raised from {s} to {4 * s} and the fit repeated from its "
+        f"estimates: at {s} the predictions moved by {worst:.2g} residual SDs when the "
+        "substeps doubled (--substeps on the command line, substeps= in Python, "
+        "chooses them)"
+    )
+
+
 def coarse_note(d, worst: float) -> str:
     return (
         f"the predictions at the estimates move by {worst:.2g} residual SDs when the "
